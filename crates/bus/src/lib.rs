@@ -1,0 +1,554 @@
+//! Typed publish/subscribe over iceoryx2 shared memory.
+//!
+//! Every channel is an iceoryx2 publish-subscribe service paired with an event
+//! service of the same name. A [`Publisher`] stamps each sample with its own
+//! contiguous `seq`, writes it into shared memory and notifies; a
+//! [`Subscriber`] counts `seq` gaps per publisher, and consumers block in a
+//! WaitSet with a deadline ([`Bus::run`]) instead of polling.
+//!
+//! ```no_run
+//! use jetbench_bus::{Bus, Flow, Wake};
+//! use jetbench_msgs::{channels, Thrust};
+//! use std::time::Duration;
+//!
+//! # fn main() -> Result<(), jetbench_bus::BusError> {
+//! let bus = Bus::open("example")?;
+//! let mut publisher = bus.publisher(channels::THRUST)?;
+//! let subscriber = bus.subscriber(channels::THRUST, 16)?;
+//! publisher.publish(Thrust { thrust_n: 40.0, ..Thrust::default() })?;
+//! bus.run(&[(&subscriber, Some(Duration::from_millis(50)))], None, |wake| {
+//!     if let Wake::Input(0) = wake {
+//!         while let Ok(Some(thrust)) = subscriber.try_recv() {
+//!             println!("{} N (seq {})", thrust.thrust_n, thrust.seq);
+//!         }
+//!     }
+//!     Flow::Stop
+//! })?;
+//! # Ok(())
+//! # }
+//! ```
+//!
+//! Signals: the bus installs its own SIGINT/SIGTERM flag (iceoryx2's handling is
+//! disabled, because its latch is reset on read and overwritten by any other
+//! signal, e.g. SIGCHLD). Every wait returns when the flag is set, and
+//! [`Bus::stop_requested`] tells loops to end.
+
+use std::cell::{Cell, RefCell};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, OnceLock};
+use std::time::{Duration, Instant};
+
+use iceoryx2::node::{NodeState, NodeView};
+use iceoryx2::port::listener::{Listener, ListenerWaitError};
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::prelude::*;
+use jetbench_msgs::{Channel, Sample};
+
+/// The longest any single wait blocks before the stop flag is checked again.
+const SIGNAL_POLL: Duration = Duration::from_millis(50);
+
+/// Capacity limits shared by every process, so that `open_or_create` agrees.
+pub mod limits {
+    /// Publishers per channel (`bench/health` has one per service).
+    pub const MAX_PUBLISHERS: usize = 8;
+    /// Subscribers per channel: consumers, recorder, launcher status, `echo`, `hz`.
+    pub const MAX_SUBSCRIBERS: usize = 16;
+    /// Deepest subscriber queue a channel allows; the recorder asks for this.
+    pub const MAX_BUFFER: usize = 512;
+    /// Nodes that may open one channel.
+    pub const MAX_NODES: usize = 32;
+}
+
+/// Everything that can fail on the bus, with the channel concerned.
+#[derive(Debug, thiserror::Error)]
+pub enum BusError {
+    #[error("invalid bus name {name:?}: {reason}")]
+    InvalidName { name: String, reason: String },
+    #[error("cannot create the bus node {node:?}: {reason} (is /dev/shm writable?)")]
+    NodeCreate { node: String, reason: String },
+    #[error(
+        "cannot open channel {channel}: {reason} (a process of an older build may still hold it; stop it and retry)"
+    )]
+    ServiceOpen { channel: String, reason: String },
+    #[error("cannot create a port on {channel}: {reason}")]
+    PortCreate { channel: String, reason: String },
+    #[error("cannot publish on {channel}: {reason}")]
+    Send { channel: String, reason: String },
+    #[error("cannot receive on {channel}: {reason}")]
+    Receive { channel: String, reason: String },
+    #[error("cannot wait: {reason}")]
+    Wait { reason: String },
+    #[error("cannot install signal handlers: {0}")]
+    Signal(#[from] std::io::Error),
+}
+
+fn stop_flag() -> &'static Arc<AtomicBool> {
+    static FLAG: OnceLock<Arc<AtomicBool>> = OnceLock::new();
+    FLAG.get_or_init(|| Arc::new(AtomicBool::new(false)))
+}
+
+/// Installs the SIGINT/SIGTERM flag once per process.
+pub fn install_signal_flag() -> Result<(), BusError> {
+    static INSTALLED: OnceLock<Result<(), String>> = OnceLock::new();
+    let result = INSTALLED.get_or_init(|| {
+        for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+            signal_hook::flag::register(signal, Arc::clone(stop_flag())).map_err(|e| e.to_string())?;
+        }
+        Ok(())
+    });
+    result.clone().map_err(|e| BusError::Signal(std::io::Error::other(e)))
+}
+
+/// True once SIGINT or SIGTERM arrived (or [`request_stop`] was called).
+pub fn stop_requested() -> bool {
+    stop_flag().load(Ordering::Relaxed)
+}
+
+/// Asks every loop of this process to end, as a signal would.
+pub fn request_stop() {
+    stop_flag().store(true, Ordering::Relaxed);
+}
+
+/// Sets iceoryx2's log level from `IOX2_LOG_LEVEL`, defaulting to errors only
+/// (its default level warns about the missing config file on every start).
+fn quiet_iceoryx_log() {
+    set_log_level_from_env_or(LogLevel::Error);
+}
+
+/// Removes the shared-memory resources of dead processes' nodes.
+/// Returns how many dead nodes were cleaned.
+pub fn cleanup_dead_nodes() -> usize {
+    quiet_iceoryx_log();
+    let mut cleaned = 0;
+    let _ = Node::<ipc::Service>::list(Config::global_config(), |state| {
+        if let NodeState::<ipc::Service>::Dead(view) = state {
+            match view.try_remove_stale_resources() {
+                Ok(_) => cleaned += 1,
+                Err(e) => tracing::warn!("could not clean a dead bus node: {e:?}"),
+            }
+        }
+        CallbackProgression::Continue
+    });
+    cleaned
+}
+
+/// Node names of the live bus participants.
+pub fn list_nodes() -> Vec<String> {
+    quiet_iceoryx_log();
+    let mut names = Vec::new();
+    let _ = Node::<ipc::Service>::list(Config::global_config(), |state| {
+        if let NodeState::<ipc::Service>::Alive(view) = state {
+            if let Some(details) = view.details() {
+                names.push(details.name().as_str().to_string());
+            }
+        }
+        CallbackProgression::Continue
+    });
+    names.sort();
+    names
+}
+
+/// Names of the publish-subscribe services that exist on this machine.
+pub fn list_channels() -> Vec<String> {
+    quiet_iceoryx_log();
+    let mut names = Vec::new();
+    let _ = ipc::Service::list(Config::global_config(), |service| {
+        if matches!(
+            service.static_details.messaging_pattern(),
+            iceoryx2::service::static_config::messaging_pattern::MessagingPattern::PublishSubscribe(_)
+        ) {
+            names.push(service.static_details.name().as_str().to_string());
+        }
+        CallbackProgression::Continue
+    });
+    names.sort();
+    names.dedup();
+    names
+}
+
+/// One process's connection to the bus.
+pub struct Bus {
+    node: Node<ipc::Service>,
+    name: String,
+}
+
+impl Bus {
+    /// Cleans up dead nodes, creates this process's node and installs the
+    /// SIGINT/SIGTERM flag.
+    pub fn open(node_name: &str) -> Result<Bus, BusError> {
+        quiet_iceoryx_log();
+        install_signal_flag()?;
+        let cleaned = cleanup_dead_nodes();
+        if cleaned > 0 {
+            tracing::info!("cleaned {cleaned} dead bus node(s) left by killed processes");
+        }
+        let name: NodeName = node_name
+            .try_into()
+            .map_err(|e| BusError::InvalidName { name: node_name.into(), reason: format!("{e:?}") })?;
+        let node = NodeBuilder::new()
+            .name(&name)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc::Service>()
+            .map_err(|e| BusError::NodeCreate { node: node_name.into(), reason: format!("{e:?}") })?;
+        Ok(Bus { node, name: node_name.to_string() })
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// See [`stop_requested`].
+    pub fn stop_requested(&self) -> bool {
+        stop_requested()
+    }
+
+    fn service_name(channel: &str) -> Result<ServiceName, BusError> {
+        channel.try_into().map_err(|e| BusError::InvalidName { name: channel.into(), reason: format!("{e:?}") })
+    }
+
+    fn pubsub<T: Sample>(
+        &self,
+        channel: Channel<T>,
+    ) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>, BusError> {
+        self.node
+            .service_builder(&Self::service_name(channel.name)?)
+            .publish_subscribe::<T>()
+            .max_publishers(limits::MAX_PUBLISHERS)
+            .max_subscribers(limits::MAX_SUBSCRIBERS)
+            .subscriber_max_buffer_size(limits::MAX_BUFFER)
+            .max_nodes(limits::MAX_NODES)
+            .history_size(0)
+            .enable_safe_overflow(true)
+            .open_or_create()
+            .map_err(|e| BusError::ServiceOpen { channel: channel.name.into(), reason: format!("{e:?}") })
+    }
+
+    fn event(
+        &self,
+        channel: &str,
+    ) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, BusError> {
+        self.node
+            .service_builder(&Self::service_name(channel)?)
+            .event()
+            .max_notifiers(limits::MAX_PUBLISHERS)
+            .max_listeners(limits::MAX_SUBSCRIBERS)
+            .max_nodes(limits::MAX_NODES)
+            .open_or_create()
+            .map_err(|e| BusError::ServiceOpen { channel: format!("{channel} (event)"), reason: format!("{e:?}") })
+    }
+
+    /// Creates a publisher on `channel`. Its `seq` starts at 0.
+    pub fn publisher<T: Sample>(&self, channel: Channel<T>) -> Result<Publisher<T>, BusError> {
+        let port_err = |e: String| BusError::PortCreate { channel: channel.name.into(), reason: e };
+        let publisher = self.pubsub(channel)?.publisher_builder().create().map_err(|e| port_err(format!("{e:?}")))?;
+        let notifier = self.event(channel.name)?.notifier_builder().create().map_err(|e| port_err(format!("{e:?}")))?;
+        Ok(Publisher { publisher, notifier, channel, next_seq: 0 })
+    }
+
+    /// Creates a subscriber on `channel` that queues up to `depth` samples
+    /// (at most [`limits::MAX_BUFFER`]); older samples are dropped on overflow
+    /// and show up as `seq` gaps.
+    pub fn subscriber<T: Sample>(&self, channel: Channel<T>, depth: usize) -> Result<Subscriber<T>, BusError> {
+        let port_err = |e: String| BusError::PortCreate { channel: channel.name.into(), reason: e };
+        let subscriber = self
+            .pubsub(channel)?
+            .subscriber_builder()
+            .buffer_size(depth.clamp(1, limits::MAX_BUFFER))
+            .create()
+            .map_err(|e| port_err(format!("{e:?}")))?;
+        let listener = self.event(channel.name)?.listener_builder().create().map_err(|e| port_err(format!("{e:?}")))?;
+        Ok(Subscriber {
+            subscriber,
+            listener,
+            channel,
+            seq_tracks: RefCell::new(Vec::new()),
+            received: Cell::new(0),
+            gaps: Cell::new(0),
+        })
+    }
+
+    /// Blocks in a WaitSet on `inputs` until the callback returns
+    /// [`Flow::Stop`] or a stop is requested.
+    ///
+    /// Each input may carry a deadline: if it sends nothing for that long the
+    /// callback gets [`Wake::Missed`], and again after each further deadline.
+    /// `tick`, if given, wakes the loop periodically with [`Wake::Tick`]. The
+    /// input's pending events are consumed before the callback runs; the
+    /// callback receives the samples itself.
+    pub fn run<F>(
+        &self,
+        inputs: &[(&dyn Trigger, Option<Duration>)],
+        tick: Option<Duration>,
+        mut on_wake: F,
+    ) -> Result<LoopExit, BusError>
+    where
+        F: FnMut(Wake) -> Flow,
+    {
+        let wait_err = |what: &str, e: String| BusError::Wait { reason: format!("{what}: {e}") };
+        let waitset = WaitSetBuilder::new()
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc::Service>()
+            .map_err(|e| wait_err("create waitset", format!("{e:?}")))?;
+        let mut guards = Vec::with_capacity(inputs.len());
+        for (trigger, deadline) in inputs {
+            let guard = match deadline {
+                Some(d) => waitset.attach_deadline(trigger.listener(), *d),
+                None => waitset.attach_notification(trigger.listener()),
+            }
+            .map_err(|e| wait_err("attach input", format!("{e:?}")))?;
+            guards.push(guard);
+        }
+        // Bounds the time to notice a stop request, whatever the inputs do.
+        let signal_guard = waitset.attach_interval(SIGNAL_POLL).map_err(|e| wait_err("attach", format!("{e:?}")))?;
+        let tick_guard = match tick {
+            Some(t) => Some(waitset.attach_interval(t).map_err(|e| wait_err("attach tick", format!("{e:?}")))?),
+            None => None,
+        };
+
+        let mut stopped = false;
+        loop {
+            if stop_requested() {
+                return Ok(LoopExit::Terminated);
+            }
+            let result = waitset.wait_and_process_once(|id| {
+                for (i, guard) in guards.iter().enumerate() {
+                    if id.has_event_from(guard) {
+                        inputs[i].0.consume_events();
+                        if on_wake(Wake::Input(i)) == Flow::Stop {
+                            stopped = true;
+                            return CallbackProgression::Stop;
+                        }
+                    } else if id.has_missed_deadline(guard) && on_wake(Wake::Missed(i)) == Flow::Stop {
+                        stopped = true;
+                        return CallbackProgression::Stop;
+                    }
+                }
+                if let Some(tick_guard) = &tick_guard {
+                    if id.has_event_from(tick_guard) && on_wake(Wake::Tick) == Flow::Stop {
+                        stopped = true;
+                        return CallbackProgression::Stop;
+                    }
+                }
+                let _ = id.has_event_from(&signal_guard);
+                CallbackProgression::Continue
+            });
+            match result {
+                Ok(_) if stopped => return Ok(LoopExit::Stopped),
+                // Interrupt: any signal (SIGCHLD included); the flag decides.
+                Ok(_) => {}
+                Err(e) => return Err(wait_err("wait", format!("{e:?}"))),
+            }
+        }
+    }
+
+    /// Sleeps until `until` (monotonic), waking early only for a stop request.
+    /// Returns false if a stop was requested.
+    pub fn sleep_until(&self, until: Instant) -> bool {
+        loop {
+            if stop_requested() {
+                return false;
+            }
+            let now = Instant::now();
+            if now >= until {
+                return true;
+            }
+            std::thread::sleep((until - now).min(SIGNAL_POLL));
+        }
+    }
+}
+
+/// Why a wake-up happened in [`Bus::run`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Wake {
+    /// Input `i` (index into the inputs slice) has new samples.
+    Input(usize),
+    /// Input `i` sent nothing within its deadline.
+    Missed(usize),
+    /// The periodic tick.
+    Tick,
+}
+
+/// What the [`Bus::run`] callback wants next.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Flow {
+    Continue,
+    Stop,
+}
+
+/// Why [`Bus::run`] returned.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LoopExit {
+    /// The callback asked to stop.
+    Stopped,
+    /// SIGINT or SIGTERM.
+    Terminated,
+}
+
+/// Something [`Bus::run`] can wait on.
+pub trait Trigger {
+    fn listener(&self) -> &Listener<ipc::Service>;
+    /// Consumes pending notifications so they do not wake the loop again.
+    fn consume_events(&self) {
+        let _ = self.listener().try_wait(|_| {});
+    }
+}
+
+/// Publishes samples of one type, stamping each with a contiguous `seq`.
+pub struct Publisher<T: Sample> {
+    publisher: iceoryx2::port::publisher::Publisher<ipc::Service, T, ()>,
+    notifier: Notifier<ipc::Service>,
+    channel: Channel<T>,
+    next_seq: u64,
+}
+
+impl<T: Sample> Publisher<T> {
+    /// Writes `sample` into shared memory with the next `seq` and notifies
+    /// the channel's listeners. Returns the `seq` given to the sample.
+    pub fn publish(&mut self, mut sample: T) -> Result<u64, BusError> {
+        let seq = self.next_seq;
+        sample.set_seq(seq);
+        let send_err = |e: String| BusError::Send { channel: self.channel.name.into(), reason: e };
+        let slot = self.publisher.loan_uninit().map_err(|e| send_err(format!("{e:?}")))?;
+        slot.write_payload(sample).send().map_err(|e| send_err(format!("{e:?}")))?;
+        self.next_seq += 1;
+        self.notifier.notify().map_err(|e| send_err(format!("notify: {e:?}")))?;
+        Ok(seq)
+    }
+
+    /// The `seq` the next sample will get.
+    pub fn next_seq(&self) -> u64 {
+        self.next_seq
+    }
+
+    pub fn channel(&self) -> Channel<T> {
+        self.channel
+    }
+}
+
+/// Receives samples of one type and counts lost ones from `seq` gaps.
+pub struct Subscriber<T: Sample> {
+    subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, T, ()>,
+    listener: Listener<ipc::Service>,
+    channel: Channel<T>,
+    /// Next expected `seq` per publisher.
+    seq_tracks: RefCell<Vec<(iceoryx2::identifiers::UniquePublisherId, u64)>>,
+    received: Cell<u64>,
+    gaps: Cell<u64>,
+}
+
+impl<T: Sample> Subscriber<T> {
+    /// Takes the oldest queued sample, if any.
+    pub fn try_recv(&self) -> Result<Option<T>, BusError> {
+        let sample = self
+            .subscriber
+            .receive()
+            .map_err(|e| BusError::Receive { channel: self.channel.name.into(), reason: format!("{e:?}") })?;
+        let Some(sample) = sample else { return Ok(None) };
+        let value = *sample.payload();
+        self.track(sample.header().publisher_id(), value.seq());
+        self.received.set(self.received.get() + 1);
+        Ok(Some(value))
+    }
+
+    fn track(&self, publisher: iceoryx2::identifiers::UniquePublisherId, seq: u64) {
+        let mut tracks = self.seq_tracks.borrow_mut();
+        match tracks.iter_mut().find(|(id, _)| *id == publisher) {
+            Some((_, expected)) => {
+                if seq > *expected {
+                    self.gaps.set(self.gaps.get() + (seq - *expected));
+                }
+                *expected = seq + 1;
+            }
+            None => tracks.push((publisher, seq + 1)),
+        }
+    }
+
+    /// Drains the queue and returns the newest sample, if any arrived.
+    pub fn latest(&self) -> Result<Option<T>, BusError> {
+        let mut newest = None;
+        while let Some(sample) = self.try_recv()? {
+            newest = Some(sample);
+        }
+        Ok(newest)
+    }
+
+    /// Blocks until a sample is queued or `timeout` passes (or a stop is
+    /// requested); returns the oldest sample if one arrived.
+    pub fn recv_timeout(&self, timeout: Duration) -> Result<Option<T>, BusError> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            if let Some(sample) = self.try_recv()? {
+                return Ok(Some(sample));
+            }
+            let now = Instant::now();
+            if now >= deadline || stop_requested() {
+                return Ok(None);
+            }
+            match self.listener.timed_wait(|_| {}, (deadline - now).min(SIGNAL_POLL)) {
+                // A signal cut the wait short; the stop flag decides what it meant.
+                Ok(_) | Err(ListenerWaitError::InterruptSignal) => {}
+                Err(e) => {
+                    return Err(BusError::Receive { channel: self.channel.name.into(), reason: format!("{e:?}") })
+                }
+            }
+        }
+    }
+
+    /// Samples received so far.
+    pub fn received(&self) -> u64 {
+        self.received.get()
+    }
+
+    /// Samples lost so far (sum of `seq` gaps over all publishers).
+    pub fn gaps(&self) -> u64 {
+        self.gaps.get()
+    }
+
+    /// Publishers seen so far.
+    pub fn publishers_seen(&self) -> usize {
+        self.seq_tracks.borrow().len()
+    }
+
+    pub fn channel(&self) -> Channel<T> {
+        self.channel
+    }
+}
+
+impl<T: Sample> Trigger for Subscriber<T> {
+    fn listener(&self) -> &Listener<ipc::Service> {
+        &self.listener
+    }
+}
+
+/// A subscriber with its sample type erased, for code that handles every
+/// channel alike (the recorder).
+pub trait AnySubscriber: Trigger {
+    fn channel_name(&self) -> &'static str;
+    /// Takes every queued sample and hands `(seq, stamp_ns, bytes)` to `sink`.
+    fn drain_raw(&self, sink: &mut dyn FnMut(u64, u64, &[u8])) -> Result<usize, BusError>;
+    fn received(&self) -> u64;
+    fn gaps(&self) -> u64;
+}
+
+impl<T: Sample> AnySubscriber for Subscriber<T> {
+    fn channel_name(&self) -> &'static str {
+        self.channel.name
+    }
+
+    fn drain_raw(&self, sink: &mut dyn FnMut(u64, u64, &[u8])) -> Result<usize, BusError> {
+        let mut n = 0;
+        while let Some(sample) = self.try_recv()? {
+            sink(sample.seq(), sample.stamp_ns(), sample.as_bytes());
+            n += 1;
+        }
+        Ok(n)
+    }
+
+    fn received(&self) -> u64 {
+        Subscriber::received(self)
+    }
+
+    fn gaps(&self) -> u64 {
+        Subscriber::gaps(self)
+    }
+}

@@ -1,0 +1,31 @@
+//! EKF observer of thrust and thrust rate from thrust measurements alone.
+//!
+//! ```
+//! use jetbench_estim::{ObserverConfig, ThrustObserver};
+//! use jetbench_model::Preset;
+//!
+//! let mut observer = ThrustObserver::new(Preset::P100Diesel.params(), ObserverConfig::default());
+//! // The first measurement initialises the thrust estimate.
+//! let first = observer.step(24.9, 50.0)?;
+//! assert_eq!(first.thrust_n, 24.9);
+//! // Each later call predicts over the last 10 ms with the throttle that was applied,
+//! // then corrects with the new measurement.
+//! let next = observer.step(25.3, 50.0)?;
+//! assert!(next.thrust_rate_n_per_s.is_finite());
+//! // Bad input is rejected and leaves the filter untouched.
+//! assert!(observer.step(f64::NAN, 50.0).is_err());
+//! # Ok::<(), jetbench_estim::EstimError>(())
+//! ```
+//!
+//! The bench measures only thrust; the controllers need `[T, Ṫ]`. The filter uses the
+//! discretisation of plant.md at `Δt = STEP_S`:
+//!
+//! ```text
+//! T[k+1] = T + Ṫ·Δt + T̈·Δt²/2,   Ṫ[k+1] = Ṫ + T̈·Δt,   T̈ = f(T, Ṫ) + g(T, Ṫ)·v(u),   y = T
+//! ```
+//!
+//! with an analytic Jacobian and white unmodelled acceleration as process noise.
+
+mod observer;
+
+pub use observer::{EstimError, Estimate, ObserverConfig, ThrustObserver};

@@ -1,0 +1,45 @@
+//! A step must not touch the heap: the observer runs in a 100 Hz loop.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use jetbench_estim::{ObserverConfig, ThrustObserver};
+use jetbench_model::Preset;
+
+struct Counting;
+
+static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+// SAFETY: forwards to the system allocator unchanged, only counting calls.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(layout) }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+#[test]
+fn step_does_not_allocate() {
+    let mut observer = ThrustObserver::new(Preset::P100Diesel.params(), ObserverConfig::default());
+    let mut checksum = 0.0;
+    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    for k in 0..1000 {
+        let y = 20.0 + (f64::from(k) * 0.05).sin();
+        if let Ok(e) = observer.step(y, 50.0) {
+            checksum += e.thrust_n;
+        }
+        let _ = observer.step(f64::NAN, 50.0);
+    }
+    let after = ALLOCATIONS.load(Ordering::Relaxed);
+    assert!(checksum.is_finite());
+    assert_eq!(after - before, 0, "allocations during steps");
+}

@@ -1,0 +1,155 @@
+//! Observer accuracy, input rejection, fallbacks and determinism.
+
+mod common;
+
+use common::{rms, simulate_run, Run, NOISE_VAR_N2};
+use jetbench_estim::{EstimError, Estimate, ObserverConfig, ThrustObserver};
+use jetbench_model::{Params, Preset, STEP_S};
+
+/// Skip the first second, while the filter converges from its initial guess.
+const SKIP: usize = 100;
+
+fn observe(run: &Run, params: Params, config: ObserverConfig) -> (Vec<Estimate>, u64) {
+    let mut observer = ThrustObserver::new(params, config);
+    let estimates =
+        run.thrust_meas_n.iter().zip(&run.throttle_pct).map(|(&y, &u)| observer.step(y, u).unwrap()).collect();
+    (estimates, observer.fallbacks())
+}
+
+fn errors(run: &Run, estimates: &[Estimate]) -> (f64, f64, f64) {
+    let n = run.truth.len();
+    let thrust = rms((SKIP..n).map(|k| estimates[k].thrust_n - run.truth[k].thrust_n));
+    let rate = rms((SKIP..n).map(|k| estimates[k].thrust_rate_n_per_s - run.truth[k].thrust_rate_n_per_s));
+    let first_difference = rms((SKIP..n)
+        .map(|k| (run.thrust_meas_n[k] - run.thrust_meas_n[k - 1]) / STEP_S - run.truth[k].thrust_rate_n_per_s));
+    (thrust, rate, first_difference)
+}
+
+#[test]
+fn matched_model_beats_the_noise_and_a_first_difference() {
+    let params = Preset::P100Diesel.params();
+    let run = simulate_run(params, 60.0, 7);
+    let (estimates, fallbacks) = observe(&run, params, ObserverConfig::default());
+    let (thrust_rms, rate_rms, fd_rms) = errors(&run, &estimates);
+    assert_eq!(fallbacks, 0);
+    assert!(thrust_rms < NOISE_VAR_N2.sqrt(), "thrust rms {thrust_rms} N");
+    assert!(thrust_rms < 1.0, "thrust rms {thrust_rms} N");
+    assert!(rate_rms < fd_rms / 3.0, "rate rms {rate_rms} vs first difference {fd_rms} N/s");
+    assert!(rate_rms < 10.0, "rate rms {rate_rms} N/s");
+}
+
+#[test]
+fn mismatched_study_models_still_track() {
+    // The default process noise is chosen for this case: a model that is off by a few N.
+    let run = simulate_run(Preset::P100Diesel.params(), 60.0, 11);
+    for preset in [Preset::P100Ekf, Preset::P100Ls] {
+        let (estimates, _) = observe(&run, preset.params(), ObserverConfig::default());
+        let (thrust_rms, rate_rms, fd_rms) = errors(&run, &estimates);
+        assert!(thrust_rms < NOISE_VAR_N2.sqrt(), "{preset}: thrust rms {thrust_rms} N");
+        assert!(rate_rms < fd_rms / 3.0, "{preset}: rate rms {rate_rms} N/s");
+        let worst_n =
+            (SKIP..run.truth.len()).map(|k| (estimates[k].thrust_n - run.truth[k].thrust_n).abs()).fold(0.0, f64::max);
+        assert!(worst_n < 8.0, "{preset}: worst thrust error {worst_n} N");
+    }
+}
+
+#[test]
+fn first_call_initialises_from_the_measurement() {
+    let mut observer = ThrustObserver::new(Preset::P100Diesel.params(), ObserverConfig::default());
+    let e = observer.step(31.5, 60.0).unwrap();
+    assert_eq!(e.thrust_n, 31.5);
+    assert_eq!(e.thrust_rate_n_per_s, 0.0);
+    assert_eq!(e.innovation_n, 0.0);
+    assert_eq!(e.thrust_var_n2, ObserverConfig::default().initial_thrust_var_n2);
+    let params = Preset::P100Diesel.params();
+    assert_eq!(e.thrust_accel_n_per_s2, params.accel(31.5, 0.0, 60.0));
+}
+
+#[test]
+fn non_finite_inputs_are_rejected_without_corrupting_state() {
+    let params = Preset::P100Diesel.params();
+    let run = simulate_run(params, 3.0, 3);
+    let mut observer = ThrustObserver::new(params, ObserverConfig::default());
+    for k in 0..150 {
+        observer.step(run.thrust_meas_n[k], run.throttle_pct[k]).unwrap();
+    }
+    let mut untouched = observer.clone();
+    for (y, u) in [(f64::NAN, 50.0), (f64::INFINITY, 50.0), (30.0, f64::NAN)] {
+        assert!(matches!(observer.step(y, u), Err(EstimError::NonFiniteInput { .. })));
+    }
+    for k in 150..run.truth.len() {
+        let (y, u) = (run.thrust_meas_n[k], run.throttle_pct[k]);
+        assert_eq!(observer.step(y, u).unwrap(), untouched.step(y, u).unwrap());
+    }
+}
+
+#[test]
+fn same_inputs_give_bit_identical_outputs() {
+    let params = Preset::P100Diesel.params();
+    let run = simulate_run(params, 20.0, 5);
+    let (a, _) = observe(&run, params, ObserverConfig::default());
+    let (b, _) = observe(&run, params, ObserverConfig::default());
+    let bits = |e: &Estimate| {
+        [e.thrust_n, e.thrust_rate_n_per_s, e.thrust_accel_n_per_s2, e.innovation_n, e.thrust_var_n2, e.thrust_rate_var]
+            .map(f64::to_bits)
+    };
+    assert_eq!(a.len(), b.len());
+    for (x, y) in a.iter().zip(&b) {
+        assert_eq!(bits(x), bits(y));
+    }
+}
+
+#[test]
+fn a_diverging_model_falls_back_and_never_returns_nan() {
+    // Acceleration far beyond anything physical: every model prediction is unusable.
+    let mut params = Preset::P100Diesel.params();
+    params.c = 1e300;
+    let run = simulate_run(Preset::P100Diesel.params(), 5.0, 9);
+    let mut observer = ThrustObserver::new(params, ObserverConfig::default());
+    for (k, (&y, &u)) in run.thrust_meas_n.iter().zip(&run.throttle_pct).enumerate() {
+        let e = observer.step(y, u).unwrap();
+        for value in [e.thrust_n, e.thrust_rate_n_per_s, e.thrust_accel_n_per_s2, e.thrust_var_n2] {
+            assert!(value.is_finite(), "sample {k}: {e:?}");
+        }
+        assert!((e.thrust_n - run.truth[k].thrust_n).abs() < 15.0, "sample {k}: {e:?}");
+    }
+    assert_eq!(observer.fallbacks(), run.truth.len() as u64 - 1);
+}
+
+#[test]
+fn the_study_ekf_model_on_its_diverging_step_stays_finite() {
+    // p100-ekf diverges on 70 -> 100 %; fed measurements of a real (bounded) step it must
+    // still produce finite estimates.
+    let run = simulate_run(Preset::P100Diesel.params(), 50.0, 13);
+    let mut observer = ThrustObserver::new(Preset::P100Ekf.params(), ObserverConfig::default());
+    for (&y, _) in run.thrust_meas_n.iter().zip(&run.throttle_pct) {
+        let e = observer.step(y, 100.0).unwrap();
+        assert!(e.thrust_n.is_finite() && e.thrust_rate_n_per_s.is_finite());
+    }
+}
+
+#[test]
+fn invalid_settings_are_reported_on_every_step() {
+    let config = ObserverConfig { measurement_var_n2: 0.0, ..ObserverConfig::default() };
+    assert!(config.validate().is_err());
+    let mut observer = ThrustObserver::new(Preset::P100Diesel.params(), config);
+    for _ in 0..2 {
+        assert!(matches!(observer.step(20.0, 50.0), Err(EstimError::InvalidConfig { name: "measurement_var_n2", .. })));
+    }
+    let mut params = Preset::P100Diesel.params();
+    params.k_d = f64::NAN;
+    let mut observer = ThrustObserver::new(params, ObserverConfig::default());
+    let err = observer.step(20.0, 50.0).unwrap_err();
+    assert!(matches!(err, EstimError::InvalidParams { name: "K_D", .. }), "{err}");
+}
+
+#[test]
+fn reset_starts_over() {
+    let params = Preset::P100Diesel.params();
+    let mut observer = ThrustObserver::new(params, ObserverConfig::default());
+    let first = observer.step(20.0, 50.0).unwrap();
+    observer.step(22.0, 50.0).unwrap();
+    observer.reset();
+    assert_eq!(observer.step(20.0, 50.0).unwrap(), first);
+    assert_eq!(observer.fallbacks(), 0);
+}

@@ -1,0 +1,85 @@
+//! Bench devices behind traits.
+//!
+//! The services talk to a [`ForceSource`] (the force/torque sensor) and a
+//! [`ThrottleOutput`] (the throttle board); the simulated bench plays the
+//! other side through a [`ForceSink`] and a [`ThrottleInput`]. The
+//! implementations here carry device frames over the bus, which is how the
+//! simulated bench runs on machines without CAN or serial hardware.
+//!
+//! ```no_run
+//! use jetbench_bus::Bus;
+//! use jetbench_io::{sim, ForceSource};
+//! use std::time::Duration;
+//!
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let bus = Bus::open("io-example")?;
+//! let mut sensor = sim::BusForceSource::open(&bus)?;
+//! if let Some(reading) = sensor.read(Duration::from_millis(30))? {
+//!     println!("Fx = {} N", reading.force_n[0]);
+//! }
+//! # Ok(())
+//! # }
+//! ```
+
+pub mod sim;
+
+use std::time::Duration;
+
+/// One force/torque reading as the sensor reports it, before calibration.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ForceReading {
+    /// Force on x, y, z, N.
+    pub force_n: [f64; 3],
+    /// Torque about x, y, z, N·m.
+    pub torque_nm: [f64; 3],
+    /// The sensor's wrapping frame counter.
+    pub counter: u32,
+    /// Status bits (see `jetbench_msgs::sensor_status`).
+    pub status: u32,
+}
+
+/// Why a device operation failed.
+#[derive(Debug, thiserror::Error)]
+pub enum DeviceError {
+    #[error("device {device}: {reason}")]
+    Io { device: String, reason: String },
+    #[error("device {device} rejected a value: {reason}")]
+    InvalidValue { device: String, reason: String },
+    #[error(transparent)]
+    Bus(#[from] jetbench_bus::BusError),
+}
+
+/// The force/torque sensor, read by the sensing service.
+pub trait ForceSource {
+    /// Waits up to `timeout` for the next reading; `Ok(None)` on timeout.
+    fn read(&mut self, timeout: Duration) -> Result<Option<ForceReading>, DeviceError>;
+    /// Rejected or lost frames so far.
+    fn rejected(&self) -> u64 {
+        0
+    }
+    /// A short description for logs, e.g. `sim bus` or `can0`.
+    fn describe(&self) -> String;
+}
+
+/// The throttle board, driven by the actuation service.
+pub trait ThrottleOutput {
+    /// Sends a set-throttle command.
+    fn write(&mut self, throttle_pct: f64) -> Result<(), DeviceError>;
+    /// Round trip of the last acknowledged command, ns, where the device
+    /// acknowledges; `None` otherwise.
+    fn round_trip_ns(&self) -> Option<u64> {
+        None
+    }
+    fn describe(&self) -> String;
+}
+
+/// The simulated sensor's output side: emits readings to sensing.
+pub trait ForceSink {
+    fn emit(&mut self, reading: &ForceReading, sampled_ns: u64) -> Result<(), DeviceError>;
+}
+
+/// The simulated throttle board's input side: receives commands.
+pub trait ThrottleInput {
+    /// The newest valid throttle command received since the last call.
+    fn poll(&mut self) -> Result<Option<f64>, DeviceError>;
+}

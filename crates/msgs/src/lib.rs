@@ -1,0 +1,503 @@
+//! Fixed-layout sample types: the only types that cross process boundaries.
+//!
+//! Every type is `#[repr(C)]`, `Copy`, naturally aligned with no padding, and
+//! starts with `seq` and `stamp_ns`. That layout is exactly the CDR encoding of
+//! the ros2msg schema printed beside it, so a recorder writes a sample as the
+//! 4-byte CDR header plus the struct bytes, with no serialisation code, and
+//! standard tools decode it.
+//!
+//! ```
+//! use jetbench_msgs::{Sample, Thrust};
+//!
+//! let mut thrust = Thrust::default();
+//! thrust.thrust_n = 42.5;
+//! thrust.set_seq(7);
+//! let bytes = thrust.as_bytes();
+//! assert_eq!(bytes.len(), std::mem::size_of::<Thrust>());
+//! assert_eq!(Thrust::from_bytes(bytes), Some(thrust));
+//! assert!(Thrust::schema_text().contains("float64 thrust_n"));
+//! ```
+//!
+//! Conventions, shared by every sample:
+//! - `seq` counts the samples of one publisher, contiguous from 0; a gap means loss.
+//! - `stamp_ns` is the `CLOCK_MONOTONIC` time at which the originating sensor
+//!   frame was received; downstream samples copy it from their input, so the
+//!   end-to-end latency of any sample is `publish_ns - stamp_ns`.
+//! - `source_seq` is the `seq` of the input sample a sample was computed from.
+
+mod schema;
+
+pub use schema::{cdr_layout, parse_schema, CdrField, FieldInfo, RosType, SchemaError};
+
+use iceoryx2::prelude::ZeroCopySend;
+
+/// Bytes of the CDR encapsulation header for little-endian plain CDR.
+pub const CDR_HEADER: [u8; 4] = [0x00, 0x01, 0x00, 0x00];
+
+/// Schema package used in the recorded schema names (`jetbench_msgs/msg/<Type>`).
+pub const SCHEMA_PACKAGE: &str = "jetbench_msgs";
+
+/// A fixed-layout sample that may cross processes.
+///
+/// Implemented only through the [`sample!`] macro of this crate, which
+/// guarantees the layout properties the methods rely on.
+pub trait Sample: Copy + Default + core::fmt::Debug + ZeroCopySend + 'static {
+    /// Short type name, e.g. `Thrust`; also the iceoryx2 type name.
+    const NAME: &'static str;
+    /// The fields in declaration order, with their byte offsets.
+    const FIELDS: &'static [FieldInfo];
+
+    /// Per-publisher sequence number.
+    fn seq(&self) -> u64;
+    /// Set by the bus publisher; samples never pick their own.
+    fn set_seq(&mut self, seq: u64);
+    /// Monotonic receive time of the originating sensor frame, in ns.
+    fn stamp_ns(&self) -> u64;
+
+    /// `jetbench_msgs/msg/<NAME>`: the schema name in recordings.
+    fn schema_name() -> String {
+        format!("{SCHEMA_PACKAGE}/msg/{}", Self::NAME)
+    }
+
+    /// The ros2msg text describing this type, one `type name` line per field.
+    fn schema_text() -> String {
+        let mut text = String::new();
+        for field in Self::FIELDS {
+            text.push_str(&field.ros_type.to_string());
+            text.push(' ');
+            text.push_str(field.name);
+            text.push('\n');
+        }
+        text
+    }
+
+    /// The raw bytes of the sample; equal to its CDR body.
+    fn as_bytes(&self) -> &[u8] {
+        // SAFETY: `sample!` types are repr(C), contain only integers and
+        // floats, and have no padding (asserted at compile time), so every
+        // byte is initialised.
+        unsafe { core::slice::from_raw_parts((self as *const Self).cast::<u8>(), core::mem::size_of::<Self>()) }
+    }
+
+    /// Reads a sample from its raw bytes; `None` if the length is wrong.
+    fn from_bytes(bytes: &[u8]) -> Option<Self> {
+        if bytes.len() != core::mem::size_of::<Self>() {
+            return None;
+        }
+        // SAFETY: the length matches and every bit pattern is a valid value
+        // for the integer and float fields of `sample!` types.
+        Some(unsafe { core::ptr::read_unaligned(bytes.as_ptr().cast::<Self>()) })
+    }
+
+    /// Reads a sample from a CDR message (4-byte header plus body).
+    fn from_cdr(message: &[u8]) -> Option<Self> {
+        let body = message.strip_prefix(&CDR_HEADER[..])?;
+        Self::from_bytes(body)
+    }
+}
+
+/// Declares a sample type: the struct, its trait impls, its field table and
+/// a compile-time proof that it has no padding.
+macro_rules! sample {
+    (
+        $(#[$meta:meta])*
+        pub struct $name:ident {
+            $( $(#[$fmeta:meta])* pub $field:ident : $ty:ty ),+ $(,)?
+        }
+    ) => {
+        #[repr(C)]
+        #[derive(Clone, Copy, Debug, Default, PartialEq, ZeroCopySend)]
+        $(#[$meta])*
+        pub struct $name {
+            $( $(#[$fmeta])* pub $field: $ty ),+
+        }
+
+        // No padding: the struct is exactly the sum of its fields.
+        const _: () = assert!(
+            core::mem::size_of::<$name>() == 0 $( + core::mem::size_of::<$ty>() )+
+        );
+
+        impl Sample for $name {
+            const NAME: &'static str = stringify!($name);
+            const FIELDS: &'static [FieldInfo] = &[
+                $( FieldInfo {
+                    name: stringify!($field),
+                    offset: core::mem::offset_of!($name, $field),
+                    ros_type: <$ty as schema::RosField>::ROS_TYPE,
+                } ),+
+            ];
+            fn seq(&self) -> u64 { self.seq }
+            fn set_seq(&mut self, seq: u64) { self.seq = seq; }
+            fn stamp_ns(&self) -> u64 { self.stamp_ns }
+        }
+    };
+}
+
+sample! {
+    /// Calibrated thrust from the force sensor (`bench/thrust`).
+    #[type_name("jetbench_msgs/msg/Thrust")]
+    pub struct Thrust {
+        pub seq: u64,
+        pub stamp_ns: u64,
+        /// Monotonic time this sample was published, ns.
+        pub publish_ns: u64,
+        /// The sensor's own frame counter.
+        pub frame_seq: u64,
+        /// Calibrated axial force, N.
+        pub thrust_n: f64,
+        /// Calibrated force on x, y, z, N.
+        pub force_n: [f64; 3],
+        /// Calibrated torque about x, y, z, N·m.
+        pub torque_nm: [f64; 3],
+        /// Sensor status bits (see [`sensor_status`]).
+        pub status: u32,
+        /// Sensing flags (see [`thrust_flags`]).
+        pub flags: u32,
+    }
+}
+
+sample! {
+    /// EKF estimate of thrust and its derivatives (`bench/state`).
+    #[type_name("jetbench_msgs/msg/StateEstimate")]
+    pub struct StateEstimate {
+        pub seq: u64,
+        pub stamp_ns: u64,
+        pub publish_ns: u64,
+        /// `seq` of the thrust sample this estimate used.
+        pub source_seq: u64,
+        pub thrust_n: f64,
+        pub thrust_rate_n_per_s: f64,
+        /// Model acceleration at the estimate, N/s².
+        pub thrust_accel_n_per_s2: f64,
+        /// Throttle the prediction step assumed was applied, %.
+        pub input_throttle_pct: f64,
+        /// Measurement minus prediction, N.
+        pub innovation_n: f64,
+        pub thrust_var_n2: f64,
+        pub thrust_rate_var_n2_per_s2: f64,
+        /// Estimator flags (see [`state_flags`]).
+        pub flags: u64,
+    }
+}
+
+sample! {
+    /// The reference the controller tracks (`bench/reference`).
+    #[type_name("jetbench_msgs/msg/Reference")]
+    pub struct Reference {
+        pub seq: u64,
+        pub stamp_ns: u64,
+        pub publish_ns: u64,
+        /// `seq` of the state estimate this reference was evaluated for.
+        pub source_seq: u64,
+        /// Time since the profile started, s.
+        pub profile_time_s: f64,
+        pub thrust_n: f64,
+        pub thrust_rate_n_per_s: f64,
+        pub thrust_accel_n_per_s2: f64,
+    }
+}
+
+sample! {
+    /// Throttle command from the controller (`bench/command`).
+    #[type_name("jetbench_msgs/msg/Command")]
+    pub struct Command {
+        pub seq: u64,
+        pub stamp_ns: u64,
+        pub publish_ns: u64,
+        /// `seq` of the state estimate this command was computed from.
+        pub source_seq: u64,
+        /// Commanded throttle, clamped to the engine range, %.
+        pub throttle_pct: f64,
+        /// What the control law asked for before clamping, %.
+        pub unclamped_pct: f64,
+        /// The control law's virtual input `v`.
+        pub virtual_input: f64,
+        /// Command flags (see [`command_flags`]).
+        pub flags: u64,
+    }
+}
+
+sample! {
+    /// What the actuator applied (`bench/actuation`).
+    #[type_name("jetbench_msgs/msg/Actuation")]
+    pub struct Actuation {
+        pub seq: u64,
+        pub stamp_ns: u64,
+        pub publish_ns: u64,
+        /// `seq` of the command applied (or last seen when stale).
+        pub command_seq: u64,
+        /// Throttle sent to the throttle board, %.
+        pub applied_pct: f64,
+        /// Throttle the last command asked for, %.
+        pub commanded_pct: f64,
+        /// Command round trip to the board, ns (0 when not measured).
+        pub round_trip_ns: u64,
+        /// Consecutive cycles without a fresh command.
+        pub missed_cycles: u32,
+        /// Actuation flags (see [`actuation_flags`]).
+        pub flags: u32,
+    }
+}
+
+sample! {
+    /// Engine ECU telemetry (`bench/ecu`).
+    #[type_name("jetbench_msgs/msg/EcuTelemetry")]
+    pub struct EcuTelemetry {
+        pub seq: u64,
+        pub stamp_ns: u64,
+        pub publish_ns: u64,
+        pub rpm: f64,
+        pub egt_c: f64,
+        pub pump_v: f64,
+        pub throttle_pct: f64,
+        /// ECU state code as reported.
+        pub state: u32,
+        pub flags: u32,
+    }
+}
+
+sample! {
+    /// One heartbeat per service per cycle (`bench/health`).
+    #[type_name("jetbench_msgs/msg/Health")]
+    pub struct Health {
+        pub seq: u64,
+        pub stamp_ns: u64,
+        /// Cycles run since start.
+        pub cycles: u64,
+        /// Time since the previous cycle, ns.
+        pub cycle_ns: u64,
+        /// Work time of this cycle, ns.
+        pub work_ns: u64,
+        /// Longest work time so far, ns.
+        pub max_work_ns: u64,
+        /// Cycles whose input came later than the deadline or whose work overran the period.
+        pub deadline_misses: u64,
+        /// Samples lost on this service's inputs, from `seq` gaps.
+        pub input_gaps: u64,
+        /// Rejected inputs and failed operations.
+        pub errors: u64,
+        /// Which service (see [`ServiceId`]).
+        pub service_id: u32,
+        /// Service state bits (see [`health_flags`]).
+        pub flags: u32,
+    }
+}
+
+sample! {
+    /// Force/torque frame as the simulated sensor emits it (`sim/force`).
+    #[type_name("jetbench_msgs/msg/SimForceFrame")]
+    pub struct SimForceFrame {
+        pub seq: u64,
+        /// Monotonic time the frame was sampled, ns.
+        pub stamp_ns: u64,
+        pub force_n: [f64; 3],
+        pub torque_nm: [f64; 3],
+        /// Sensor status bits (see [`sensor_status`]).
+        pub status: u32,
+        /// Wrapping frame counter as on the wire.
+        pub counter: u32,
+    }
+}
+
+sample! {
+    /// Throttle frame to the simulated throttle board (`sim/throttle`).
+    #[type_name("jetbench_msgs/msg/SimThrottleFrame")]
+    pub struct SimThrottleFrame {
+        pub seq: u64,
+        pub stamp_ns: u64,
+        pub throttle_pct: f64,
+        pub flags: u64,
+    }
+}
+
+sample! {
+    /// Ground truth of the simulated engine (`sim/truth`), for evaluation only.
+    #[type_name("jetbench_msgs/msg/SimTruth")]
+    pub struct SimTruth {
+        pub seq: u64,
+        pub stamp_ns: u64,
+        pub thrust_n: f64,
+        pub thrust_rate_n_per_s: f64,
+        /// Throttle the engine actually followed, %.
+        pub engine_throttle_pct: f64,
+        /// Noise-free measurement the sensor would report, N.
+        pub measured_thrust_n: f64,
+    }
+}
+
+/// Sensor status bits, as in the CAN protocol (byte 7).
+pub mod sensor_status {
+    pub const OVERLOAD: u32 = 1 << 0;
+    pub const TEMPERATURE_WARNING: u32 = 1 << 1;
+    pub const CALIBRATION_INVALID: u32 = 1 << 2;
+}
+
+/// Flags of [`Thrust`](crate::Thrust).
+pub mod thrust_flags {
+    /// The sensor reported a status bit.
+    pub const SENSOR_STATUS: u32 = 1 << 0;
+    /// Frames were lost before this one.
+    pub const FRAME_GAP: u32 = 1 << 1;
+}
+
+/// Flags of [`StateEstimate`](crate::StateEstimate).
+pub mod state_flags {
+    /// The model prediction was unusable and a constant-rate prediction was used.
+    pub const MODEL_FALLBACK: u64 = 1 << 0;
+    /// No actuation sample has been seen yet; the idle throttle was assumed.
+    pub const INPUT_ASSUMED: u64 = 1 << 1;
+}
+
+/// Flags of [`Command`](crate::Command).
+pub mod command_flags {
+    pub const SATURATED_LOW: u64 = 1 << 0;
+    pub const SATURATED_HIGH: u64 = 1 << 1;
+}
+
+/// Flags of [`Actuation`](crate::Actuation).
+pub mod actuation_flags {
+    /// No fresh command for the allowed number of cycles: idle commanded.
+    pub const IDLE_FALLBACK: u32 = 1 << 0;
+    /// This cycle had no fresh command; the last one was held.
+    pub const STALE: u32 = 1 << 1;
+}
+
+/// Flags of [`Health`](crate::Health).
+pub mod health_flags {
+    /// The service's input is overdue.
+    pub const INPUT_OVERDUE: u32 = 1 << 0;
+    /// The service is in a fallback mode (e.g. actuation at idle).
+    pub const FALLBACK: u32 = 1 << 1;
+}
+
+/// Identifies the sender of a [`Health`] heartbeat.
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ServiceId {
+    SimBench = 1,
+    Sensing = 2,
+    Estimation = 3,
+    Control = 4,
+    Actuation = 5,
+    Recorder = 6,
+}
+
+impl ServiceId {
+    pub const ALL: [ServiceId; 6] = [
+        ServiceId::SimBench,
+        ServiceId::Sensing,
+        ServiceId::Estimation,
+        ServiceId::Control,
+        ServiceId::Actuation,
+        ServiceId::Recorder,
+    ];
+
+    /// The service's name, also its binary's suffix (`jetbench-<name>`).
+    pub fn name(self) -> &'static str {
+        match self {
+            ServiceId::SimBench => "sim-bench",
+            ServiceId::Sensing => "sensing",
+            ServiceId::Estimation => "estimation",
+            ServiceId::Control => "control",
+            ServiceId::Actuation => "actuation",
+            ServiceId::Recorder => "recorder",
+        }
+    }
+
+    pub fn from_u32(id: u32) -> Option<ServiceId> {
+        Self::ALL.into_iter().find(|s| *s as u32 == id)
+    }
+}
+
+/// A named bus channel carrying samples of type `T`.
+#[derive(Debug)]
+pub struct Channel<T> {
+    /// Bus service name, e.g. `bench/thrust`; the recorded topic is `/` + name.
+    pub name: &'static str,
+    _type: core::marker::PhantomData<fn() -> T>,
+}
+
+impl<T> Clone for Channel<T> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+impl<T> Copy for Channel<T> {}
+
+impl<T: Sample> Channel<T> {
+    pub const fn new(name: &'static str) -> Self {
+        Channel { name, _type: core::marker::PhantomData }
+    }
+
+    /// The MCAP topic: `/bench/thrust` for `bench/thrust`.
+    pub fn topic(&self) -> String {
+        format!("/{}", self.name)
+    }
+}
+
+/// The channels of the service set.
+pub mod channels {
+    use super::*;
+
+    pub const THRUST: Channel<Thrust> = Channel::new("bench/thrust");
+    pub const STATE: Channel<StateEstimate> = Channel::new("bench/state");
+    pub const REFERENCE: Channel<Reference> = Channel::new("bench/reference");
+    pub const COMMAND: Channel<Command> = Channel::new("bench/command");
+    pub const ACTUATION: Channel<Actuation> = Channel::new("bench/actuation");
+    pub const ECU: Channel<EcuTelemetry> = Channel::new("bench/ecu");
+    pub const HEALTH: Channel<Health> = Channel::new("bench/health");
+    pub const SIM_FORCE: Channel<SimForceFrame> = Channel::new("sim/force");
+    pub const SIM_THROTTLE: Channel<SimThrottleFrame> = Channel::new("sim/throttle");
+    pub const SIM_TRUTH: Channel<SimTruth> = Channel::new("sim/truth");
+}
+
+/// Calls a generic visitor once per channel with its static type.
+///
+/// Code that must handle every channel (the recorder, `echo`, `hz`) uses this
+/// instead of its own list, so a new channel cannot be forgotten.
+pub trait ChannelVisitor {
+    fn visit<T: Sample>(&mut self, channel: Channel<T>);
+}
+
+/// Visits every channel of the service set, bench channels first.
+pub fn visit_channels<V: ChannelVisitor>(visitor: &mut V) {
+    use channels::*;
+    visitor.visit(THRUST);
+    visitor.visit(STATE);
+    visitor.visit(REFERENCE);
+    visitor.visit(COMMAND);
+    visitor.visit(ACTUATION);
+    visitor.visit(ECU);
+    visitor.visit(HEALTH);
+    visitor.visit(SIM_FORCE);
+    visitor.visit(SIM_THROTTLE);
+    visitor.visit(SIM_TRUTH);
+}
+
+/// Names of every channel, in [`visit_channels`] order.
+pub fn channel_names() -> Vec<&'static str> {
+    struct Names(Vec<&'static str>);
+    impl ChannelVisitor for Names {
+        fn visit<T: Sample>(&mut self, channel: Channel<T>) {
+            self.0.push(channel.name);
+        }
+    }
+    let mut names = Names(Vec::new());
+    visit_channels(&mut names);
+    names.0
+}
+
+/// Formats a sample as `name=value` pairs in field order, for `echo`.
+pub fn format_fields<T: Sample>(sample: &T) -> String {
+    let bytes = sample.as_bytes();
+    let mut out = String::new();
+    for (i, field) in T::FIELDS.iter().enumerate() {
+        if i > 0 {
+            out.push_str(", ");
+        }
+        out.push_str(field.name);
+        out.push('=');
+        out.push_str(&field.ros_type.format_value(&bytes[field.offset..]));
+    }
+    out
+}

@@ -1,0 +1,276 @@
+//! MCAP recording of bus channels, and reading recordings back.
+//!
+//! One MCAP channel per bus channel, topic `/bench/...`, message encoding
+//! `cdr`, schema encoding `ros2msg`, schema name `jetbench_msgs/msg/<Type>`.
+//! A sample is written as the CDR header `00 01 00 00` plus its bytes, which
+//! is its CDR encoding (see `jetbench_msgs`). Chunks are zstd-compressed.
+//!
+//! ```
+//! use jetbench_msgs::{channels, Thrust};
+//! use jetbench_record::{McapWriter, Recording};
+//!
+//! # fn main() -> Result<(), jetbench_record::RecordError> {
+//! let path = std::env::temp_dir().join("jetbench-doc-example.mcap");
+//! let mut writer = McapWriter::create(&path)?;
+//! let thrust = Thrust { thrust_n: 12.5, stamp_ns: 1_000, ..Thrust::default() };
+//! writer.write_sample(channels::THRUST, 1_000, &thrust)?;
+//! writer.finish()?;
+//!
+//! let recording = Recording::open(&path)?;
+//! assert_eq!(recording.samples(channels::THRUST), vec![thrust]);
+//! # Ok(())
+//! # }
+//! ```
+
+mod thread;
+
+pub use thread::{spawn_writer, MetadataRecords, RawRecord, WriterHandle, WriterStats, MAX_SAMPLE_BYTES};
+
+use std::collections::{BTreeMap, HashMap};
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use jetbench_msgs::{visit_channels, Channel, ChannelVisitor, Sample, CDR_HEADER};
+
+/// Message encoding of every recorded channel.
+pub const MESSAGE_ENCODING: &str = "cdr";
+/// Schema encoding of every recorded channel.
+pub const SCHEMA_ENCODING: &str = "ros2msg";
+/// MCAP profile: samples are ROS 2 CDR messages.
+pub const PROFILE: &str = "ros2";
+
+/// Why a recording could not be written or read.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    #[error("cannot create {path}: {source}")]
+    Create { path: PathBuf, source: std::io::Error },
+    #[error("cannot read {path}: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("MCAP error in {path}: {source}")]
+    Mcap { path: PathBuf, source: mcap::McapError },
+    #[error("{path} is not an MCAP file (bad magic); is it a CSV or a truncated download?")]
+    NotMcap { path: PathBuf },
+    #[error("channel {0} is not registered in this recording")]
+    UnknownChannel(String),
+    #[error("sample of {channel} is {size} bytes, larger than the {max}-byte record slot")]
+    SampleTooLarge { channel: String, size: usize, max: usize },
+    #[error("the recorder's writer thread stopped: {0}")]
+    WriterGone(String),
+}
+
+/// Writes bus samples into an MCAP file with every channel registered up front.
+pub struct McapWriter {
+    writer: mcap::Writer<BufWriter<File>>,
+    path: PathBuf,
+    /// Bus channel name -> MCAP channel id.
+    ids: HashMap<&'static str, u16>,
+    messages: u64,
+}
+
+impl McapWriter {
+    /// Creates `path`, writes the header, and registers the schema and
+    /// channel of every bus channel (so empty channels are visible too).
+    pub fn create(path: &Path) -> Result<Self, RecordError> {
+        let file = File::create(path).map_err(|source| RecordError::Create { path: path.into(), source })?;
+        let mcap_err = |source| RecordError::Mcap { path: path.into(), source };
+        let writer = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Zstd))
+            .profile(PROFILE)
+            .library(concat!("jetbench ", env!("CARGO_PKG_VERSION")))
+            .create(BufWriter::new(file))
+            .map_err(mcap_err)?;
+
+        struct Register<'a> {
+            writer: mcap::Writer<BufWriter<File>>,
+            ids: &'a mut HashMap<&'static str, u16>,
+            error: Option<mcap::McapError>,
+        }
+        impl ChannelVisitor for Register<'_> {
+            fn visit<T: Sample>(&mut self, channel: Channel<T>) {
+                if self.error.is_some() {
+                    return;
+                }
+                let result =
+                    self.writer.add_schema(&T::schema_name(), SCHEMA_ENCODING, T::schema_text().as_bytes()).and_then(
+                        |schema| self.writer.add_channel(schema, &channel.topic(), MESSAGE_ENCODING, &BTreeMap::new()),
+                    );
+                match result {
+                    Ok(id) => {
+                        self.ids.insert(channel.name, id);
+                    }
+                    Err(e) => self.error = Some(e),
+                }
+            }
+        }
+        let mut ids = HashMap::new();
+        let mut register = Register { writer, ids: &mut ids, error: None };
+        visit_channels(&mut register);
+        if let Some(e) = register.error {
+            return Err(mcap_err(e));
+        }
+        Ok(McapWriter { writer: register.writer, path: path.into(), ids, messages: 0 })
+    }
+
+    fn mcap_err(&self, source: mcap::McapError) -> RecordError {
+        RecordError::Mcap { path: self.path.clone(), source }
+    }
+
+    /// Writes one sample's raw bytes on the bus channel `channel_name`.
+    /// `log_time_ns` is the monotonic time the recorder received it.
+    pub fn write_raw(
+        &mut self,
+        channel_name: &str,
+        seq: u64,
+        log_time_ns: u64,
+        publish_time_ns: u64,
+        bytes: &[u8],
+    ) -> Result<(), RecordError> {
+        let id = *self.ids.get(channel_name).ok_or_else(|| RecordError::UnknownChannel(channel_name.into()))?;
+        let mut message = [0u8; 4 + MAX_SAMPLE_BYTES];
+        if bytes.len() > MAX_SAMPLE_BYTES {
+            return Err(RecordError::SampleTooLarge {
+                channel: channel_name.into(),
+                size: bytes.len(),
+                max: MAX_SAMPLE_BYTES,
+            });
+        }
+        message[..4].copy_from_slice(&CDR_HEADER);
+        message[4..4 + bytes.len()].copy_from_slice(bytes);
+        let header = mcap::records::MessageHeader {
+            channel_id: id,
+            // MCAP sequence numbers are 32-bit; the full seq is in the body.
+            sequence: seq as u32,
+            log_time: log_time_ns,
+            publish_time: publish_time_ns,
+        };
+        self.writer.write_to_known_channel(&header, &message[..4 + bytes.len()]).map_err(|e| self.mcap_err(e))?;
+        self.messages += 1;
+        Ok(())
+    }
+
+    /// Writes a typed sample; `publish_time` is the sample's `stamp_ns`.
+    pub fn write_sample<T: Sample>(
+        &mut self,
+        channel: Channel<T>,
+        log_time_ns: u64,
+        sample: &T,
+    ) -> Result<(), RecordError> {
+        self.write_raw(channel.name, sample.seq(), log_time_ns, sample.stamp_ns(), sample.as_bytes())
+    }
+
+    /// Records free-form key/value metadata (run configuration, clock origin).
+    pub fn write_metadata(&mut self, name: &str, entries: BTreeMap<String, String>) -> Result<(), RecordError> {
+        let metadata = mcap::records::Metadata { name: name.into(), metadata: entries };
+        self.writer.write_metadata(&metadata).map_err(|e| self.mcap_err(e))
+    }
+
+    /// Closes the current chunk and flushes it to the file, so that a crash
+    /// after this point loses nothing written before it.
+    pub fn flush(&mut self) -> Result<(), RecordError> {
+        self.writer.flush().map_err(|e| self.mcap_err(e))?;
+        Ok(())
+    }
+
+    /// Messages written so far.
+    pub fn messages(&self) -> u64 {
+        self.messages
+    }
+
+    /// Writes the summary and closes the file.
+    pub fn finish(mut self) -> Result<u64, RecordError> {
+        self.writer.finish().map_err(|e| self.mcap_err(e))?;
+        let mut inner = self.writer.into_inner();
+        inner.flush().map_err(|source| RecordError::Create { path: self.path.clone(), source })?;
+        Ok(self.messages)
+    }
+}
+
+/// One recorded message.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RecordedMessage {
+    pub topic: String,
+    pub schema_name: String,
+    pub log_time_ns: u64,
+    pub publish_time_ns: u64,
+    /// The CDR message (header plus body).
+    pub data: Vec<u8>,
+}
+
+/// A recording read into memory.
+#[derive(Clone, Debug, Default)]
+pub struct Recording {
+    pub messages: Vec<RecordedMessage>,
+    /// The file ended early (e.g. the recorder was killed): the messages up to
+    /// the last complete chunk are present.
+    pub truncated: bool,
+    /// Metadata records by name.
+    pub metadata: BTreeMap<String, BTreeMap<String, String>>,
+}
+
+impl Recording {
+    /// Reads every message of an MCAP file. A file cut off mid-write is read
+    /// up to its last complete record and flagged `truncated`.
+    pub fn open(path: &Path) -> Result<Recording, RecordError> {
+        let bytes = std::fs::read(path).map_err(|source| RecordError::Read { path: path.into(), source })?;
+        if !bytes.starts_with(mcap::MAGIC) {
+            return Err(RecordError::NotMcap { path: path.into() });
+        }
+        let mut recording = Recording::default();
+        let stream = mcap::MessageStream::new_with_options(&bytes, mcap::read::Options::IgnoreEndMagic.into())
+            .map_err(|source| RecordError::Mcap { path: path.into(), source })?;
+        for message in stream {
+            match message {
+                Ok(m) => recording.messages.push(RecordedMessage {
+                    topic: m.channel.topic.clone(),
+                    schema_name: m.channel.schema.as_ref().map(|s| s.name.clone()).unwrap_or_default(),
+                    log_time_ns: m.log_time,
+                    publish_time_ns: m.publish_time,
+                    data: m.data.into_owned(),
+                }),
+                Err(_) => {
+                    recording.truncated = true;
+                    break;
+                }
+            }
+        }
+        if !recording.truncated && !bytes.ends_with(mcap::MAGIC) {
+            recording.truncated = true;
+        }
+        if let Ok(Some(summary)) = mcap::Summary::read(&bytes) {
+            for index in &summary.metadata_indexes {
+                if let Ok(m) = mcap::read::metadata(&bytes, index) {
+                    recording.metadata.insert(m.name, m.metadata);
+                }
+            }
+        }
+        Ok(recording)
+    }
+
+    /// Decoded samples of one channel, in recorded order. Messages whose
+    /// size does not match the type are skipped (see [`Recording::malformed`]).
+    pub fn samples<T: Sample>(&self, channel: Channel<T>) -> Vec<T> {
+        let topic = channel.topic();
+        self.messages.iter().filter(|m| m.topic == topic).filter_map(|m| T::from_cdr(&m.data)).collect()
+    }
+
+    /// Messages on `channel` that do not decode as its type.
+    pub fn malformed<T: Sample>(&self, channel: Channel<T>) -> usize {
+        let topic = channel.topic();
+        self.messages.iter().filter(|m| m.topic == topic && T::from_cdr(&m.data).is_none()).count()
+    }
+
+    /// Message count per topic.
+    pub fn counts(&self) -> BTreeMap<String, usize> {
+        let mut counts = BTreeMap::new();
+        for m in &self.messages {
+            *counts.entry(m.topic.clone()).or_insert(0) += 1;
+        }
+        counts
+    }
+}
+
+/// Counts missing `seq` numbers in samples of one publisher.
+pub fn seq_gaps<T: Sample>(samples: &[T]) -> u64 {
+    samples.windows(2).map(|w| w[1].seq().saturating_sub(w[0].seq() + 1)).sum()
+}

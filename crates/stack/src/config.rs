@@ -1,0 +1,301 @@
+//! The bench configuration (TOML), shared by every service of a run.
+
+use std::path::{Path, PathBuf};
+
+use jetbench_control::{FblGains, Profile};
+use jetbench_model::Params;
+use serde::{Deserialize, Serialize};
+
+/// The configuration `jetbench up --sim` uses when no file is given.
+pub const DEFAULT_SIM_CONFIG: &str = include_str!("../../../config/sim.toml");
+
+/// The only rate the model and estimator are discretised for.
+pub const RATE_HZ: f64 = 100.0;
+
+/// Why a configuration is unusable.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read the bench config {path}: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("bench config {origin}: {message}")]
+    Parse { origin: String, message: String },
+    #[error("bench config {origin}: {message}")]
+    Invalid { origin: String, message: String },
+}
+
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct BenchConfig {
+    pub bench: BenchSection,
+    pub plant: PlantSection,
+    pub model: ModelSection,
+    #[serde(default)]
+    pub sensor: SensorSection,
+    #[serde(default)]
+    pub estimator: EstimatorSection,
+    #[serde(default)]
+    pub control: ControlSection,
+    #[serde(default)]
+    pub actuation: ActuationSection,
+    #[serde(default)]
+    pub reference: Profile,
+    #[serde(default)]
+    pub recorder: RecorderSection,
+}
+
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct BenchSection {
+    /// `sim` is the only device set available so far.
+    pub devices: Devices,
+    #[serde(default = "default_rate")]
+    pub rate_hz: f64,
+}
+
+fn default_rate() -> f64 {
+    RATE_HZ
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Devices {
+    /// Simulated engine and devices, frames over the bus.
+    Sim,
+}
+
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlantSection {
+    /// Preset name or model file of the simulated engine.
+    pub model: String,
+    #[serde(default = "default_noise")]
+    pub noise_var_n2: f64,
+    #[serde(default)]
+    pub seed: u64,
+    #[serde(default = "default_idle")]
+    pub initial_throttle_pct: f64,
+}
+
+fn default_noise() -> f64 {
+    7.0
+}
+
+fn default_idle() -> f64 {
+    jetbench_model::THROTTLE_MIN_PCT
+}
+
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelSection {
+    /// Preset name or model file used by the estimator and the controller.
+    pub model: String,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Axis {
+    #[default]
+    X,
+    Y,
+    Z,
+}
+
+impl Axis {
+    pub fn index(self) -> usize {
+        self as usize
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensorSection {
+    #[serde(default)]
+    pub thrust_axis: Axis,
+    #[serde(default)]
+    pub tare_n: [f64; 3],
+}
+
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EstimatorSection {
+    pub measurement_var_n2: f64,
+    pub accel_noise_n_per_s2: f64,
+}
+
+impl Default for EstimatorSection {
+    fn default() -> Self {
+        let d = jetbench_estim::ObserverConfig::default();
+        EstimatorSection { measurement_var_n2: d.measurement_var_n2, accel_noise_n_per_s2: d.accel_noise_n_per_s2 }
+    }
+}
+
+impl EstimatorSection {
+    pub fn observer_config(&self) -> jetbench_estim::ObserverConfig {
+        jetbench_estim::ObserverConfig {
+            measurement_var_n2: self.measurement_var_n2,
+            accel_noise_n_per_s2: self.accel_noise_n_per_s2,
+            ..jetbench_estim::ObserverConfig::default()
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ControlSection {
+    pub kp: f64,
+    pub kd: f64,
+}
+
+impl Default for ControlSection {
+    fn default() -> Self {
+        let g = FblGains::default();
+        ControlSection { kp: g.kp, kd: g.kd }
+    }
+}
+
+impl ControlSection {
+    pub fn gains(&self) -> FblGains {
+        FblGains { kp: self.kp, kd: self.kd }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ActuationSection {
+    pub idle_after_missed_cycles: u32,
+}
+
+impl Default for ActuationSection {
+    fn default() -> Self {
+        ActuationSection { idle_after_missed_cycles: 3 }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RecorderSection {
+    pub queue: usize,
+}
+
+impl Default for RecorderSection {
+    fn default() -> Self {
+        RecorderSection { queue: 16_384 }
+    }
+}
+
+impl BenchConfig {
+    /// The built-in simulated-bench configuration.
+    pub fn default_sim() -> Result<Self, ConfigError> {
+        Self::from_toml_str(DEFAULT_SIM_CONFIG, "(built-in sim.toml)", None)
+    }
+
+    /// Reads and checks a configuration file. Relative model paths are
+    /// resolved against the file's folder.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read { path: path.into(), source })?;
+        Self::from_toml_str(&text, &path.display().to_string(), path.parent())
+    }
+
+    /// Loads `path` if given, else the built-in simulated bench.
+    pub fn load_or_default(path: Option<&Path>) -> Result<Self, ConfigError> {
+        match path {
+            Some(p) => Self::load(p),
+            None => Self::default_sim(),
+        }
+    }
+
+    pub fn from_toml_str(text: &str, origin: &str, base_dir: Option<&Path>) -> Result<Self, ConfigError> {
+        let mut config: BenchConfig =
+            toml::from_str(text).map_err(|e| ConfigError::Parse { origin: origin.into(), message: e.to_string() })?;
+        if let Some(dir) = base_dir {
+            for spec in [&mut config.plant.model, &mut config.model.model] {
+                if spec.parse::<jetbench_model::Preset>().is_err() && Path::new(spec.as_str()).is_relative() {
+                    *spec = dir.join(spec.as_str()).display().to_string();
+                }
+            }
+        }
+        config.validate(origin)?;
+        Ok(config)
+    }
+
+    fn validate(&self, origin: &str) -> Result<(), ConfigError> {
+        let invalid = |message: String| ConfigError::Invalid { origin: origin.into(), message };
+        if (self.bench.rate_hz - RATE_HZ).abs() > 1e-9 {
+            return Err(invalid(format!(
+                "[bench] rate_hz = {}: the model and the estimator are discretised at 10 ms, so only 100 Hz is supported",
+                self.bench.rate_hz
+            )));
+        }
+        if !(self.plant.noise_var_n2.is_finite() && self.plant.noise_var_n2 >= 0.0) {
+            return Err(invalid(format!("[plant] noise_var_n2 = {} must be >= 0", self.plant.noise_var_n2)));
+        }
+        if !(0.0..=120.0).contains(&self.plant.initial_throttle_pct) {
+            return Err(invalid(format!(
+                "[plant] initial_throttle_pct = {} is outside 0..120",
+                self.plant.initial_throttle_pct
+            )));
+        }
+        for (key, v) in [
+            ("[estimator] measurement_var_n2", self.estimator.measurement_var_n2),
+            ("[estimator] accel_noise_n_per_s2", self.estimator.accel_noise_n_per_s2),
+            ("[control] kp", self.control.kp),
+            ("[control] kd", self.control.kd),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(invalid(format!("{key} = {v} must be a positive number")));
+            }
+        }
+        if self.actuation.idle_after_missed_cycles == 0 {
+            return Err(invalid("[actuation] idle_after_missed_cycles must be at least 1".into()));
+        }
+        if self.recorder.queue < 16 {
+            return Err(invalid("[recorder] queue must be at least 16".into()));
+        }
+        self.reference.validate().map_err(|e| invalid(format!("[reference] {e}")))?;
+        self.plant_params().map_err(|e| invalid(format!("[plant] model: {e}")))?;
+        self.model_params().map_err(|e| invalid(format!("[model] model: {e}")))?;
+        Ok(())
+    }
+
+    /// Parameters of the simulated engine.
+    pub fn plant_params(&self) -> Result<Params, jetbench_model::ModelError> {
+        jetbench_model::resolve_params(&self.plant.model)
+    }
+
+    /// Parameters the estimator and controller use.
+    pub fn model_params(&self) -> Result<Params, jetbench_model::ModelError> {
+        jetbench_model::resolve_params(&self.model.model)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn built_in_config_is_valid() {
+        let c = BenchConfig::default_sim().unwrap();
+        assert_eq!(c.bench.devices, Devices::Sim);
+        assert_eq!(c.actuation.idle_after_missed_cycles, 3);
+    }
+
+    #[test]
+    fn typo_key_is_an_error_naming_it() {
+        let text = DEFAULT_SIM_CONFIG.replace("noise_var_n2", "noise_varn2");
+        let e = BenchConfig::from_toml_str(&text, "t.toml", None).unwrap_err().to_string();
+        assert!(e.contains("noise_varn2"), "{e}");
+    }
+
+    #[test]
+    fn unsupported_rate_is_explained() {
+        let text = DEFAULT_SIM_CONFIG.replace("rate_hz = 100.0", "rate_hz = 200.0");
+        let e = BenchConfig::from_toml_str(&text, "t.toml", None).unwrap_err().to_string();
+        assert!(e.contains("only 100 Hz"), "{e}");
+    }
+
+    #[test]
+    fn unknown_preset_is_an_error() {
+        let text = DEFAULT_SIM_CONFIG.replace("model = \"p100-diesel\"\n# Force", "model = \"p999\"\n# Force");
+        assert!(BenchConfig::from_toml_str(&text, "t.toml", None).is_err());
+    }
+}

@@ -1,0 +1,352 @@
+//! The launcher behind `jetbench up`: starts the service processes in
+//! dependency order, waits until each is ready, shows a live status line,
+//! and stops them all in order at the end, on Ctrl-C/SIGTERM, or when one dies.
+
+use std::io::{BufRead, BufReader, IsTerminal, Write};
+use std::os::unix::process::{CommandExt, ExitStatusExt};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use jetbench_bus::{Bus, BusError, Flow, Subscriber};
+use jetbench_msgs::{channels, Health, Sample, ServiceId};
+
+/// How long a service may take to create its ports.
+const READY_TIMEOUT: Duration = Duration::from_secs(20);
+/// How long a service may take to stop after SIGTERM before SIGKILL.
+const STOP_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// Why `jetbench up` failed.
+#[derive(Debug, thiserror::Error)]
+pub enum LaunchError {
+    #[error("cannot find the service binary {path}: {hint}")]
+    MissingBinary { path: PathBuf, hint: String },
+    #[error("cannot start service `{service}`: {source}")]
+    Spawn { service: &'static str, source: std::io::Error },
+    #[error("service `{service}` did not report ready within {timeout:?}; see its log above")]
+    NotReady { service: &'static str, timeout: Duration },
+    #[error("service `{service}` {how}; the other services were stopped")]
+    ServiceDied { service: &'static str, how: String },
+    #[error("service `{service}` {how} while stopping")]
+    StopFailed { service: &'static str, how: String },
+    #[error(transparent)]
+    Bus(#[from] BusError),
+}
+
+/// What to launch.
+#[derive(Clone, Debug)]
+pub struct UpOptions {
+    /// Bench config passed to every service; `None` is the built-in sim config.
+    pub config: Option<PathBuf>,
+    /// Run for this long once all services are ready; `None` until Ctrl-C.
+    pub duration: Option<Duration>,
+    /// Record every channel to this MCAP file.
+    pub record: Option<PathBuf>,
+    /// Folder of the `jetbench-<service>` binaries.
+    pub bin_dir: PathBuf,
+    /// Print the live status line.
+    pub status: bool,
+}
+
+/// A started service process.
+struct Service {
+    id: ServiceId,
+    child: Child,
+    exited: Option<ExitStatus>,
+}
+
+/// Describes how a process ended, e.g. `was killed by signal 9 (SIGKILL)`.
+pub fn describe_exit(status: ExitStatus) -> String {
+    match (status.code(), status.signal()) {
+        (Some(0), _) => "exited normally".into(),
+        (Some(code), _) => format!("exited with status {code}"),
+        (None, Some(sig)) => {
+            let name = match sig {
+                libc::SIGKILL => " (SIGKILL)",
+                libc::SIGTERM => " (SIGTERM)",
+                libc::SIGSEGV => " (SIGSEGV)",
+                libc::SIGABRT => " (SIGABRT)",
+                libc::SIGINT => " (SIGINT)",
+                _ => "",
+            };
+            format!("was killed by signal {sig}{name}")
+        }
+        (None, None) => "ended for an unknown reason".into(),
+    }
+}
+
+/// Start order: the recorder first so it sees every sample, then consumers
+/// before producers, and the simulated bench, which clocks the loop, last.
+pub fn start_order(record: bool) -> Vec<ServiceId> {
+    let mut order = Vec::new();
+    if record {
+        order.push(ServiceId::Recorder);
+    }
+    order.extend([
+        ServiceId::Actuation,
+        ServiceId::Control,
+        ServiceId::Estimation,
+        ServiceId::Sensing,
+        ServiceId::SimBench,
+    ]);
+    order
+}
+
+fn binary(bin_dir: &Path, id: ServiceId) -> Result<PathBuf, LaunchError> {
+    let path = bin_dir.join(format!("jetbench-{}", id.name()));
+    if path.is_file() {
+        Ok(path)
+    } else {
+        Err(LaunchError::MissingBinary {
+            path,
+            hint: "build the workspace (`cargo build --release`) or set JETBENCH_BIN_DIR".into(),
+        })
+    }
+}
+
+fn spawn(options: &UpOptions, id: ServiceId, ready_tx: &mpsc::Sender<ServiceId>) -> Result<Service, LaunchError> {
+    let mut command = Command::new(binary(&options.bin_dir, id)?);
+    if let Some(config) = &options.config {
+        command.arg("--config").arg(config);
+    }
+    if id == ServiceId::Recorder {
+        if let Some(out) = &options.record {
+            command.arg("--out").arg(out);
+        }
+    }
+    // Own process group: Ctrl-C reaches only the launcher, which then stops
+    // the services in order (so the recorder sees the last samples).
+    command.process_group(0).stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::inherit());
+    let mut child = command.spawn().map_err(|source| LaunchError::Spawn { service: id.name(), source })?;
+    if let Some(stdout) = child.stdout.take() {
+        let tx = ready_tx.clone();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                if line.trim() == "ready" {
+                    let _ = tx.send(id);
+                } else {
+                    println!("{}: {line}", id.name());
+                }
+            }
+        });
+    }
+    println!("started {} (pid {})", id.name(), child.id());
+    Ok(Service { id, child, exited: None })
+}
+
+/// Checks every service; returns the first that has ended.
+fn first_exited(services: &mut [Service]) -> Option<(ServiceId, ExitStatus)> {
+    for s in services.iter_mut() {
+        if s.exited.is_none() {
+            if let Ok(Some(status)) = s.child.try_wait() {
+                s.exited = Some(status);
+                return Some((s.id, status));
+            }
+        }
+    }
+    None
+}
+
+/// Stops services in start order (producers after consumers would lose the
+/// last samples, so the clocking sim-bench goes first and the recorder last).
+/// Returns the first service that did not stop cleanly.
+fn stop_all(services: &mut [Service]) -> Option<(ServiceId, String)> {
+    let mut failure = None;
+    for s in services.iter_mut().rev() {
+        if s.exited.is_none() {
+            // SAFETY: kill(2) on our own child's pid; no memory is involved.
+            unsafe { libc::kill(s.child.id() as libc::pid_t, libc::SIGTERM) };
+            let deadline = Instant::now() + STOP_TIMEOUT;
+            loop {
+                match s.child.try_wait() {
+                    Ok(Some(status)) => {
+                        s.exited = Some(status);
+                        break;
+                    }
+                    Ok(None) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(5)),
+                    _ => {
+                        let _ = s.child.kill();
+                        s.exited = s.child.wait().ok();
+                        failure =
+                            failure.or(Some((s.id, format!("did not stop within {STOP_TIMEOUT:?} and was killed"))));
+                        break;
+                    }
+                }
+            }
+            if let Some(status) = s.exited {
+                if !status.success() {
+                    failure = failure.or(Some((s.id, describe_exit(status))));
+                }
+            }
+        }
+    }
+    failure
+}
+
+/// Live counts for the status line.
+struct Status {
+    thrust: Subscriber<jetbench_msgs::Thrust>,
+    state: Subscriber<jetbench_msgs::StateEstimate>,
+    reference: Subscriber<jetbench_msgs::Reference>,
+    command: Subscriber<jetbench_msgs::Command>,
+    actuation: Subscriber<jetbench_msgs::Actuation>,
+    health: Subscriber<Health>,
+    counts: [u64; 5],
+    misses: [u64; 8],
+    last_thrust_n: f64,
+    last_reference_n: f64,
+    last_throttle_pct: f64,
+}
+
+impl Status {
+    fn new(bus: &Bus) -> Result<Self, BusError> {
+        Ok(Status {
+            thrust: bus.subscriber(channels::THRUST, 256)?,
+            state: bus.subscriber(channels::STATE, 256)?,
+            reference: bus.subscriber(channels::REFERENCE, 256)?,
+            command: bus.subscriber(channels::COMMAND, 256)?,
+            actuation: bus.subscriber(channels::ACTUATION, 256)?,
+            health: bus.subscriber(channels::HEALTH, 512)?,
+            counts: [0; 5],
+            misses: [0; 8],
+            last_thrust_n: f64::NAN,
+            last_reference_n: f64::NAN,
+            last_throttle_pct: f64::NAN,
+        })
+    }
+
+    fn drain<T: Sample>(sub: &Subscriber<T>, count: &mut u64, mut last: impl FnMut(&T)) -> Result<(), BusError> {
+        while let Some(s) = sub.try_recv()? {
+            *count += 1;
+            last(&s);
+        }
+        Ok(())
+    }
+
+    /// Drains everything and returns the line for the last `window`.
+    fn line(&mut self, elapsed: Duration, window: Duration) -> Result<String, BusError> {
+        let before = self.counts;
+        Self::drain(&self.thrust, &mut self.counts[0], |_| {})?;
+        Self::drain(&self.state, &mut self.counts[1], |s| self.last_thrust_n = s.thrust_n)?;
+        Self::drain(&self.reference, &mut self.counts[2], |r| self.last_reference_n = r.thrust_n)?;
+        Self::drain(&self.command, &mut self.counts[3], |_| {})?;
+        Self::drain(&self.actuation, &mut self.counts[4], |a| self.last_throttle_pct = a.applied_pct)?;
+        while let Some(h) = self.health.try_recv()? {
+            if let Some(slot) = self.misses.get_mut(h.service_id as usize) {
+                *slot = h.deadline_misses;
+            }
+        }
+        let secs = window.as_secs_f64().max(1e-3);
+        let rate = |i: usize| (self.counts[i] - before[i]) as f64 / secs;
+        Ok(format!(
+            "{:>6.1} s | Hz thrust {:>5.1} state {:>5.1} ref {:>5.1} cmd {:>5.1} act {:>5.1} | T {:>6.1} N ref {:>6.1} N u {:>5.1} % | misses {}",
+            elapsed.as_secs_f64(),
+            rate(0),
+            rate(1),
+            rate(2),
+            rate(3),
+            rate(4),
+            self.last_thrust_n,
+            self.last_reference_n,
+            self.last_throttle_pct,
+            self.misses.iter().sum::<u64>(),
+        ))
+    }
+}
+
+/// Runs the service set; returns when the duration ends or a stop is
+/// requested, with every service stopped.
+pub fn up(options: &UpOptions) -> Result<(), LaunchError> {
+    jetbench_bus::install_signal_flag()?;
+    let cleaned = jetbench_bus::cleanup_dead_nodes();
+    if cleaned > 0 {
+        println!("cleaned up {cleaned} bus node(s) left by a previous run");
+    }
+    let order = start_order(options.record.is_some());
+    for id in &order {
+        binary(&options.bin_dir, *id)?;
+    }
+
+    let (ready_tx, ready_rx) = mpsc::channel();
+    let mut services: Vec<Service> = Vec::new();
+    let result = start_and_supervise(options, &order, &ready_tx, &ready_rx, &mut services);
+    let stop_failure = stop_all(&mut services);
+    match (result, stop_failure) {
+        (Err(e), _) => Err(e),
+        (Ok(()), Some((id, how))) => Err(LaunchError::StopFailed { service: id.name(), how }),
+        (Ok(()), None) => Ok(()),
+    }
+}
+
+fn start_and_supervise(
+    options: &UpOptions,
+    order: &[ServiceId],
+    ready_tx: &mpsc::Sender<ServiceId>,
+    ready_rx: &mpsc::Receiver<ServiceId>,
+    services: &mut Vec<Service>,
+) -> Result<(), LaunchError> {
+    for id in order {
+        services.push(spawn(options, *id, ready_tx)?);
+        let deadline = Instant::now() + READY_TIMEOUT;
+        loop {
+            if jetbench_bus::stop_requested() {
+                return Ok(());
+            }
+            if let Some((dead, status)) = first_exited(services) {
+                return Err(LaunchError::ServiceDied { service: dead.name(), how: describe_exit(status) });
+            }
+            match ready_rx.recv_timeout(Duration::from_millis(20)) {
+                Ok(r) if r == *id => break,
+                Ok(_) => {}
+                Err(_) if Instant::now() >= deadline => {
+                    return Err(LaunchError::NotReady { service: id.name(), timeout: READY_TIMEOUT })
+                }
+                Err(_) => {}
+            }
+        }
+    }
+    println!(
+        "all {} services ready{}",
+        services.len(),
+        match options.duration {
+            Some(d) => format!("; running for {:.1} s", d.as_secs_f64()),
+            None => "; Ctrl-C stops".into(),
+        }
+    );
+
+    let bus = Bus::open("jetbench-up")?;
+    let mut status = Status::new(&bus)?;
+    let started = Instant::now();
+    let tty = std::io::stderr().is_terminal();
+    // A terminal gets a line rewritten every second, a log a line every 5 s.
+    let status_every = if tty { Duration::from_secs(1) } else { Duration::from_secs(5) };
+    let mut last_status = started;
+    let mut failure = None;
+    bus.run(&[], Some(Duration::from_millis(20)), |_| {
+        if let Some((dead, exit)) = first_exited(services) {
+            failure = Some(LaunchError::ServiceDied { service: dead.name(), how: describe_exit(exit) });
+            return Flow::Stop;
+        }
+        let now = Instant::now();
+        if options.status && now - last_status >= status_every {
+            if let Ok(line) = status.line(now - started, now - last_status) {
+                let mut err = std::io::stderr().lock();
+                let _ = if tty { write!(err, "\r{line}") } else { writeln!(err, "{line}") };
+                let _ = err.flush();
+            }
+            last_status = now;
+        }
+        match options.duration {
+            Some(d) if now - started >= d => Flow::Stop,
+            _ => Flow::Continue,
+        }
+    })?;
+    if tty && options.status {
+        eprintln!();
+    }
+    match failure {
+        Some(e) => Err(e),
+        None => Ok(()),
+    }
+}

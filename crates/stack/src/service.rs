@@ -1,0 +1,450 @@
+//! The runtime adapter of every service: wires a step struct to the bus.
+//!
+//! Each `run_*` function opens the bus, creates its ports, prints `ready`
+//! on stdout (the launcher waits for it), and loops until SIGINT/SIGTERM.
+//! Consumers block in a WaitSet with a deadline; only sim-bench keeps time.
+
+use std::io::Write;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use jetbench_bus::{AnySubscriber, Bus, BusError, Flow, LoopExit, Publisher, Trigger, Wake};
+use jetbench_control::Fbl;
+use jetbench_io::sim::{BusForceSink, BusForceSource, BusThrottleInput, BusThrottleOutput};
+use jetbench_io::{DeviceError, ForceSink, ForceSource, ThrottleInput, ThrottleOutput};
+use jetbench_msgs::{channels, visit_channels, Channel, ChannelVisitor, Sample, ServiceId};
+use jetbench_record::{spawn_writer, RawRecord, RecordError};
+
+use crate::clock::{monotonic_ns, realtime_ns, PERIOD_NS};
+use crate::config::{BenchConfig, ConfigError, Devices};
+use crate::health::HealthReporter;
+use crate::step::{Actuator, Control, Estimation, Sensing, SimBench, SimError};
+
+/// How long a consumer waits for its input before counting a missed cycle:
+/// one and a half periods, so ordinary jitter is not a miss.
+pub const INPUT_DEADLINE: Duration = Duration::from_millis(15);
+
+/// Actuation's deadline: a missed cycle is counted every period after the
+/// last command, plus a small margin for jitter.
+pub const COMMAND_DEADLINE: Duration = Duration::from_millis(11);
+
+/// Why a service stopped with an error.
+#[derive(Debug, thiserror::Error)]
+pub enum ServiceError {
+    #[error(transparent)]
+    Bus(#[from] BusError),
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error(transparent)]
+    Device(#[from] DeviceError),
+    #[error(transparent)]
+    Model(#[from] jetbench_model::ModelError),
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    #[error(transparent)]
+    Record(#[from] RecordError),
+    #[error("{0}")]
+    Other(String),
+}
+
+/// Tells the launcher this service's ports exist.
+pub fn announce_ready() {
+    let mut out = std::io::stdout().lock();
+    let _ = writeln!(out, "ready");
+    let _ = out.flush();
+}
+
+/// Logs the first few occurrences of a recurring error, then every 1000th.
+fn log_rejection(count: u64, what: &str, error: &dyn std::fmt::Display) {
+    if count <= 5 || count.is_multiple_of(1000) {
+        tracing::warn!("{what} rejected ({count} so far): {error}");
+    }
+}
+
+/// Publishes with `publish_ns` stamped right before the sample leaves.
+fn publish_now<T: Sample>(publisher: &mut Publisher<T>, mut sample: T, set: fn(&mut T, u64)) -> Result<u64, BusError> {
+    set(&mut sample, monotonic_ns());
+    publisher.publish(sample)
+}
+
+/// The simulated bench: engine, sensor and throttle board in real time.
+pub fn run_sim_bench(config: &BenchConfig) -> Result<(), ServiceError> {
+    if config.bench.devices != Devices::Sim {
+        return Err(ServiceError::Other("sim-bench runs only with [bench] devices = \"sim\"".into()));
+    }
+    let mut sim = SimBench::new(
+        config.plant_params()?,
+        config.plant.noise_var_n2,
+        config.plant.seed,
+        config.plant.initial_throttle_pct,
+    )?;
+    let bus = Bus::open("sim-bench")?;
+    let mut sensor: Box<dyn ForceSink> = Box::new(BusForceSink::open(&bus)?);
+    let mut board: Box<dyn ThrottleInput> = Box::new(BusThrottleInput::open(&bus)?);
+    let mut truth_pub = bus.publisher(channels::SIM_TRUTH)?;
+    let mut health = HealthReporter::new(&bus, ServiceId::SimBench)?;
+    announce_ready();
+
+    let period = Duration::from_nanos(PERIOD_NS);
+    let mut next = Instant::now() + period;
+    while bus.sleep_until(next) {
+        let start_ns = monotonic_ns();
+        // Late by more than a period (the machine stalled): resynchronise
+        // instead of bursting to catch up, and count the miss.
+        let late = Instant::now() > next + period;
+        next = if late { Instant::now() + period } else { next + period };
+        let frame = board.poll()?;
+        let (reading, truth) = sim.step(start_ns, frame).map_err(|e| {
+            tracing::error!("the simulated engine failed: {e}");
+            e
+        })?;
+        sensor.emit(&reading, start_ns)?;
+        truth_pub.publish(truth)?;
+        health.cycle(start_ns, monotonic_ns(), late)?;
+    }
+    Ok(())
+}
+
+/// Sensing: force frames in, `bench/thrust` out; clocked by the sensor.
+pub fn run_sensing(config: &BenchConfig) -> Result<(), ServiceError> {
+    let bus = Bus::open("sensing")?;
+    let mut source: Box<dyn ForceSource> = match config.bench.devices {
+        Devices::Sim => Box::new(BusForceSource::open(&bus)?),
+    };
+    tracing::info!("reading {}", source.describe());
+    let mut step = Sensing::new(&config.sensor);
+    let mut thrust_pub = bus.publisher(channels::THRUST)?;
+    let mut health = HealthReporter::new(&bus, ServiceId::Sensing)?;
+    announce_ready();
+
+    let mut started = false;
+    let mut rejected = 0;
+    while !bus.stop_requested() {
+        let reading = source.read(INPUT_DEADLINE)?;
+        let start_ns = monotonic_ns();
+        match reading {
+            Some(reading) => {
+                started = true;
+                match step.step(&reading, start_ns) {
+                    Ok(thrust) => {
+                        publish_now(&mut thrust_pub, thrust, |t, ns| t.publish_ns = ns)?;
+                    }
+                    Err(e) => {
+                        rejected += 1;
+                        health.error();
+                        log_rejection(rejected, "force frame", &e);
+                    }
+                }
+                health.set_input_gaps(source.rejected());
+                health.cycle(start_ns, monotonic_ns(), false)?;
+            }
+            // The sensor went quiet: say so every deadline.
+            None if started => health.cycle(start_ns, monotonic_ns(), true)?,
+            None => {}
+        }
+    }
+    Ok(())
+}
+
+/// Runs a consumer loop and turns its first error into the result.
+fn consume<F>(bus: &Bus, inputs: &[(&dyn Trigger, Option<Duration>)], mut on_wake: F) -> Result<(), ServiceError>
+where
+    F: FnMut(Wake) -> Result<(), ServiceError>,
+{
+    let mut failure = None;
+    let exit = bus.run(inputs, None, |wake| match on_wake(wake) {
+        Ok(()) => Flow::Continue,
+        Err(e) => {
+            failure = Some(e);
+            Flow::Stop
+        }
+    })?;
+    match (failure, exit) {
+        (Some(e), _) => Err(e),
+        (None, LoopExit::Stopped | LoopExit::Terminated) => Ok(()),
+    }
+}
+
+/// Estimation: `bench/thrust` (+ `bench/actuation`) in, `bench/state` out.
+pub fn run_estimation(config: &BenchConfig) -> Result<(), ServiceError> {
+    let bus = Bus::open("estimation")?;
+    let thrust_sub = bus.subscriber(channels::THRUST, 16)?;
+    let actuation_sub = bus.subscriber(channels::ACTUATION, 16)?;
+    let mut state_pub = bus.publisher(channels::STATE)?;
+    let mut health = HealthReporter::new(&bus, ServiceId::Estimation)?;
+    let mut step = Estimation::new(config.model_params()?, config.estimator.observer_config());
+    announce_ready();
+
+    let mut started = false;
+    let mut rejected = 0;
+    let inputs: [(&dyn Trigger, Option<Duration>); 2] = [(&thrust_sub, Some(INPUT_DEADLINE)), (&actuation_sub, None)];
+    consume(&bus, &inputs, |wake| {
+        let start_ns = monotonic_ns();
+        match wake {
+            Wake::Input(0) => {
+                if let Some(a) = actuation_sub.latest()? {
+                    step.set_applied(a.applied_pct);
+                }
+                while let Some(thrust) = thrust_sub.try_recv()? {
+                    started = true;
+                    match step.step(&thrust) {
+                        Ok(state) => {
+                            publish_now(&mut state_pub, state, |s, ns| s.publish_ns = ns)?;
+                        }
+                        Err(e) => {
+                            rejected += 1;
+                            health.error();
+                            log_rejection(rejected, "thrust sample", &e);
+                        }
+                    }
+                    health.set_input_gaps(thrust_sub.gaps());
+                    health.cycle(start_ns, monotonic_ns(), false)?;
+                }
+            }
+            Wake::Input(_) => {
+                if let Some(a) = actuation_sub.latest()? {
+                    step.set_applied(a.applied_pct);
+                }
+            }
+            Wake::Missed(_) if started => health.cycle(start_ns, monotonic_ns(), true)?,
+            _ => {}
+        }
+        Ok(())
+    })
+}
+
+/// Control: `bench/state` in, `bench/reference` and `bench/command` out.
+pub fn run_control(config: &BenchConfig) -> Result<(), ServiceError> {
+    let bus = Bus::open("control")?;
+    let state_sub = bus.subscriber(channels::STATE, 16)?;
+    let mut reference_pub = bus.publisher(channels::REFERENCE)?;
+    let mut command_pub = bus.publisher(channels::COMMAND)?;
+    let mut health = HealthReporter::new(&bus, ServiceId::Control)?;
+    let mut step = Control::new(Fbl::new(config.model_params()?, config.control.gains()), config.reference.clone());
+    announce_ready();
+
+    let mut started = false;
+    let mut rejected = 0;
+    consume(&bus, &[(&state_sub, Some(INPUT_DEADLINE))], |wake| {
+        let start_ns = monotonic_ns();
+        match wake {
+            Wake::Input(_) => {
+                while let Some(state) = state_sub.try_recv()? {
+                    started = true;
+                    match step.step(&state) {
+                        Ok((reference, command)) => {
+                            publish_now(&mut reference_pub, reference, |r, ns| r.publish_ns = ns)?;
+                            publish_now(&mut command_pub, command, |c, ns| c.publish_ns = ns)?;
+                        }
+                        Err(e) => {
+                            rejected += 1;
+                            health.error();
+                            log_rejection(rejected, "state estimate", &e);
+                        }
+                    }
+                    health.set_input_gaps(state_sub.gaps());
+                    health.cycle(start_ns, monotonic_ns(), false)?;
+                }
+            }
+            Wake::Missed(_) if started => health.cycle(start_ns, monotonic_ns(), true)?,
+            _ => {}
+        }
+        Ok(())
+    })
+}
+
+/// Actuation: `bench/command` in, throttle board and `bench/actuation` out.
+/// Without fresh commands it holds, then idles after the configured cycles.
+pub fn run_actuation(config: &BenchConfig) -> Result<(), ServiceError> {
+    let bus = Bus::open("actuation")?;
+    let command_sub = bus.subscriber(channels::COMMAND, 16)?;
+    let mut board: Box<dyn ThrottleOutput> = match config.bench.devices {
+        Devices::Sim => Box::new(BusThrottleOutput::open(&bus, monotonic_ns)?),
+    };
+    tracing::info!("driving {}", board.describe());
+    let mut actuation_pub = bus.publisher(channels::ACTUATION)?;
+    let mut health = HealthReporter::new(&bus, ServiceId::Actuation)?;
+    let mut step = Actuator::new(config.actuation.idle_after_missed_cycles);
+    announce_ready();
+
+    let mut was_idle = false;
+    let mut started = false;
+    consume(&bus, &[(&command_sub, Some(COMMAND_DEADLINE))], |wake| {
+        let start_ns = monotonic_ns();
+        // Before the first command the board is kept at idle; that is the
+        // expected start, not a missed deadline.
+        let (output, late) = match wake {
+            Wake::Input(_) => match command_sub.latest()? {
+                Some(command) => {
+                    started = true;
+                    (step.on_command(&command), false)
+                }
+                None => return Ok(()),
+            },
+            Wake::Missed(_) => (step.on_missed(), started),
+            Wake::Tick => return Ok(()),
+        };
+        let mut output = output;
+        if let Err(e) = board.write(output.applied_pct) {
+            health.error();
+            log_rejection(health.counters().errors, "throttle write", &e);
+        }
+        output.round_trip_ns = board.round_trip_ns().unwrap_or(0);
+        publish_now(&mut actuation_pub, output, |a, ns| a.publish_ns = ns)?;
+        let idle = step.is_idle_fallback();
+        if idle != was_idle {
+            if !started {
+                tracing::info!("no controller yet: throttle held at idle");
+            } else if idle {
+                tracing::warn!("no command for {} cycles: throttle to idle", output.missed_cycles);
+            } else {
+                tracing::info!("commands are back: leaving idle");
+            }
+            was_idle = idle;
+        }
+        health.set_fallback(idle);
+        health.set_input_gaps(command_sub.gaps());
+        health.cycle(start_ns, monotonic_ns(), late)?;
+        Ok(())
+    })
+}
+
+/// Per-channel counts the recorder reports at exit.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct ChannelReport {
+    pub channel: &'static str,
+    pub received: u64,
+    pub gaps: u64,
+}
+
+/// What the recorder did, printed at exit.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct RecorderReport {
+    pub channels: Vec<ChannelReport>,
+    pub written: u64,
+    pub dropped_full: u64,
+}
+
+impl RecorderReport {
+    pub fn total_gaps(&self) -> u64 {
+        self.channels.iter().map(|c| c.gaps).sum()
+    }
+}
+
+impl std::fmt::Display for RecorderReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "recorder: {} messages written, {} dropped for a full queue", self.written, self.dropped_full)?;
+        for c in self.channels.iter().filter(|c| c.received > 0 || c.gaps > 0) {
+            let gaps = if c.gaps == 0 { "no gaps".to_string() } else { format!("{} lost (seq gaps)", c.gaps) };
+            writeln!(f, "  /{:<16} {:>7} messages, {gaps}", c.channel, c.received)?;
+        }
+        Ok(())
+    }
+}
+
+/// The recorder: every channel into one MCAP file. Subscribers hand samples
+/// to a writer thread through a bounded queue and never wait on the disk.
+pub fn run_recorder(config: &BenchConfig, path: &Path) -> Result<RecorderReport, ServiceError> {
+    let bus = Bus::open("recorder")?;
+    struct Subscribe<'a> {
+        bus: &'a Bus,
+        subs: Vec<Box<dyn AnySubscriber>>,
+        error: Option<BusError>,
+    }
+    impl ChannelVisitor for Subscribe<'_> {
+        fn visit<T: Sample>(&mut self, channel: Channel<T>) {
+            // The deepest queue the channel allows: the recorder must never drop.
+            match self.bus.subscriber(channel, jetbench_bus::limits::MAX_BUFFER) {
+                Ok(s) => self.subs.push(Box::new(s)),
+                Err(e) => self.error = self.error.take().or(Some(e)),
+            }
+        }
+    }
+    let mut subscribe = Subscribe { bus: &bus, subs: Vec::new(), error: None };
+    visit_channels(&mut subscribe);
+    if let Some(e) = subscribe.error {
+        return Err(e.into());
+    }
+    let subs = subscribe.subs;
+    let run_info = [
+        (
+            "clock".to_string(),
+            "CLOCK_MONOTONIC; log_time is the recorder's receive time, publish_time the sample's stamp_ns".to_string(),
+        ),
+        ("monotonic_ns_at_start".to_string(), monotonic_ns().to_string()),
+        ("realtime_ns_at_start".to_string(), realtime_ns().to_string()),
+        ("config".to_string(), toml::to_string(config).unwrap_or_default()),
+    ];
+    let mut writer =
+        spawn_writer(path, config.recorder.queue, vec![("jetbench".into(), run_info.into_iter().collect())])?;
+    let mut health = HealthReporter::new(&bus, ServiceId::Recorder)?;
+    tracing::info!("recording {} channels to {}", subs.len(), path.display());
+    announce_ready();
+
+    let drain = |sub: &dyn AnySubscriber, writer: &mut jetbench_record::WriterHandle| -> Result<(), ServiceError> {
+        let log_time_ns = monotonic_ns();
+        let mut failure = None;
+        sub.drain_raw(&mut |seq, stamp_ns, bytes| {
+            if failure.is_some() {
+                return;
+            }
+            match RawRecord::new(sub.channel_name(), seq, log_time_ns, stamp_ns, bytes) {
+                Some(record) => {
+                    if let Err(e) = writer.send(record) {
+                        failure = Some(e);
+                    }
+                }
+                None => {
+                    failure = Some(RecordError::SampleTooLarge {
+                        channel: sub.channel_name().into(),
+                        size: bytes.len(),
+                        max: jetbench_record::MAX_SAMPLE_BYTES,
+                    })
+                }
+            }
+        })?;
+        failure.map_or(Ok(()), |e| Err(e.into()))
+    };
+
+    let inputs: Vec<(&dyn Trigger, Option<Duration>)> =
+        subs.iter().map(|s| (s.as_ref() as &dyn Trigger, None)).collect();
+    let mut failure = None;
+    let mut last_health = monotonic_ns();
+    bus.run(&inputs, Some(Duration::from_nanos(PERIOD_NS)), |wake| {
+        let start_ns = monotonic_ns();
+        let result = match wake {
+            Wake::Input(i) => drain(subs[i].as_ref(), &mut writer),
+            _ => Ok(()),
+        };
+        if let Err(e) = result {
+            failure = Some(e);
+            return Flow::Stop;
+        }
+        if start_ns.saturating_sub(last_health) >= PERIOD_NS {
+            last_health = start_ns;
+            health.set_input_gaps(subs.iter().map(|s| s.gaps()).sum());
+            if let Err(e) = health.cycle(start_ns, monotonic_ns(), false) {
+                failure = Some(e.into());
+                return Flow::Stop;
+            }
+        }
+        Flow::Continue
+    })?;
+    // Take what arrived while stopping, then close the file.
+    for sub in &subs {
+        drain(sub.as_ref(), &mut writer)?;
+    }
+    let dropped_full = writer.dropped_full;
+    let stats = writer.finish()?;
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    Ok(RecorderReport {
+        channels: subs
+            .iter()
+            .map(|s| ChannelReport { channel: s.channel_name(), received: s.received(), gaps: s.gaps() })
+            .collect(),
+        written: stats.written,
+        dropped_full,
+    })
+}

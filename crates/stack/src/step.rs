@@ -1,0 +1,443 @@
+//! The step logic of every service: plain structs that never touch IPC.
+//!
+//! The same code runs live (wired to the bus by [`crate::service`]), in
+//! replay and in tests. Time comes in as arguments, never from a clock.
+
+use jetbench_control::{Fbl, Profile};
+use jetbench_estim::{EstimError, ObserverConfig, ThrustObserver};
+use jetbench_io::ForceReading;
+use jetbench_model::{Engine, ModelError, Params, State, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
+use jetbench_msgs::{
+    actuation_flags, command_flags, sensor_status, state_flags, thrust_flags, Actuation, Command, Reference, SimTruth,
+    StateEstimate, Thrust,
+};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+
+use crate::config::SensorSection;
+
+/// Why sensing rejected a reading.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SensingError {
+    #[error("force reading is not finite: {0:?}")]
+    NonFinite([f64; 3]),
+}
+
+/// Sensing: calibrates a force reading into a thrust sample.
+#[derive(Debug, Clone)]
+pub struct Sensing {
+    axis: usize,
+    tare_n: [f64; 3],
+    last_counter: Option<u32>,
+    frame_seq: u64,
+}
+
+impl Sensing {
+    pub fn new(sensor: &SensorSection) -> Self {
+        Sensing { axis: sensor.thrust_axis.index(), tare_n: sensor.tare_n, last_counter: None, frame_seq: 0 }
+    }
+
+    /// One frame received at `received_ns`. `counter` jumps set `FRAME_GAP`.
+    pub fn step(&mut self, reading: &ForceReading, received_ns: u64) -> Result<Thrust, SensingError> {
+        if reading.force_n.iter().chain(&reading.torque_nm).any(|v| !v.is_finite()) {
+            return Err(SensingError::NonFinite(reading.force_n));
+        }
+        let mut flags = 0;
+        if let Some(last) = self.last_counter {
+            let step = reading.counter.wrapping_sub(last);
+            if step != 1 {
+                flags |= thrust_flags::FRAME_GAP;
+            }
+            self.frame_seq += u64::from(step.max(1));
+        }
+        self.last_counter = Some(reading.counter);
+        if reading.status & (sensor_status::OVERLOAD | sensor_status::CALIBRATION_INVALID) != 0 {
+            flags |= thrust_flags::SENSOR_STATUS;
+        }
+        let force_n = [
+            reading.force_n[0] - self.tare_n[0],
+            reading.force_n[1] - self.tare_n[1],
+            reading.force_n[2] - self.tare_n[2],
+        ];
+        Ok(Thrust {
+            seq: 0,
+            stamp_ns: received_ns,
+            publish_ns: 0,
+            frame_seq: self.frame_seq,
+            thrust_n: force_n[self.axis],
+            force_n,
+            torque_nm: reading.torque_nm,
+            status: reading.status,
+            flags,
+        })
+    }
+}
+
+/// Estimation: the EKF observer of `[T, Ṫ]` on thrust samples.
+#[derive(Debug, Clone)]
+pub struct Estimation {
+    observer: ThrustObserver,
+    applied_pct: Option<f64>,
+}
+
+impl Estimation {
+    pub fn new(params: Params, config: ObserverConfig) -> Self {
+        Estimation { observer: ThrustObserver::new(params, config), applied_pct: None }
+    }
+
+    /// The throttle the actuator applied most recently, %.
+    pub fn set_applied(&mut self, applied_pct: f64) {
+        if applied_pct.is_finite() {
+            self.applied_pct = Some(applied_pct);
+        }
+    }
+
+    /// One thrust sample: predict with the last applied throttle, update.
+    pub fn step(&mut self, thrust: &Thrust) -> Result<StateEstimate, EstimError> {
+        let mut flags = 0;
+        let throttle_pct = self.applied_pct.unwrap_or_else(|| {
+            flags |= state_flags::INPUT_ASSUMED;
+            THROTTLE_MIN_PCT
+        });
+        let fallbacks_before = self.observer.fallbacks();
+        let e = self.observer.step(thrust.thrust_n, throttle_pct)?;
+        if self.observer.fallbacks() != fallbacks_before {
+            flags |= state_flags::MODEL_FALLBACK;
+        }
+        Ok(StateEstimate {
+            seq: 0,
+            stamp_ns: thrust.stamp_ns,
+            publish_ns: 0,
+            source_seq: thrust.seq,
+            thrust_n: e.thrust_n,
+            thrust_rate_n_per_s: e.thrust_rate_n_per_s,
+            thrust_accel_n_per_s2: e.thrust_accel_n_per_s2,
+            input_throttle_pct: throttle_pct,
+            innovation_n: e.innovation_n,
+            thrust_var_n2: e.thrust_var_n2,
+            thrust_rate_var_n2_per_s2: e.thrust_rate_var,
+            flags,
+        })
+    }
+}
+
+/// Control: the reference profile and feedback linearisation.
+#[derive(Debug, Clone)]
+pub struct Control {
+    fbl: Fbl,
+    profile: Profile,
+    start_ns: Option<u64>,
+}
+
+impl Control {
+    pub fn new(fbl: Fbl, profile: Profile) -> Self {
+        Control { fbl, profile, start_ns: None }
+    }
+
+    /// One state estimate: the reference at the estimate's time (the profile
+    /// starts at the first estimate) and the throttle command.
+    pub fn step(&mut self, state: &StateEstimate) -> Result<(Reference, Command), jetbench_control::ControlError> {
+        let start_ns = *self.start_ns.get_or_insert(state.stamp_ns);
+        let profile_time_s = state.stamp_ns.saturating_sub(start_ns) as f64 * 1e-9;
+        let r = self.profile.at(profile_time_s);
+        let c = self.fbl.step(state.thrust_n, state.thrust_rate_n_per_s, &r)?;
+        let mut flags = 0;
+        if c.saturated {
+            flags |= if c.unclamped_pct < THROTTLE_MIN_PCT || c.unclamped_pct.is_nan() {
+                command_flags::SATURATED_LOW
+            } else {
+                command_flags::SATURATED_HIGH
+            };
+        }
+        let reference = Reference {
+            seq: 0,
+            stamp_ns: state.stamp_ns,
+            publish_ns: 0,
+            source_seq: state.seq,
+            profile_time_s,
+            thrust_n: r.thrust_n,
+            thrust_rate_n_per_s: r.thrust_rate_n_per_s,
+            thrust_accel_n_per_s2: r.thrust_accel_n_per_s2,
+        };
+        let command = Command {
+            seq: 0,
+            stamp_ns: state.stamp_ns,
+            publish_ns: 0,
+            source_seq: state.seq,
+            throttle_pct: c.throttle_pct,
+            unclamped_pct: c.unclamped_pct,
+            virtual_input: c.virtual_input,
+            flags,
+        };
+        Ok((reference, command))
+    }
+}
+
+/// Actuation: applies commands, and idles when they stop coming.
+#[derive(Debug, Clone)]
+pub struct Actuator {
+    idle_after_missed: u32,
+    missed: u32,
+    last: Option<Command>,
+}
+
+impl Actuator {
+    pub fn new(idle_after_missed: u32) -> Self {
+        Actuator { idle_after_missed: idle_after_missed.max(1), missed: 0, last: None }
+    }
+
+    /// A fresh command: apply it (clamped to the engine range).
+    pub fn on_command(&mut self, command: &Command) -> Actuation {
+        self.missed = 0;
+        self.last = Some(*command);
+        let applied_pct = if command.throttle_pct.is_finite() {
+            command.throttle_pct.clamp(THROTTLE_MIN_PCT, THROTTLE_MAX_PCT)
+        } else {
+            THROTTLE_MIN_PCT
+        };
+        self.output(applied_pct, 0)
+    }
+
+    /// A cycle without a fresh command: hold the last one, and after
+    /// `idle_after_missed` such cycles command idle.
+    pub fn on_missed(&mut self) -> Actuation {
+        self.missed = self.missed.saturating_add(1);
+        match self.last {
+            Some(c) if self.missed < self.idle_after_missed => {
+                self.output(c.throttle_pct.clamp(THROTTLE_MIN_PCT, THROTTLE_MAX_PCT), actuation_flags::STALE)
+            }
+            _ => self.output(THROTTLE_MIN_PCT, actuation_flags::STALE | actuation_flags::IDLE_FALLBACK),
+        }
+    }
+
+    /// True while idling for lack of commands.
+    pub fn is_idle_fallback(&self) -> bool {
+        self.missed >= self.idle_after_missed || (self.missed > 0 && self.last.is_none())
+    }
+
+    fn output(&self, applied_pct: f64, flags: u32) -> Actuation {
+        let (stamp_ns, command_seq, commanded_pct) =
+            self.last.map_or((0, 0, f64::NAN), |c| (c.stamp_ns, c.seq, c.throttle_pct));
+        Actuation {
+            seq: 0,
+            stamp_ns,
+            publish_ns: 0,
+            command_seq,
+            applied_pct,
+            // No command yet: report idle rather than a NaN a reader must special-case.
+            commanded_pct: if commanded_pct.is_nan() { THROTTLE_MIN_PCT } else { commanded_pct },
+            round_trip_ns: 0,
+            missed_cycles: self.missed,
+            flags,
+        }
+    }
+}
+
+/// The simulated throttle board: applies valid frames, idles by itself when
+/// none arrive for [`BoardEmulator::WATCHDOG_NS`].
+#[derive(Debug, Clone)]
+pub struct BoardEmulator {
+    throttle_pct: f64,
+    last_frame_ns: Option<u64>,
+}
+
+impl BoardEmulator {
+    /// The board's own watchdog, as on the real board.
+    pub const WATCHDOG_NS: u64 = 100_000_000;
+
+    pub fn new() -> Self {
+        BoardEmulator { throttle_pct: THROTTLE_MIN_PCT, last_frame_ns: None }
+    }
+
+    /// Applies a frame received at `now_ns`.
+    pub fn receive(&mut self, throttle_pct: f64, now_ns: u64) {
+        if throttle_pct.is_finite() {
+            self.throttle_pct = throttle_pct.clamp(0.0, THROTTLE_MAX_PCT);
+            self.last_frame_ns = Some(now_ns);
+        }
+    }
+
+    /// The throttle the board outputs at `now_ns`; the engine ECU treats
+    /// anything below idle as idle.
+    pub fn output_pct(&self, now_ns: u64) -> f64 {
+        match self.last_frame_ns {
+            Some(t) if now_ns.saturating_sub(t) <= Self::WATCHDOG_NS => self.throttle_pct.max(THROTTLE_MIN_PCT),
+            _ => THROTTLE_MIN_PCT,
+        }
+    }
+}
+
+impl Default for BoardEmulator {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// The simulated engine, throttle board and force sensor.
+#[derive(Debug, Clone)]
+pub struct SimBench {
+    engine: Engine,
+    board: BoardEmulator,
+    rng: ChaCha8Rng,
+    noise: Normal<f64>,
+    cross_noise: Normal<f64>,
+    counter: u32,
+}
+
+/// Noise on the force axes that do not carry thrust, N (std-dev).
+const CROSS_AXIS_NOISE_N: f64 = 0.3;
+
+impl SimBench {
+    /// Fails if the noise variance is negative or not finite.
+    pub fn new(params: Params, noise_var_n2: f64, seed: u64, initial_throttle_pct: f64) -> Result<Self, SimError> {
+        let bad_noise = |_| SimError::Noise(noise_var_n2);
+        Ok(SimBench {
+            engine: Engine::at_equilibrium(params, initial_throttle_pct),
+            board: BoardEmulator::new(),
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            noise: Normal::new(0.0, noise_var_n2.sqrt()).map_err(bad_noise)?,
+            cross_noise: Normal::new(0.0, CROSS_AXIS_NOISE_N).map_err(bad_noise)?,
+            counter: 0,
+        })
+    }
+
+    /// One 10 ms step at `now_ns`: apply the newest throttle frame (if any),
+    /// advance the engine, and sample the sensor with noise on the thrust axis.
+    pub fn step(&mut self, now_ns: u64, throttle_frame: Option<f64>) -> Result<(ForceReading, SimTruth), ModelError> {
+        if let Some(t) = throttle_frame {
+            self.board.receive(t, now_ns);
+        }
+        let throttle_pct = self.board.output_pct(now_ns);
+        let State { thrust_n, thrust_rate_n_per_s } = self.engine.step(throttle_pct)?;
+        self.counter = self.counter.wrapping_add(1) & 0xff;
+        let reading = ForceReading {
+            force_n: [
+                thrust_n + self.noise.sample(&mut self.rng),
+                self.cross_noise.sample(&mut self.rng),
+                self.cross_noise.sample(&mut self.rng),
+            ],
+            torque_nm: [
+                0.01 * self.cross_noise.sample(&mut self.rng),
+                0.01 * self.cross_noise.sample(&mut self.rng),
+                0.01 * self.cross_noise.sample(&mut self.rng),
+            ],
+            counter: self.counter,
+            status: 0,
+        };
+        let truth = SimTruth {
+            seq: 0,
+            stamp_ns: now_ns,
+            thrust_n,
+            thrust_rate_n_per_s,
+            engine_throttle_pct: throttle_pct,
+            measured_thrust_n: thrust_n,
+        };
+        Ok((reading, truth))
+    }
+}
+
+/// Why the simulated bench cannot start.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SimError {
+    #[error("sensor noise variance {0} N^2 must be finite and >= 0")]
+    Noise(f64),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use jetbench_control::FblGains;
+    use jetbench_model::Preset;
+
+    fn command(seq: u64, throttle_pct: f64) -> Command {
+        Command { seq, stamp_ns: seq * 10_000_000, throttle_pct, ..Command::default() }
+    }
+
+    #[test]
+    fn actuator_idles_on_the_third_missed_cycle() {
+        let mut a = Actuator::new(3);
+        let applied = a.on_command(&command(5, 70.0));
+        assert_eq!(applied.applied_pct, 70.0);
+        assert_eq!(applied.flags, 0);
+        let m1 = a.on_missed();
+        let m2 = a.on_missed();
+        let m3 = a.on_missed();
+        assert_eq!((m1.applied_pct, m2.applied_pct), (70.0, 70.0));
+        assert_eq!(m1.flags & actuation_flags::IDLE_FALLBACK, 0);
+        assert_eq!(m3.applied_pct, THROTTLE_MIN_PCT);
+        assert_ne!(m3.flags & actuation_flags::IDLE_FALLBACK, 0);
+        assert_eq!(m3.missed_cycles, 3);
+        assert_eq!(m3.command_seq, 5);
+        assert!(a.is_idle_fallback());
+        // A fresh command ends the fallback.
+        assert_eq!(a.on_command(&command(6, 40.0)).flags, 0);
+        assert!(!a.is_idle_fallback());
+    }
+
+    #[test]
+    fn actuator_clamps_and_rejects_nan() {
+        let mut a = Actuator::new(3);
+        assert_eq!(a.on_command(&command(1, 140.0)).applied_pct, THROTTLE_MAX_PCT);
+        assert_eq!(a.on_command(&command(2, f64::NAN)).applied_pct, THROTTLE_MIN_PCT);
+    }
+
+    #[test]
+    fn board_idles_after_its_watchdog() {
+        let mut b = BoardEmulator::new();
+        b.receive(80.0, 0);
+        assert_eq!(b.output_pct(100_000_000), 80.0);
+        assert_eq!(b.output_pct(100_000_001), THROTTLE_MIN_PCT);
+        b.receive(f64::NAN, 150_000_000);
+        assert_eq!(b.output_pct(150_000_000), THROTTLE_MIN_PCT, "a NaN frame is not a valid frame");
+    }
+
+    #[test]
+    fn sensing_flags_frame_gaps_and_rejects_nan() {
+        let mut s = Sensing::new(&SensorSection::default());
+        let mut r = ForceReading { force_n: [40.0, 0.1, 0.2], counter: 254, ..ForceReading::default() };
+        assert_eq!(s.step(&r, 1).unwrap().flags, 0);
+        r.counter = 255;
+        assert_eq!(s.step(&r, 2).unwrap().flags, 0);
+        r.counter = 1; // wrapped past 0: frame 0 lost
+        let t = s.step(&r, 3).unwrap();
+        assert_ne!(t.flags & thrust_flags::FRAME_GAP, 0);
+        assert_eq!(t.frame_seq, 3);
+        assert_eq!(t.thrust_n, 40.0);
+        r.force_n[0] = f64::NAN;
+        assert!(s.step(&r, 4).is_err());
+    }
+
+    /// The whole loop on the model, with the same step code the services run:
+    /// sim-bench -> sensing -> estimation -> control -> actuation -> sim-bench.
+    #[test]
+    fn closed_loop_tracks_the_reference() {
+        let params = Preset::P100Diesel.params();
+        let config = crate::config::BenchConfig::default_sim().unwrap();
+        let mut sim = SimBench::new(params, 7.0, 3, 25.0).unwrap();
+        let mut sensing = Sensing::new(&config.sensor);
+        let mut estimation = Estimation::new(params, config.estimator.observer_config());
+        let mut control = Control::new(Fbl::new(params, FblGains::default()), config.reference.clone());
+        let mut actuator = Actuator::new(3);
+        let mut throttle = None;
+        let mut errors = Vec::new();
+        let steps = 3000; // 30 s
+        for k in 0..steps {
+            let now_ns = k * 10_000_000;
+            let (reading, truth) = sim.step(now_ns, throttle).unwrap();
+            let thrust = sensing.step(&reading, now_ns).unwrap();
+            let state = estimation.step(&thrust).unwrap();
+            let (reference, command) = control.step(&state).unwrap();
+            let applied = actuator.on_command(&command);
+            estimation.set_applied(applied.applied_pct);
+            throttle = Some(applied.applied_pct);
+            if k >= steps / 2 {
+                errors.push((truth.thrust_n - reference.thrust_n).abs());
+            }
+        }
+        errors.sort_by(f64::total_cmp);
+        let median = errors[errors.len() / 2];
+        let (lo, hi) = config.reference.span_n();
+        assert!(median < 0.05 * (hi - lo), "median error {median:.2} N over span {:.1} N", hi - lo);
+    }
+}

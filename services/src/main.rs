@@ -1,0 +1,312 @@
+//! `jetbench`: launch the service set and look inside a running one.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use clap::{Parser, Subcommand};
+use jetbench_bus::{Bus, Flow};
+use jetbench_msgs::{format_fields, visit_channels, Channel, ChannelVisitor, Sample};
+use jetbench_record::Recording;
+use jetbench_stack::launch::{up, UpOptions};
+
+/// Control stack for model-jet-engine thrust benches.
+#[derive(Parser)]
+#[command(version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Start the service set (sensing, estimation, control, actuation, recorder).
+    ///
+    /// Example: jetbench up --sim --duration 10 --record run.mcap
+    Up {
+        /// Run against the simulated bench (engine, sensor and throttle board simulated).
+        #[arg(long)]
+        sim: bool,
+        /// Bench config (TOML); `--sim` without it uses the built-in config/sim.toml.
+        #[arg(long, value_name = "FILE")]
+        config: Option<PathBuf>,
+        /// Stop after this many seconds of running (default: until Ctrl-C).
+        #[arg(long, value_name = "SECONDS")]
+        duration: Option<f64>,
+        /// Record every channel to this MCAP file.
+        #[arg(long, value_name = "FILE.mcap")]
+        record: Option<PathBuf>,
+        /// No live status line.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// List the channels and bus nodes that exist now.
+    List,
+    /// Print the samples of a channel as they arrive, e.g. `jetbench echo bench/thrust`.
+    Echo {
+        /// Channel name, e.g. bench/state (see `jetbench list`).
+        channel: String,
+        /// Stop after this many samples.
+        #[arg(long, short = 'n')]
+        count: Option<u64>,
+    },
+    /// Measure a channel's rate and period jitter, e.g. `jetbench hz bench/thrust`.
+    Hz {
+        channel: String,
+        /// Report every this many seconds.
+        #[arg(long, default_value_t = 1.0)]
+        window: f64,
+        /// Stop after this many seconds (default: until Ctrl-C).
+        #[arg(long)]
+        duration: Option<f64>,
+    },
+    /// Summarise an MCAP recording: messages, rates and sequence gaps per channel.
+    Info { file: PathBuf },
+}
+
+fn main() -> ExitCode {
+    jetbench::init_logging();
+    match run() {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("jetbench: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> anyhow::Result<ExitCode> {
+    match Cli::parse().command {
+        Cmd::Up { sim, config, duration, record, quiet } => cmd_up(sim, config, duration, record, quiet),
+        Cmd::List => cmd_list(),
+        Cmd::Echo { channel, count } => with_channel(&channel, Echo { count, result: Ok(()) }),
+        Cmd::Hz { channel, window, duration } => {
+            if !window.is_finite() || window <= 0.0 {
+                bail!("--window must be a positive number of seconds");
+            }
+            with_channel(&channel, Hz { window, duration, result: Ok(()) })
+        }
+        Cmd::Info { file } => cmd_info(&file),
+    }
+}
+
+fn bin_dir() -> anyhow::Result<PathBuf> {
+    if let Some(dir) = std::env::var_os("JETBENCH_BIN_DIR") {
+        return Ok(dir.into());
+    }
+    let exe = std::env::current_exe().context("cannot locate the jetbench binary")?;
+    Ok(exe.parent().context("the jetbench binary has no folder")?.to_path_buf())
+}
+
+fn cmd_up(
+    sim: bool,
+    config: Option<PathBuf>,
+    duration: Option<f64>,
+    record: Option<PathBuf>,
+    quiet: bool,
+) -> anyhow::Result<ExitCode> {
+    // Check the config here so a typo is reported once, not by six services.
+    let checked = jetbench_stack::config::BenchConfig::load_or_default(config.as_deref())?;
+    if !sim && config.is_none() {
+        bail!("no bench config given: use --sim for the simulated bench, or --config FILE");
+    }
+    if !sim && checked.bench.devices == jetbench_stack::config::Devices::Sim {
+        bail!("the config selects the simulated devices ([bench] devices = \"sim\"); add --sim to confirm");
+    }
+    let duration = match duration {
+        Some(d) if d.is_finite() && d > 0.0 => Some(Duration::from_secs_f64(d)),
+        Some(d) => bail!("--duration {d} must be a positive number of seconds"),
+        None => None,
+    };
+    if let Some(path) = &record {
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            if !dir.is_dir() {
+                bail!("cannot record to {}: folder {} does not exist", path.display(), dir.display());
+            }
+        }
+    }
+    let options = UpOptions {
+        config: config.map(|c| std::path::absolute(&c).unwrap_or(c)),
+        duration,
+        record: record.clone().map(|r| std::path::absolute(&r).unwrap_or(r)),
+        bin_dir: bin_dir()?,
+        status: !quiet,
+    };
+    up(&options)?;
+    println!("all services stopped cleanly");
+    if let Some(path) = record {
+        print_summary(&path)?;
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn cmd_list() -> anyhow::Result<ExitCode> {
+    let known = jetbench_msgs::channel_names();
+    let live = jetbench_bus::list_channels();
+    println!("channels:");
+    if live.is_empty() {
+        println!("  (none: is `jetbench up` running?)");
+    }
+    for name in &live {
+        let note = if known.contains(&name.as_str()) { "" } else { "  (not a jetbench channel)" };
+        println!("  {name}{note}");
+    }
+    println!("nodes:");
+    for node in jetbench_bus::list_nodes() {
+        println!("  {node}");
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Finds the channel called `name` and runs `action` with its type.
+trait ChannelAction {
+    fn act<T: Sample>(&mut self, bus: &Bus, channel: Channel<T>) -> anyhow::Result<()>;
+}
+
+fn with_channel<A: ChannelAction>(name: &str, action: A) -> anyhow::Result<ExitCode> {
+    struct Find<A> {
+        name: String,
+        action: A,
+        found: bool,
+        result: anyhow::Result<()>,
+    }
+    impl<A: ChannelAction> ChannelVisitor for Find<A> {
+        fn visit<T: Sample>(&mut self, channel: Channel<T>) {
+            if !self.found && self.name.trim_start_matches('/') == channel.name {
+                self.found = true;
+                self.result = Bus::open(&format!("jetbench-cli-{}", std::process::id()))
+                    .map_err(anyhow::Error::from)
+                    .and_then(|bus| self.action.act(&bus, channel));
+            }
+        }
+    }
+    let mut find = Find { name: name.to_string(), action, found: false, result: Ok(()) };
+    visit_channels(&mut find);
+    if !find.found {
+        bail!("unknown channel {name:?}; channels are: {}", jetbench_msgs::channel_names().join(", "));
+    }
+    find.result.map(|()| ExitCode::SUCCESS)
+}
+
+struct Echo {
+    count: Option<u64>,
+    result: anyhow::Result<()>,
+}
+
+impl ChannelAction for Echo {
+    fn act<T: Sample>(&mut self, bus: &Bus, channel: Channel<T>) -> anyhow::Result<()> {
+        let sub = bus.subscriber(channel, 256)?;
+        let mut printed = 0;
+        bus.run(&[(&sub, None)], None, |_| {
+            while let Ok(Some(sample)) = sub.try_recv() {
+                println!("{}", format_fields(&sample));
+                printed += 1;
+                if self.count.is_some_and(|n| printed >= n) {
+                    return Flow::Stop;
+                }
+            }
+            Flow::Continue
+        })?;
+        std::mem::replace(&mut self.result, Ok(()))
+    }
+}
+
+struct Hz {
+    window: f64,
+    duration: Option<f64>,
+    result: anyhow::Result<()>,
+}
+
+impl ChannelAction for Hz {
+    fn act<T: Sample>(&mut self, bus: &Bus, channel: Channel<T>) -> anyhow::Result<()> {
+        let sub = bus.subscriber(channel, 512)?;
+        let start = Instant::now();
+        let mut window_start = start;
+        let mut last_arrival: Option<Instant> = None;
+        let mut periods_ms: Vec<f64> = Vec::new();
+        let window = Duration::from_secs_f64(self.window);
+        bus.run(&[(&sub, None)], Some(Duration::from_millis(100)), |_| {
+            while let Ok(Some(_)) = sub.try_recv() {
+                let now = Instant::now();
+                if let Some(last) = last_arrival {
+                    periods_ms.push((now - last).as_secs_f64() * 1e3);
+                }
+                last_arrival = Some(now);
+            }
+            let now = Instant::now();
+            if now - window_start >= window {
+                let n = periods_ms.len();
+                if n == 0 {
+                    println!("{}: no samples", channel.name);
+                } else {
+                    let mean = periods_ms.iter().sum::<f64>() / n as f64;
+                    let std = (periods_ms.iter().map(|p| (p - mean).powi(2)).sum::<f64>() / n as f64).sqrt();
+                    let (min, max) = periods_ms.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(*p), b.max(*p)));
+                    println!(
+                        "{}: {:.2} Hz  period mean {mean:.3} ms  min {min:.3}  max {max:.3}  std {std:.3}  lost {}",
+                        channel.name,
+                        1e3 / mean,
+                        sub.gaps()
+                    );
+                }
+                periods_ms.clear();
+                window_start = now;
+            }
+            match self.duration {
+                Some(d) if (now - start).as_secs_f64() >= d => Flow::Stop,
+                _ => Flow::Continue,
+            }
+        })?;
+        std::mem::replace(&mut self.result, Ok(()))
+    }
+}
+
+fn cmd_info(path: &std::path::Path) -> anyhow::Result<ExitCode> {
+    print_summary(path)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Prints messages, rate and seq gaps per channel of a recording.
+fn print_summary(path: &std::path::Path) -> anyhow::Result<()> {
+    let recording = Recording::open(path)?;
+    struct Summary<'a> {
+        recording: &'a Recording,
+    }
+    impl ChannelVisitor for Summary<'_> {
+        fn visit<T: Sample>(&mut self, channel: Channel<T>) {
+            let samples = self.recording.samples(channel);
+            if samples.is_empty() {
+                return;
+            }
+            // Rate on the recorder's receive time: every sample has one.
+            let topic = channel.topic();
+            let times: Vec<u64> =
+                self.recording.messages.iter().filter(|m| m.topic == topic).map(|m| m.log_time_ns).collect();
+            let span_s = times.last().zip(times.first()).map_or(0, |(l, f)| l.saturating_sub(*f)) as f64 * 1e-9;
+            let rate = if span_s > 0.0 { (times.len() - 1) as f64 / span_s } else { 0.0 };
+            // bench/health has one publisher per service: gaps are per publisher.
+            let gaps = if channel.name == jetbench_msgs::channels::HEALTH.name {
+                let health = self.recording.samples(jetbench_msgs::channels::HEALTH);
+                jetbench_msgs::ServiceId::ALL
+                    .iter()
+                    .map(|id| {
+                        let mine: Vec<_> = health.iter().copied().filter(|h| h.service_id == *id as u32).collect();
+                        jetbench_record::seq_gaps(&mine)
+                    })
+                    .sum()
+            } else {
+                jetbench_record::seq_gaps(&samples)
+            };
+            println!("  {:<18} {:>7} messages  {:>6.1} Hz  {} seq gaps", channel.topic(), samples.len(), rate, gaps);
+        }
+    }
+    println!(
+        "{}: {} messages{}",
+        path.display(),
+        recording.messages.len(),
+        if recording.truncated { " (file truncated: read up to the last complete chunk)" } else { "" }
+    );
+    visit_channels(&mut Summary { recording: &recording });
+    Ok(())
+}

@@ -1,0 +1,295 @@
+//! End-to-end tests of the service set: real processes, the real bus, real
+//! MCAP files read back by an independent reader (Python `mcap` +
+//! `mcap-ros2-support`, set up by scripts/pyenv.sh).
+//!
+//! The tests share the machine's bus, so they run one at a time (a lock).
+//! Hangs are caught by a watchdog; no test asserts a runtime.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::{mpsc, Mutex};
+use std::time::{Duration, Instant};
+
+use jetbench_msgs::{actuation_flags, channels, visit_channels, Channel, ChannelVisitor, RosType, Sample, ServiceId};
+use jetbench_record::{seq_gaps, Recording};
+use serde_json::Value;
+
+static BUS: Mutex<()> = Mutex::new(());
+
+fn jetbench() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_jetbench"))
+}
+
+fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("services/ has a parent").to_path_buf()
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("service_set");
+    std::fs::create_dir_all(&dir).expect("create scratch dir");
+    let path = dir.join(name);
+    let _ = std::fs::remove_file(&path);
+    path
+}
+
+/// Waits for a child, killing it if it outlives `limit` (a hang, not a slow run).
+fn wait_with_watchdog(child: &mut Child, limit: Duration, what: &str) -> ExitStatus {
+    let deadline = Instant::now() + limit;
+    loop {
+        if let Some(status) = child.try_wait().expect("try_wait") {
+            return status;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("{what} hung for {limit:?} and was killed");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Collects a child's output lines on a thread.
+fn lines_of(stream: impl std::io::Read + Send + 'static) -> mpsc::Receiver<String> {
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stream).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    rx
+}
+
+/// Runs `jetbench up --sim` for `duration_s` seconds, recording to `out`.
+fn run_up(duration_s: f64, out: &Path) -> (ExitStatus, String) {
+    let mut child = jetbench()
+        .args(["up", "--sim", "--quiet", "--duration", &duration_s.to_string(), "--record"])
+        .arg(out)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start jetbench up");
+    let stdout = lines_of(child.stdout.take().expect("stdout"));
+    let stderr = lines_of(child.stderr.take().expect("stderr"));
+    let status = wait_with_watchdog(&mut child, Duration::from_secs_f64(duration_s + 90.0), "jetbench up");
+    let mut log: Vec<String> = stdout.try_iter().collect();
+    log.extend(stderr.try_iter());
+    (status, log.join("\n"))
+}
+
+/// The path of the venv python with the reference MCAP reader.
+fn python() -> PathBuf {
+    let out = Command::new(repo_root().join("scripts/pyenv.sh")).output().expect("run scripts/pyenv.sh");
+    assert!(out.status.success(), "scripts/pyenv.sh failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
+}
+
+/// Decodes a recording with the Python reference reader.
+fn python_decode(path: &Path) -> Value {
+    let out = Command::new(python())
+        .arg(repo_root().join("scripts/mcap_dump.py"))
+        .arg(path)
+        .output()
+        .expect("run mcap_dump.py");
+    assert!(out.status.success(), "mcap_dump.py failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).expect("mcap_dump.py prints JSON")
+}
+
+/// A sample's fields as JSON values, read from its bytes by the schema's
+/// field table (what a published sample holds).
+fn fields_json<T: Sample>(sample: &T) -> Value {
+    let bytes = sample.as_bytes();
+    let scalar = |ty: RosType, at: &[u8]| -> Value {
+        let b8 = |n: usize| at[..n].to_vec();
+        match ty.primitive().name() {
+            "float64" => serde_json::json!(f64::from_le_bytes(b8(8).try_into().unwrap())),
+            "uint64" => serde_json::json!(u64::from_le_bytes(b8(8).try_into().unwrap())),
+            "uint32" => serde_json::json!(u32::from_le_bytes(b8(4).try_into().unwrap())),
+            other => panic!("add {other} to the test decoder"),
+        }
+    };
+    let mut map = serde_json::Map::new();
+    for f in T::FIELDS {
+        let at = &bytes[f.offset..];
+        let value = match f.ros_type {
+            RosType::Scalar(_) => scalar(f.ros_type, at),
+            RosType::Array(p, n) => {
+                Value::Array((0..n).map(|i| scalar(RosType::Scalar(p), &at[i * p.size()..])).collect())
+            }
+        };
+        map.insert(f.name.to_string(), value);
+    }
+    Value::Object(map)
+}
+
+/// Compares the Python decoding of every channel with the published bytes.
+struct CompareWithPython<'a> {
+    recording: &'a Recording,
+    python: &'a Value,
+    compared: usize,
+    failures: Vec<String>,
+}
+
+impl ChannelVisitor for CompareWithPython<'_> {
+    fn visit<T: Sample>(&mut self, channel: Channel<T>) {
+        let ours = self.recording.samples(channel);
+        let topic = channel.topic();
+        let theirs = self.python["messages"][&topic].as_array().cloned().unwrap_or_default();
+        if ours.len() != theirs.len() {
+            self.failures.push(format!("{topic}: {} messages here, {} decoded by Python", ours.len(), theirs.len()));
+            return;
+        }
+        if !ours.is_empty() {
+            let meta = &self.python["channels"][&topic];
+            if meta["schema"] != T::schema_name().as_str()
+                || meta["schema_encoding"] != "ros2msg"
+                || meta["message_encoding"] != "cdr"
+            {
+                self.failures.push(format!("{topic}: channel metadata {meta}"));
+            }
+        }
+        for (i, (sample, decoded)) in ours.iter().zip(&theirs).enumerate() {
+            let expected = fields_json(sample);
+            if &expected != decoded {
+                self.failures.push(format!("{topic}[{i}]: published {expected} but Python decoded {decoded}"));
+                return;
+            }
+            self.compared += 1;
+        }
+    }
+}
+
+fn health_of(recording: &Recording, id: ServiceId) -> Vec<jetbench_msgs::Health> {
+    recording.samples(channels::HEALTH).into_iter().filter(|h| h.service_id == id as u32).collect()
+}
+
+#[test]
+fn up_records_a_complete_closed_loop_run() {
+    let _bus = BUS.lock().unwrap_or_else(|e| e.into_inner());
+    let out = scratch("run.mcap");
+    let (status, log) = run_up(10.0, &out);
+    assert!(status.success(), "jetbench up failed: {status}\n{log}");
+
+    let recording = Recording::open(&out).expect("read the recording");
+    assert!(!recording.truncated, "recording was not closed properly");
+
+    // Every bench channel complete and gap-free.
+    let thrust = recording.samples(channels::THRUST);
+    let state = recording.samples(channels::STATE);
+    let reference = recording.samples(channels::REFERENCE);
+    let command = recording.samples(channels::COMMAND);
+    let actuation = recording.samples(channels::ACTUATION);
+    let counts = [thrust.len(), state.len(), reference.len(), command.len(), actuation.len()];
+    assert!(counts.iter().all(|n| *n >= 990), "message counts {counts:?}\n{log}");
+    let gaps = [seq_gaps(&thrust), seq_gaps(&state), seq_gaps(&reference), seq_gaps(&command), seq_gaps(&actuation)];
+    assert_eq!(gaps, [0; 5], "seq gaps per channel");
+    for samples_start_at_zero in [thrust[0].seq, state[0].seq, reference[0].seq, command[0].seq, actuation[0].seq] {
+        assert_eq!(samples_start_at_zero, 0, "the recording must start with each publisher's first sample");
+    }
+    for id in ServiceId::ALL {
+        let h = health_of(&recording, id);
+        assert!(h.len() > 100, "{} published {} heartbeats", id.name(), h.len());
+        assert_eq!(seq_gaps(&h), 0, "{} heartbeats have gaps", id.name());
+    }
+    let recorder = health_of(&recording, ServiceId::Recorder);
+    assert_eq!(recorder.last().map(|h| h.input_gaps), Some(0), "the recorder lost samples");
+
+    // Downstream samples carry their source's seq and stamp.
+    for s in &state {
+        let t = &thrust[s.source_seq as usize];
+        assert_eq!((t.seq, t.stamp_ns), (s.source_seq, s.stamp_ns), "state {} does not match its thrust sample", s.seq);
+    }
+
+    // Every message decodes with the reference Python reader to the published values.
+    let python = python_decode(&out);
+    let mut compare = CompareWithPython { recording: &recording, python: &python, compared: 0, failures: vec![] };
+    visit_channels(&mut compare);
+    assert!(compare.failures.is_empty(), "{:#?}", compare.failures);
+    assert_eq!(compare.compared, recording.messages.len());
+
+    // The estimated thrust tracks the reference: median error over the
+    // second half below 5 % of the reference span.
+    let (lo, hi) = reference.iter().fold((f64::MAX, f64::MIN), |(a, b), r| (a.min(r.thrust_n), b.max(r.thrust_n)));
+    let span = hi - lo;
+    assert!(span > 20.0, "the reference barely moved: {lo:.1}..{hi:.1} N");
+    let by_state: std::collections::HashMap<u64, f64> = reference.iter().map(|r| (r.source_seq, r.thrust_n)).collect();
+    let half = state.len() / 2;
+    let mut errors: Vec<f64> =
+        state[half..].iter().filter_map(|s| by_state.get(&s.seq).map(|r| (s.thrust_n - r).abs())).collect();
+    assert!(errors.len() > 400);
+    errors.sort_by(f64::total_cmp);
+    let median = errors[errors.len() / 2];
+    println!("median tracking error {median:.3} N over a {span:.1} N reference span ({:.2} %)", 100.0 * median / span);
+    assert!(median < 0.05 * span, "median tracking error {median:.2} N is not below 5 % of {span:.1} N");
+}
+
+#[test]
+fn killing_control_idles_actuation_and_a_restart_is_clean() {
+    let _bus = BUS.lock().unwrap_or_else(|e| e.into_inner());
+    let out = scratch("kill.mcap");
+    let mut child = jetbench()
+        .args(["up", "--sim", "--quiet", "--duration", "60", "--record"])
+        .arg(&out)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start jetbench up");
+    let stdout = lines_of(child.stdout.take().expect("stdout"));
+    let stderr = lines_of(child.stderr.take().expect("stderr"));
+
+    // Find the control process, wait for the loop to run, then SIGKILL it.
+    let mut control_pid = None;
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        let line = stdout.recv_timeout(Duration::from_secs(1));
+        if let Ok(line) = &line {
+            if let Some(pid) = line.strip_prefix("started control (pid ").and_then(|r| r.strip_suffix(')')) {
+                control_pid = pid.parse::<i32>().ok();
+            }
+            if line.starts_with("all ") && line.contains("services ready") {
+                break;
+            }
+        }
+        assert!(Instant::now() < deadline, "the service set never became ready");
+    }
+    let pid = control_pid.expect("the launcher prints each service's pid");
+    std::thread::sleep(Duration::from_secs(3));
+    // SAFETY: kill(2) on the pid the launcher reported for its control child.
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGKILL) }, 0);
+
+    let status = wait_with_watchdog(&mut child, Duration::from_secs(60), "jetbench up after SIGKILL");
+    let log: Vec<String> = stdout.try_iter().chain(stderr.try_iter()).collect();
+    let log = log.join("\n");
+    assert!(!status.success(), "jetbench up must fail when a service dies\n{log}");
+    assert!(log.contains("service `control` was killed by signal 9"), "jetbench up must name the dead service\n{log}");
+
+    // In the recording: after the last command, actuation holds for at most
+    // two cycles and is at idle (flagged) by the third.
+    let recording = Recording::open(&out).expect("the recorder still closes its file");
+    let commands = recording.samples(channels::COMMAND);
+    let actuation = recording.samples(channels::ACTUATION);
+    let last_command = commands.last().expect("commands were recorded").seq;
+    let applied_at =
+        actuation.iter().rposition(|a| a.command_seq == last_command && a.flags == 0).expect("last command applied");
+    let after = &actuation[applied_at + 1..];
+    // The launcher stops the set soon after the death; actuation must have
+    // run at least the three cycles that decide the fallback.
+    assert!(after.len() >= 3, "actuation published only {} samples after control died", after.len());
+    let idle_at =
+        after.iter().position(|a| a.flags & actuation_flags::IDLE_FALLBACK != 0).expect("actuation went to idle");
+    assert!(idle_at < 3, "idle on cycle {} after the last command, not within 3", idle_at + 1);
+    let waited_ms = (after[idle_at].publish_ns - actuation[applied_at].publish_ns) as f64 * 1e-6;
+    println!("idle {waited_ms:.1} ms ({} cycles) after the last command", idle_at + 1);
+    assert!(after[idle_at..].iter().all(|a| a.applied_pct == 25.0), "actuation left idle without a controller");
+
+    // A new run right after starts cleanly: no stale shared memory.
+    let again = scratch("restart.mcap");
+    let (status, log) = run_up(2.0, &again);
+    assert!(status.success(), "restart failed: {status}\n{log}");
+    let thrust = Recording::open(&again).expect("read restart recording").samples(channels::THRUST);
+    assert!(thrust.len() >= 150, "restart recorded {} thrust samples in 2 s", thrust.len());
+    assert_eq!(thrust[0].seq, 0, "the restarted set must record from its first sample");
+    assert_eq!(seq_gaps(&thrust), 0);
+}
