@@ -79,6 +79,17 @@ fn run_up(duration_s: f64, out: &Path) -> (ExitStatus, String) {
     (status, log.join("\n"))
 }
 
+/// Runs a short command to completion (with the watchdog) and returns its stdout.
+fn output_with_watchdog(command: &mut Command, what: &str) -> String {
+    let mut child = command.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("start command");
+    let stdout = lines_of(child.stdout.take().expect("stdout"));
+    let status = wait_with_watchdog(&mut child, Duration::from_secs(30), what);
+    std::thread::sleep(Duration::from_millis(50));
+    let out: Vec<String> = stdout.try_iter().collect();
+    assert!(status.success(), "{what} failed: {status}\n{}", out.join("\n"));
+    out.join("\n")
+}
+
 /// The path of the venv python with the reference MCAP reader.
 fn python() -> PathBuf {
     let out = Command::new(repo_root().join("scripts/pyenv.sh")).output().expect("run scripts/pyenv.sh");
@@ -255,7 +266,24 @@ fn killing_control_idles_actuation_and_a_restart_is_clean() {
         assert!(Instant::now() < deadline, "the service set never became ready");
     }
     let pid = control_pid.expect("the launcher prints each service's pid");
-    std::thread::sleep(Duration::from_secs(3));
+    std::thread::sleep(Duration::from_secs(1));
+    // Live introspection of the running set: list, echo, hz.
+    let listed = output_with_watchdog(jetbench().arg("list"), "jetbench list");
+    for channel in ["bench/thrust", "bench/state", "bench/command", "bench/health"] {
+        assert!(listed.contains(channel), "jetbench list misses {channel}:\n{listed}");
+    }
+    let echoed = output_with_watchdog(jetbench().args(["echo", "bench/state", "-n", "3"]), "jetbench echo");
+    let lines: Vec<&str> = echoed.lines().collect();
+    assert_eq!(lines.len(), 3, "echo -n 3 printed:\n{echoed}");
+    assert!(lines.iter().all(|l| l.starts_with("seq=") && l.contains("thrust_rate_n_per_s=")), "{echoed}");
+    let hz = output_with_watchdog(
+        jetbench().args(["hz", "bench/thrust", "--window", "1", "--duration", "2.5"]),
+        "jetbench hz",
+    );
+    let rates: Vec<f64> = hz.lines().filter_map(|l| l.split_whitespace().nth(1).and_then(|r| r.parse().ok())).collect();
+    assert!(!rates.is_empty(), "jetbench hz printed no rate:\n{hz}");
+    assert!(rates.iter().all(|r| (90.0..110.0).contains(r)), "bench/thrust is not at 100 Hz:\n{hz}");
+
     // SAFETY: kill(2) on the pid the launcher reported for its control child.
     assert_eq!(unsafe { libc::kill(pid, libc::SIGKILL) }, 0);
 

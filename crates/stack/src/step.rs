@@ -45,7 +45,8 @@ impl Sensing {
         }
         let mut flags = 0;
         if let Some(last) = self.last_counter {
-            let step = reading.counter.wrapping_sub(last);
+            // The wire counter is 8 bits wide and wraps.
+            let step = reading.counter.wrapping_sub(last) & 0xff;
             if step != 1 {
                 flags |= thrust_flags::FRAME_GAP;
             }
