@@ -2,7 +2,8 @@
 //! MCAP files read back by an independent reader (Python `mcap` +
 //! `mcap-ros2-support`, set up by scripts/pyenv.sh).
 //!
-//! The tests share the machine's bus, so they run one at a time (a lock).
+//! The tests run in their own bus namespace, one at a time (a lock), so that
+//! each has the machine's cores to itself.
 //! Hangs are caught by a watchdog; no test asserts a runtime.
 
 use std::io::{BufRead, BufReader};
@@ -17,8 +18,12 @@ use serde_json::Value;
 
 static BUS: Mutex<()> = Mutex::new(());
 
+/// `jetbench` in this test run's own bus namespace, so the tests neither
+/// disturb nor see a service set that is running on the same machine.
 fn jetbench() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_jetbench"))
+    let mut command = Command::new(env!("CARGO_BIN_EXE_jetbench"));
+    command.env(jetbench_bus::NAMESPACE_ENV, format!("test{}", std::process::id()));
+    command
 }
 
 fn repo_root() -> PathBuf {
@@ -320,4 +325,39 @@ fn killing_control_idles_actuation_and_a_restart_is_clean() {
     assert!(thrust.len() >= 150, "restart recorded {} thrust samples in 2 s", thrust.len());
     assert_eq!(thrust[0].seq, 0, "the restarted set must record from its first sample");
     assert_eq!(seq_gaps(&thrust), 0);
+}
+
+/// Runs a command that must fail; returns its stderr.
+fn failure_of(command: &mut Command, what: &str) -> String {
+    let mut child = command.stdout(Stdio::null()).stderr(Stdio::piped()).spawn().expect("start command");
+    let stderr = lines_of(child.stderr.take().expect("stderr"));
+    let status = wait_with_watchdog(&mut child, Duration::from_secs(30), what);
+    std::thread::sleep(Duration::from_millis(50));
+    let err: Vec<String> = stderr.try_iter().collect();
+    assert!(!status.success(), "{what} must fail");
+    err.join("\n")
+}
+
+#[test]
+fn bad_input_is_a_clear_error_and_starts_nothing() {
+    let typo = scratch("typo.toml");
+    let config = std::fs::read_to_string(repo_root().join("config/sim.toml")).expect("config/sim.toml");
+    std::fs::write(&typo, config.replace("hold_s", "hold_sec")).expect("write typo config");
+    let err = failure_of(
+        jetbench().args(["up", "--sim", "--duration", "1", "--config"]).arg(&typo),
+        "jetbench up with a config typo",
+    );
+    assert!(err.contains("unknown field `hold_sec`"), "{err}");
+    assert!(!err.contains("started"), "nothing may start on a bad config: {err}");
+
+    let err = failure_of(jetbench().arg("list").env(jetbench_bus::NAMESPACE_ENV, "no spaces!"), "bad namespace");
+    assert!(err.contains("JETBENCH_BUS may hold only"), "{err}");
+
+    let csv = scratch("not.mcap");
+    std::fs::write(&csv, "time_s,throttle_pct,thrust_n\n").expect("write csv");
+    let err = failure_of(jetbench().arg("info").arg(&csv), "jetbench info on a CSV");
+    assert!(err.contains("not an MCAP file"), "{err}");
+
+    let err = failure_of(jetbench().args(["echo", "bench/nothing"]), "echo of an unknown channel");
+    assert!(err.contains("unknown channel") && err.contains("bench/thrust"), "{err}");
 }

@@ -66,6 +66,10 @@ enum Cmd {
 }
 
 fn main() -> ExitCode {
+    // Piped into `head` or `less`, end quietly when the reader goes away,
+    // as Unix tools do, instead of panicking on a broken pipe.
+    // SAFETY: restoring the default disposition of SIGPIPE before any thread starts.
+    unsafe { libc::signal(libc::SIGPIPE, libc::SIG_DFL) };
     jetbench::init_logging();
     match run() {
         Ok(code) => code,
@@ -77,7 +81,9 @@ fn main() -> ExitCode {
 }
 
 fn run() -> anyhow::Result<ExitCode> {
-    match Cli::parse().command {
+    let cli = Cli::parse();
+    jetbench_bus::namespace()?;
+    match cli.command {
         Cmd::Up { sim, config, duration, record, quiet } => cmd_up(sim, config, duration, record, quiet),
         Cmd::List => cmd_list(),
         Cmd::Echo { channel, count } => with_channel(&channel, Echo { count, result: Ok(()) }),

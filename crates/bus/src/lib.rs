@@ -115,12 +115,48 @@ fn quiet_iceoryx_log() {
     set_log_level_from_env_or(LogLevel::Error);
 }
 
+/// Environment variable that names the bus namespace. Service sets in
+/// different namespaces share nothing, so a test run cannot disturb a bench
+/// that is running on the same machine. Unset: the default namespace.
+pub const NAMESPACE_ENV: &str = "JETBENCH_BUS";
+
+/// The bus namespace from [`NAMESPACE_ENV`], checked: letters, digits, `_`
+/// and `-`, at most 32 characters.
+pub fn namespace() -> Result<Option<String>, BusError> {
+    let Ok(ns) = std::env::var(NAMESPACE_ENV) else { return Ok(None) };
+    if ns.is_empty() {
+        return Ok(None);
+    }
+    if ns.len() > 32 || !ns.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-') {
+        return Err(BusError::InvalidName {
+            name: ns,
+            reason: format!("{NAMESPACE_ENV} may hold only letters, digits, _ and -, at most 32 characters"),
+        });
+    }
+    Ok(Some(ns))
+}
+
+/// The iceoryx2 configuration of this process's namespace: its files get
+/// their own prefix.
+fn bus_config() -> &'static Config {
+    static CONFIG: OnceLock<Config> = OnceLock::new();
+    CONFIG.get_or_init(|| {
+        let mut config = Config::global_config().clone();
+        if let Ok(Some(ns)) = namespace() {
+            if let Ok(prefix) = FileName::new(format!("jb_{ns}_").as_bytes()) {
+                config.global.prefix = prefix;
+            }
+        }
+        config
+    })
+}
+
 /// Removes the shared-memory resources of dead processes' nodes.
 /// Returns how many dead nodes were cleaned.
 pub fn cleanup_dead_nodes() -> usize {
     quiet_iceoryx_log();
     let mut cleaned = 0;
-    let _ = Node::<ipc::Service>::list(Config::global_config(), |state| {
+    let _ = Node::<ipc::Service>::list(bus_config(), |state| {
         if let NodeState::<ipc::Service>::Dead(view) = state {
             match view.try_remove_stale_resources() {
                 Ok(_) => cleaned += 1,
@@ -136,7 +172,7 @@ pub fn cleanup_dead_nodes() -> usize {
 pub fn list_nodes() -> Vec<String> {
     quiet_iceoryx_log();
     let mut names = Vec::new();
-    let _ = Node::<ipc::Service>::list(Config::global_config(), |state| {
+    let _ = Node::<ipc::Service>::list(bus_config(), |state| {
         if let NodeState::<ipc::Service>::Alive(view) = state {
             if let Some(details) = view.details() {
                 names.push(details.name().as_str().to_string());
@@ -152,7 +188,7 @@ pub fn list_nodes() -> Vec<String> {
 pub fn list_channels() -> Vec<String> {
     quiet_iceoryx_log();
     let mut names = Vec::new();
-    let _ = ipc::Service::list(Config::global_config(), |service| {
+    let _ = ipc::Service::list(bus_config(), |service| {
         if matches!(
             service.static_details.messaging_pattern(),
             iceoryx2::service::static_config::messaging_pattern::MessagingPattern::PublishSubscribe(_)
@@ -178,6 +214,7 @@ impl Bus {
     pub fn open(node_name: &str) -> Result<Bus, BusError> {
         quiet_iceoryx_log();
         install_signal_flag()?;
+        namespace()?;
         let cleaned = cleanup_dead_nodes();
         if cleaned > 0 {
             tracing::info!("cleaned {cleaned} dead bus node(s) left by killed processes");
@@ -186,6 +223,7 @@ impl Bus {
             .try_into()
             .map_err(|e| BusError::InvalidName { name: node_name.into(), reason: format!("{e:?}") })?;
         let node = NodeBuilder::new()
+            .config(bus_config())
             .name(&name)
             .signal_handling_mode(SignalHandlingMode::Disabled)
             .create::<ipc::Service>()

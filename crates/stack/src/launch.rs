@@ -259,6 +259,9 @@ impl Status {
 /// requested, with every service stopped.
 pub fn up(options: &UpOptions) -> Result<(), LaunchError> {
     jetbench_bus::install_signal_flag()?;
+    if let Some(ns) = jetbench_bus::namespace()? {
+        println!("bus namespace {ns} ({} is set)", jetbench_bus::NAMESPACE_ENV);
+    }
     let cleaned = jetbench_bus::cleanup_dead_nodes();
     if cleaned > 0 {
         println!("cleaned up {cleaned} bus node(s) left by a previous run");
