@@ -32,7 +32,7 @@ enum Cmd {
         #[arg(long, value_name = "FILE")]
         config: Option<PathBuf>,
         /// Stop after this many seconds of running (default: until Ctrl-C).
-        #[arg(long, value_name = "SECONDS")]
+        #[arg(long, value_name = "SECONDS", allow_negative_numbers = true)]
         duration: Option<f64>,
         /// Record every channel to this MCAP file.
         #[arg(long, value_name = "FILE.mcap")]
