@@ -84,15 +84,30 @@ fn run_up(duration_s: f64, out: &Path) -> (ExitStatus, String) {
     (status, log.join("\n"))
 }
 
-/// Runs a short command to completion (with the watchdog) and returns its stdout.
-fn output_with_watchdog(command: &mut Command, what: &str) -> String {
+/// Runs a short command to completion under the watchdog: status, stdout, stderr.
+fn run_short(command: &mut Command, what: &str) -> (ExitStatus, String, String) {
     let mut child = command.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("start command");
     let stdout = lines_of(child.stdout.take().expect("stdout"));
+    let stderr = lines_of(child.stderr.take().expect("stderr"));
     let status = wait_with_watchdog(&mut child, Duration::from_secs(30), what);
+    // The reader threads finish once the pipes close.
     std::thread::sleep(Duration::from_millis(50));
-    let out: Vec<String> = stdout.try_iter().collect();
-    assert!(status.success(), "{what} failed: {status}\n{}", out.join("\n"));
-    out.join("\n")
+    let collect = |rx: mpsc::Receiver<String>| rx.try_iter().collect::<Vec<_>>().join("\n");
+    (status, collect(stdout), collect(stderr))
+}
+
+/// Runs a command that must succeed; returns its stdout.
+fn output_with_watchdog(command: &mut Command, what: &str) -> String {
+    let (status, out, err) = run_short(command, what);
+    assert!(status.success(), "{what} failed: {status}\n{out}\n{err}");
+    out
+}
+
+/// Runs a command that must fail; returns its stderr.
+fn failure_of(command: &mut Command, what: &str) -> String {
+    let (status, _, err) = run_short(command, what);
+    assert!(!status.success(), "{what} must fail");
+    err
 }
 
 /// The path of the venv python with the reference MCAP reader.
@@ -325,17 +340,6 @@ fn killing_control_idles_actuation_and_a_restart_is_clean() {
     assert!(thrust.len() >= 150, "restart recorded {} thrust samples in 2 s", thrust.len());
     assert_eq!(thrust[0].seq, 0, "the restarted set must record from its first sample");
     assert_eq!(seq_gaps(&thrust), 0);
-}
-
-/// Runs a command that must fail; returns its stderr.
-fn failure_of(command: &mut Command, what: &str) -> String {
-    let mut child = command.stdout(Stdio::null()).stderr(Stdio::piped()).spawn().expect("start command");
-    let stderr = lines_of(child.stderr.take().expect("stderr"));
-    let status = wait_with_watchdog(&mut child, Duration::from_secs(30), what);
-    std::thread::sleep(Duration::from_millis(50));
-    let err: Vec<String> = stderr.try_iter().collect();
-    assert!(!status.success(), "{what} must fail");
-    err.join("\n")
 }
 
 #[test]
