@@ -337,7 +337,8 @@ impl Bus {
             guards.push(guard);
         }
         // Bounds the time to notice a stop request, whatever the inputs do.
-        let signal_guard = waitset.attach_interval(SIGNAL_POLL).map_err(|e| wait_err("attach", format!("{e:?}")))?;
+        // Held, never matched: it only wakes the wait so the flag is checked.
+        let _signal_guard = waitset.attach_interval(SIGNAL_POLL).map_err(|e| wait_err("attach", format!("{e:?}")))?;
         let tick_guard = match tick {
             Some(t) => Some(waitset.attach_interval(t).map_err(|e| wait_err("attach tick", format!("{e:?}")))?),
             None => None,
@@ -367,7 +368,6 @@ impl Bus {
                         return CallbackProgression::Stop;
                     }
                 }
-                let _ = id.has_event_from(&signal_guard);
                 CallbackProgression::Continue
             });
             match result {
