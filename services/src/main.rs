@@ -11,6 +11,8 @@ use jetbench_msgs::{format_fields, visit_channels, Channel, ChannelVisitor, Samp
 use jetbench_record::Recording;
 use jetbench_stack::launch::{up, UpOptions};
 
+mod cmd;
+
 /// Control stack for model-jet-engine thrust benches.
 #[derive(Parser)]
 #[command(version, about, long_about = None)]
@@ -40,6 +42,10 @@ enum Cmd {
         /// No live status line.
         #[arg(long)]
         quiet: bool,
+        /// Play this throttle profile open loop instead of closing the loop
+        /// (CSV `time_s,throttle_pct`, e.g. from `jetbench excite`).
+        #[arg(long, value_name = "FILE.csv")]
+        open_loop: Option<PathBuf>,
     },
     /// List the channels and bus nodes that exist now.
     List,
@@ -63,6 +69,22 @@ enum Cmd {
     },
     /// Summarise an MCAP recording: messages, rates and sequence gaps per channel.
     Info { file: PathBuf },
+    /// Feed a recording's thrust through the estimator, as fast as possible, on recorded time.
+    ///
+    /// Example: jetbench replay run.mcap --out replayed.mcap
+    Replay(cmd::replay::ReplayArgs),
+    /// Identify the engine model from recordings (LS, EKF, SINDy), validated on held-out data.
+    ///
+    /// Example: jetbench identify run.mcap --out model.toml --plot plots/
+    Identify(cmd::identify::IdentifyArgs),
+    /// Free-run simulation of a model from a throttle profile or a recording's throttle.
+    Simulate(cmd::model::SimulateArgs),
+    /// Generate an identification campaign (throttle profile) to play open loop.
+    Excite(cmd::model::ExciteArgs),
+    /// Record a simulated plant driven by a campaign, with sensor noise, faster than real time.
+    SimRecord(cmd::model::SimRecordArgs),
+    /// Write a recording's identification data (time, applied throttle, thrust) as CSV.
+    Export(cmd::model::ExportArgs),
 }
 
 fn main() -> ExitCode {
@@ -84,7 +106,9 @@ fn run() -> anyhow::Result<ExitCode> {
     let cli = Cli::parse();
     jetbench_bus::namespace()?;
     match cli.command {
-        Cmd::Up { sim, config, duration, record, quiet } => cmd_up(sim, config, duration, record, quiet),
+        Cmd::Up { sim, config, duration, record, quiet, open_loop } => {
+            cmd_up(sim, config, duration, record, quiet, open_loop)
+        }
         Cmd::List => cmd_list(),
         Cmd::Echo { channel, count } => with_channel(&channel, Echo { count, result: Ok(()) }),
         Cmd::Hz { channel, window, duration } => {
@@ -94,6 +118,12 @@ fn run() -> anyhow::Result<ExitCode> {
             with_channel(&channel, Hz { window, duration, result: Ok(()) })
         }
         Cmd::Info { file } => cmd_info(&file),
+        Cmd::Replay(args) => cmd::replay::run(args),
+        Cmd::Identify(args) => cmd::identify::run(args),
+        Cmd::Simulate(args) => cmd::model::simulate(args),
+        Cmd::Excite(args) => cmd::model::excite(args),
+        Cmd::SimRecord(args) => cmd::model::sim_record(args),
+        Cmd::Export(args) => cmd::model::export(args),
     }
 }
 
@@ -111,9 +141,42 @@ fn cmd_up(
     duration: Option<f64>,
     record: Option<PathBuf>,
     quiet: bool,
+    open_loop: Option<PathBuf>,
 ) -> anyhow::Result<ExitCode> {
     // Check the config here so a typo is reported once, not by six services.
-    let checked = jetbench_stack::config::BenchConfig::load_or_default(config.as_deref())?;
+    let mut checked = jetbench_stack::config::BenchConfig::load_or_default(config.as_deref())?;
+    // An open-loop run gets a derived config file that every service reads.
+    let mut derived = None;
+    let config = match open_loop {
+        Some(profile) => {
+            let profile = std::path::absolute(&profile).unwrap_or(profile);
+            checked.control.controller = jetbench_stack::config::Controller::OpenLoop;
+            checked.control.throttle_profile = Some(profile.display().to_string());
+            let text = toml::to_string(&checked).context("cannot write the open-loop config")?;
+            // Check it as the services will read it (this also loads the profile).
+            jetbench_stack::config::BenchConfig::from_toml_str(&text, "--open-loop", None)?;
+            let path = std::env::temp_dir().join(format!("jetbench-up-{}.toml", std::process::id()));
+            std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
+            derived = Some(path.clone());
+            Some(path)
+        }
+        None => config,
+    };
+    let result = run_up(sim, config, duration, record, quiet, &checked);
+    if let Some(path) = derived {
+        let _ = std::fs::remove_file(path);
+    }
+    result
+}
+
+fn run_up(
+    sim: bool,
+    config: Option<PathBuf>,
+    duration: Option<f64>,
+    record: Option<PathBuf>,
+    quiet: bool,
+    checked: &jetbench_stack::config::BenchConfig,
+) -> anyhow::Result<ExitCode> {
     if !sim && config.is_none() {
         bail!("no bench config given: use --sim for the simulated bench, or --config FILE");
     }

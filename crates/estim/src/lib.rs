@@ -25,7 +25,12 @@
 //! ```
 //!
 //! with an analytic Jacobian and white unmodelled acceleration as process noise.
+//!
+//! [`SavitzkyGolay`] smooths and differentiates whole recordings offline (thrust rate and
+//! acceleration for identification), with scipy's `savgol_filter` edge handling.
 
 mod observer;
+mod savgol;
 
 pub use observer::{EstimError, Estimate, ObserverConfig, ThrustObserver};
+pub use savgol::{SavGolError, SavitzkyGolay};

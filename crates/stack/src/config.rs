@@ -139,17 +139,32 @@ impl EstimatorSection {
     }
 }
 
+/// The control law of the control service.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Controller {
+    /// Feedback linearisation tracking `[reference]`.
+    #[default]
+    Fbl,
+    /// `throttle_profile` played open loop (identification campaigns).
+    OpenLoop,
+}
+
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ControlSection {
+    pub controller: Controller,
     pub kp: f64,
     pub kd: f64,
+    /// CSV `time_s,throttle_pct` at 100 Hz (e.g. from `jetbench excite`), for `open-loop`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub throttle_profile: Option<String>,
 }
 
 impl Default for ControlSection {
     fn default() -> Self {
         let g = FblGains::default();
-        ControlSection { kp: g.kp, kd: g.kd }
+        ControlSection { controller: Controller::Fbl, kp: g.kp, kd: g.kd, throttle_profile: None }
     }
 }
 
@@ -213,6 +228,11 @@ impl BenchConfig {
                     *spec = dir.join(spec.as_str()).display().to_string();
                 }
             }
+            if let Some(profile) = config.control.throttle_profile.as_mut() {
+                if Path::new(profile.as_str()).is_relative() {
+                    *profile = dir.join(profile.as_str()).display().to_string();
+                }
+            }
         }
         config.validate(origin)?;
         Ok(config)
@@ -252,9 +272,27 @@ impl BenchConfig {
             return Err(invalid("[recorder] queue must be at least 16".into()));
         }
         self.reference.validate().map_err(|e| invalid(format!("[reference] {e}")))?;
+        match (self.control.controller, &self.control.throttle_profile) {
+            (Controller::OpenLoop, None) => return Err(invalid(
+                "[control] controller = \"open-loop\" needs throttle_profile = \"FILE.csv\" (see `jetbench excite`)"
+                    .into(),
+            )),
+            (Controller::OpenLoop, Some(_)) => {
+                self.throttle_profile().map_err(|e| invalid(format!("[control] throttle_profile: {e}")))?;
+            }
+            (_, _) => {}
+        }
         self.plant_params().map_err(|e| invalid(format!("[plant] model: {e}")))?;
         self.model_params().map_err(|e| invalid(format!("[model] model: {e}")))?;
         Ok(())
+    }
+
+    /// The open-loop throttle profile, one value per 10 ms (empty when none is set).
+    pub fn throttle_profile(&self) -> Result<Vec<f64>, jetbench_ident::series::DataError> {
+        match &self.control.throttle_profile {
+            Some(path) => Ok(jetbench_ident::series::Series::load(Path::new(path), false)?.u_pct),
+            None => Ok(Vec::new()),
+        }
     }
 
     /// Parameters of the simulated engine.

@@ -12,5 +12,6 @@ pub mod clock;
 pub mod config;
 pub mod health;
 pub mod launch;
+pub mod replay;
 pub mod service;
 pub mod step;

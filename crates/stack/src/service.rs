@@ -16,9 +16,10 @@ use jetbench_msgs::{channels, visit_channels, Channel, ChannelVisitor, Sample, S
 use jetbench_record::{spawn_writer, RawRecord, RecordError};
 
 use crate::clock::{monotonic_ns, realtime_ns, PERIOD_NS};
+use crate::config::Controller;
 use crate::config::{BenchConfig, ConfigError, Devices};
 use crate::health::HealthReporter;
-use crate::step::{Actuator, Control, Estimation, Sensing, SimBench, SimError};
+use crate::step::{Actuator, Control, ControlLaw, Estimation, Sensing, SimBench, SimError};
 
 /// How long a consumer waits for its input before counting a missed cycle:
 /// one and a half periods, so ordinary jitter is not a miss.
@@ -225,7 +226,17 @@ pub fn run_control(config: &BenchConfig) -> Result<(), ServiceError> {
     let mut reference_pub = bus.publisher(channels::REFERENCE)?;
     let mut command_pub = bus.publisher(channels::COMMAND)?;
     let mut health = HealthReporter::new(&bus, ServiceId::Control)?;
-    let mut step = Control::new(Fbl::new(config.model_params()?, config.control.gains()), config.reference.clone());
+    let model = config.model_params()?;
+    let law = match config.control.controller {
+        Controller::Fbl => ControlLaw::Fbl(Fbl::new(model, config.control.gains())),
+        Controller::OpenLoop => {
+            let throttle_pct =
+                config.throttle_profile().map_err(|e| ServiceError::Other(format!("throttle profile: {e}")))?;
+            tracing::info!("playing a {:.1} s throttle profile open loop", throttle_pct.len() as f64 * 0.01);
+            ControlLaw::OpenLoop { throttle_pct, model }
+        }
+    };
+    let mut step = Control::with_law(law, config.reference.clone());
     announce_ready();
 
     let mut started = false;
@@ -371,17 +382,22 @@ pub fn run_recorder(config: &BenchConfig, path: &Path) -> Result<RecorderReport,
         return Err(e.into());
     }
     let subs = subscribe.subs;
-    let run_info = [
+    let mut run_info = vec![
         (
             "clock".to_string(),
             "CLOCK_MONOTONIC; log_time is the recorder's receive time, publish_time the sample's stamp_ns".to_string(),
         ),
         ("monotonic_ns_at_start".to_string(), monotonic_ns().to_string()),
         ("realtime_ns_at_start".to_string(), realtime_ns().to_string()),
-        ("config".to_string(), toml::to_string(config).unwrap_or_default()),
     ];
-    let mut writer =
-        spawn_writer(path, config.recorder.queue, vec![("jetbench".into(), run_info.into_iter().collect())])?;
+    // The config and the estimator's resolved model parameters, so that
+    // `jetbench replay` reproduces the run even when its model file is gone.
+    run_info.extend(crate::replay::estimator_metadata(config)?);
+    let mut writer = spawn_writer(
+        path,
+        config.recorder.queue,
+        vec![(crate::replay::METADATA_NAME.into(), run_info.into_iter().collect())],
+    )?;
     let mut health = HealthReporter::new(&bus, ServiceId::Recorder)?;
     tracing::info!("recording {} channels to {}", subs.len(), path.display());
     announce_ready();

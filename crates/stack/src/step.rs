@@ -6,7 +6,7 @@
 use jetbench_control::{Fbl, Profile};
 use jetbench_estim::{EstimError, ObserverConfig, ThrustObserver};
 use jetbench_io::ForceReading;
-use jetbench_model::{Engine, ModelError, Params, State, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
+use jetbench_model::{Engine, ModelError, Params, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
 use jetbench_msgs::{
     actuation_flags, command_flags, sensor_status, state_flags, thrust_flags, Actuation, Command, Reference, SimTruth,
     StateEstimate, Thrust,
@@ -123,17 +123,40 @@ impl Estimation {
     }
 }
 
-/// Control: the reference profile and feedback linearisation.
+/// How the control step computes the throttle.
+#[derive(Debug, Clone)]
+pub enum ControlLaw {
+    /// Feedback linearisation tracking the reference profile.
+    Fbl(Fbl),
+    /// A recorded throttle profile played open loop (identification campaigns):
+    /// one value per 10 ms from the first estimate on, then idle. The published
+    /// reference is the thrust `model` would settle to at that throttle.
+    OpenLoop { throttle_pct: Vec<f64>, model: Params },
+}
+
+/// Control: the reference profile and the control law.
 #[derive(Debug, Clone)]
 pub struct Control {
-    fbl: Fbl,
+    law: ControlLaw,
     profile: Profile,
     start_ns: Option<u64>,
 }
 
 impl Control {
     pub fn new(fbl: Fbl, profile: Profile) -> Self {
-        Control { fbl, profile, start_ns: None }
+        Control::with_law(ControlLaw::Fbl(fbl), profile)
+    }
+
+    pub fn with_law(law: ControlLaw, profile: Profile) -> Self {
+        Control { law, profile, start_ns: None }
+    }
+
+    /// True once an open-loop profile has been played to its end.
+    pub fn finished(&self, profile_time_s: f64) -> bool {
+        match &self.law {
+            ControlLaw::OpenLoop { throttle_pct, .. } => profile_time_s / STEP_S >= throttle_pct.len() as f64 - 0.5,
+            ControlLaw::Fbl(_) => false,
+        }
     }
 
     /// One state estimate: the reference at the estimate's time (the profile
@@ -141,8 +164,30 @@ impl Control {
     pub fn step(&mut self, state: &StateEstimate) -> Result<(Reference, Command), jetbench_control::ControlError> {
         let start_ns = *self.start_ns.get_or_insert(state.stamp_ns);
         let profile_time_s = state.stamp_ns.saturating_sub(start_ns) as f64 * 1e-9;
-        let r = self.profile.at(profile_time_s);
-        let c = self.fbl.step(state.thrust_n, state.thrust_rate_n_per_s, &r)?;
+        let (r, c) = match &mut self.law {
+            ControlLaw::Fbl(fbl) => {
+                let r = self.profile.at(profile_time_s);
+                (r, fbl.step(state.thrust_n, state.thrust_rate_n_per_s, &r)?)
+            }
+            ControlLaw::OpenLoop { throttle_pct, model } => {
+                // Nearest profile sample: estimates arrive every 10 ms with some jitter.
+                let k = (profile_time_s / STEP_S).round() as usize;
+                let u = throttle_pct.get(k).copied().unwrap_or(THROTTLE_MIN_PCT);
+                let r = jetbench_control::Reference {
+                    thrust_n: model.stable_equilibrium(u).unwrap_or(f64::NAN),
+                    thrust_rate_n_per_s: 0.0,
+                    thrust_accel_n_per_s2: 0.0,
+                };
+                let applied = u.clamp(THROTTLE_MIN_PCT, THROTTLE_MAX_PCT);
+                let command = jetbench_control::Command {
+                    throttle_pct: applied,
+                    unclamped_pct: u,
+                    virtual_input: model.v(applied),
+                    saturated: applied != u,
+                };
+                (r, command)
+            }
+        };
         let mut flags = 0;
         if c.saturated {
             flags |= if c.unclamped_pct < THROTTLE_MIN_PCT || c.unclamped_pct.is_nan() {

@@ -1,0 +1,483 @@
+//! Identification end to end: fit every method on the calibration data, validate
+//! each by free-run simulation on held-out data, check plausibility, pick the best.
+
+use std::time::Instant;
+
+use jetbench_estim::SavitzkyGolay;
+use jetbench_model::{settling_time_s, Engine, Params, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
+use serde::Serialize;
+use serde_json::{Map, Value};
+
+use crate::series::Series;
+use crate::sindy::{self, PolynomialLibrary, SindyModel, StlsqOptions};
+use crate::validate::{self, Dynamics, NoiseFloor, Score, Simulation};
+use crate::{ekf, ls, IdentError};
+
+/// An identification method.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Method {
+    Ls,
+    Ekf,
+    Sindy,
+}
+
+impl Method {
+    pub const ALL: [Method; 3] = [Method::Ls, Method::Ekf, Method::Sindy];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Ls => "ls",
+            Method::Ekf => "ekf",
+            Method::Sindy => "sindy",
+        }
+    }
+}
+
+/// Options of the SINDy fit of `T̈` over (T, Ṫ, u).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SindyOptions {
+    /// Savitzky–Golay window for Ṫ and T̈, samples.
+    pub window: usize,
+    /// Savitzky–Golay order.
+    pub order: usize,
+    /// Library degree (5: 56 terms, as in the study).
+    pub degree: usize,
+    /// STLSQ settings; thresholds apply to the scaled library.
+    pub stlsq: StlsqOptions,
+}
+
+impl Default for SindyOptions {
+    fn default() -> Self {
+        SindyOptions {
+            window: 51,
+            order: 3,
+            degree: 5,
+            stlsq: StlsqOptions { threshold: 0.1, alpha: 1e-6, max_iter: 20, normalize_columns: true },
+        }
+    }
+}
+
+/// Everything `identify` can be told.
+#[derive(Clone, Debug)]
+pub struct Options {
+    pub methods: Vec<Method>,
+    pub ls: ls::LsOptions,
+    pub ekf: ekf::EkfOptions,
+    pub sindy: SindyOptions,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            methods: Method::ALL.to_vec(),
+            ls: ls::LsOptions::default(),
+            ekf: ekf::EkfOptions::default(),
+            sindy: SindyOptions::default(),
+        }
+    }
+}
+
+/// The identified model of one method.
+#[derive(Clone, Debug)]
+pub enum Fitted {
+    Params(Params),
+    Sindy(Box<JetSindy>),
+}
+
+/// A SINDy model of `T̈` over (T, Ṫ, u). It was fitted to `T̈ / scale` (unit
+/// norm), so that the STLSQ threshold on the scaled library reads as "share of
+/// the acceleration a term must explain".
+#[derive(Clone, Debug)]
+pub struct JetSindy {
+    pub model: SindyModel,
+    pub scale: f64,
+    /// Mean and standard deviation of T, Ṫ and u: the library is built on the
+    /// standardised variables `X* = (X − mean) / std`, which keeps the 56
+    /// monomials from being nearly collinear.
+    pub standardise: [(f64, f64); 3],
+}
+
+impl JetSindy {
+    /// `T̈` (N/s²) at a state and throttle.
+    pub fn accel(&self, t: f64, d: f64, u: f64) -> f64 {
+        let mut rhs = [0.0];
+        let z = |x: f64, (m, s): (f64, f64)| (x - m) / s;
+        let [a, b, c] = self.standardise;
+        self.model.eval_into(&[z(t, a), z(d, b), z(u, c)], &mut rhs);
+        rhs[0] * self.scale
+    }
+
+    /// Selected terms with their coefficients in N/s² units.
+    pub fn terms(&self) -> Vec<(String, f64)> {
+        self.model.terms(0).into_iter().map(|(n, c)| (n, c * self.scale)).collect()
+    }
+
+    /// `c₁ term₁ + c₂ term₂ + …`
+    pub fn equation(&self) -> String {
+        let terms = self.terms();
+        if terms.is_empty() {
+            return "0".into();
+        }
+        terms.iter().map(|(n, c)| format!("{c:+.4e} {n}")).collect::<Vec<_>>().join(" ")
+    }
+}
+
+impl Dynamics for Fitted {
+    fn free_run(&self, initial: State, u_pct: &[f64], out: &mut Vec<f64>) -> Option<f64> {
+        match self {
+            Fitted::Params(p) => p.free_run(initial, u_pct, out),
+            Fitted::Sindy(m) => validate::free_run_fn(|t, d, u| m.accel(t, d, u), initial, u_pct, out),
+        }
+    }
+}
+
+/// What a plausibility check found (plant.md, "Stability notes").
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Plausibility {
+    /// Stable equilibrium thrust (N) at 25, 50, 75 and 100 % (None: none).
+    pub equilibria_n: Vec<(f64, Option<f64>)>,
+    /// 10–90 % rise time of a full step 25 → 100 %, s.
+    pub rise_time_s: Option<f64>,
+    /// Lowest thrust after a full step 100 → 25 %, N.
+    pub min_after_step_down_n: Option<f64>,
+    /// Every concern, in words; empty when the model is plausible.
+    pub warnings: Vec<String>,
+}
+
+/// One method's result.
+#[derive(Clone, Debug)]
+pub struct MethodResult {
+    pub method: Method,
+    pub model: Fitted,
+    /// Parameters (ten) or selected terms (SINDy), for the report.
+    pub params: Map<String, Value>,
+    pub calibration: Simulation,
+    pub validation: Simulation,
+    pub calibration_score: Option<Score>,
+    pub validation_score: Option<Score>,
+    pub plausibility: Plausibility,
+    /// Wall time of the fit, s (validation excluded).
+    pub fit_seconds: f64,
+    /// Method-specific notes (passes, B_UU search, selected terms).
+    pub notes: Vec<String>,
+}
+
+/// The whole identification.
+#[derive(Clone, Debug)]
+pub struct Report {
+    pub results: Vec<MethodResult>,
+    /// Methods that failed, with the reason.
+    pub failures: Vec<(Method, String)>,
+    pub noise: NoiseFloor,
+    pub best: Option<Method>,
+    pub calibration_samples: usize,
+    pub validation_samples: usize,
+    /// A plain statement of how good the best fit is.
+    pub verdict: String,
+}
+
+/// Best validation MAE over the noise floor above which the fit is called poor.
+pub const POOR_FIT_RATIO: f64 = 1.10;
+
+/// Holds out the last `fraction` of each series for validation.
+pub fn hold_out(data: &[Series], fraction: f64) -> (Vec<Series>, Vec<Series>) {
+    let mut cal = Vec::new();
+    let mut val = Vec::new();
+    for s in data {
+        let cut = ((1.0 - fraction) * s.len() as f64).round() as usize;
+        cal.push(s.slice(0..cut));
+        val.push(s.slice(cut..s.len()));
+    }
+    (cal, val)
+}
+
+/// Runs the chosen methods. `progress(method, message)` is told what happens.
+pub fn identify(
+    calibration: &[Series],
+    validation: &[Series],
+    options: &Options,
+    mut progress: impl FnMut(Method, &str),
+) -> Result<Report, IdentError> {
+    for s in calibration.iter().chain(validation) {
+        s.check()?;
+        if !s.has_thrust() {
+            return Err(IdentError::Options(format!("{} has no thrust_n column", s.name)));
+        }
+    }
+    let all: Vec<Series> = calibration.iter().chain(validation).cloned().collect();
+    let noise = validate::noise_floor(&all)
+        .ok_or_else(|| IdentError::TooLittleData("cannot estimate the noise floor from so few samples".into()))?;
+    let mut results: Vec<MethodResult> = Vec::new();
+    let mut failures = Vec::new();
+    let mut methods = options.methods.clone();
+    methods.sort();
+    methods.dedup();
+    for method in methods {
+        progress(method, "fitting");
+        let started = Instant::now();
+        let mut notes = Vec::new();
+        let fitted = match method {
+            Method::Ls => ls::fit(calibration, &options.ls).map(|f| {
+                notes.push(format!("{} equations, B_UU by variable projection", f.samples));
+                Fitted::Params(f.params)
+            }),
+            Method::Ekf => {
+                // Start from least squares (reuse it when it ran), else from a fresh fit.
+                let start = results
+                    .iter()
+                    .find(|r| r.method == Method::Ls)
+                    .and_then(|r| match &r.model {
+                        Fitted::Params(p) => Some(*p),
+                        Fitted::Sindy(_) => None,
+                    })
+                    .map_or_else(|| ls::fit(calibration, &options.ls).map(|f| f.params), Ok);
+                start.and_then(|start| {
+                    ekf::fit(calibration, validation, start, noise, &options.ekf, |pass| {
+                        let mae = pass.validation.map_or("diverged".into(), |s| format!("{:.3} N", s.mae_n));
+                        progress(method, &format!("pass {}: validation MAE {mae}", pass.pass));
+                    })
+                    .map(|f| {
+                        notes.push(format!(
+                            "{} passes from the least-squares estimate, R = {:.2} N², accel noise {:.1} N/s²",
+                            f.passes.len(),
+                            f.measurement_var_n2,
+                            f.accel_noise_n_per_s2
+                        ));
+                        Fitted::Params(f.params)
+                    })
+                })
+            }
+            Method::Sindy => fit_sindy(calibration, &options.sindy).map(|m| {
+                notes.push(format!("{} of {} library terms selected", m.terms().len(), m.model.library().len()));
+                Fitted::Sindy(Box::new(m))
+            }),
+        };
+        let fit_seconds = started.elapsed().as_secs_f64();
+        let model = match fitted {
+            Ok(m) => m,
+            Err(e) => {
+                failures.push((method, e.to_string()));
+                continue;
+            }
+        };
+        progress(method, "validating");
+        let cal_sim = validate::simulate(&model, calibration);
+        let val_sim = validate::simulate(&model, validation);
+        let params = match &model {
+            Fitted::Params(p) => {
+                Params::NAMES.iter().zip(p.to_array()).map(|(n, v)| (n.to_string(), Value::from(v))).collect()
+            }
+            Fitted::Sindy(m) => m.terms().into_iter().map(|(n, v)| (n, Value::from(v))).collect(),
+        };
+        let plausibility = match &model {
+            Fitted::Params(p) => plausibility(p),
+            Fitted::Sindy(_) => Plausibility::default(),
+        };
+        results.push(MethodResult {
+            method,
+            params,
+            calibration_score: cal_sim.score(calibration),
+            validation_score: val_sim.score(validation),
+            calibration: cal_sim,
+            validation: val_sim,
+            plausibility,
+            fit_seconds,
+            notes,
+            model,
+        });
+    }
+    let best = results
+        .iter()
+        .filter_map(|r| r.validation_score.map(|s| (r.method, s.mae_n)))
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(m, _)| m);
+    let verdict = verdict(&results, best, &noise);
+    Ok(Report {
+        calibration_samples: calibration.iter().map(Series::len).sum(),
+        validation_samples: validation.iter().map(Series::len).sum(),
+        results,
+        failures,
+        noise,
+        best,
+        verdict,
+    })
+}
+
+fn verdict(results: &[MethodResult], best: Option<Method>, noise: &NoiseFloor) -> String {
+    let Some(best) = best.and_then(|m| results.iter().find(|r| r.method == m)) else {
+        return "no method produced a model that stays bounded on the validation data: the fit is poor".into();
+    };
+    let Some(score) = best.validation_score else { return "no validated model".into() };
+    let ratio = score.mae_n / noise.mae_n;
+    if ratio > POOR_FIT_RATIO {
+        format!(
+            "the fit is poor: the best model ({}) has validation MAE {:.2} N, {:.2}× the noise floor of {:.2} N \
+             (fit {:.1} %); the data holds dynamics the ten-parameter model leaves out (try `jetbench diagnose`)",
+            best.method.name(),
+            score.mae_n,
+            ratio,
+            noise.mae_n,
+            score.fit_pct
+        )
+    } else {
+        format!(
+            "good fit: the best model ({}) has validation MAE {:.2} N, {:.0} % above the noise floor of {:.2} N \
+             (fit {:.1} %)",
+            best.method.name(),
+            score.mae_n,
+            100.0 * (ratio - 1.0),
+            noise.mae_n,
+            score.fit_pct
+        )
+    }
+}
+
+/// SINDy on `T̈` over the monomials of (T, Ṫ, u), derivatives by Savitzky–Golay.
+///
+/// At 100 Hz with σ ≈ 2.6 N, a Savitzky–Golay `T̈` is a weighted average of the
+/// acceleration over the window, not its value at one instant: regressing it on
+/// the library at that instant fits noise (even the true model explains almost
+/// none of it that way). So every library column is averaged with the same
+/// weights (the Peano kernel of the derivative filter) before the regression.
+pub fn fit_sindy(data: &[Series], options: &SindyOptions) -> Result<JetSindy, IdentError> {
+    let err = |e: jetbench_estim::SavGolError| IdentError::Options(format!("SINDy derivatives: {e}"));
+    let sg = SavitzkyGolay::new(options.window, options.order).map_err(err)?;
+    let (accel_w, knots) = ls::centred_kernel(options.window, options.order)
+        .ok_or_else(|| IdentError::Options(format!("SINDy: window {} too short", options.window)))?;
+    let h = options.window / 2;
+    // Smoothed states of every usable run.
+    let mut runs = Vec::new();
+    for s in data {
+        for run in s.runs() {
+            if run.len() <= 4 * h + 1 {
+                continue;
+            }
+            let y = &s.thrust_n[run.clone()];
+            runs.push((sg.apply(y, 0, STEP_S).map_err(err)?, sg.apply(y, 1, STEP_S).map_err(err)?, y, &s.u_pct[run]));
+        }
+    }
+    let mut standardise = [(0.0, 1.0); 3];
+    for (i, st) in standardise.iter_mut().enumerate() {
+        let values = || {
+            runs.iter().flat_map(|(t, d, _, u)| {
+                let series: [&[f64]; 3] = [t, d, u];
+                series[i][h..t.len() - h].iter().copied()
+            })
+        };
+        let n = values().count() as f64;
+        let mean = values().sum::<f64>() / n.max(1.0);
+        let std = (values().map(|x| (x - mean).powi(2)).sum::<f64>() / n.max(1.0)).sqrt();
+        *st = (mean, if std > 0.0 { std } else { 1.0 });
+    }
+    let library = PolynomialLibrary::new(&["T*", "Tdot*", "u*"], options.degree);
+    let p = library.len();
+    let (mut theta, mut target) = (Vec::new(), Vec::new());
+    let mut rows = Vec::new();
+    for (t, d, y, u) in &runs {
+        let n = y.len();
+        rows.clear();
+        rows.resize(n * p, 0.0);
+        for j in h..n - h {
+            let x = [
+                (t[j] - standardise[0].0) / standardise[0].1,
+                (d[j] - standardise[1].0) / standardise[1].1,
+                (u[j] - standardise[2].0) / standardise[2].1,
+            ];
+            library.eval_into(&x, &mut rows[j * p..(j + 1) * p]);
+        }
+        for k in 2 * h..n - 2 * h {
+            let start = theta.len();
+            theta.resize(start + p, 0.0);
+            let out = &mut theta[start..];
+            for (m, &w) in knots.iter().enumerate() {
+                let row = &rows[(k - h + m) * p..(k - h + m + 1) * p];
+                for (o, r) in out.iter_mut().zip(row) {
+                    *o += w * r;
+                }
+            }
+            target.push(accel_w.iter().enumerate().map(|(i, w)| w * y[k - h + i]).sum::<f64>() / (STEP_S * STEP_S));
+        }
+    }
+    if target.len() < 100 {
+        return Err(IdentError::TooLittleData(format!("SINDy: {} usable samples", target.len())));
+    }
+    let scale = target.iter().map(|x| x * x).sum::<f64>().sqrt();
+    if !(scale.is_finite() && scale > 0.0) {
+        return Err(IdentError::TooLittleData("SINDy: the thrust never accelerates".into()));
+    }
+    target.iter_mut().for_each(|x| *x /= scale);
+    let model = sindy::fit_rows(library, theta, &[("Tddot", &target)], &options.stlsq)
+        .map_err(|e| IdentError::Failed(format!("SINDy: {e}")))?;
+    Ok(JetSindy { model, scale, standardise })
+}
+
+/// Equilibria, a full step each way, and the rise time (plant.md: one stable
+/// equilibrium per throttle, no fall far below idle, 10–90 % in roughly 0.5–2 s).
+pub fn plausibility(p: &Params) -> Plausibility {
+    let mut out = Plausibility::default();
+    for u in [25.0, 50.0, 75.0, 100.0] {
+        let stable: Vec<f64> = p.equilibria(u).into_iter().filter(|e| e.stable).map(|e| e.thrust_n).collect();
+        if stable.is_empty() {
+            out.warnings.push(format!("no stable equilibrium at {u:.0} %"));
+        } else if stable.len() > 1 {
+            out.warnings.push(format!("{} stable equilibria at {u:.0} %", stable.len()));
+        }
+        out.equilibria_n.push((u, stable.iter().copied().reduce(f64::max)));
+    }
+    let levels = [THROTTLE_MIN_PCT, 50.0, 70.0, THROTTLE_MAX_PCT];
+    for &from in &levels {
+        for &to in &levels {
+            if from == to {
+                continue;
+            }
+            let mut engine = Engine::at_equilibrium(*p, from);
+            let mut lowest = engine.state().thrust_n;
+            for _ in 0..(10.0 / STEP_S) as usize {
+                match engine.step(to) {
+                    Ok(s) => lowest = lowest.min(s.thrust_n),
+                    Err(e) => {
+                        out.warnings.push(format!(
+                            "only locally valid: a step {from:.0} → {to:.0} % diverges ({})",
+                            e.to_string().split(':').next().unwrap_or("diverged")
+                        ));
+                        break;
+                    }
+                }
+            }
+            if from == THROTTLE_MAX_PCT && to == THROTTLE_MIN_PCT && !engine.has_diverged() {
+                out.min_after_step_down_n = Some(lowest);
+                let idle = p.stable_equilibrium(THROTTLE_MIN_PCT).unwrap_or(0.0);
+                if lowest < idle - 10.0 {
+                    out.warnings
+                        .push(format!("a full step down undershoots to {lowest:.1} N, far below idle ({idle:.1} N)"));
+                }
+            }
+        }
+    }
+    match settling_time_s(p, THROTTLE_MIN_PCT, THROTTLE_MAX_PCT, 30.0) {
+        Ok(Some(rise)) => {
+            out.rise_time_s = Some(rise);
+            if !(0.3..=3.0).contains(&rise) {
+                out.warnings.push(format!("rise time 25 → 100 % is {rise:.2} s, outside the plausible 0.3–3 s"));
+            }
+        }
+        Ok(None) => out.warnings.push("a step 25 → 100 % does not settle within 30 s".into()),
+        Err(_) => {} // divergence is already reported by the step test
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use jetbench_model::Preset;
+
+    #[test]
+    fn published_local_fit_is_flagged_and_default_plant_is_not() {
+        let local = plausibility(&Preset::P100Ekf.params());
+        assert!(local.warnings.iter().any(|w| w.contains("only locally valid")), "{local:?}");
+        let good = plausibility(&Preset::P100Diesel.params());
+        assert!(good.warnings.is_empty(), "{good:?}");
+        assert!((good.equilibria_n[3].1.unwrap() - 86.177).abs() < 0.01);
+    }
+}

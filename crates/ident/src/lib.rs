@@ -1,0 +1,28 @@
+//! Offline identification of the engine model from recordings.
+
+pub mod ekf;
+pub mod excite;
+pub mod identify;
+pub mod ls;
+pub mod plot;
+pub mod series;
+pub mod sindy;
+pub mod synth;
+pub mod validate;
+
+/// Why an identification could not be done.
+#[derive(Debug, thiserror::Error)]
+pub enum IdentError {
+    #[error(transparent)]
+    Data(#[from] series::DataError),
+    #[error("bad option: {0}")]
+    Options(String),
+    #[error("too little data: {0}")]
+    TooLittleData(String),
+    #[error(
+        "{0}: the regression is singular; the data does not excite every term (use a campaign from `jetbench excite`)"
+    )]
+    Singular(String),
+    #[error("{0}")]
+    Failed(String),
+}

@@ -1,0 +1,303 @@
+//! Recordings as identification data: time, applied throttle and measured thrust.
+//!
+//! Every offline command reads CSV and MCAP alike (design.md, "Files and formats"):
+//!
+//! - CSV: header `time_s,throttle_pct,thrust_n`, extra columns allowed, any order.
+//! - MCAP: `bench/thrust` gives the measured thrust and the time (the sensor's
+//!   frame counter times 10 ms); `bench/actuation` gives the throttle the board
+//!   applied.
+//!
+//! Convention: the throttle of row `k` is the throttle held from `time_s[k]` until
+//! `time_s[k + 1]`, so the model maps `(T[k], u[k])` to `T[k + 1]`. In a live
+//! recording the command computed from thrust sample `k` is applied before the
+//! plant's next step, so `u[k]` is the last applied throttle published before
+//! the next thrust sample was stamped. [`Series::write_csv`] writes exactly the
+//! values a loader reads, so the same data as MCAP and as CSV identify alike.
+
+use std::io::{Read, Write};
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use jetbench_model::STEP_S;
+use jetbench_msgs::channels;
+use jetbench_record::Recording;
+
+/// Largest relative deviation of a step from [`STEP_S`] before the series is split.
+const GAP_FACTOR: f64 = 1.5;
+/// Sampling periods further than this (relative) from [`STEP_S`] are refused.
+const PERIOD_TOLERANCE: f64 = 0.05;
+
+/// Why a recording cannot be used as identification data.
+#[derive(Debug, thiserror::Error)]
+pub enum DataError {
+    #[error("cannot read {path}: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("{path}: {message}")]
+    Invalid { path: String, message: String },
+    #[error(transparent)]
+    Mcap(#[from] jetbench_record::RecordError),
+}
+
+/// Time, throttle and thrust, one row per 10 ms sample.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Series {
+    /// Where the data came from (file name), for messages and plots.
+    pub name: String,
+    /// Time, s, strictly increasing, from the start of the recording.
+    pub t_s: Vec<f64>,
+    /// Throttle applied from `t_s[k]` to `t_s[k + 1]`, %.
+    pub u_pct: Vec<f64>,
+    /// Measured thrust at `t_s[k]`, N. Empty for an input-only profile.
+    pub thrust_n: Vec<f64>,
+}
+
+impl Series {
+    pub fn len(&self) -> usize {
+        self.t_s.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.t_s.is_empty()
+    }
+
+    /// True when the file carried measured thrust (not only a throttle profile).
+    pub fn has_thrust(&self) -> bool {
+        !self.thrust_n.is_empty()
+    }
+
+    /// Rows `range` as a series of their own (time keeps its origin).
+    pub fn slice(&self, range: Range<usize>) -> Series {
+        Series {
+            name: self.name.clone(),
+            t_s: self.t_s[range.clone()].to_vec(),
+            u_pct: self.u_pct[range.clone()].to_vec(),
+            thrust_n: if self.has_thrust() { self.thrust_n[range].to_vec() } else { Vec::new() },
+        }
+    }
+
+    /// Contiguous runs of rows: a step longer than 1.5 sample periods (a lost
+    /// sample, a pause) ends a run, because the model steps 10 ms at a time.
+    pub fn runs(&self) -> Vec<Range<usize>> {
+        let mut runs = Vec::new();
+        let mut start = 0;
+        for k in 1..self.len() {
+            if self.t_s[k] - self.t_s[k - 1] > GAP_FACTOR * STEP_S {
+                runs.push(start..k);
+                start = k;
+            }
+        }
+        if start < self.len() {
+            runs.push(start..self.len());
+        }
+        runs
+    }
+
+    /// Checks what every method assumes: finite values, time strictly
+    /// increasing, sampled at 100 Hz (gaps allowed, see [`Series::runs`]).
+    pub fn check(&self) -> Result<(), DataError> {
+        let invalid = |message: String| DataError::Invalid { path: self.name.clone(), message };
+        if self.u_pct.len() != self.len() || (self.has_thrust() && self.thrust_n.len() != self.len()) {
+            return Err(invalid("columns have different lengths".into()));
+        }
+        if self.len() < 2 {
+            return Err(invalid(format!("{} samples: too few to use", self.len())));
+        }
+        let row = |k: usize| k + 2; // header is line 1
+        for k in 0..self.len() {
+            if !self.t_s[k].is_finite() {
+                return Err(invalid(format!("time_s is not a number at row {}", row(k))));
+            }
+            if !self.u_pct[k].is_finite() {
+                return Err(invalid(format!("throttle_pct is not a number at row {} (t = {} s)", row(k), self.t_s[k])));
+            }
+            if self.has_thrust() && !self.thrust_n[k].is_finite() {
+                return Err(invalid(format!("thrust_n is not a number at row {} (t = {} s)", row(k), self.t_s[k])));
+            }
+            if k > 0 && self.t_s[k] <= self.t_s[k - 1] {
+                return Err(invalid(format!(
+                    "time goes backwards at row {}: {} s after {} s; sort the file or split it",
+                    row(k),
+                    self.t_s[k],
+                    self.t_s[k - 1]
+                )));
+            }
+        }
+        let mut steps: Vec<f64> = self.t_s.windows(2).map(|w| w[1] - w[0]).collect();
+        steps.sort_by(f64::total_cmp);
+        let median = steps[steps.len() / 2];
+        if ((median - STEP_S) / STEP_S).abs() > PERIOD_TOLERANCE {
+            return Err(invalid(format!(
+                "sampled every {:.3} ms; the model is discretised at 10 ms, so resample to 100 Hz",
+                median * 1e3
+            )));
+        }
+        Ok(())
+    }
+
+    /// Reads a CSV (`time_s,throttle_pct[,thrust_n]`, extra columns ignored).
+    pub fn from_csv<R: Read>(reader: R, name: &str, require_thrust: bool) -> Result<Series, DataError> {
+        let invalid = |message: String| DataError::Invalid { path: name.to_owned(), message };
+        let mut csv = csv::ReaderBuilder::new().trim(csv::Trim::All).comment(Some(b'#')).from_reader(reader);
+        let header = csv.headers().map_err(|e| invalid(format!("cannot read the CSV header: {e}")))?.clone();
+        let column = |wanted: &str| header.iter().position(|h| h == wanted);
+        let found = || header.iter().collect::<Vec<_>>().join(",");
+        let (Some(t_col), Some(u_col)) = (column("time_s"), column("throttle_pct")) else {
+            return Err(invalid(format!(
+                "the header must have time_s and throttle_pct (and thrust_n for identification); found: {}",
+                found()
+            )));
+        };
+        let y_col = column("thrust_n");
+        if require_thrust && y_col.is_none() {
+            return Err(invalid(format!("no thrust_n column (header: {}); identification needs it", found())));
+        }
+        let mut series = Series { name: name.to_owned(), ..Series::default() };
+        for (i, record) in csv.records().enumerate() {
+            let line = i + 2;
+            let record = record.map_err(|e| invalid(format!("line {line}: {e}")))?;
+            let field = |col: usize, what: &str| -> Result<f64, DataError> {
+                let text = record.get(col).ok_or_else(|| invalid(format!("line {line}: missing {what}")))?;
+                text.parse::<f64>().map_err(|_| invalid(format!("line {line}: {what} {text:?} is not a number")))
+            };
+            series.t_s.push(field(t_col, "time_s")?);
+            series.u_pct.push(field(u_col, "throttle_pct")?);
+            if let Some(c) = y_col {
+                series.thrust_n.push(field(c, "thrust_n")?);
+            }
+        }
+        series.check()?;
+        Ok(series)
+    }
+
+    /// Reads identification data from a recording (see the module docs).
+    pub fn from_recording(recording: &Recording, name: &str) -> Result<Series, DataError> {
+        let invalid = |message: String| DataError::Invalid { path: name.to_owned(), message };
+        let thrust = recording.samples(channels::THRUST);
+        let mut actuation = recording.samples(channels::ACTUATION);
+        if thrust.len() < 2 {
+            return Err(invalid(format!("{} bench/thrust samples: nothing to identify from", thrust.len())));
+        }
+        if actuation.is_empty() {
+            return Err(invalid("no bench/actuation samples: the applied throttle is unknown".into()));
+        }
+        actuation.sort_by_key(|a| a.publish_ns);
+        let mut series = Series { name: name.to_owned(), ..Series::default() };
+        let origin_frame = thrust[0].frame_seq;
+        let mut next_actuation = 0;
+        let mut applied: Option<f64> = None;
+        for (k, sample) in thrust.iter().enumerate() {
+            // The throttle held until the next sample: the last one published before it.
+            let until_ns = thrust.get(k + 1).map_or(sample.stamp_ns + (STEP_S * 1e9) as u64, |next| next.stamp_ns);
+            while next_actuation < actuation.len() && actuation[next_actuation].publish_ns < until_ns {
+                applied = Some(actuation[next_actuation].applied_pct);
+                next_actuation += 1;
+            }
+            // Before the first applied throttle the input is unknown: start after it.
+            let Some(u) = applied else { continue };
+            // Time from the sensor's own frame counter: frames are sent every 10 ms,
+            // while the receive stamps jitter with the PC's load. A lost frame still
+            // shows as a gap.
+            let frames = sample.frame_seq.wrapping_sub(origin_frame);
+            if series.t_s.last().is_some_and(|&last| frames as f64 * STEP_S <= last) {
+                continue; // a repeated frame
+            }
+            series.t_s.push(frames as f64 * STEP_S);
+            series.u_pct.push(u);
+            series.thrust_n.push(sample.thrust_n);
+        }
+        series.check()?;
+        Ok(series)
+    }
+
+    /// Loads a CSV or MCAP file (told apart by the MCAP magic bytes).
+    pub fn load(path: &Path, require_thrust: bool) -> Result<Series, DataError> {
+        let name = path.display().to_string();
+        let bytes = std::fs::read(path).map_err(|source| DataError::Read { path: path.into(), source })?;
+        if bytes.starts_with(mcap_magic()) {
+            let recording = Recording::open(path)?;
+            if recording.truncated {
+                eprintln!("warning: {name} is truncated; using the data up to its last complete chunk");
+            }
+            Series::from_recording(&recording, &name)
+        } else {
+            Series::from_csv(bytes.as_slice(), &name, require_thrust)
+        }
+    }
+
+    /// Writes `time_s,throttle_pct[,thrust_n]` with the shortest text that reads
+    /// back to the same numbers.
+    pub fn write_csv<W: Write>(&self, mut out: W) -> std::io::Result<()> {
+        if self.has_thrust() {
+            writeln!(out, "time_s,throttle_pct,thrust_n")?;
+            for k in 0..self.len() {
+                writeln!(out, "{:?},{:?},{:?}", self.t_s[k], self.u_pct[k], self.thrust_n[k])?;
+            }
+        } else {
+            writeln!(out, "time_s,throttle_pct")?;
+            for k in 0..self.len() {
+                writeln!(out, "{:?},{:?}", self.t_s[k], self.u_pct[k])?;
+            }
+        }
+        out.flush()
+    }
+}
+
+/// The bytes every MCAP file starts with.
+fn mcap_magic() -> &'static [u8] {
+    b"\x89MCAP0\r\n"
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn csv(text: &str) -> Result<Series, DataError> {
+        Series::from_csv(text.as_bytes(), "test.csv", true)
+    }
+
+    #[test]
+    fn reads_columns_in_any_order_with_extras() {
+        let s = csv("thrust_n,extra,time_s,throttle_pct\n1.5,x,0.0,25\n2.5,y,0.01,30\n3.5,z,0.02,35\n").unwrap();
+        assert_eq!(s.t_s, vec![0.0, 0.01, 0.02]);
+        assert_eq!(s.u_pct, vec![25.0, 30.0, 35.0]);
+        assert_eq!(s.thrust_n, vec![1.5, 2.5, 3.5]);
+    }
+
+    #[test]
+    fn csv_round_trip_is_exact() {
+        let s = Series {
+            name: "x".into(),
+            t_s: (0..50).map(|k| k as f64 * 0.01 + 1e-7 * (k as f64).sin()).collect(),
+            u_pct: (0..50).map(|k| 25.0 + (k as f64 * 0.37).cos() / 3.0).collect(),
+            thrust_n: (0..50).map(|k| (k as f64).sqrt() * std::f64::consts::PI).collect(),
+        };
+        let mut text = Vec::new();
+        s.write_csv(&mut text).unwrap();
+        let back = Series::from_csv(text.as_slice(), "x", true).unwrap();
+        assert_eq!(back, s);
+    }
+
+    #[test]
+    fn bad_input_names_the_problem() {
+        let cases = [
+            ("time_s,thrust_n\n0,1\n0.01,2\n", "throttle_pct"),
+            ("time_s,throttle_pct\n0,25\n0.01,25\n", "thrust_n"),
+            ("time_s,throttle_pct,thrust_n\n0,25,1\n0.01,25,NaN\n", "not a number at row 3"),
+            ("time_s,throttle_pct,thrust_n\n0,25,1\n0.01,25,abc\n", "line 3"),
+            ("time_s,throttle_pct,thrust_n\n0,25,1\n0.01,25,1\n0.005,25,1\n", "backwards at row 4"),
+            ("time_s,throttle_pct,thrust_n\n0,25,1\n0.02,25,1\n0.04,25,1\n", "resample to 100 Hz"),
+            ("time_s,throttle_pct,thrust_n\n0,25\n", "line 2"),
+        ];
+        for (text, expected) in cases {
+            let e = csv(text).unwrap_err().to_string();
+            assert!(e.contains(expected), "{text:?}: {e}");
+        }
+    }
+
+    #[test]
+    fn runs_split_at_gaps() {
+        let t: Vec<f64> = [0, 1, 2, 5, 6, 7, 8].iter().map(|&k| k as f64 * 0.01).collect();
+        let s = Series { name: "g".into(), u_pct: vec![25.0; 7], thrust_n: vec![0.0; 7], t_s: t };
+        assert_eq!(s.runs(), vec![0..3, 3..7]);
+    }
+}

@@ -1,0 +1,311 @@
+//! Validation by free-run simulation, and the noise floor it is judged against.
+//!
+//! A model is validated the way it will be used: started from the measured state
+//! at the beginning of each contiguous run of held-out data and simulated from
+//! the recorded throttle alone, with no measurement correcting it. Its error then
+//! includes the measurement noise, so the best any model can do is the noise floor:
+//! the mean absolute value of the noise, estimated from the data itself.
+
+use jetbench_estim::SavitzkyGolay;
+use jetbench_model::{Engine, Params, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S, SUBSTEPS};
+use serde::Serialize;
+
+use crate::series::Series;
+
+/// Savitzky–Golay window (samples) used to read the initial state off the data.
+pub const STATE_WINDOW: usize = 31;
+/// Savitzky–Golay polynomial order used to read the initial state off the data.
+pub const STATE_ORDER: usize = 3;
+
+/// Something that can be simulated from a throttle sequence.
+pub trait Dynamics {
+    /// Simulated thrust at each sample: `out[0]` is `initial`, `out[k + 1]` follows
+    /// from `out[k]` with `u_pct[k]` held for [`STEP_S`]. On divergence the
+    /// remaining samples are NaN and the time of divergence (s from the run start)
+    /// is returned.
+    fn free_run(&self, initial: State, u_pct: &[f64], out: &mut Vec<f64>) -> Option<f64>;
+}
+
+impl Dynamics for Params {
+    fn free_run(&self, initial: State, u_pct: &[f64], out: &mut Vec<f64>) -> Option<f64> {
+        let mut engine = Engine::new(*self, initial);
+        out.clear();
+        out.push(initial.thrust_n);
+        for (k, &u) in u_pct.iter().enumerate().take(u_pct.len().saturating_sub(1)) {
+            match engine.step(u) {
+                Ok(s) => out.push(s.thrust_n),
+                Err(_) => {
+                    out.resize(u_pct.len(), f64::NAN);
+                    return Some((k + 1) as f64 * STEP_S);
+                }
+            }
+        }
+        None
+    }
+}
+
+/// Free run of any `T̈ = a(T, Ṫ, u)` with the integrator of the simulated engine
+/// (classic RK4 at 1 kHz, throttle held over each 10 ms step).
+pub fn free_run_fn(
+    accel: impl Fn(f64, f64, f64) -> f64,
+    initial: State,
+    u_pct: &[f64],
+    out: &mut Vec<f64>,
+) -> Option<f64> {
+    let h = STEP_S / SUBSTEPS as f64;
+    let (mut t, mut d) = (initial.thrust_n, initial.thrust_rate_n_per_s);
+    out.clear();
+    out.push(t);
+    for (k, &u) in u_pct.iter().enumerate().take(u_pct.len().saturating_sub(1)) {
+        for _ in 0..SUBSTEPS {
+            let f = |t: f64, d: f64| (d, accel(t, d, u));
+            let k1 = f(t, d);
+            let k2 = f(t + 0.5 * h * k1.0, d + 0.5 * h * k1.1);
+            let k3 = f(t + 0.5 * h * k2.0, d + 0.5 * h * k2.1);
+            let k4 = f(t + h * k3.0, d + h * k3.1);
+            t += h / 6.0 * (k1.0 + 2.0 * k2.0 + 2.0 * k3.0 + k4.0);
+            d += h / 6.0 * (k1.1 + 2.0 * k2.1 + 2.0 * k3.1 + k4.1);
+        }
+        if !(t.is_finite() && d.is_finite() && t.abs() <= DIVERGENCE_THRUST_N && d.abs() <= DIVERGENCE_RATE_N_PER_S) {
+            out.resize(u_pct.len(), f64::NAN);
+            return Some((k + 1) as f64 * STEP_S);
+        }
+        out.push(t);
+    }
+    None
+}
+
+/// The measurement noise, estimated from the data.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct NoiseFloor {
+    /// Standard deviation of the noise, N.
+    pub sigma_n: f64,
+    /// Mean absolute value of the noise, N: the best validation MAE a model can reach.
+    pub mae_n: f64,
+}
+
+/// Estimates the noise from second differences, which remove a smooth signal
+/// (at 100 Hz the engine's own `T̈·Δt²` is a few hundredths of a newton) and
+/// multiply white noise variance by 6. The median absolute value makes steps and
+/// outliers harmless. Gaussian noise is assumed for `mae = σ·√(2/π)`.
+pub fn noise_floor(data: &[Series]) -> Option<NoiseFloor> {
+    let mut d2: Vec<f64> = Vec::new();
+    for s in data {
+        for run in s.runs() {
+            let y = &s.thrust_n[run];
+            d2.extend(y.windows(3).map(|w| (w[2] - 2.0 * w[1] + w[0]).abs()));
+        }
+    }
+    if d2.len() < 10 {
+        return None;
+    }
+    let mid = d2.len() / 2;
+    let (_, median, _) = d2.select_nth_unstable_by(mid, f64::total_cmp);
+    // MAD of a zero-mean normal is 0.6745 σ.
+    let sigma_n = *median / 0.674_489_750_196_081_7 / 6f64.sqrt();
+    Some(NoiseFloor { sigma_n, mae_n: sigma_n * (2.0 / std::f64::consts::PI).sqrt() })
+}
+
+/// Thrust and thrust rate at the start of `y`, read off a local polynomial fit.
+/// Noisy at the edge (a rate error of tens of N/s is common at σ = 2.6 N); see
+/// [`fit_initial_state`] for the state a free run should start from.
+pub fn initial_state(y: &[f64]) -> State {
+    let window = STATE_WINDOW.min(if y.len() % 2 == 1 { y.len() } else { y.len().saturating_sub(1) });
+    let fit = SavitzkyGolay::new(window, STATE_ORDER.min(window.saturating_sub(2)))
+        .ok()
+        .and_then(|sg| Some((sg.apply(&y[..window], 0, STEP_S).ok()?, sg.apply(&y[..window], 1, STEP_S).ok()?)));
+    match fit {
+        Some((t, d)) => State { thrust_n: t[0], thrust_rate_n_per_s: d[0] },
+        None => State { thrust_n: y.first().copied().unwrap_or(0.0), thrust_rate_n_per_s: 0.0 },
+    }
+}
+
+/// Samples over which the initial state of a free run is fitted (2 s).
+pub const INITIAL_FIT_SAMPLES: usize = 200;
+
+/// The initial state that best explains the first [`INITIAL_FIT_SAMPLES`] of `y`
+/// under `model` (Gauss–Newton on `[T₀, Ṫ₀]`, started from [`initial_state`]).
+///
+/// Output-error validation must not blame the model for a bad starting point: at
+/// low thrust the engine's slow mode carries a starting error for seconds. The
+/// fit uses the first two seconds only, the same way for every model.
+pub fn fit_initial_state(model: &dyn Dynamics, y: &[f64], u: &[f64]) -> State {
+    let n = y.len().min(u.len()).min(INITIAL_FIT_SAMPLES);
+    let mut x = initial_state(y);
+    if n < 10 {
+        return x;
+    }
+    let (mut base, mut dt_run, mut dd_run) = (Vec::new(), Vec::new(), Vec::new());
+    let sse = |sim: &[f64]| -> f64 { sim.iter().zip(y).map(|(s, m)| (s - m).powi(2)).sum() };
+    for _ in 0..4 {
+        if model.free_run(x, &u[..n], &mut base).is_some() {
+            return initial_state(y);
+        }
+        let (ht, hd) = (0.1, 1.0);
+        let bumped_t = State { thrust_n: x.thrust_n + ht, ..x };
+        let bumped_d = State { thrust_rate_n_per_s: x.thrust_rate_n_per_s + hd, ..x };
+        if model.free_run(bumped_t, &u[..n], &mut dt_run).is_some()
+            || model.free_run(bumped_d, &u[..n], &mut dd_run).is_some()
+        {
+            return x;
+        }
+        // Normal equations of the 2-parameter linearised problem.
+        let (mut a11, mut a12, mut a22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for k in 0..n {
+            let (j1, j2) = ((dt_run[k] - base[k]) / ht, (dd_run[k] - base[k]) / hd);
+            let r = y[k] - base[k];
+            a11 += j1 * j1;
+            a12 += j1 * j2;
+            a22 += j2 * j2;
+            b1 += j1 * r;
+            b2 += j2 * r;
+        }
+        let det = a11 * a22 - a12 * a12;
+        if det.is_nan() || det.abs() <= 1e-12 {
+            return x;
+        }
+        let next = State {
+            thrust_n: x.thrust_n + (a22 * b1 - a12 * b2) / det,
+            thrust_rate_n_per_s: x.thrust_rate_n_per_s + (a11 * b2 - a12 * b1) / det,
+        };
+        let mut trial = Vec::new();
+        if model.free_run(next, &u[..n], &mut trial).is_some() || sse(&trial) > sse(&base) {
+            return x;
+        }
+        x = next;
+    }
+    x
+}
+
+/// How well simulated thrust matches measured thrust.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Score {
+    /// Mean absolute error, N.
+    pub mae_n: f64,
+    /// Root mean square error, N.
+    pub rmse_n: f64,
+    /// `100·(1 − ‖y − ŷ‖ / ‖y − ȳ‖)`, %.
+    pub fit_pct: f64,
+    /// Samples compared.
+    pub samples: usize,
+}
+
+/// A model simulated over data.
+#[derive(Clone, Debug, Default)]
+pub struct Simulation {
+    /// Simulated thrust, one vector per series (NaN after a divergence).
+    pub thrust_n: Vec<Vec<f64>>,
+    /// Where the model diverged: (series name, time s), if it did.
+    pub diverged: Option<(String, f64)>,
+}
+
+impl Simulation {
+    /// Error against the measured thrust; `None` when the model diverged.
+    pub fn score(&self, data: &[Series]) -> Option<Score> {
+        if self.diverged.is_some() {
+            return None;
+        }
+        score(data.iter().zip(&self.thrust_n).flat_map(|(s, sim)| s.thrust_n.iter().copied().zip(sim.iter().copied())))
+    }
+}
+
+/// MAE, RMSE and fit % over (measured, simulated) pairs.
+pub fn score(pairs: impl Iterator<Item = (f64, f64)> + Clone) -> Option<Score> {
+    let (mut n, mut sum_y) = (0usize, 0.0);
+    for (y, _) in pairs.clone() {
+        n += 1;
+        sum_y += y;
+    }
+    if n == 0 {
+        return None;
+    }
+    let mean = sum_y / n as f64;
+    let (mut abs, mut sq, mut var) = (0.0, 0.0, 0.0);
+    for (y, s) in pairs {
+        abs += (y - s).abs();
+        sq += (y - s).powi(2);
+        var += (y - mean).powi(2);
+    }
+    let fit_pct = if var > 0.0 { 100.0 * (1.0 - (sq / var).sqrt()) } else { f64::NAN };
+    Some(Score { mae_n: abs / n as f64, rmse_n: (sq / n as f64).sqrt(), fit_pct, samples: n })
+}
+
+/// Simulates `model` over every contiguous run of every series, each run started
+/// from the state measured at its beginning.
+pub fn simulate(model: &dyn Dynamics, data: &[Series]) -> Simulation {
+    let mut result = Simulation::default();
+    let mut buffer = Vec::new();
+    for s in data {
+        let mut sim = vec![f64::NAN; s.len()];
+        for run in s.runs() {
+            let start = run.start;
+            let initial = fit_initial_state(model, &s.thrust_n[run.clone()], &s.u_pct[run.clone()]);
+            if let Some(at) = model.free_run(initial, &s.u_pct[run.clone()], &mut buffer) {
+                if result.diverged.is_none() {
+                    result.diverged = Some((s.name.clone(), s.t_s[start] + at));
+                }
+            }
+            sim[run].copy_from_slice(&buffer);
+        }
+        result.thrust_n.push(sim);
+    }
+    result
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth;
+    use jetbench_model::Preset;
+
+    #[test]
+    fn noise_floor_recovers_the_noise_of_a_recording() {
+        let profile = synth::test_profile(6000, 3);
+        for (var, preset) in [(7.0, Preset::P100Diesel), (9.0, Preset::P220Kerosene), (1.0, Preset::P100Diesel)] {
+            let s = synth::record(&preset.params(), &profile, var, 11).unwrap();
+            let floor = noise_floor(&[s]).unwrap();
+            let sigma: f64 = f64::sqrt(var);
+            assert!((floor.sigma_n - sigma).abs() < 0.03 * sigma, "{var}: {floor:?}");
+        }
+    }
+
+    #[test]
+    fn the_true_model_scores_at_the_noise_floor() {
+        let p = Preset::P100Diesel.params();
+        let s = synth::record(&p, &synth::test_profile(6000, 5), 7.0, 2).unwrap();
+        let sim = simulate(&p, std::slice::from_ref(&s));
+        let score = sim.score(std::slice::from_ref(&s)).unwrap();
+        let floor = noise_floor(std::slice::from_ref(&s)).unwrap();
+        assert!((score.mae_n - floor.mae_n).abs() < 0.05 * floor.mae_n, "{score:?} vs {floor:?}");
+        assert!(score.fit_pct > 80.0, "{score:?}");
+    }
+
+    #[test]
+    fn generic_integrator_matches_the_engine() {
+        let p = Preset::P100Diesel.params();
+        let u: Vec<f64> = (0..500).map(|k| if k < 100 { 30.0 } else { 90.0 }).collect();
+        let initial = State { thrust_n: 5.0, thrust_rate_n_per_s: 0.0 };
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        assert!(p.free_run(initial, &u, &mut a).is_none());
+        assert!(free_run_fn(|t, d, u| p.accel(t, d, u), initial, &u, &mut b).is_none());
+        for (x, y) in a.iter().zip(&b) {
+            assert!((x - y).abs() < 1e-9, "{x} {y}");
+        }
+    }
+
+    #[test]
+    fn divergence_is_reported_not_nan_scored() {
+        let p = Preset::P100Ekf.params();
+        let u: Vec<f64> = (0..600).map(|k| if k < 100 { 70.0 } else { 100.0 }).collect();
+        let s = Series {
+            name: "d".into(),
+            t_s: (0..600).map(|k| k as f64 * STEP_S).collect(),
+            thrust_n: vec![60.0; 600],
+            u_pct: u,
+        };
+        let sim = simulate(&p, std::slice::from_ref(&s));
+        let (_, at) = sim.diverged.clone().unwrap();
+        assert!(at > 1.0 && at < 6.0, "{at}");
+        assert!(sim.score(std::slice::from_ref(&s)).is_none());
+    }
+}

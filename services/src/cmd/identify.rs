@@ -1,0 +1,338 @@
+//! `jetbench identify`: the engine model from recordings, by LS, EKF and SINDy.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::{bail, Context};
+use clap::ValueEnum;
+use indicatif::{ProgressBar, ProgressStyle};
+use jetbench_ident::identify::{self, Fitted, Method, MethodResult, Report};
+use jetbench_ident::plot::{write_fit_plot, FitPlot};
+use jetbench_ident::series::Series;
+use jetbench_model::{ModelFile, Params};
+use serde_json::{json, Map, Value};
+
+/// Which methods to run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum MethodArg {
+    Ls,
+    Ekf,
+    Sindy,
+    All,
+}
+
+/// Arguments of `jetbench identify`.
+#[derive(clap::Args)]
+#[command(after_long_help = "\
+Every method is validated by free-run simulation from the recorded throttle on held-out data \
+(the last 30 % of each file, or the --validate files), starting from the state fitted to the \
+first 2 s of each run. MAE is in N; fit % is 100·(1 − ‖y − ŷ‖/‖y − ȳ‖). The noise floor is the \
+mean absolute value of the measurement noise, estimated from the data: no model can do better.
+
+Methods:
+  ls     the ten parameters by linear least squares on Savitzky–Golay derivatives; the regressors \
+and the target of each equation come from the two interleaved halves of the samples, so the \
+noise does not bias the estimate
+  ekf    the ten parameters in a 12-state EKF, passes over the calibration data from the LS \
+estimate until validation stops improving
+  sindy  sparse regression of T'' on all 56 monomials of degree <= 5 in (T, T', u)
+
+Examples:
+  jetbench identify run.mcap
+  jetbench identify day1.csv day2.mcap --validate day3.csv --out model.toml --plot plots/
+  jetbench identify run.mcap --method ls --json")]
+pub struct IdentifyArgs {
+    /// Recordings to identify from (MCAP or CSV `time_s,throttle_pct,thrust_n`).
+    #[arg(value_name = "FILE", required = true)]
+    files: Vec<PathBuf>,
+    /// Method(s) to run.
+    #[arg(long, value_enum, default_value = "all")]
+    method: MethodArg,
+    /// Validate on these recordings instead of holding out the end of each file.
+    #[arg(long, value_name = "FILE", num_args = 1..)]
+    validate: Vec<PathBuf>,
+    /// Fraction of each file held out for validation when --validate is not given.
+    #[arg(long, default_value_t = 0.3, value_name = "FRACTION")]
+    holdout: f64,
+    /// Write the best ten-parameter model here (model-file TOML).
+    #[arg(long, value_name = "model.toml")]
+    out: Option<PathBuf>,
+    /// Print the result as JSON on stdout (the human report goes to stderr).
+    #[arg(long)]
+    json: bool,
+    /// Write plots (PNG and SVG) of every method into this folder.
+    #[arg(long, value_name = "DIR")]
+    plot: Option<PathBuf>,
+    /// LS: Savitzky–Golay window, samples (odd).
+    #[arg(long, default_value_t = 101, value_name = "SAMPLES")]
+    ls_window: usize,
+    /// EKF: measurement noise variance R, N² [default: estimated from the data].
+    #[arg(long, value_name = "N2")]
+    ekf_measurement_var: Option<f64>,
+    /// EKF: unmodelled acceleration standard deviation, N/s² [default: 8·σ].
+    #[arg(long, value_name = "N_PER_S2")]
+    ekf_accel_noise: Option<f64>,
+    /// EKF: initial parameter standard deviation, relative to each parameter's scale.
+    #[arg(long, default_value_t = 0.1, value_name = "RELATIVE")]
+    ekf_p0: f64,
+    /// EKF: parameter random walk per sample, relative to each parameter's scale.
+    #[arg(long, default_value_t = 1e-5, value_name = "RELATIVE")]
+    ekf_walk: f64,
+    /// EKF: most passes over the calibration data.
+    #[arg(long, default_value_t = 20)]
+    ekf_passes: usize,
+    /// SINDy: STLSQ threshold on the scaled library (share of T'' a term must explain).
+    #[arg(long, default_value_t = 0.1)]
+    sindy_threshold: f64,
+}
+
+pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
+    if !(args.holdout > 0.0 && args.holdout < 1.0) {
+        bail!("--holdout {} must be between 0 and 1", args.holdout);
+    }
+    for (name, v) in
+        [("--ekf-p0", args.ekf_p0), ("--ekf-walk", args.ekf_walk), ("--sindy-threshold", args.sindy_threshold)]
+    {
+        if !(v.is_finite() && v >= 0.0) {
+            bail!("{name} {v} must be a non-negative number");
+        }
+    }
+    let load = |paths: &[PathBuf]| -> anyhow::Result<Vec<Series>> {
+        paths.iter().map(|p| Series::load(p, true).with_context(|| format!("cannot use {}", p.display()))).collect()
+    };
+    let data = load(&args.files)?;
+    let (calibration, validation) =
+        if args.validate.is_empty() { identify::hold_out(&data, args.holdout) } else { (data, load(&args.validate)?) };
+    let mut options = identify::Options {
+        methods: match args.method {
+            MethodArg::Ls => vec![Method::Ls],
+            MethodArg::Ekf => vec![Method::Ekf],
+            MethodArg::Sindy => vec![Method::Sindy],
+            MethodArg::All => Method::ALL.to_vec(),
+        },
+        ..identify::Options::default()
+    };
+    options.ls.window = args.ls_window;
+    options.ekf.measurement_var_n2 = args.ekf_measurement_var;
+    options.ekf.accel_noise_n_per_s2 = args.ekf_accel_noise;
+    options.ekf.p0_relative = args.ekf_p0;
+    options.ekf.walk_relative = args.ekf_walk;
+    options.ekf.max_passes = args.ekf_passes;
+    options.sindy.stlsq.threshold = args.sindy_threshold;
+
+    let bar = ProgressBar::new_spinner();
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} {elapsed:>3} {msg}").unwrap_or(ProgressStyle::default_spinner()),
+    );
+    bar.enable_steady_tick(Duration::from_millis(100));
+    let report = identify::identify(&calibration, &validation, &options, |method, message| {
+        bar.set_message(format!("{}: {message}", method.name()));
+    })?;
+    bar.finish_and_clear();
+
+    print_report(&report, &calibration, &validation);
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&to_json(&report))?);
+    }
+    if let Some(dir) = &args.plot {
+        let written = plot(&report, &calibration, &validation, dir, args.validate.is_empty())?;
+        eprintln!("plots: {} files in {}", written, dir.display());
+    }
+    if let Some(path) = &args.out {
+        let best_params = report
+            .results
+            .iter()
+            .filter(|r| matches!(r.model, Fitted::Params(_)))
+            .filter_map(|r| r.validation_score.map(|s| (r, s.mae_n)))
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        let Some((result, _)) = best_params else {
+            bail!("no ten-parameter model stayed bounded on the validation data; nothing written to {}", path.display())
+        };
+        let Fitted::Params(params) = result.model else { unreachable!("filtered to ten-parameter models") };
+        save_model(path, &params, result)?;
+        eprintln!("wrote the {} model to {}", result.method.name(), path.display());
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn save_model(path: &Path, params: &Params, result: &MethodResult) -> anyhow::Result<()> {
+    let mut text = format!(
+        "# Identified by `jetbench identify` ({}), validation MAE {} N\n",
+        result.method.name(),
+        result.validation_score.map_or("n/a".into(), |s| format!("{:.3}", s.mae_n))
+    );
+    text.push_str(&ModelFile::new(*params).to_toml_string());
+    std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// The JSON contract: `{"methods": {"ls": {"params": {..}, "mae_n", "fit_pct", ..}}, "best", "noise_floor_n"}`.
+pub fn to_json(report: &Report) -> Value {
+    let mut methods = Map::new();
+    for r in &report.results {
+        let v = r.validation_score;
+        let (diverged_file, diverged_at) =
+            r.validation.diverged.clone().map_or((None, None), |(f, t)| (Some(f), Some(t)));
+        methods.insert(
+            r.method.name().into(),
+            json!({
+                "params": r.params,
+                "mae_n": v.map(|s| s.mae_n),
+                "fit_pct": v.map(|s| s.fit_pct),
+                "rmse_n": v.map(|s| s.rmse_n),
+                "calibration_mae_n": r.calibration_score.map(|s| s.mae_n),
+                "diverged_file": diverged_file,
+                "diverged_at_s": diverged_at,
+                "fit_seconds": r.fit_seconds,
+                "plausibility": r.plausibility,
+                "notes": r.notes,
+            }),
+        );
+    }
+    for (method, error) in &report.failures {
+        methods.insert(method.name().into(), json!({ "error": error, "mae_n": null, "fit_pct": null }));
+    }
+    json!({
+        "methods": methods,
+        "best": report.best.map(|m| m.name()),
+        "noise_floor_n": report.noise.mae_n,
+        "noise_sigma_n": report.noise.sigma_n,
+        "calibration_samples": report.calibration_samples,
+        "validation_samples": report.validation_samples,
+        "verdict": report.verdict,
+    })
+}
+
+fn print_report(report: &Report, calibration: &[Series], validation: &[Series]) {
+    let names = |s: &[Series]| s.iter().map(|x| x.name.clone()).collect::<Vec<_>>().join(", ");
+    eprintln!(
+        "calibration: {} samples ({})\nvalidation:  {} samples ({})",
+        report.calibration_samples,
+        names(calibration),
+        report.validation_samples,
+        names(validation)
+    );
+    eprintln!(
+        "noise floor: σ = {:.3} N, MAE {:.3} N (estimated from the data)\n",
+        report.noise.sigma_n, report.noise.mae_n
+    );
+    let params: Vec<&MethodResult> = report.results.iter().filter(|r| matches!(r.model, Fitted::Params(_))).collect();
+    if !params.is_empty() {
+        eprint!("{:<6}", "param");
+        for r in &params {
+            eprint!("{:>14}", r.method.name());
+        }
+        eprintln!();
+        for (i, name) in Params::NAMES.iter().enumerate() {
+            eprint!("{name:<6}");
+            for r in &params {
+                if let Fitted::Params(p) = r.model {
+                    eprint!("{:>14.6}", p.to_array()[i]);
+                }
+            }
+            eprintln!();
+        }
+        eprintln!();
+    }
+    for r in &report.results {
+        if let Fitted::Sindy(m) = &r.model {
+            eprintln!("sindy: T'' = {}\n", m.equation());
+        }
+    }
+    eprintln!("{:<6} {:>12} {:>10} {:>12} {:>9}  notes", "method", "val MAE N", "fit %", "cal MAE N", "time s");
+    for r in &report.results {
+        let v = r.validation_score;
+        eprintln!(
+            "{:<6} {:>12} {:>10} {:>12} {:>9.3}  {}",
+            r.method.name(),
+            v.map_or_else(|| diverged(r), |s| format!("{:.3}", s.mae_n)),
+            v.map_or("-".into(), |s| format!("{:.1}", s.fit_pct)),
+            r.calibration_score.map_or("-".into(), |s| format!("{:.3}", s.mae_n)),
+            r.fit_seconds,
+            r.notes.join("; ")
+        );
+        for w in &r.plausibility.warnings {
+            eprintln!("       warning: {w}");
+        }
+    }
+    for (method, error) in &report.failures {
+        eprintln!("{:<6} failed: {error}", method.name());
+    }
+    eprintln!("\n{}", report.verdict);
+}
+
+fn diverged(r: &MethodResult) -> String {
+    r.validation.diverged.as_ref().map_or("n/a".into(), |(_, t)| format!("div@{t:.1}s"))
+}
+
+/// Per method: measured vs simulated with the residual, over calibration and
+/// validation (one figure per file when the validation data is the end of it),
+/// and one figure comparing every method on the validation data.
+fn plot(
+    report: &Report,
+    calibration: &[Series],
+    validation: &[Series],
+    dir: &Path,
+    held_out: bool,
+) -> anyhow::Result<usize> {
+    let mut written = 0;
+    for r in &report.results {
+        let name = r.method.name();
+        if held_out {
+            for (i, (cal, val)) in calibration.iter().zip(validation).enumerate() {
+                let t: Vec<f64> = cal.t_s.iter().chain(&val.t_s).copied().collect();
+                let y: Vec<f64> = cal.thrust_n.iter().chain(&val.thrust_n).copied().collect();
+                let sim: Vec<f64> =
+                    r.calibration.thrust_n[i].iter().chain(&r.validation.thrust_n[i]).copied().collect();
+                let title = format!("{name}: {} (validation MAE {})", cal.name, score_text(r));
+                let models = [(name, sim.as_slice())];
+                let fig = FitPlot {
+                    title: &title,
+                    t_s: &t,
+                    measured_n: &y,
+                    models: &models,
+                    split_s: val.t_s.first().copied(),
+                    windows: &[],
+                };
+                written += write_fit_plot(dir, &format!("{name}-{i}"), &fig)?.len();
+            }
+        } else {
+            for (part, data, sim) in
+                [("calibration", calibration, &r.calibration), ("validation", validation, &r.validation)]
+            {
+                for (i, s) in data.iter().enumerate() {
+                    let title = format!("{name} {part}: {}", s.name);
+                    let models = [(name, sim.thrust_n[i].as_slice())];
+                    let fig = FitPlot {
+                        title: &title,
+                        t_s: &s.t_s,
+                        measured_n: &s.thrust_n,
+                        models: &models,
+                        split_s: None,
+                        windows: &[],
+                    };
+                    written += write_fit_plot(dir, &format!("{name}-{part}-{i}"), &fig)?.len();
+                }
+            }
+        }
+    }
+    for (i, s) in validation.iter().enumerate() {
+        let models: Vec<(&str, &[f64])> =
+            report.results.iter().map(|r| (r.method.name(), r.validation.thrust_n[i].as_slice())).collect();
+        let title = format!("validation, every method: {}", s.name);
+        let fig = FitPlot {
+            title: &title,
+            t_s: &s.t_s,
+            measured_n: &s.thrust_n,
+            models: &models,
+            split_s: None,
+            windows: &[],
+        };
+        written += write_fit_plot(dir, &format!("validation-all-{i}"), &fig)?.len();
+    }
+    Ok(written)
+}
+
+fn score_text(r: &MethodResult) -> String {
+    r.validation_score.map_or_else(|| diverged(r), |s| format!("{:.2} N", s.mae_n))
+}

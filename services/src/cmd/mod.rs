@@ -1,0 +1,5 @@
+//! Offline commands of the `jetbench` CLI, one module each.
+
+pub mod identify;
+pub mod model;
+pub mod replay;

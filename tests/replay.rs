@@ -1,0 +1,235 @@
+//! End-to-end tests of `jetbench replay`: a live run of the real service set
+//! is recorded, then replayed through the estimator, and must reproduce its
+//! recorded `bench/state` bit for bit (the determinism contract).
+//!
+//! The live run uses its own bus namespace. Hangs are caught by a watchdog;
+//! no test asserts a runtime.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::{mpsc, OnceLock};
+use std::time::{Duration, Instant};
+
+use jetbench_msgs::{channels, RosType, Sample, StateEstimate, Thrust};
+use jetbench_record::{McapWriter, Recording};
+use serde_json::Value;
+
+/// `jetbench` in this test run's own bus namespace, finding the service
+/// binaries next to itself.
+fn jetbench() -> Command {
+    let exe = Path::new(env!("CARGO_BIN_EXE_jetbench"));
+    let mut command = Command::new(exe);
+    command.env(jetbench_bus::NAMESPACE_ENV, format!("replay{}", std::process::id()));
+    if let Some(dir) = exe.parent() {
+        command.env("JETBENCH_BIN_DIR", dir);
+    }
+    command
+}
+
+fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("services/ has a parent").to_path_buf()
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("replay");
+    std::fs::create_dir_all(&dir).expect("create scratch dir");
+    let path = dir.join(name);
+    let _ = std::fs::remove_file(&path);
+    path
+}
+
+/// Waits for a child, killing it if it outlives `limit` (a hang, not a slow run).
+fn wait_with_watchdog(child: &mut Child, limit: Duration, what: &str) -> ExitStatus {
+    let deadline = Instant::now() + limit;
+    loop {
+        if let Some(status) = child.try_wait().expect("try_wait") {
+            return status;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("{what} hung for {limit:?} and was killed");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Collects a child's output on a thread.
+fn collect(stream: impl std::io::Read + Send + 'static) -> mpsc::Receiver<String> {
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        let lines: Vec<String> = BufReader::new(stream).lines().map_while(Result::ok).collect();
+        let _ = tx.send(lines.join("\n"));
+    });
+    rx
+}
+
+/// Runs a command to completion under the watchdog: exit code, stdout, stderr.
+fn run(command: &mut Command, limit: Duration, what: &str) -> (Option<i32>, String, String) {
+    let mut child = command.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("start command");
+    let stdout = collect(child.stdout.take().expect("stdout"));
+    let stderr = collect(child.stderr.take().expect("stderr"));
+    let status = wait_with_watchdog(&mut child, limit, what);
+    let text = |rx: mpsc::Receiver<String>| rx.recv_timeout(Duration::from_secs(10)).unwrap_or_default();
+    (status.code(), text(stdout), text(stderr))
+}
+
+fn replay_cmd(args: &[&Path]) -> (Option<i32>, String, String) {
+    let mut command = jetbench();
+    command.arg("replay").args(args);
+    run(&mut command, Duration::from_secs(60), "jetbench replay")
+}
+
+/// The number after `key:` in the replay summary.
+fn summary_count(out: &str, key: &str) -> usize {
+    out.lines()
+        .find_map(|l| l.trim().strip_prefix(key)?.split_whitespace().next()?.parse().ok())
+        .unwrap_or_else(|| panic!("no `{key}` count in the summary:\n{out}"))
+}
+
+/// One 8 s live run of the simulated bench, recorded; shared by the tests.
+fn live_recording() -> &'static Path {
+    static RUN: OnceLock<PathBuf> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let out = scratch("run.mcap");
+        let mut command = jetbench();
+        command.args(["up", "--sim", "--duration", "8", "--quiet", "--record"]).arg(&out);
+        let (code, stdout, stderr) = run(&mut command, Duration::from_secs(120), "jetbench up");
+        assert_eq!(code, Some(0), "jetbench up failed\n{stdout}\n{stderr}");
+        out
+    })
+}
+
+/// The path of the venv python with the reference MCAP reader.
+fn python() -> PathBuf {
+    let out = Command::new(repo_root().join("scripts/pyenv.sh")).output().expect("run scripts/pyenv.sh");
+    assert!(out.status.success(), "scripts/pyenv.sh failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
+}
+
+/// A state's fields as JSON, read from its bytes by the schema's field table.
+fn state_json(s: &StateEstimate) -> Value {
+    let bytes = s.as_bytes();
+    let mut map = serde_json::Map::new();
+    for f in StateEstimate::FIELDS {
+        let raw: [u8; 8] = bytes[f.offset..f.offset + 8].try_into().expect("8-byte field");
+        let value = match f.ros_type {
+            RosType::Scalar(p) if p.name() == "float64" => serde_json::json!(f64::from_le_bytes(raw)),
+            RosType::Scalar(p) if p.name() == "uint64" => serde_json::json!(u64::from_le_bytes(raw)),
+            other => panic!("add {other} to the test decoder"),
+        };
+        map.insert(f.name.to_string(), value);
+    }
+    Value::Object(map)
+}
+
+#[test]
+fn a_live_run_replays_bit_for_bit() {
+    let run_mcap = live_recording();
+    let replayed_mcap = scratch("replayed.mcap");
+    let (code, out, err) = replay_cmd(&[run_mcap, Path::new("--out"), &replayed_mcap]);
+    println!("{out}\n{err}");
+    assert_eq!(code, Some(0), "replay must match the live run\n{out}\n{err}");
+    let compared = summary_count(&out, "compared:");
+    let identical = summary_count(&out, "identical:");
+    assert!(compared >= 700, "only {compared} estimates compared\n{out}");
+    assert_eq!(identical, compared, "{out}");
+    assert!(out.contains("samples/s"), "the summary gives the replay rate:\n{out}");
+    assert!(out.contains("model_toml"), "the estimator comes from the recorded model:\n{out}");
+
+    // The replayed file: bench/state equal to the recorded one, bit for bit,
+    // every other channel copied.
+    let recorded = Recording::open(run_mcap).expect("read the live recording");
+    let replayed = Recording::open(&replayed_mcap).expect("read the replayed recording");
+    assert!(!replayed.truncated);
+    let (a, b) = (recorded.samples(channels::STATE), replayed.samples(channels::STATE));
+    assert_eq!(a.len(), b.len());
+    assert!(a.len() >= 700);
+    for (x, y) in a.iter().zip(&b) {
+        assert_eq!(x.as_bytes(), y.as_bytes(), "state {} differs: {x:?} vs {y:?}", x.seq);
+    }
+    assert_eq!(recorded.counts(), replayed.counts(), "every channel is copied");
+    assert_eq!(recorded.samples(channels::THRUST), replayed.samples(channels::THRUST));
+    assert_eq!(replayed.metadata["jetbench"], recorded.metadata["jetbench"]);
+    let meta = &replayed.metadata["replay"];
+    assert_eq!(meta["identical"], compared.to_string());
+    assert!(meta["source"].ends_with("run.mcap"), "{meta:?}");
+
+    // The independent reader decodes the replayed states to the same values.
+    let py = Command::new(python())
+        .arg(repo_root().join("scripts/mcap_dump.py"))
+        .arg(&replayed_mcap)
+        .output()
+        .expect("run mcap_dump.py");
+    assert!(py.status.success(), "mcap_dump.py failed:\n{}", String::from_utf8_lossy(&py.stderr));
+    let decoded: Value = serde_json::from_slice(&py.stdout).expect("mcap_dump.py prints JSON");
+    let states = decoded["messages"]["/bench/state"].as_array().expect("Python decodes /bench/state");
+    assert_eq!(states.len(), b.len());
+    for (s, json) in b.iter().zip(states) {
+        assert_eq!(&state_json(s), json, "Python decodes state {} differently", s.seq);
+    }
+}
+
+#[test]
+fn a_given_config_and_a_truncated_file_still_replay() {
+    let run_mcap = live_recording();
+
+    // The run's own config given explicitly: same estimator, so identical,
+    // but the summary says a bit-exact match was not promised.
+    let config = repo_root().join("config/sim.toml");
+    let (code, out, err) = replay_cmd(&[run_mcap, Path::new("--config"), &config]);
+    assert_eq!(code, Some(0), "{out}\n{err}");
+    assert!(err.contains("not expected"), "{err}");
+
+    // Cut inside the data: the metadata at the start survives, the rest is replayed.
+    let bytes = std::fs::read(run_mcap).expect("read run.mcap");
+    let cut = scratch("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).expect("write cut.mcap");
+    let (code, out, err) = replay_cmd(&[&cut]);
+    assert_eq!(code, Some(0), "{out}\n{err}");
+    assert!(err.contains("truncated"), "{err}");
+    assert!(summary_count(&out, "compared:") > 100, "{out}");
+    assert_eq!(summary_count(&out, "compared:"), summary_count(&out, "identical:"), "{out}");
+}
+
+#[test]
+fn bad_recordings_are_clear_errors() {
+    // Not MCAP.
+    let csv = scratch("not.mcap");
+    std::fs::write(&csv, "time_s,throttle_pct,thrust_n\n0,25,0\n").expect("write csv");
+    let (code, _, err) = replay_cmd(&[&csv]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("not an MCAP file"), "{err}");
+
+    // An old recording: thrust but no metadata, so no estimator config.
+    let old = scratch("old.mcap");
+    let mut w = McapWriter::create(&old).expect("create old.mcap");
+    for seq in 0..50u64 {
+        let t =
+            Thrust { seq, stamp_ns: 1_000 + seq * 10_000_000, thrust_n: 20.0 + seq as f64 * 0.1, ..Thrust::default() };
+        w.write_sample(channels::THRUST, t.stamp_ns, &t).expect("write thrust");
+    }
+    w.finish().expect("finish old.mcap");
+    let (code, out, err) = replay_cmd(&[&old]);
+    assert_eq!(code, Some(2), "{out}\n{err}");
+    assert!(err.contains("--config"), "the error suggests --config: {err}");
+    // With --config it replays; without states there is nothing to compare.
+    let config = repo_root().join("config/sim.toml");
+    let (code, out, err) = replay_cmd(&[&old, Path::new("--config"), &config]);
+    assert_eq!(code, Some(0), "{out}\n{err}");
+    assert!(out.contains("nothing to compare"), "{out}");
+    assert_eq!(summary_count(&out, "replayed:"), 50);
+
+    // No thrust at all.
+    let empty = scratch("empty.mcap");
+    McapWriter::create(&empty).expect("create empty.mcap").finish().expect("finish empty.mcap");
+    let (code, _, err) = replay_cmd(&[&empty, Path::new("--config"), &config]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("no /bench/thrust samples"), "{err}");
+
+    // --out must not overwrite the input.
+    let (code, _, err) = replay_cmd(&[&old, Path::new("--out"), &old]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("is the recording being replayed"), "{err}");
+}
