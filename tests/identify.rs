@@ -56,12 +56,14 @@ fn identify_json(file: &Path) -> Value {
     serde_json::from_str(&out).unwrap_or_else(|e| panic!("identify --json printed no JSON ({e}): {out}"))
 }
 
-/// The JSON without wall-time figures, which differ between any two runs.
+/// The JSON without wall-time figures (they differ between any two runs) and
+/// file names (which differ between the two files by design).
 fn without_timings(mut v: Value) -> Value {
     if let Some(methods) = v["methods"].as_object_mut() {
         for m in methods.values_mut() {
             if let Some(o) = m.as_object_mut() {
                 o.remove("fit_seconds");
+                o.remove("diverged_file");
             }
         }
     }

@@ -320,12 +320,11 @@ fn verdict(results: &[MethodResult], best: Option<Method>, noise: &NoiseFloor) -
             score.fit_pct
         )
     } else {
+        let gap = if ratio <= 1.0 { "at".to_string() } else { format!("{:.0} % above", 100.0 * (ratio - 1.0)) };
         format!(
-            "good fit: the best model ({}) has validation MAE {:.2} N, {:.0} % above the noise floor of {:.2} N \
-             (fit {:.1} %)",
+            "good fit: the best model ({}) has validation MAE {:.2} N, {gap} the noise floor of {:.2} N (fit {:.1} %)",
             best.method.name(),
             score.mae_n,
-            100.0 * (ratio - 1.0),
             noise.mae_n,
             score.fit_pct
         )
