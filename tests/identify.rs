@@ -7,46 +7,22 @@
 //! asserts a runtime.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use serde_json::Value;
 
+mod common;
+
 const CAMPAIGN_S: f64 = 300.0;
 
-fn jetbench() -> Command {
-    let exe = Path::new(env!("CARGO_BIN_EXE_jetbench"));
-    let mut command = Command::new(exe);
-    command.env(jetbench_bus::NAMESPACE_ENV, format!("ident{}", std::process::id()));
-    if let Some(dir) = exe.parent() {
-        command.env("JETBENCH_BIN_DIR", dir);
-    }
-    command
-}
-
 fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("identify");
-    std::fs::create_dir_all(&dir).expect("create scratch dir");
-    dir.join(name)
+    common::scratch("identify", name)
 }
 
-/// Runs to completion (killed after `limit`): exit code, stdout, stderr.
+/// Runs `jetbench ARGS` to completion under the watchdog: exit code, stdout, stderr.
 fn run(args: &[&str], limit: Duration) -> (i32, String, String) {
-    let mut child =
-        jetbench().args(args).stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
-    let start = Instant::now();
-    let out = loop {
-        if child.try_wait().unwrap().is_some() {
-            break child.wait_with_output().unwrap();
-        }
-        if start.elapsed() > limit {
-            let _ = child.kill();
-            panic!("jetbench {args:?} hung for {limit:?}");
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    };
-    let text = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
-    (out.status.code().unwrap_or(-1), text(&out.stdout), text(&out.stderr))
+    let (status, out, err) = common::run(common::jetbench("ident").args(args), limit, &format!("jetbench {args:?}"));
+    (status.code().unwrap_or(-1), out, err)
 }
 
 fn identify_json(file: &Path) -> Value {

@@ -5,80 +5,35 @@
 //! The live run uses its own bus namespace. Hangs are caught by a watchdog;
 //! no test asserts a runtime.
 
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
-use std::sync::{mpsc, OnceLock};
-use std::time::{Duration, Instant};
+use std::process::Command;
+use std::sync::OnceLock;
+use std::time::Duration;
 
 use jetbench_msgs::{channels, RosType, Sample, StateEstimate, Thrust};
 use jetbench_record::{McapWriter, Recording};
 use serde_json::Value;
 
-/// `jetbench` in this test run's own bus namespace, finding the service
-/// binaries next to itself.
-fn jetbench() -> Command {
-    let exe = Path::new(env!("CARGO_BIN_EXE_jetbench"));
-    let mut command = Command::new(exe);
-    command.env(jetbench_bus::NAMESPACE_ENV, format!("replay{}", std::process::id()));
-    if let Some(dir) = exe.parent() {
-        command.env("JETBENCH_BIN_DIR", dir);
-    }
-    command
-}
-
-fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("services/ has a parent").to_path_buf()
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("replay");
-    std::fs::create_dir_all(&dir).expect("create scratch dir");
-    let path = dir.join(name);
-    let _ = std::fs::remove_file(&path);
-    path
-}
-
-/// Waits for a child, killing it if it outlives `limit` (a hang, not a slow run).
-fn wait_with_watchdog(child: &mut Child, limit: Duration, what: &str) -> ExitStatus {
-    let deadline = Instant::now() + limit;
-    loop {
-        if let Some(status) = child.try_wait().expect("try_wait") {
-            return status;
-        }
-        if Instant::now() > deadline {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("{what} hung for {limit:?} and was killed");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
-/// Collects a child's output on a thread.
-fn collect(stream: impl std::io::Read + Send + 'static) -> mpsc::Receiver<String> {
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        let lines: Vec<String> = BufReader::new(stream).lines().map_while(Result::ok).collect();
-        let _ = tx.send(lines.join("\n"));
-    });
-    rx
-}
-
-/// Runs a command to completion under the watchdog: exit code, stdout, stderr.
-fn run(command: &mut Command, limit: Duration, what: &str) -> (Option<i32>, String, String) {
-    let mut child = command.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("start command");
-    let stdout = collect(child.stdout.take().expect("stdout"));
-    let stderr = collect(child.stderr.take().expect("stderr"));
-    let status = wait_with_watchdog(&mut child, limit, what);
-    let text = |rx: mpsc::Receiver<String>| rx.recv_timeout(Duration::from_secs(10)).unwrap_or_default();
-    (status.code(), text(stdout), text(stderr))
-}
-
 fn replay_cmd(args: &[&Path]) -> (Option<i32>, String, String) {
     let mut command = jetbench();
     command.arg("replay").args(args);
     run(&mut command, Duration::from_secs(60), "jetbench replay")
+}
+
+mod common;
+
+fn jetbench() -> Command {
+    common::jetbench("replay")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    common::scratch("replay", name)
+}
+
+/// Runs under the watchdog: exit code, stdout, stderr.
+fn run(command: &mut Command, limit: Duration, what: &str) -> (Option<i32>, String, String) {
+    let (status, out, err) = common::run(command, limit, what);
+    (status.code(), out, err)
 }
 
 /// The number after `key:` in the replay summary.
@@ -99,13 +54,6 @@ fn live_recording() -> &'static Path {
         assert_eq!(code, Some(0), "jetbench up failed\n{stdout}\n{stderr}");
         out
     })
-}
-
-/// The path of the venv python with the reference MCAP reader.
-fn python() -> PathBuf {
-    let out = Command::new(repo_root().join("scripts/pyenv.sh")).output().expect("run scripts/pyenv.sh");
-    assert!(out.status.success(), "scripts/pyenv.sh failed:\n{}", String::from_utf8_lossy(&out.stderr));
-    PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
 }
 
 /// A state's fields as JSON, read from its bytes by the schema's field table.
@@ -157,8 +105,8 @@ fn a_live_run_replays_bit_for_bit() {
     assert!(meta["source"].ends_with("run.mcap"), "{meta:?}");
 
     // The independent reader decodes the replayed states to the same values.
-    let py = Command::new(python())
-        .arg(repo_root().join("scripts/mcap_dump.py"))
+    let py = Command::new(common::python())
+        .arg(common::repo_root().join("scripts/mcap_dump.py"))
         .arg(&replayed_mcap)
         .output()
         .expect("run mcap_dump.py");
@@ -177,7 +125,7 @@ fn a_given_config_and_a_truncated_file_still_replay() {
 
     // The run's own config given explicitly: same estimator, so identical,
     // but the summary says a bit-exact match was not promised.
-    let config = repo_root().join("config/sim.toml");
+    let config = common::repo_root().join("config/sim.toml");
     let (code, out, err) = replay_cmd(&[run_mcap, Path::new("--config"), &config]);
     assert_eq!(code, Some(0), "{out}\n{err}");
     assert!(err.contains("not expected"), "{err}");
@@ -215,7 +163,7 @@ fn bad_recordings_are_clear_errors() {
     assert_eq!(code, Some(2), "{out}\n{err}");
     assert!(err.contains("--config"), "the error suggests --config: {err}");
     // With --config it replays; without states there is nothing to compare.
-    let config = repo_root().join("config/sim.toml");
+    let config = common::repo_root().join("config/sim.toml");
     let (code, out, err) = replay_cmd(&[&old, Path::new("--config"), &config]);
     assert_eq!(code, Some(0), "{out}\n{err}");
     assert!(out.contains("nothing to compare"), "{out}");

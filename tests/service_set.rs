@@ -6,65 +6,27 @@
 //! each has the machine's cores to itself.
 //! Hangs are caught by a watchdog; no test asserts a runtime.
 
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
-use std::sync::{mpsc, Mutex};
+use std::process::{Command, ExitStatus, Stdio};
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use jetbench_msgs::{actuation_flags, channels, visit_channels, Channel, ChannelVisitor, RosType, Sample, ServiceId};
 use jetbench_record::{seq_gaps, Recording};
 use serde_json::Value;
 
+mod common;
+
+use common::{lines_of, python, repo_root, run, wait_with_watchdog};
+
 static BUS: Mutex<()> = Mutex::new(());
 
-/// `jetbench` in this test run's own bus namespace, so the tests neither
-/// disturb nor see a service set that is running on the same machine.
 fn jetbench() -> Command {
-    let mut command = Command::new(env!("CARGO_BIN_EXE_jetbench"));
-    command.env(jetbench_bus::NAMESPACE_ENV, format!("test{}", std::process::id()));
-    command
-}
-
-fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("services/ has a parent").to_path_buf()
+    common::jetbench("test")
 }
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("service_set");
-    std::fs::create_dir_all(&dir).expect("create scratch dir");
-    let path = dir.join(name);
-    let _ = std::fs::remove_file(&path);
-    path
-}
-
-/// Waits for a child, killing it if it outlives `limit` (a hang, not a slow run).
-fn wait_with_watchdog(child: &mut Child, limit: Duration, what: &str) -> ExitStatus {
-    let deadline = Instant::now() + limit;
-    loop {
-        if let Some(status) = child.try_wait().expect("try_wait") {
-            return status;
-        }
-        if Instant::now() > deadline {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("{what} hung for {limit:?} and was killed");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
-/// Collects a child's output lines on a thread.
-fn lines_of(stream: impl std::io::Read + Send + 'static) -> mpsc::Receiver<String> {
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stream).lines().map_while(Result::ok) {
-            if tx.send(line).is_err() {
-                break;
-            }
-        }
-    });
-    rx
+    common::scratch("service_set", name)
 }
 
 /// Runs `jetbench up --sim` for `duration_s` seconds, recording to `out`.
@@ -86,14 +48,7 @@ fn run_up(duration_s: f64, out: &Path) -> (ExitStatus, String) {
 
 /// Runs a short command to completion under the watchdog: status, stdout, stderr.
 fn run_short(command: &mut Command, what: &str) -> (ExitStatus, String, String) {
-    let mut child = command.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("start command");
-    let stdout = lines_of(child.stdout.take().expect("stdout"));
-    let stderr = lines_of(child.stderr.take().expect("stderr"));
-    let status = wait_with_watchdog(&mut child, Duration::from_secs(30), what);
-    // The reader threads finish once the pipes close.
-    std::thread::sleep(Duration::from_millis(50));
-    let collect = |rx: mpsc::Receiver<String>| rx.try_iter().collect::<Vec<_>>().join("\n");
-    (status, collect(stdout), collect(stderr))
+    run(command, Duration::from_secs(30), what)
 }
 
 /// Runs a command that must succeed; returns its stdout.
@@ -108,13 +63,6 @@ fn failure_of(command: &mut Command, what: &str) -> String {
     let (status, _, err) = run_short(command, what);
     assert!(!status.success(), "{what} must fail");
     err
-}
-
-/// The path of the venv python with the reference MCAP reader.
-fn python() -> PathBuf {
-    let out = Command::new(repo_root().join("scripts/pyenv.sh")).output().expect("run scripts/pyenv.sh");
-    assert!(out.status.success(), "scripts/pyenv.sh failed:\n{}", String::from_utf8_lossy(&out.stderr));
-    PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
 }
 
 /// Decodes a recording with the Python reference reader.

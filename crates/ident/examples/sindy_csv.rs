@@ -26,7 +26,7 @@
 //!
 //! Output: `{"equations": {"x": "..."}, "coefficients": {"x": {"term": value}},
 //! "fit_seconds": s}`, keys sorted; `fit_seconds` covers differentiation, library and STLSQ,
-//! not reading the file.
+//! best of three runs in this process (as the peer script times PySINDy), not reading the file.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -34,7 +34,7 @@ use std::time::Instant;
 
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use jetbench_estim::SavitzkyGolay;
-use jetbench_ident::sindy::{self, PolynomialLibrary, StlsqOptions};
+use jetbench_ident::sindy::{self, PolynomialLibrary, SindyModel, StlsqOptions};
 use serde_json::{json, Map, Value};
 
 const USAGE: &str = "usage: sindy_csv FILE.csv --vars A,B [--inputs U] [--degree 2] [--threshold 0.1] [--alpha 0.05] \
@@ -185,44 +185,56 @@ fn run() -> Result<ExitCode> {
     let table = Table::read(&args.file)?;
     let dt = table.dt_s;
 
-    let start = Instant::now();
-    let default_sg = Diff::SavitzkyGolay { window: 31, order: 3 };
-    let diff = args.diff.unwrap_or(if args.second_order.is_some() { default_sg } else { Diff::FiniteDifference });
-    let sg = match diff {
-        Diff::SavitzkyGolay { window, order } => Some(SavitzkyGolay::new(window, order)?),
-        Diff::FiniteDifference => None,
-    };
-    // Library variables (name, values) in order, and targets (name, values).
-    let mut lib_vars: Vec<(String, Vec<f64>)> = Vec::new();
-    let mut targets: Vec<(String, Vec<f64>)> = Vec::new();
-    for var in &args.vars {
-        let raw = table.column(var)?;
-        let context = || format!("differentiating {var}");
-        match (&sg, &args.second_order) {
-            (Some(sg), Some((t, rate))) if t == var => {
-                lib_vars.push((var.clone(), sg.apply(raw, 0, dt).with_context(context)?));
-                lib_vars.push((rate.clone(), sg.apply(raw, 1, dt).with_context(context)?));
-                targets.push((rate.clone(), sg.apply(raw, 2, dt).with_context(context)?));
+    // Best of three runs in this process, as PySINDy is timed by the peer script
+    // (the first run also pays for first-touch page faults).
+    let mut best: Option<(SindyModel, f64)> = None;
+    for _ in 0..3 {
+        let run = {
+            let start = Instant::now();
+            let default_sg = Diff::SavitzkyGolay { window: 31, order: 3 };
+            let diff =
+                args.diff.unwrap_or(if args.second_order.is_some() { default_sg } else { Diff::FiniteDifference });
+            let sg = match diff {
+                Diff::SavitzkyGolay { window, order } => Some(SavitzkyGolay::new(window, order)?),
+                Diff::FiniteDifference => None,
+            };
+            // Library variables (name, values) in order, and targets (name, values).
+            let mut lib_vars: Vec<(String, Vec<f64>)> = Vec::new();
+            let mut targets: Vec<(String, Vec<f64>)> = Vec::new();
+            for var in &args.vars {
+                let raw = table.column(var)?;
+                let context = || format!("differentiating {var}");
+                match (&sg, &args.second_order) {
+                    (Some(sg), Some((t, rate))) if t == var => {
+                        lib_vars.push((var.clone(), sg.apply(raw, 0, dt).with_context(context)?));
+                        lib_vars.push((rate.clone(), sg.apply(raw, 1, dt).with_context(context)?));
+                        targets.push((rate.clone(), sg.apply(raw, 2, dt).with_context(context)?));
+                    }
+                    (Some(sg), _) => {
+                        lib_vars.push((var.clone(), sg.apply(raw, 0, dt).with_context(context)?));
+                        targets.push((var.clone(), sg.apply(raw, 1, dt).with_context(context)?));
+                    }
+                    (None, _) => {
+                        lib_vars.push((var.clone(), raw.to_vec()));
+                        targets.push((var.clone(), sindy::finite_difference(raw, dt).with_context(context)?));
+                    }
+                }
             }
-            (Some(sg), _) => {
-                lib_vars.push((var.clone(), sg.apply(raw, 0, dt).with_context(context)?));
-                targets.push((var.clone(), sg.apply(raw, 1, dt).with_context(context)?));
+            for input in &args.inputs {
+                lib_vars.push((input.clone(), table.column(input)?.to_vec()));
             }
-            (None, _) => {
-                lib_vars.push((var.clone(), raw.to_vec()));
-                targets.push((var.clone(), sindy::finite_difference(raw, dt).with_context(context)?));
-            }
+            let names: Vec<&str> = lib_vars.iter().map(|(n, _)| n.as_str()).collect();
+            let states: Vec<&[f64]> = lib_vars.iter().map(|(_, v)| v.as_slice()).collect();
+            let target_refs: Vec<(&str, &[f64])> = targets.iter().map(|(n, v)| (n.as_str(), v.as_slice())).collect();
+            let model = sindy::fit(PolynomialLibrary::new(&names, args.degree), &states, &target_refs, &args.options)
+                .with_context(|| format!("fitting {}", args.file.display()))?;
+            (model, start.elapsed().as_secs_f64())
+        };
+        if best.as_ref().is_none_or(|(_, s)| run.1 < *s) {
+            best = Some(run);
         }
     }
-    for input in &args.inputs {
-        lib_vars.push((input.clone(), table.column(input)?.to_vec()));
-    }
-    let names: Vec<&str> = lib_vars.iter().map(|(n, _)| n.as_str()).collect();
-    let states: Vec<&[f64]> = lib_vars.iter().map(|(_, v)| v.as_slice()).collect();
-    let target_refs: Vec<(&str, &[f64])> = targets.iter().map(|(n, v)| (n.as_str(), v.as_slice())).collect();
-    let model = sindy::fit(PolynomialLibrary::new(&names, args.degree), &states, &target_refs, &args.options)
-        .with_context(|| format!("fitting {}", args.file.display()))?;
-    let fit_seconds = start.elapsed().as_secs_f64();
+    let Some((model, fit_seconds)) = best else { anyhow::bail!("no fit ran") };
 
     let mut equations = Map::new();
     let mut coefficients = Map::new();

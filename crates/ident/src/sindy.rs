@@ -240,6 +240,22 @@ impl PolynomialLibrary {
         }
     }
 
+    /// Every term over samples `start..start + len` of `states`, column by column:
+    /// term `t` is `out[t·MOMENT_BLOCK..][..len]` (`len ≤ MOMENT_BLOCK`). Returns `len`.
+    fn columns_into(&self, states: &[&[f64]], start: usize, len: usize, out: &mut Vec<f64>) -> usize {
+        out.resize(self.len() * MOMENT_BLOCK, 0.0);
+        out[..len].fill(1.0);
+        for (term, &(parent, var)) in self.recurrence.iter().enumerate() {
+            let x = &states[var][start..start + len];
+            let (done, rest) = out.split_at_mut((term + 1) * MOMENT_BLOCK);
+            let from = &done[parent * MOMENT_BLOCK..parent * MOMENT_BLOCK + len];
+            for ((o, a), v) in rest[..len].iter_mut().zip(from).zip(x) {
+                *o = a * v;
+            }
+        }
+        len
+    }
+
     /// Value of one term at `x`.
     fn term_at(&self, term: usize, x: &[f64]) -> f64 {
         self.factors[term].iter().map(|&v| x[v]).product()
@@ -428,17 +444,148 @@ pub fn fit(
         return Err(SindyError::TooFewSamples { samples: n, terms: p });
     }
 
-    // Θ stored sample by sample: row k of Θ is theta[k·p..(k+1)·p]. Read column-major as a
-    // p×n matrix, the same buffer is Θᵀ.
-    let mut theta = vec![0.0; n * p];
-    let mut point = vec![0.0; states.len()];
-    for (k, row) in theta.chunks_exact_mut(p).enumerate() {
-        for (v, series) in point.iter_mut().zip(states) {
-            *v = series[k];
+    let gram = moment_gram(&library, states, n)?;
+    fit_inner(&library, Theta::Polynomial { library: &library, states, n }, gram, targets, options)
+}
+
+/// Samples per block when summing moments: the block's monomial columns stay in cache. Not a
+/// power of two: reading a row across columns 4 KiB apart defeats the cache.
+const MOMENT_BLOCK: usize = 120;
+
+/// `ΘᵀΘ` of a polynomial library from moments, without forming `Θ`.
+///
+/// Entry `(i, j)` is the sum over the samples of the monomial `term_i · term_j`,
+/// and the library of degree `2d` has far fewer distinct monomials (286 for
+/// three variables at degree 5) than the Gram matrix has entries (56² = 3136).
+/// Monomials are evaluated column-wise over blocks of samples and summed with
+/// several accumulators, so both vectorise.
+fn moment_gram(library: &PolynomialLibrary, states: &[&[f64]], n: usize) -> Result<DMatrix<f64>, SindyError> {
+    let names: Vec<&str> = library.var_names.iter().map(String::as_str).collect();
+    let double = PolynomialLibrary::new(&names, 2 * library.degree);
+    let index: HashMap<&[usize], usize> = double.factors.iter().enumerate().map(|(i, f)| (f.as_slice(), i)).collect();
+    let p = library.len();
+    let mut pair = vec![0usize; p * p];
+    let mut merged = Vec::new();
+    for i in 0..p {
+        for j in 0..p {
+            merged.clear();
+            merged.extend_from_slice(&library.factors[i]);
+            merged.extend_from_slice(&library.factors[j]);
+            merged.sort_unstable();
+            pair[i * p + j] = index[merged.as_slice()];
         }
-        library.eval_into(&point, row);
     }
-    fit_rows(library, theta, targets, options)
+    let mut moments = vec![0.0; double.len()];
+    let mut columns = Vec::new();
+    for start in (0..n).step_by(MOMENT_BLOCK) {
+        let b = double.columns_into(states, start, MOMENT_BLOCK.min(n - start), &mut columns);
+        for (m, column) in moments.iter_mut().zip(columns.chunks_exact(MOMENT_BLOCK)) {
+            *m += lane_sum(&column[..b]);
+        }
+    }
+
+    // The library's own terms are the first `p` monomials: a term that overflows
+    // makes its own sum non-finite before any product does.
+    if let Some(j) = (0..p).find(|&j| !moments[j].is_finite()) {
+        return Err(SindyError::Overflow { what: format!("library term {}", library.names[j]) });
+    }
+    // |G_ij| ≤ √(G_ii·G_jj), so a finite diagonal means a finite Gram matrix.
+    if let Some(j) = (0..p).find(|&j| !moments[pair[j * p + j]].is_finite()) {
+        return Err(SindyError::Overflow { what: format!("sum of squares of library term {}", library.names[j]) });
+    }
+    Ok(DMatrix::from_fn(p, p, |i, j| moments[pair[i * p + j]]))
+}
+
+/// The library matrix `Θ`, as rows the caller evaluated, or as a polynomial
+/// library of states evaluated block by block when needed (30 000 × 56 values
+/// need not be stored: writing them costs more than computing them twice).
+enum Theta<'a> {
+    /// Row `k` is `values[k·p..(k+1)·p]`.
+    Rows(&'a [f64]),
+    Polynomial {
+        library: &'a PolynomialLibrary,
+        states: &'a [&'a [f64]],
+        n: usize,
+    },
+}
+
+impl Theta<'_> {
+    /// `Θᵀ·v`.
+    fn tr_mul(&self, p: usize, v: &[f64]) -> DVector<f64> {
+        match self {
+            Theta::Rows(values) => DMatrixView::from_slice(values, p, v.len()) * DVectorView::from_slice(v, v.len()),
+            Theta::Polynomial { library, states, n } => {
+                let mut out = DVector::zeros(p);
+                let mut columns = Vec::new();
+                for start in (0..*n).step_by(MOMENT_BLOCK) {
+                    let b = library.columns_into(states, start, MOMENT_BLOCK.min(n - start), &mut columns);
+                    for (o, column) in out.iter_mut().zip(columns.chunks_exact(MOMENT_BLOCK)) {
+                        *o += lane_dot(&column[..b], &v[start..start + b]);
+                    }
+                }
+                out
+            }
+        }
+    }
+
+    /// `Θᵀ·(y − Θ·w)`, the gradient of the residual, in one pass over the samples.
+    fn residual_gradient(&self, y: &[f64], w: &DVector<f64>) -> DVector<f64> {
+        let p = w.len();
+        match self {
+            Theta::Rows(values) => {
+                let theta_t = DMatrixView::from_slice(values, p, y.len());
+                theta_t * (DVectorView::from_slice(y, y.len()) - theta_t.tr_mul(w))
+            }
+            Theta::Polynomial { library, states, n } => {
+                let mut out = DVector::zeros(p);
+                let mut columns = Vec::new();
+                let mut residual = [0.0; MOMENT_BLOCK];
+                for start in (0..*n).step_by(MOMENT_BLOCK) {
+                    let b = library.columns_into(states, start, MOMENT_BLOCK.min(n - start), &mut columns);
+                    let residual = &mut residual[..b];
+                    residual.copy_from_slice(&y[start..start + b]);
+                    for (&wt, column) in w.iter().zip(columns.chunks_exact(MOMENT_BLOCK)) {
+                        if wt != 0.0 {
+                            for (r, c) in residual.iter_mut().zip(&column[..b]) {
+                                *r -= wt * c;
+                            }
+                        }
+                    }
+                    for (o, column) in out.iter_mut().zip(columns.chunks_exact(MOMENT_BLOCK)) {
+                        *o += lane_dot(&column[..b], residual);
+                    }
+                }
+                out
+            }
+        }
+    }
+}
+
+/// Dot product with eight independent accumulators.
+fn lane_dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut lanes = [0.0; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let tail: f64 = ca.remainder().iter().zip(cb.remainder()).map(|(x, y)| x * y).sum();
+    for (x, y) in ca.zip(cb) {
+        for ((l, x), y) in lanes.iter_mut().zip(x).zip(y) {
+            *l += x * y;
+        }
+    }
+    lanes.iter().sum::<f64>() + tail
+}
+
+/// Sum with eight independent accumulators (a plain fold is one long chain of
+/// dependent additions that the compiler may not reorder).
+fn lane_sum(x: &[f64]) -> f64 {
+    let mut lanes = [0.0; 8];
+    let chunks = x.chunks_exact(8);
+    let tail: f64 = chunks.remainder().iter().sum();
+    for chunk in chunks {
+        for (l, v) in lanes.iter_mut().zip(chunk) {
+            *l += v;
+        }
+    }
+    lanes.iter().sum::<f64>() + tail
 }
 
 /// Like [`fit`], with the library already evaluated: `theta` holds one row of
@@ -450,13 +597,35 @@ pub fn fit_rows(
     targets: &[(&str, &[f64])],
     options: &StlsqOptions,
 ) -> Result<SindyModel, SindyError> {
-    options.validate()?;
     let p = library.len();
     let Some(&(_, first)) = targets.first() else { return Err(SindyError::NoTargets) };
     let n = first.len();
     if theta.len() != n * p {
         return Err(SindyError::LengthMismatch { name: "library rows".into(), expected: n * p, got: theta.len() });
     }
+    if let Some(i) = theta.iter().position(|v| !v.is_finite()) {
+        return Err(SindyError::Overflow { what: format!("library term {}", library.names[i % p]) });
+    }
+    let gram = DMatrixView::from_slice(&theta, p, n) * DMatrixView::from_slice_with_strides(&theta, n, p, p, 1);
+    if let Some(j) = (0..p).find(|&j| !gram[(j, j)].is_finite()) {
+        return Err(SindyError::Overflow { what: format!("sum of squares of library term {}", library.names[j]) });
+    }
+    fit_inner(&library, Theta::Rows(&theta), gram, targets, options)
+}
+
+/// The regression shared by [`fit`] and [`fit_rows`]; `gram` is `ΘᵀΘ` when the
+/// caller already has it.
+fn fit_inner(
+    library: &PolynomialLibrary,
+    theta: Theta<'_>,
+    gram_raw: DMatrix<f64>,
+    targets: &[(&str, &[f64])],
+    options: &StlsqOptions,
+) -> Result<SindyModel, SindyError> {
+    options.validate()?;
+    let p = library.len();
+    let Some(&(_, first)) = targets.first() else { return Err(SindyError::NoTargets) };
+    let n = first.len();
     for &(name, series) in targets {
         if series.len() != n {
             return Err(SindyError::LengthMismatch { name: name.to_string(), expected: n, got: series.len() });
@@ -467,16 +636,6 @@ pub fn fit_rows(
     }
     if n < p {
         return Err(SindyError::TooFewSamples { samples: n, terms: p });
-    }
-    if let Some(i) = theta.iter().position(|v| !v.is_finite()) {
-        return Err(SindyError::Overflow { what: format!("library term {}", library.names[i % p]) });
-    }
-    let theta_t = DMatrixView::from_slice(&theta, p, n);
-    let theta_rows = DMatrixView::from_slice_with_strides(&theta, n, p, p, 1);
-    let gram_raw = theta_t * theta_rows;
-    // |G_ij| ≤ √(G_ii·G_jj), so a finite diagonal means a finite Gram matrix.
-    if let Some(j) = (0..p).find(|&j| !gram_raw[(j, j)].is_finite()) {
-        return Err(SindyError::Overflow { what: format!("sum of squares of library term {}", library.names[j]) });
     }
 
     // Working coordinates: columns scaled by `scale` (unit norm with normalize_columns).
@@ -499,12 +658,11 @@ pub fn fit_rows(
         sparse: Vec::with_capacity(targets.len()),
         iterations: Vec::with_capacity(targets.len()),
         converged: Vec::with_capacity(targets.len()),
-        library,
+        library: library.clone(),
     };
     let singular = |target: &str| SindyError::Singular { target: target.to_string() };
     for &(name, y) in targets {
-        let y = DVectorView::from_slice(y, n);
-        let rhs = (theta_t * y).component_mul(&scale);
+        let rhs = theta.tr_mul(p, y).component_mul(&scale);
         if rhs.iter().any(|v| !v.is_finite()) {
             return Err(SindyError::Overflow { what: format!("library times target {name}") });
         }
@@ -520,8 +678,7 @@ pub fn fit_rows(
             for _ in 0..REFINEMENT_STEPS {
                 scatter(&w, &support, &mut coefficients);
                 let raw = coefficients.component_mul(&scale);
-                let residual = y - theta_t.tr_mul(&raw);
-                let gradient = (theta_t * residual).component_mul(&scale);
+                let gradient = theta.residual_gradient(y, &raw).component_mul(&scale);
                 w += solver.solve(&gather(&gradient, &support));
             }
             scatter(&w, &support, &mut coefficients);

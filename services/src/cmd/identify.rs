@@ -99,7 +99,7 @@ pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
         }
     }
     let load = |paths: &[PathBuf]| -> anyhow::Result<Vec<Series>> {
-        paths.iter().map(|p| Series::load(p, true).with_context(|| format!("cannot use {}", p.display()))).collect()
+        paths.iter().map(|p| Ok(Series::load(p, true)?)).collect()
     };
     let data = load(&args.files)?;
     let (calibration, validation) =
@@ -276,25 +276,25 @@ fn plot(
     held_out: bool,
 ) -> anyhow::Result<usize> {
     let mut written = 0;
+    let mut figure = |stem: String, title: String, s: &Series, models: &[(&str, &[f64])], split_s: Option<f64>| {
+        let fig = FitPlot { title: &title, t_s: &s.t_s, measured_n: &s.thrust_n, models, split_s, windows: &[] };
+        write_fit_plot(dir, &stem, &fig).map(|files| written += files.len())
+    };
     for r in &report.results {
         let name = r.method.name();
         if held_out {
+            // One figure per file: calibration and validation joined, split marked.
             for (i, (cal, val)) in calibration.iter().zip(validation).enumerate() {
-                let t: Vec<f64> = cal.t_s.iter().chain(&val.t_s).copied().collect();
-                let y: Vec<f64> = cal.thrust_n.iter().chain(&val.thrust_n).copied().collect();
+                let joined = Series {
+                    name: cal.name.clone(),
+                    t_s: cal.t_s.iter().chain(&val.t_s).copied().collect(),
+                    u_pct: Vec::new(),
+                    thrust_n: cal.thrust_n.iter().chain(&val.thrust_n).copied().collect(),
+                };
                 let sim: Vec<f64> =
                     r.calibration.thrust_n[i].iter().chain(&r.validation.thrust_n[i]).copied().collect();
                 let title = format!("{name}: {} (validation MAE {})", cal.name, score_text(r));
-                let models = [(name, sim.as_slice())];
-                let fig = FitPlot {
-                    title: &title,
-                    t_s: &t,
-                    measured_n: &y,
-                    models: &models,
-                    split_s: val.t_s.first().copied(),
-                    windows: &[],
-                };
-                written += write_fit_plot(dir, &format!("{name}-{i}"), &fig)?.len();
+                figure(format!("{name}-{i}"), title, &joined, &[(name, &sim)], val.t_s.first().copied())?;
             }
         } else {
             for (part, data, sim) in
@@ -302,16 +302,7 @@ fn plot(
             {
                 for (i, s) in data.iter().enumerate() {
                     let title = format!("{name} {part}: {}", s.name);
-                    let models = [(name, sim.thrust_n[i].as_slice())];
-                    let fig = FitPlot {
-                        title: &title,
-                        t_s: &s.t_s,
-                        measured_n: &s.thrust_n,
-                        models: &models,
-                        split_s: None,
-                        windows: &[],
-                    };
-                    written += write_fit_plot(dir, &format!("{name}-{part}-{i}"), &fig)?.len();
+                    figure(format!("{name}-{part}-{i}"), title, s, &[(name, &sim.thrust_n[i])], None)?;
                 }
             }
         }
@@ -319,16 +310,7 @@ fn plot(
     for (i, s) in validation.iter().enumerate() {
         let models: Vec<(&str, &[f64])> =
             report.results.iter().map(|r| (r.method.name(), r.validation.thrust_n[i].as_slice())).collect();
-        let title = format!("validation, every method: {}", s.name);
-        let fig = FitPlot {
-            title: &title,
-            t_s: &s.t_s,
-            measured_n: &s.thrust_n,
-            models: &models,
-            split_s: None,
-            windows: &[],
-        };
-        written += write_fit_plot(dir, &format!("validation-all-{i}"), &fig)?.len();
+        figure(format!("validation-all-{i}"), format!("validation, every method: {}", s.name), s, &models, None)?;
     }
     Ok(written)
 }

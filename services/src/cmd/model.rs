@@ -36,7 +36,7 @@ pub struct SimulateArgs {
 
 pub fn simulate(args: SimulateArgs) -> anyhow::Result<ExitCode> {
     let params = resolve_params(&args.model)?;
-    let input = Series::load(&args.input, false).with_context(|| format!("cannot use {}", args.input.display()))?;
+    let input = Series::load(&args.input, false)?;
     let initial = if input.has_thrust() {
         validate::fit_initial_state(&params, &input.thrust_n, &input.u_pct)
     } else {
@@ -167,7 +167,7 @@ pub struct SimRecordArgs {
 pub fn sim_record(args: SimRecordArgs) -> anyhow::Result<ExitCode> {
     let params = resolve_params(&args.model)?;
     let profile = match &args.profile {
-        Some(p) => Series::load(p, false).with_context(|| format!("cannot use {}", p.display()))?,
+        Some(p) => Series::load(p, false)?,
         None => {
             if !(args.duration.is_finite() && args.duration >= 1.0 && args.duration <= 86_400.0) {
                 bail!("--duration {} must be between 1 s and one day", args.duration);
@@ -207,7 +207,7 @@ pub struct ExportArgs {
 }
 
 pub fn export(args: ExportArgs) -> anyhow::Result<ExitCode> {
-    let series = Series::load(&args.file, true).with_context(|| format!("cannot use {}", args.file.display()))?;
+    let series = Series::load(&args.file, true)?;
     match &args.out {
         Some(p) => write_csv(&series, p)?,
         None => series.write_csv(std::io::stdout().lock())?,
