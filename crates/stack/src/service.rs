@@ -16,8 +16,7 @@ use jetbench_msgs::{channels, visit_channels, Channel, ChannelVisitor, Sample, S
 use jetbench_record::{spawn_writer, RawRecord, RecordError};
 
 use crate::clock::{monotonic_ns, realtime_ns, PERIOD_NS};
-use crate::config::Controller;
-use crate::config::{BenchConfig, ConfigError, Devices};
+use crate::config::{BenchConfig, ConfigError, Controller, Devices};
 use crate::health::HealthReporter;
 use crate::step::{Actuator, Control, ControlLaw, Estimation, Sensing, SimBench, SimError};
 
@@ -47,6 +46,8 @@ pub enum ServiceError {
     Sim(#[from] SimError),
     #[error(transparent)]
     Record(#[from] RecordError),
+    #[error("throttle profile: {0}")]
+    Profile(#[from] jetbench_ident::series::DataError),
     #[error("{0}")]
     Other(String),
 }
@@ -230,9 +231,11 @@ pub fn run_control(config: &BenchConfig) -> Result<(), ServiceError> {
     let law = match config.control.controller {
         Controller::Fbl => ControlLaw::Fbl(Fbl::new(model, config.control.gains())),
         Controller::OpenLoop => {
-            let throttle_pct =
-                config.throttle_profile().map_err(|e| ServiceError::Other(format!("throttle profile: {e}")))?;
-            tracing::info!("playing a {:.1} s throttle profile open loop", throttle_pct.len() as f64 * 0.01);
+            let throttle_pct = config.throttle_profile()?;
+            tracing::info!(
+                "playing a {:.1} s throttle profile open loop",
+                throttle_pct.len() as f64 * jetbench_model::STEP_S
+            );
             ControlLaw::OpenLoop { throttle_pct, model }
         }
     };
