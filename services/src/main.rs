@@ -77,6 +77,10 @@ enum Cmd {
     ///
     /// Example: jetbench identify run.mcap --out model.toml --plot plots/
     Identify(cmd::identify::IdentifyArgs),
+    /// Find what a model leaves out of recordings, name the physics, model it, and show the fit improve.
+    ///
+    /// Example: jetbench diagnose --model model.toml run.mcap --plot plots/ --out improved.toml
+    Diagnose(cmd::diagnose::DiagnoseArgs),
     /// Free-run simulation of a model from a throttle profile or a recording's throttle.
     Simulate(cmd::model::SimulateArgs),
     /// Generate an identification campaign (throttle profile) to play open loop.
@@ -120,6 +124,7 @@ fn run() -> anyhow::Result<ExitCode> {
         Cmd::Info { file } => cmd_info(&file),
         Cmd::Replay(args) => cmd::replay::run(args),
         Cmd::Identify(args) => cmd::identify::run(args),
+        Cmd::Diagnose(args) => cmd::diagnose::run(args),
         Cmd::Simulate(args) => cmd::model::simulate(args),
         Cmd::Excite(args) => cmd::model::excite(args),
         Cmd::SimRecord(args) => cmd::model::sim_record(args),

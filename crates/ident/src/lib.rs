@@ -1,5 +1,6 @@
 //! Offline identification of the engine model from recordings.
 
+pub mod diagnose;
 pub mod ekf;
 pub mod excite;
 pub mod identify;

@@ -2,7 +2,7 @@
 //! exactly as the simulated bench measures it (one sample per 10 ms, the throttle
 //! of each row held until the next).
 
-use jetbench_model::{Engine, ModelError, Params};
+use jetbench_model::{Effects, ModelError, Params, Plant};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -15,6 +15,11 @@ pub use crate::excite::test_profile;
 /// equilibrium of the first throttle, with white Gaussian noise of variance
 /// `noise_var_n2` (N²) from `seed`.
 pub fn record(params: &Params, profile: &Series, noise_var_n2: f64, seed: u64) -> Result<Series, ModelError> {
+    record_plant(&Plant::new(*params, Effects::none()), profile, noise_var_n2, seed)
+}
+
+/// [`record`] of a plant with effects: the recorded thrust is what the sensor reads.
+pub fn record_plant(plant: &Plant, profile: &Series, noise_var_n2: f64, seed: u64) -> Result<Series, ModelError> {
     if !(noise_var_n2.is_finite() && noise_var_n2 >= 0.0) {
         return Err(ModelError::InvalidArgument { name: "noise_var_n2", value: noise_var_n2, expected: ">= 0" });
     }
@@ -24,10 +29,10 @@ pub fn record(params: &Params, profile: &Series, noise_var_n2: f64, seed: u64) -
         expected: ">= 0",
     })?;
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut engine = Engine::at_equilibrium(*params, profile.u_pct.first().copied().unwrap_or(25.0));
+    let mut engine = plant.at_equilibrium(profile.u_pct.first().copied().unwrap_or(25.0));
     let mut thrust_n = Vec::with_capacity(profile.len());
     for (k, &u) in profile.u_pct.iter().enumerate() {
-        thrust_n.push(engine.state().thrust_n + noise.sample(&mut rng));
+        thrust_n.push(engine.measured_n() + noise.sample(&mut rng));
         if k + 1 < profile.len() {
             engine.step(u)?;
         }

@@ -7,7 +7,7 @@
 //! the mean absolute value of the noise, estimated from the data itself.
 
 use jetbench_estim::SavitzkyGolay;
-use jetbench_model::{Engine, Params, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S, SUBSTEPS};
+use jetbench_model::{Engine, Params, Plant, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S, SUBSTEPS};
 use serde::Serialize;
 
 use crate::series::Series;
@@ -24,6 +24,23 @@ pub trait Dynamics {
     /// remaining samples are NaN and the time of divergence (s from the run start)
     /// is returned.
     fn free_run(&self, initial: State, u_pct: &[f64], out: &mut Vec<f64>) -> Option<f64>;
+
+    /// [`Dynamics::free_run`] of a run that starts `t0_s` seconds into the recording,
+    /// for models that depend on time (a gain that drifts over the run).
+    fn free_run_at(&self, t0_s: f64, initial: State, u_pct: &[f64], out: &mut Vec<f64>) -> Option<f64> {
+        let _ = t0_s;
+        self.free_run(initial, u_pct, out)
+    }
+}
+
+impl Dynamics for Plant {
+    fn free_run(&self, initial: State, u_pct: &[f64], out: &mut Vec<f64>) -> Option<f64> {
+        Plant::free_run(self, 0.0, initial, u_pct, out)
+    }
+
+    fn free_run_at(&self, t0_s: f64, initial: State, u_pct: &[f64], out: &mut Vec<f64>) -> Option<f64> {
+        Plant::free_run(self, t0_s, initial, u_pct, out)
+    }
 }
 
 impl Dynamics for Params {
@@ -130,6 +147,11 @@ pub const INITIAL_FIT_SAMPLES: usize = 200;
 /// low thrust the engine's slow mode carries a starting error for seconds. The
 /// fit uses the first two seconds only, the same way for every model.
 pub fn fit_initial_state(model: &dyn Dynamics, y: &[f64], u: &[f64]) -> State {
+    fit_initial_state_at(model, 0.0, y, u)
+}
+
+/// [`fit_initial_state`] of a run that starts `t0_s` seconds into the recording.
+pub fn fit_initial_state_at(model: &dyn Dynamics, t0_s: f64, y: &[f64], u: &[f64]) -> State {
     let n = y.len().min(u.len()).min(INITIAL_FIT_SAMPLES);
     let mut x = initial_state(y);
     if n < 10 {
@@ -138,14 +160,14 @@ pub fn fit_initial_state(model: &dyn Dynamics, y: &[f64], u: &[f64]) -> State {
     let (mut base, mut dt_run, mut dd_run) = (Vec::new(), Vec::new(), Vec::new());
     let sse = |sim: &[f64]| -> f64 { sim.iter().zip(y).map(|(s, m)| (s - m).powi(2)).sum() };
     for _ in 0..4 {
-        if model.free_run(x, &u[..n], &mut base).is_some() {
+        if model.free_run_at(t0_s, x, &u[..n], &mut base).is_some() {
             return initial_state(y);
         }
         let (ht, hd) = (0.1, 1.0);
         let bumped_t = State { thrust_n: x.thrust_n + ht, ..x };
         let bumped_d = State { thrust_rate_n_per_s: x.thrust_rate_n_per_s + hd, ..x };
-        if model.free_run(bumped_t, &u[..n], &mut dt_run).is_some()
-            || model.free_run(bumped_d, &u[..n], &mut dd_run).is_some()
+        if model.free_run_at(t0_s, bumped_t, &u[..n], &mut dt_run).is_some()
+            || model.free_run_at(t0_s, bumped_d, &u[..n], &mut dd_run).is_some()
         {
             return x;
         }
@@ -169,7 +191,7 @@ pub fn fit_initial_state(model: &dyn Dynamics, y: &[f64], u: &[f64]) -> State {
             thrust_rate_n_per_s: x.thrust_rate_n_per_s + (a11 * b2 - a12 * b1) / det,
         };
         let mut trial = Vec::new();
-        if model.free_run(next, &u[..n], &mut trial).is_some() || sse(&trial) > sse(&base) {
+        if model.free_run_at(t0_s, next, &u[..n], &mut trial).is_some() || sse(&trial) > sse(&base) {
             return x;
         }
         x = next;
@@ -239,8 +261,8 @@ pub fn simulate(model: &dyn Dynamics, data: &[Series]) -> Simulation {
         let mut sim = vec![f64::NAN; s.len()];
         for run in s.runs() {
             let start = run.start;
-            let initial = fit_initial_state(model, &s.thrust_n[run.clone()], &s.u_pct[run.clone()]);
-            if let Some(at) = model.free_run(initial, &s.u_pct[run.clone()], &mut buffer) {
+            let initial = fit_initial_state_at(model, s.t_s[start], &s.thrust_n[run.clone()], &s.u_pct[run.clone()]);
+            if let Some(at) = model.free_run_at(s.t_s[start], initial, &s.u_pct[run.clone()], &mut buffer) {
                 if result.diverged.is_none() {
                     result.diverged = Some((s.name.clone(), s.t_s[start] + at));
                 }

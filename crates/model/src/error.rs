@@ -77,13 +77,20 @@ pub enum ModelError {
         /// Why the file could not be read.
         source: std::io::Error,
     },
-    /// A model file declares an effect this version does not simulate.
-    #[error(
-        "model file declares effect `{name}`, which this version does not simulate; remove \
-         [effects.{name}] (effects are rejected rather than silently ignored)"
-    )]
-    UnsupportedEffect {
-        /// Effect table name.
+    /// An effect name is not in the catalogue.
+    #[error("unknown effect `{name}`; valid effects: {valid}")]
+    UnknownEffect {
+        /// The name given.
         name: String,
+        /// Comma-separated valid names.
+        valid: String,
+    },
+    /// An effect's parameters are missing, unknown or out of range.
+    #[error("effect {effect}: {message}")]
+    EffectParam {
+        /// Effect name.
+        effect: &'static str,
+        /// What is wrong and what is expected.
+        message: String,
     },
 }

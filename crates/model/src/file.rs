@@ -1,12 +1,12 @@
-//! Model files: the ten parameters in TOML, plus (later) tables for extra effects.
+//! Model files: the ten parameters in TOML, plus a table per effect they leave out.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
-use serde::{Deserialize, Serialize};
+use serde::Deserialize;
 
-use crate::{ModelError, Params, Preset};
+use crate::{Effects, ModelError, Params, Plant, Preset};
 
 /// A model file:
 ///
@@ -24,23 +24,39 @@ use crate::{ModelError, Params, Preset};
 /// B_UU = 0.013878
 /// ```
 ///
-/// `[effects.<name>]` tables (input delay, actuator lag, ...) are reserved for later work.
-/// They are parsed so the file format is fixed now, but [`ModelFile::load`] rejects any,
-/// because a simulator that silently dropped an effect would mislead.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+/// plus one optional table per effect the ten parameters leave out (names and keys
+/// in [`EffectKind`](crate::EffectKind)), e.g.
+///
+/// ```toml
+/// [effects.input_delay]
+/// delay_s = 0.08
+/// ```
+#[derive(Clone, Debug, PartialEq)]
 pub struct ModelFile {
     /// The ten coefficients.
     pub model: Params,
-    /// Extra effects by name; must be empty in this version.
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub effects: BTreeMap<String, toml::Table>,
+    /// What the coefficients leave out.
+    pub effects: Effects,
+}
+
+/// The file as TOML sees it; checked into a [`ModelFile`].
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawModelFile {
+    model: Params,
+    #[serde(default)]
+    effects: BTreeMap<String, toml::Table>,
 }
 
 impl ModelFile {
     /// A file holding just these parameters.
     pub fn new(model: Params) -> Self {
-        Self { model, effects: BTreeMap::new() }
+        Self { model, effects: Effects::none() }
+    }
+
+    /// The plant this file describes.
+    pub fn plant(&self) -> Plant {
+        Plant::new(self.model, self.effects.clone())
     }
 
     /// Reads and checks a model file.
@@ -56,13 +72,10 @@ impl ModelFile {
     }
 
     fn parse(text: &str, origin: &str) -> Result<Self, ModelError> {
-        let file: Self = toml::from_str(text)
+        let raw: RawModelFile = toml::from_str(text)
             .map_err(|e| ModelError::Parse { path: origin.to_owned(), message: e.to_string().trim_end().to_owned() })?;
-        if let Some(name) = file.effects.keys().next() {
-            return Err(ModelError::UnsupportedEffect { name: name.clone() });
-        }
-        file.model.validate()?;
-        Ok(file)
+        raw.model.validate()?;
+        Ok(Self { model: raw.model, effects: Effects::from_tables(&raw.effects)? })
     }
 
     /// TOML text that [`ModelFile::from_toml_str`] reads back bit for bit.
@@ -79,19 +92,10 @@ impl ModelFile {
             };
             let _ = writeln!(out, "{name} = {text}");
         }
-        if !self.effects.is_empty() {
-            #[derive(Serialize)]
-            struct Effects<'a> {
-                effects: &'a BTreeMap<String, toml::Table>,
-            }
-            match toml::to_string(&Effects { effects: &self.effects }) {
-                Ok(text) => {
-                    out.push('\n');
-                    out.push_str(&text);
-                }
-                Err(e) => {
-                    let _ = writeln!(out, "\n# effects could not be written: {e}");
-                }
+        for effect in self.effects.iter() {
+            let _ = writeln!(out, "\n[effects.{}]", effect.kind());
+            for (key, value) in effect.params() {
+                let _ = writeln!(out, "{key} = {value:?}");
             }
         }
         out
@@ -104,15 +108,21 @@ impl ModelFile {
     }
 }
 
-/// Parameters from "a preset name or a path to a model file": a preset name wins;
-/// anything else is loaded as a file.
+/// The ten parameters of "a preset name or a path to a model file"; effects in the
+/// file are not part of the answer (see [`resolve_model`] for the whole plant).
 pub fn resolve_params(spec: &str) -> Result<Params, ModelError> {
+    resolve_model(spec).map(|file| file.model)
+}
+
+/// "A preset name or a path to a model file": a preset name wins; anything else is
+/// loaded as a file, effects included.
+pub fn resolve_model(spec: &str) -> Result<ModelFile, ModelError> {
     if let Ok(preset) = spec.parse::<Preset>() {
-        return Ok(preset.params());
+        return Ok(ModelFile::new(preset.params()));
     }
     let path = Path::new(spec);
     match ModelFile::load(path) {
-        Ok(file) => Ok(file.model),
+        Ok(file) => Ok(file),
         Err(ModelError::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
             Err(ModelError::UnknownSpec { spec: spec.to_owned(), valid: Preset::valid_names(), source })
         }

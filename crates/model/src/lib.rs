@@ -20,17 +20,19 @@
 //! `Ṫ` in N/s and throttle `u` in %. Identified parameter sets are only locally valid, so
 //! the [`Engine`] reports divergence as [`ModelError::Diverged`] rather than returning NaN.
 
+mod effects;
 mod engine;
 mod error;
 mod file;
 mod params;
 mod preset;
 
+pub use effects::{Effect, EffectKind, Effects, Plant, PlantEngine, PlantSample};
 pub use engine::{
     settling_time_s, simulate, Engine, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, MAX_SETTLING_RUN_S,
 };
 pub use error::ModelError;
-pub use file::{resolve_params, ModelFile};
+pub use file::{resolve_model, resolve_params, ModelFile};
 pub use params::{AccelPartials, Equilibrium, Params};
 pub use preset::Preset;
 

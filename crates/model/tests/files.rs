@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use jetbench_model::{resolve_params, ModelError, ModelFile, Params, Preset};
+use jetbench_model::{resolve_params, EffectKind, ModelError, ModelFile, Params, Preset};
 
 fn temp_path(name: &str) -> PathBuf {
     std::env::temp_dir().join(format!("jetbench-model-{}-{name}.toml", std::process::id()))
@@ -51,13 +51,26 @@ fn missing_key_and_unknown_table_are_parse_errors() {
 }
 
 #[test]
-fn effects_are_rejected_not_ignored() {
+fn effects_round_trip_and_bad_effects_are_errors_naming_them() {
+    let base = ModelFile::new(Preset::P100Diesel.params()).to_toml_string();
     let text = format!(
-        "{}\n[effects.input_delay]\ndelay_s = 0.05\n",
-        ModelFile::new(Preset::P100Diesel.params()).to_toml_string()
+        "{base}\n[effects.input_delay]\ndelay_s = 0.05\n\n[effects.rate_limit]\nup_pct_per_s = 60\ndown_pct_per_s = 120.5\n"
     );
-    let err = ModelFile::from_toml_str(&text).unwrap_err();
-    assert!(matches!(err, ModelError::UnsupportedEffect { ref name } if name == "input_delay"), "{err}");
+    let file = ModelFile::from_toml_str(&text).unwrap();
+    assert_eq!(file.effects.len(), 2);
+    assert_eq!(file.effects.get(EffectKind::RateLimit).unwrap().values(), &[60.0, 120.5]);
+    let back = ModelFile::from_toml_str(&file.to_toml_string()).unwrap();
+    assert_eq!(back, file);
+    for (bad, needle) in [
+        ("[effects.input_dealy]\ndelay_s = 0.05\n", "input_dealy"),
+        ("[effects.input_delay]\ndelay = 0.05\n", "delay"),
+        ("[effects.input_delay]\ndelay_s = \"fast\"\n", "string"),
+        ("[effects.actuator_lag]\n", "time_constant_s"),
+        ("[effects.bearing_friction]\nforce_n = -1.0\n", "force_n"),
+    ] {
+        let err = ModelFile::from_toml_str(&format!("{base}\n{bad}")).unwrap_err();
+        assert!(err.to_string().contains(needle), "{bad}: {err}");
+    }
 }
 
 #[test]

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use jetbench_control::{FblGains, Profile};
-use jetbench_model::Params;
+use jetbench_model::{ModelFile, Params, Plant};
 use serde::{Deserialize, Serialize};
 
 /// The configuration `jetbench up --sim` uses when no file is given.
@@ -282,8 +282,18 @@ impl BenchConfig {
             }
             (_, _) => {}
         }
-        self.plant_params().map_err(|e| invalid(format!("[plant] model: {e}")))?;
-        self.model_params().map_err(|e| invalid(format!("[model] model: {e}")))?;
+        self.plant_model().map_err(|e| invalid(format!("[plant] model: {e}")))?;
+        let model =
+            jetbench_model::resolve_model(&self.model.model).map_err(|e| invalid(format!("[model] model: {e}")))?;
+        if !model.effects.is_empty() {
+            // Not an error: the same file can serve as [plant] and as [model].
+            tracing::warn!(
+                "{origin}: [model] model {} has effects ({}); the estimator and the controller use only its ten \
+                 parameters so far",
+                self.model.model,
+                model.effects
+            );
+        }
         Ok(())
     }
 
@@ -295,12 +305,22 @@ impl BenchConfig {
         }
     }
 
-    /// Parameters of the simulated engine.
+    /// Parameters of the simulated engine (its effects left out; see [`BenchConfig::plant`]).
     pub fn plant_params(&self) -> Result<Params, jetbench_model::ModelError> {
         jetbench_model::resolve_params(&self.plant.model)
     }
 
-    /// Parameters the estimator and controller use.
+    /// The simulated engine's model file: parameters and effects.
+    pub fn plant_model(&self) -> Result<ModelFile, jetbench_model::ModelError> {
+        jetbench_model::resolve_model(&self.plant.model)
+    }
+
+    /// The simulated engine with its effects, as the sim-bench runs it.
+    pub fn plant(&self) -> Result<Plant, jetbench_model::ModelError> {
+        self.plant_model().map(|file| file.plant())
+    }
+
+    /// Parameters the estimator and controller use (effects in the file are not used yet).
     pub fn model_params(&self) -> Result<Params, jetbench_model::ModelError> {
         jetbench_model::resolve_params(&self.model.model)
     }
@@ -335,5 +355,19 @@ mod tests {
     fn unknown_preset_is_an_error() {
         let text = DEFAULT_SIM_CONFIG.replace("model = \"p100-diesel\"\n# Force", "model = \"p999\"\n# Force");
         assert!(BenchConfig::from_toml_str(&text, "t.toml", None).is_err());
+    }
+
+    #[test]
+    fn effects_reach_the_plant_and_are_no_error_in_the_model() {
+        let dir = std::env::temp_dir().join(format!("jetbench-config-effects-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut file = ModelFile::new(jetbench_model::Preset::P100Diesel.params());
+        file.effects = jetbench_model::Effects::new(["input_delay:delay_s=0.1".parse().unwrap()]).unwrap();
+        file.save(&dir.join("delayed.toml")).unwrap();
+        let text = DEFAULT_SIM_CONFIG.replace("model = \"p100-diesel\"", "model = \"delayed.toml\"");
+        let c = BenchConfig::from_toml_str(&text, "t.toml", Some(&dir)).unwrap();
+        assert_eq!(c.plant().unwrap(), file.plant());
+        assert_eq!(c.model_params().unwrap(), file.model);
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

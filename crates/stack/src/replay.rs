@@ -641,7 +641,7 @@ pub fn synthetic_recording(config: &BenchConfig, cycles: usize) -> Result<Record
     const PERIOD_NS: u64 = 10_000_000;
     let model = config.model_params()?;
     let mut sim = SimBench::new(
-        config.plant_params()?,
+        &config.plant()?,
         config.plant.noise_var_n2,
         config.plant.seed,
         config.plant.initial_throttle_pct,
@@ -707,7 +707,8 @@ mod tests {
     fn raced_recording(cycles: u64) -> Recording {
         let config = config();
         let params = config.model_params().unwrap();
-        let mut sim = SimBench::new(params, 7.0, 11, 25.0).unwrap();
+        let mut sim =
+            SimBench::new(&jetbench_model::Plant::new(params, jetbench_model::Effects::none()), 7.0, 11, 25.0).unwrap();
         let mut sensing = Sensing::new(&config.sensor);
         let mut estimation = Estimation::new(params, config.estimator.observer_config());
         let mut messages = Vec::new();

@@ -78,7 +78,7 @@ pub fn run_sim_bench(config: &BenchConfig) -> Result<(), ServiceError> {
         return Err(ServiceError::Other("sim-bench runs only with [bench] devices = \"sim\"".into()));
     }
     let mut sim = SimBench::new(
-        config.plant_params()?,
+        &config.plant()?,
         config.plant.noise_var_n2,
         config.plant.seed,
         config.plant.initial_throttle_pct,

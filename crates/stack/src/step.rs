@@ -6,7 +6,9 @@
 use jetbench_control::{Fbl, Profile};
 use jetbench_estim::{EstimError, ObserverConfig, ThrustObserver};
 use jetbench_io::ForceReading;
-use jetbench_model::{Engine, ModelError, Params, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
+use jetbench_model::{
+    ModelError, Params, Plant, PlantEngine, PlantSample, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT,
+};
 use jetbench_msgs::{
     actuation_flags, command_flags, sensor_status, state_flags, thrust_flags, Actuation, Command, Reference, SimTruth,
     StateEstimate, Thrust,
@@ -320,10 +322,10 @@ impl Default for BoardEmulator {
     }
 }
 
-/// The simulated engine, throttle board and force sensor.
+/// The simulated engine (with the plant's effects), throttle board and force sensor.
 #[derive(Debug, Clone)]
 pub struct SimBench {
-    engine: Engine,
+    engine: PlantEngine,
     board: BoardEmulator,
     rng: ChaCha8Rng,
     noise: Normal<f64>,
@@ -335,11 +337,12 @@ pub struct SimBench {
 const CROSS_AXIS_NOISE_N: f64 = 0.3;
 
 impl SimBench {
-    /// Fails if the noise variance is negative or not finite.
-    pub fn new(params: Params, noise_var_n2: f64, seed: u64, initial_throttle_pct: f64) -> Result<Self, SimError> {
+    /// `plant` starts at rest at `initial_throttle_pct` (effects settled there). Fails
+    /// if the noise variance is negative or not finite.
+    pub fn new(plant: &Plant, noise_var_n2: f64, seed: u64, initial_throttle_pct: f64) -> Result<Self, SimError> {
         let bad_noise = |_| SimError::Noise(noise_var_n2);
         Ok(SimBench {
-            engine: Engine::at_equilibrium(params, initial_throttle_pct),
+            engine: plant.at_equilibrium(initial_throttle_pct),
             board: BoardEmulator::new(),
             rng: ChaCha8Rng::seed_from_u64(seed),
             noise: Normal::new(0.0, noise_var_n2.sqrt()).map_err(bad_noise)?,
@@ -349,17 +352,19 @@ impl SimBench {
     }
 
     /// One 10 ms step at `now_ns`: apply the newest throttle frame (if any),
-    /// advance the engine, and sample the sensor with noise on the thrust axis.
+    /// advance the engine, and sample the sensor (its reading, effects included)
+    /// with noise on the thrust axis.
     pub fn step(&mut self, now_ns: u64, throttle_frame: Option<f64>) -> Result<(ForceReading, SimTruth), ModelError> {
         if let Some(t) = throttle_frame {
             self.board.receive(t, now_ns);
         }
         let throttle_pct = self.board.output_pct(now_ns);
-        let State { thrust_n, thrust_rate_n_per_s } = self.engine.step(throttle_pct)?;
+        let PlantSample { state: State { thrust_n, thrust_rate_n_per_s }, measured_n, engine_throttle_pct } =
+            self.engine.step(throttle_pct)?;
         self.counter = self.counter.wrapping_add(1) & 0xff;
         let reading = ForceReading {
             force_n: [
-                thrust_n + self.noise.sample(&mut self.rng),
+                measured_n + self.noise.sample(&mut self.rng),
                 self.cross_noise.sample(&mut self.rng),
                 self.cross_noise.sample(&mut self.rng),
             ],
@@ -376,8 +381,8 @@ impl SimBench {
             stamp_ns: now_ns,
             thrust_n,
             thrust_rate_n_per_s,
-            engine_throttle_pct: throttle_pct,
-            measured_thrust_n: thrust_n,
+            engine_throttle_pct,
+            measured_thrust_n: measured_n,
         };
         Ok((reading, truth))
     }
@@ -394,7 +399,7 @@ pub enum SimError {
 mod tests {
     use super::*;
     use jetbench_control::FblGains;
-    use jetbench_model::Preset;
+    use jetbench_model::{Effects, Preset};
 
     fn command(seq: u64, throttle_pct: f64) -> Command {
         Command { seq, stamp_ns: seq * 10_000_000, throttle_pct, ..Command::default() }
@@ -460,7 +465,7 @@ mod tests {
     fn closed_loop_tracks_the_reference() {
         let params = Preset::P100Diesel.params();
         let config = crate::config::BenchConfig::default_sim().unwrap();
-        let mut sim = SimBench::new(params, 7.0, 3, 25.0).unwrap();
+        let mut sim = SimBench::new(&Plant::new(params, Effects::none()), 7.0, 3, 25.0).unwrap();
         let mut sensing = Sensing::new(&config.sensor);
         let mut estimation = Estimation::new(params, config.estimator.observer_config());
         let mut control = Control::new(Fbl::new(params, FblGains::default()), config.reference.clone());
@@ -485,5 +490,36 @@ mod tests {
         let median = errors[errors.len() / 2];
         let (lo, hi) = config.reference.span_n();
         assert!(median < 0.05 * (hi - lo), "median error {median:.2} N over span {:.1} N", hi - lo);
+    }
+
+    /// The time the true thrust takes to rise 5 N after a throttle step from idle
+    /// to 80 % commanded at 1 s, as the board applies it.
+    fn rise_time_s(plant: &Plant) -> (f64, f64) {
+        let mut sim = SimBench::new(plant, 0.0, 1, 25.0).unwrap();
+        let (_, rest) = sim.step(0, Some(25.0)).unwrap();
+        let (mut rise_s, mut followed_s) = (f64::NAN, f64::NAN);
+        for k in 1..300u64 {
+            let now_ns = k * 10_000_000;
+            let (reading, truth) = sim.step(now_ns, Some(if k >= 100 { 80.0 } else { 25.0 })).unwrap();
+            assert_eq!(reading.force_n[0], truth.measured_thrust_n, "noise-free bench: the sensor reads the plant");
+            if followed_s.is_nan() && truth.engine_throttle_pct > 50.0 {
+                followed_s = now_ns as f64 * 1e-9;
+            }
+            if rise_s.is_nan() && truth.thrust_n > rest.thrust_n + 5.0 {
+                rise_s = now_ns as f64 * 1e-9;
+            }
+        }
+        (rise_s, followed_s)
+    }
+
+    #[test]
+    fn an_input_delay_makes_the_bench_answer_later() {
+        let params = Preset::P100Diesel.params();
+        let (rise_s, followed_s) = rise_time_s(&Plant::new(params, Effects::none()));
+        let delay = Effects::new(["input_delay:delay_s=0.2".parse().unwrap()]).unwrap();
+        let (delayed_rise_s, delayed_followed_s) = rise_time_s(&Plant::new(params, delay));
+        assert!((followed_s - 1.0).abs() < 1e-9, "without delay the engine follows at once: {followed_s}");
+        assert!((delayed_followed_s - followed_s - 0.2).abs() < 0.015, "{delayed_followed_s} vs {followed_s}");
+        assert!((delayed_rise_s - rise_s - 0.2).abs() < 0.015, "{delayed_rise_s} vs {rise_s}");
     }
 }

@@ -1,5 +1,6 @@
 //! Offline commands of the `jetbench` CLI, one module each.
 
+pub mod diagnose;
 pub mod identify;
 pub mod model;
 pub mod replay;

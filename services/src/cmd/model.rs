@@ -9,8 +9,8 @@ use anyhow::{bail, Context};
 use jetbench_ident::excite::{self, MIN_SAMPLES};
 use jetbench_ident::series::Series;
 use jetbench_ident::synth;
-use jetbench_ident::validate::{self, Dynamics};
-use jetbench_model::{resolve_params, State};
+use jetbench_ident::validate;
+use jetbench_model::{resolve_model, resolve_params, Effect, EffectKind, State};
 
 /// Arguments of `jetbench simulate`.
 #[derive(clap::Args)]
@@ -18,6 +18,10 @@ use jetbench_model::{resolve_params, State};
 The input's throttle_pct of row k is held until row k + 1. With measured thrust in the input, \
 the run starts from the state fitted to its first 2 s and the error against it is printed; \
 otherwise from rest at the first throttle.
+
+Effects in the model file ([effects.<name>] tables, see `jetbench sim-record --help`) are \
+simulated too, starting at rest at the first throttle: thrust_n is then the force the sensor \
+reads (noise-free), as measured_n is.
 
 Examples:
   jetbench simulate --model model.toml --input run.mcap --out sim.csv
@@ -35,18 +39,20 @@ pub struct SimulateArgs {
 }
 
 pub fn simulate(args: SimulateArgs) -> anyhow::Result<ExitCode> {
-    let params = resolve_params(&args.model)?;
+    // Without effects the plant is the ten-parameter engine, bit for bit.
+    let plant = resolve_model(&args.model)?.plant();
     let input = Series::load(&args.input, false)?;
+    let t0_s = input.t_s[0];
     let initial = if input.has_thrust() {
-        validate::fit_initial_state(&params, &input.thrust_n, &input.u_pct)
+        validate::fit_initial_state_at(&plant, t0_s, &input.thrust_n, &input.u_pct)
     } else {
-        State { thrust_n: params.stable_equilibrium(input.u_pct[0]).unwrap_or(0.0), thrust_rate_n_per_s: 0.0 }
+        State { thrust_n: plant.params.stable_equilibrium(input.u_pct[0]).unwrap_or(0.0), thrust_rate_n_per_s: 0.0 }
     };
     let mut thrust = Vec::new();
     if input.runs().len() > 1 {
         eprintln!("warning: the input has gaps in time; it is simulated as one run with the throttle held over them");
     }
-    let diverged = params.free_run(initial, &input.u_pct, &mut thrust);
+    let diverged = plant.free_run(t0_s, initial, &input.u_pct, &mut thrust);
     let mut out: Box<dyn Write> = match &args.out {
         Some(p) => Box::new(BufWriter::new(File::create(p).with_context(|| format!("cannot create {}", p.display()))?)),
         None => Box::new(std::io::stdout().lock()),
@@ -136,17 +142,15 @@ pub fn excite(args: ExciteArgs) -> anyhow::Result<ExitCode> {
 
 /// Arguments of `jetbench sim-record`.
 #[derive(clap::Args)]
-#[command(after_long_help = "\
-Runs the model from rest at the first throttle, measured every 10 ms with white Gaussian noise, \
-as the simulated bench measures it, much faster than real time.
-
-Examples:
-  jetbench sim-record --model p220-kerosene --seed 3 --out p220.csv
-  jetbench sim-record --model model.toml --profile campaign.csv --noise-var 9 --out run.csv")]
+#[command(after_long_help = sim_record_help())]
 pub struct SimRecordArgs {
-    /// Plant: preset name or model file.
+    /// Plant: preset name or model file (with its [effects.<name>] tables, if any).
     #[arg(long, value_name = "MODEL")]
     model: String,
+    /// Add an effect to the plant, e.g. `input_delay:delay_s=0.08` (repeatable; replaces the
+    /// model file's effect of the same name; catalogue in --help).
+    #[arg(long = "effect", value_name = "NAME:KEY=VALUE,...", action = clap::ArgAction::Append)]
+    effects: Vec<Effect>,
     /// Throttle profile to play (default: a campaign from --seed and --duration, as `jetbench excite`).
     #[arg(long, value_name = "FILE")]
     profile: Option<PathBuf>,
@@ -164,8 +168,33 @@ pub struct SimRecordArgs {
     out: PathBuf,
 }
 
+/// The long help of `jetbench sim-record`: the text and the catalogue of effects.
+fn sim_record_help() -> String {
+    let mut help = String::from(
+        "Runs the plant from rest at the first throttle (effects at rest there too), measured every 10 ms \
+         with white Gaussian noise, as the simulated bench measures it, much faster than real time.\n\n\
+         Effects (--effect NAME:KEY=VALUE,..., or [effects.NAME] with the same keys in a model file):\n",
+    );
+    for kind in EffectKind::ALL {
+        let keys: Vec<String> =
+            kind.keys().iter().zip(kind.bounds()).map(|(key, (lo, hi))| format!("{key}=[{lo}, {hi}]")).collect();
+        help.push_str(&format!("  {}:{}\n      {}\n", kind.name(), keys.join(","), kind.physics()));
+    }
+    help.push_str(
+        "\nExamples:\n  \
+         jetbench sim-record --model p220-kerosene --seed 3 --out p220.csv\n  \
+         jetbench sim-record --model model.toml --profile campaign.csv --noise-var 9 --out run.csv\n  \
+         jetbench sim-record --model p100-diesel --effect input_delay:delay_s=0.08 \\\n      \
+         --effect rate_limit:up_pct_per_s=60,down_pct_per_s=120 --out delayed.csv",
+    );
+    help
+}
+
 pub fn sim_record(args: SimRecordArgs) -> anyhow::Result<ExitCode> {
-    let params = resolve_params(&args.model)?;
+    let mut plant = resolve_model(&args.model)?.plant();
+    for effect in &args.effects {
+        plant.effects = plant.effects.with(*effect);
+    }
     let profile = match &args.profile {
         Some(p) => Series::load(p, false)?,
         None => {
@@ -175,16 +204,30 @@ pub fn sim_record(args: SimRecordArgs) -> anyhow::Result<ExitCode> {
             excite::campaign(args.duration, args.seed).profile
         }
     };
-    let recording = synth::record(&params, &profile, args.noise_var, args.seed.wrapping_add(0x5eed))?;
+    // At the bench's resolution: the board takes the throttle in 0.01 % units and the
+    // sensor reports force in 0.01 N steps (design.md, "Bench protocols").
+    let mut profile = profile;
+    quantize(&mut profile.u_pct, 0.01);
+    quantize(&mut profile.t_s, 0.01);
+    let mut recording = synth::record_plant(&plant, &profile, args.noise_var, args.seed.wrapping_add(0x5eed))?;
+    quantize(&mut recording.thrust_n, 0.01);
     write_csv(&recording, &args.out)?;
     println!(
-        "{}: {} samples of {} with noise variance {} N²",
+        "{}: {} samples of {} (effects: {}) with noise variance {} N²",
         args.out.display(),
         recording.len(),
         args.model,
+        plant.effects,
         args.noise_var
     );
     Ok(ExitCode::SUCCESS)
+}
+
+/// Rounds every value to a multiple of `step`.
+fn quantize(values: &mut [f64], step: f64) {
+    for v in values {
+        *v = (*v / step).round() * step;
+    }
 }
 
 /// Arguments of `jetbench export`.

@@ -1,0 +1,508 @@
+//! Where a residual is systematic: the statistics a careful engineer looks at before
+//! blaming any physics.
+//!
+//! Every statistic is pooled over the contiguous runs of every file, so a gap never
+//! pairs samples that were not 10 ms apart. Means are judged with a standard error
+//! corrected for the residual's own correlation (an AR(1) effective sample size), so
+//! a slow systematic error is not mistaken for a huge number of independent samples.
+
+use std::sync::Arc;
+
+use jetbench_model::STEP_S;
+use rustfft::num_complex::Complex;
+use rustfft::{Fft, FftPlanner};
+use serde::Serialize;
+use statrs::distribution::{ChiSquared, ContinuousCDF};
+
+use super::fit::{Part, Problem, Sim};
+
+/// Autocorrelation lags shown (0.5 s).
+pub const ACF_LAGS: usize = 50;
+/// Lags in the Ljung–Box statistic.
+pub const LJUNG_BOX_LAGS: usize = 20;
+/// Significance level of every "significant" in a report.
+pub const ALPHA: f64 = 0.01;
+/// A mean is called systematic beyond this many (correlation-corrected) standard errors.
+pub const T_SIGNIFICANT: f64 = 4.0;
+/// Cross-correlation lags with the throttle change: from −0.5 s to +2 s.
+const XCORR_LAGS: (i64, i64) = (-50, 200);
+/// Samples per Welch segment (10.24 s).
+const WELCH_SEGMENT: usize = 1024;
+/// Block length for locating systematic windows (2 s).
+const WINDOW_BLOCK: usize = 200;
+/// Thrust rate below which the engine is called steady, N/s.
+const STEADY_RATE_N_PER_S: f64 = 2.0;
+
+/// Is the residual white noise?
+#[derive(Clone, Debug, Serialize)]
+pub struct Whiteness {
+    /// Autocorrelation at lags 1..=ACF_LAGS (10 ms each).
+    pub acf: Vec<f64>,
+    /// 95 % bound of a white residual's autocorrelation, ±1.96/√N.
+    pub bound: f64,
+    /// Lags outside the bound (about 5 % of them for white noise).
+    pub outside: usize,
+    /// Ljung–Box statistic over lags 1..=LJUNG_BOX_LAGS.
+    pub ljung_box_q: f64,
+    /// Its p-value under whiteness (χ² with LJUNG_BOX_LAGS degrees of freedom).
+    pub p_value: f64,
+    /// `p_value ≥ ALPHA`.
+    pub white: bool,
+}
+
+/// Correlation of the residual with earlier throttle changes.
+#[derive(Clone, Debug, Serialize)]
+pub struct InputCorrelation {
+    /// Lags, s (positive: the residual follows the throttle change).
+    pub lags_s: Vec<f64>,
+    /// Correlation of `r[k]` with `Δu[k − lag]`.
+    pub values: Vec<f64>,
+    /// 95 % bound of a white residual.
+    pub bound: f64,
+    /// Lag of the largest |correlation|, s.
+    pub peak_lag_s: f64,
+    /// The correlation there.
+    pub peak: f64,
+}
+
+/// Mean residual in one class of samples.
+#[derive(Clone, Debug, Serialize)]
+pub struct ClassMean {
+    /// What the class is ("rising", "40–60 N", ...).
+    pub class: String,
+    pub samples: usize,
+    /// Mean residual (measured − model), N.
+    pub mean_n: f64,
+    /// RMS residual, N.
+    pub rms_n: f64,
+    /// Mean over its correlation-corrected standard error.
+    pub t_stat: f64,
+}
+
+/// Slow change of the residual over the run.
+#[derive(Clone, Debug, Serialize)]
+pub struct Drift {
+    /// Least-squares slope of the residual against time, N/min.
+    pub slope_n_per_min: f64,
+    pub t_stat: f64,
+    /// Mean residual per tenth of the recording: (start s, end s, mean N).
+    pub tenths: Vec<(f64, f64, f64)>,
+}
+
+/// Power spectrum of the residual relative to its white (noise) level.
+#[derive(Clone, Debug, Serialize)]
+pub struct Spectrum {
+    /// Frequencies, Hz.
+    pub freq_hz: Vec<f64>,
+    /// Power over the white level (median power at 10–50 Hz, where only noise is).
+    pub ratio: Vec<f64>,
+    /// Mean ratio in bands: (from Hz, to Hz, ratio).
+    pub bands: Vec<(f64, f64, f64)>,
+    /// Largest ratio above 0.5 Hz and where.
+    pub peak_hz: f64,
+    pub peak_ratio: f64,
+}
+
+/// A stretch of time where the residual is systematic.
+#[derive(Clone, Debug, Serialize)]
+pub struct Window {
+    /// Which file (index in the order given).
+    pub file: usize,
+    pub start_s: f64,
+    pub end_s: f64,
+    /// Mean residual there, N.
+    pub mean_n: f64,
+}
+
+/// Everything known about one residual.
+#[derive(Clone, Debug, Serialize)]
+pub struct Analysis {
+    pub samples: usize,
+    pub mean_n: f64,
+    pub rms_n: f64,
+    /// RMS of the part the noise does not explain, `√max(0, rms² − σ²)`, N.
+    pub systematic_rms_n: f64,
+    pub whiteness: Whiteness,
+    pub input_correlation: InputCorrelation,
+    /// By the direction the modelled thrust moves.
+    pub by_direction: Vec<ClassMean>,
+    /// By operating point (quintiles of modelled thrust).
+    pub by_thrust: Vec<ClassMean>,
+    pub drift: Drift,
+    pub spectrum: Spectrum,
+    /// The most systematic windows, largest first.
+    pub windows: Vec<Window>,
+    /// What stands out, in words.
+    pub findings: Vec<String>,
+}
+
+/// Analyses `measured − sim` over every run of `problem` (both parts).
+pub(crate) fn analyse(problem: &Problem<'_>, sim: &Sim, sigma_n: f64) -> Analysis {
+    let data = problem.data;
+    // Per-run residual, modelled thrust and its rate, and throttle change.
+    let mut runs: Vec<RunView> = Vec::new();
+    for (i, s) in data.iter().enumerate() {
+        let rows: Vec<usize> = problem.rows(i, Part::All).collect();
+        for piece in rows.chunk_by(|a, b| b == &(a + 1)) {
+            let r: Vec<f64> = piece.iter().map(|&k| s.thrust_n[k] - sim[i][k]).collect();
+            let yhat: Vec<f64> = piece.iter().map(|&k| sim[i][k]).collect();
+            let rate: Vec<f64> = (0..piece.len())
+                .map(|j| {
+                    let (a, b) = (j.saturating_sub(1), (j + 1).min(piece.len() - 1));
+                    if b > a {
+                        (yhat[b] - yhat[a]) / ((b - a) as f64 * STEP_S)
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            // The change of the applied throttle at each row (row k holds u[k] from t[k]).
+            let du: Vec<f64> = piece
+                .iter()
+                .enumerate()
+                .map(|(j, &k)| if j == 0 { 0.0 } else { s.u_pct[k] - s.u_pct[k - 1] })
+                .collect();
+            let t: Vec<f64> = piece.iter().map(|&k| s.t_s[k]).collect();
+            runs.push(RunView { file: i, r, yhat, rate, du, t });
+        }
+    }
+    let n: usize = runs.iter().map(|v| v.r.len()).sum();
+    let all_r = || runs.iter().flat_map(|v| v.r.iter().copied());
+    let mean_n = all_r().sum::<f64>() / n.max(1) as f64;
+    let rms_n = (all_r().map(|x| x * x).sum::<f64>() / n.max(1) as f64).sqrt();
+    let systematic_rms_n = (rms_n * rms_n - sigma_n * sigma_n).max(0.0).sqrt();
+
+    let whiteness = whiteness(&runs, mean_n, n);
+    let rho1 = whiteness.acf.first().copied().unwrap_or(0.0).clamp(0.0, 0.99);
+    let n_eff_factor = (1.0 - rho1) / (1.0 + rho1);
+    let class = |name: String, values: &mut dyn Iterator<Item = f64>| -> ClassMean {
+        let (mut sum, mut sq, mut count) = (0.0, 0.0, 0usize);
+        for v in values {
+            sum += v;
+            sq += v * v;
+            count += 1;
+        }
+        let mean = sum / count.max(1) as f64;
+        let var = (sq / count.max(1) as f64 - mean * mean).max(1e-12);
+        let se = (var / (count as f64 * n_eff_factor).max(1.0)).sqrt();
+        ClassMean {
+            class: name,
+            samples: count,
+            mean_n: mean,
+            rms_n: (sq / count.max(1) as f64).sqrt(),
+            t_stat: mean / se,
+        }
+    };
+
+    let by_direction = [("rising", 1.0), ("falling", -1.0), ("steady", 0.0)]
+        .into_iter()
+        .map(|(name, sign)| {
+            let pick = |rate: f64| {
+                if sign == 0.0 {
+                    rate.abs() <= STEADY_RATE_N_PER_S
+                } else {
+                    rate * sign > STEADY_RATE_N_PER_S
+                }
+            };
+            class(
+                name.to_owned(),
+                &mut runs.iter().flat_map(|v| v.r.iter().zip(&v.rate).filter(|(_, &d)| pick(d)).map(|(r, _)| *r)),
+            )
+        })
+        .collect();
+
+    let mut sorted: Vec<f64> = runs.iter().flat_map(|v| v.yhat.iter().copied()).filter(|x| x.is_finite()).collect();
+    sorted.sort_by(f64::total_cmp);
+    let quantile = |q: f64| sorted.get(((sorted.len().saturating_sub(1)) as f64 * q) as usize).copied().unwrap_or(0.0);
+    let edges: Vec<f64> = (0..=5).map(|i| quantile(i as f64 / 5.0)).collect();
+    let by_thrust = edges
+        .windows(2)
+        .enumerate()
+        .map(|(b, w)| {
+            let (lo, hi) = (w[0], w[1]);
+            let inside = |y: f64| y >= lo && (y < hi || (b == 4 && y <= hi));
+            class(
+                format!("{lo:.0}–{hi:.0} N"),
+                &mut runs.iter().flat_map(|v| v.r.iter().zip(&v.yhat).filter(|(_, &y)| inside(y)).map(|(r, _)| *r)),
+            )
+        })
+        .collect();
+
+    let drift = drift(&runs, n_eff_factor);
+    let input_correlation = input_correlation(&runs, n);
+    let spectrum = spectrum(&runs);
+    let windows = windows(&runs, sigma_n, n_eff_factor);
+    let mut analysis = Analysis {
+        samples: n,
+        mean_n,
+        rms_n,
+        systematic_rms_n,
+        whiteness,
+        input_correlation,
+        by_direction,
+        by_thrust,
+        drift,
+        spectrum,
+        windows,
+        findings: Vec::new(),
+    };
+    analysis.findings = findings(&analysis);
+    analysis
+}
+
+struct RunView {
+    file: usize,
+    r: Vec<f64>,
+    yhat: Vec<f64>,
+    rate: Vec<f64>,
+    du: Vec<f64>,
+    t: Vec<f64>,
+}
+
+fn whiteness(runs: &[RunView], mean: f64, n: usize) -> Whiteness {
+    let denom: f64 = runs.iter().flat_map(|v| v.r.iter()).map(|x| (x - mean).powi(2)).sum::<f64>().max(1e-300);
+    let acf: Vec<f64> = (1..=ACF_LAGS)
+        .map(|lag| {
+            runs.iter()
+                .map(|v| v.r.iter().zip(v.r.iter().skip(lag)).map(|(a, b)| (a - mean) * (b - mean)).sum::<f64>())
+                .sum::<f64>()
+                / denom
+        })
+        .collect();
+    let nf = n as f64;
+    let bound = 1.96 / nf.sqrt();
+    let q = nf
+        * (nf + 2.0)
+        * acf[..LJUNG_BOX_LAGS].iter().enumerate().map(|(k, r)| r * r / (nf - (k + 1) as f64)).sum::<f64>();
+    let p_value = ChiSquared::new(LJUNG_BOX_LAGS as f64).map_or(f64::NAN, |c| c.sf(q));
+    Whiteness {
+        outside: acf.iter().filter(|r| r.abs() > bound).count(),
+        acf,
+        bound,
+        ljung_box_q: q,
+        p_value,
+        white: p_value >= ALPHA,
+    }
+}
+
+fn input_correlation(runs: &[RunView], n: usize) -> InputCorrelation {
+    let norm = |f: &dyn Fn(&RunView) -> &Vec<f64>| {
+        let m = runs.iter().flat_map(|v| f(v).iter()).sum::<f64>() / n.max(1) as f64;
+        let ss = runs.iter().flat_map(|v| f(v).iter()).map(|x| (x - m).powi(2)).sum::<f64>();
+        (m, ss.max(1e-300).sqrt())
+    };
+    let (mr, sr) = norm(&|v| &v.r);
+    let (mu, su) = norm(&|v| &v.du);
+    let lags: Vec<i64> = (XCORR_LAGS.0..=XCORR_LAGS.1).collect();
+    let values: Vec<f64> = lags
+        .iter()
+        .map(|&lag| {
+            let mut sum = 0.0;
+            for v in runs {
+                let len = v.r.len() as i64;
+                for k in lag.max(0)..len.min(len + lag) {
+                    let j = k - lag;
+                    if (0..len).contains(&j) {
+                        sum += (v.r[k as usize] - mr) * (v.du[j as usize] - mu);
+                    }
+                }
+            }
+            sum / (sr * su)
+        })
+        .collect();
+    let (peak_index, peak) =
+        values.iter().copied().enumerate().max_by(|a, b| a.1.abs().total_cmp(&b.1.abs())).unwrap_or((0, 0.0));
+    InputCorrelation {
+        lags_s: lags.iter().map(|&l| l as f64 * STEP_S).collect(),
+        bound: 1.96 / (n as f64).sqrt(),
+        peak_lag_s: lags[peak_index] as f64 * STEP_S,
+        peak,
+        values,
+    }
+}
+
+fn drift(runs: &[RunView], n_eff_factor: f64) -> Drift {
+    let pairs = || runs.iter().flat_map(|v| v.t.iter().copied().zip(v.r.iter().copied()));
+    let n = pairs().count().max(1) as f64;
+    let (mt, mr) = (pairs().map(|p| p.0).sum::<f64>() / n, pairs().map(|p| p.1).sum::<f64>() / n);
+    let stt = pairs().map(|(t, _)| (t - mt).powi(2)).sum::<f64>().max(1e-12);
+    let slope = pairs().map(|(t, r)| (t - mt) * (r - mr)).sum::<f64>() / stt;
+    let resid_var = pairs().map(|(t, r)| (r - mr - slope * (t - mt)).powi(2)).sum::<f64>() / (n - 2.0).max(1.0);
+    let se = (resid_var / stt / n_eff_factor.max(1e-3)).sqrt();
+    let (t_first, t_last) = pairs().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), (t, _)| (a.min(t), b.max(t)));
+    let width = (t_last - t_first) / 10.0;
+    let tenths = (0..10)
+        .map(|i| {
+            let (lo, hi) = (t_first + i as f64 * width, t_first + (i + 1) as f64 * width);
+            let (sum, count) = pairs()
+                .filter(|(t, _)| *t >= lo && (*t < hi || i == 9))
+                .fold((0.0, 0usize), |(s, c), (_, r)| (s + r, c + 1));
+            (lo, hi, sum / count.max(1) as f64)
+        })
+        .collect();
+    Drift { slope_n_per_min: slope * 60.0, t_stat: slope / se, tenths }
+}
+
+fn spectrum(runs: &[RunView]) -> Spectrum {
+    let fft: Arc<dyn Fft<f64>> = FftPlanner::new().plan_fft_forward(WELCH_SEGMENT);
+    let window: Vec<f64> = (0..WELCH_SEGMENT)
+        .map(|i| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * i as f64 / WELCH_SEGMENT as f64).cos())
+        .collect();
+    let bins = WELCH_SEGMENT / 2 + 1;
+    let mut psd = vec![0.0; bins];
+    let mut segments = 0usize;
+    let mut buffer = vec![Complex::new(0.0, 0.0); WELCH_SEGMENT];
+    for v in runs {
+        let mut start = 0;
+        while start + WELCH_SEGMENT <= v.r.len() {
+            let seg = &v.r[start..start + WELCH_SEGMENT];
+            let mean = seg.iter().sum::<f64>() / WELCH_SEGMENT as f64;
+            for (b, (x, w)) in buffer.iter_mut().zip(seg.iter().zip(&window)) {
+                *b = Complex::new((x - mean) * w, 0.0);
+            }
+            fft.process(&mut buffer);
+            for (p, c) in psd.iter_mut().zip(&buffer) {
+                *p += c.norm_sqr();
+            }
+            segments += 1;
+            start += WELCH_SEGMENT / 2;
+        }
+    }
+    let freq_hz: Vec<f64> = (0..bins).map(|i| i as f64 / (WELCH_SEGMENT as f64 * STEP_S)).collect();
+    if segments == 0 {
+        return Spectrum {
+            freq_hz,
+            ratio: vec![f64::NAN; bins],
+            bands: Vec::new(),
+            peak_hz: f64::NAN,
+            peak_ratio: f64::NAN,
+        };
+    }
+    let mut high: Vec<f64> =
+        freq_hz.iter().zip(&psd).filter(|(f, _)| (10.0..=50.0).contains(*f)).map(|(_, p)| *p).collect();
+    high.sort_by(f64::total_cmp);
+    // The median of a χ²₂-distributed periodogram average is close to its mean for many segments.
+    let white = high.get(high.len() / 2).copied().unwrap_or(1.0).max(1e-300);
+    let ratio: Vec<f64> = psd.iter().map(|p| p / white).collect();
+    let band = |lo: f64, hi: f64| {
+        let v: Vec<f64> = freq_hz.iter().zip(&ratio).filter(|(f, _)| **f > lo && **f <= hi).map(|(_, r)| *r).collect();
+        (lo, hi, v.iter().sum::<f64>() / v.len().max(1) as f64)
+    };
+    let bands = vec![band(0.0, 0.1), band(0.1, 0.5), band(0.5, 2.0), band(2.0, 10.0), band(10.0, 50.0)];
+    let (peak_hz, peak_ratio) = freq_hz
+        .iter()
+        .zip(&ratio)
+        .filter(|(f, _)| **f > 0.5)
+        .map(|(f, r)| (*f, *r))
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap_or((f64::NAN, f64::NAN));
+    Spectrum { freq_hz, ratio, bands, peak_hz, peak_ratio }
+}
+
+fn windows(runs: &[RunView], sigma_n: f64, n_eff_factor: f64) -> Vec<Window> {
+    let se = sigma_n / (WINDOW_BLOCK as f64 * n_eff_factor.max(1e-3)).sqrt().max(1.0);
+    let mut found: Vec<Window> = Vec::new();
+    for v in runs {
+        let mut current: Option<(usize, usize, f64)> = None; // (first block, last block, sign)
+        let blocks = v.r.len() / WINDOW_BLOCK;
+        let mean = |b: usize| v.r[b * WINDOW_BLOCK..(b + 1) * WINDOW_BLOCK].iter().sum::<f64>() / WINDOW_BLOCK as f64;
+        let close = |c: (usize, usize, f64), found: &mut Vec<Window>| {
+            let (a, b) = (c.0 * WINDOW_BLOCK, (c.1 + 1) * WINDOW_BLOCK);
+            let m = v.r[a..b].iter().sum::<f64>() / (b - a) as f64;
+            found.push(Window { file: v.file, start_s: v.t[a], end_s: v.t[b - 1] + STEP_S, mean_n: m });
+        };
+        for b in 0..blocks {
+            let m = mean(b);
+            let flagged = m.abs() > T_SIGNIFICANT * se;
+            match (current, flagged) {
+                (Some(c), true) if c.2 == m.signum() && c.1 + 1 == b => current = Some((c.0, b, c.2)),
+                (Some(c), true) => {
+                    close(c, &mut found);
+                    current = Some((b, b, m.signum()));
+                }
+                (Some(c), false) => {
+                    close(c, &mut found);
+                    current = None;
+                }
+                (None, true) => current = Some((b, b, m.signum())),
+                (None, false) => {}
+            }
+        }
+        if let Some(c) = current {
+            close(c, &mut found);
+        }
+    }
+    found.sort_by(|a, b| (b.mean_n.abs() * (b.end_s - b.start_s)).total_cmp(&(a.mean_n.abs() * (a.end_s - a.start_s))));
+    found.truncate(8);
+    found
+}
+
+fn findings(a: &Analysis) -> Vec<String> {
+    let mut out = Vec::new();
+    let w = &a.whiteness;
+    if w.white {
+        out.push(format!(
+            "residual is white: Ljung–Box Q({LJUNG_BOX_LAGS}) = {:.1}, p = {:.2}; {} of {ACF_LAGS} autocorrelations \
+             outside ±{:.3}",
+            w.ljung_box_q, w.p_value, w.outside, w.bound
+        ));
+        return out;
+    }
+    out.push(format!(
+        "residual is not white: lag-1 autocorrelation {:.3} (white: within ±{:.3}), Ljung–Box Q({LJUNG_BOX_LAGS}) = \
+         {:.0}, p = {:.1e}; systematic part {:.2} N RMS",
+        w.acf[0], w.bound, w.ljung_box_q, w.p_value, a.systematic_rms_n
+    ));
+    let systematic: Vec<String> = a
+        .by_direction
+        .iter()
+        .filter(|c| c.t_stat.abs() > T_SIGNIFICANT)
+        .map(|c| format!("{} {:+.2} N", c.class, c.mean_n))
+        .collect();
+    if !systematic.is_empty() {
+        out.push(format!("mean residual by direction of change: {}", systematic.join(", ")));
+    }
+    let ops: Vec<String> = a
+        .by_thrust
+        .iter()
+        .filter(|c| c.t_stat.abs() > T_SIGNIFICANT)
+        .map(|c| format!("{} {:+.2} N", c.class, c.mean_n))
+        .collect();
+    if !ops.is_empty() {
+        out.push(format!("mean residual by operating point: {}", ops.join(", ")));
+    }
+    if a.drift.t_stat.abs() > T_SIGNIFICANT {
+        out.push(format!(
+            "residual drifts over the run: {:+.3} N/min (t = {:.1})",
+            a.drift.slope_n_per_min, a.drift.t_stat
+        ));
+    }
+    let x = &a.input_correlation;
+    if x.peak.abs() > 2.0 * x.bound {
+        out.push(format!(
+            "residual correlates with throttle changes {:.2} s earlier (correlation {:+.3}, white: ±{:.3})",
+            x.peak_lag_s, x.peak, x.bound
+        ));
+    }
+    if let Some(&(lo, hi, ratio)) = a.spectrum.bands.iter().max_by(|p, q| p.2.total_cmp(&q.2)) {
+        if ratio > 2.0 {
+            out.push(format!("residual power is concentrated at {lo}–{hi} Hz ({ratio:.1}× the white level)"));
+        }
+    }
+    if a.spectrum.peak_ratio > 20.0 {
+        out.push(format!(
+            "spectral peak at {:.2} Hz ({:.0}× white): a resonance?",
+            a.spectrum.peak_hz, a.spectrum.peak_ratio
+        ));
+    }
+    if let Some(w) = a.windows.first() {
+        out.push(format!(
+            "{} systematic window(s); largest {:.0}–{:.0} s, mean {:+.2} N",
+            a.windows.len(),
+            w.start_s,
+            w.end_s,
+            w.mean_n
+        ));
+    }
+    out
+}

@@ -1,0 +1,99 @@
+//! Plant effects on the command line: `jetbench sim-record --effect` records the
+//! plant with the effect, `jetbench simulate` of a model file with the same
+//! `[effects.*]` table reproduces it, and bad effect specs are clear errors.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use jetbench_model::{Effects, ModelFile, Preset};
+
+mod common;
+
+const SUITE: &str = "effects";
+
+fn scratch(name: &str) -> PathBuf {
+    common::scratch(SUITE, name)
+}
+
+/// Runs `jetbench ARGS` to completion under the watchdog: exit code, stdout, stderr.
+fn run(args: &[&str]) -> (i32, String, String) {
+    let limit = Duration::from_secs(120);
+    let (status, out, err) = common::run(common::jetbench(SUITE).args(args), limit, &format!("jetbench {args:?}"));
+    (status.code().unwrap_or(-1), out, err)
+}
+
+fn run_ok(args: &[&str]) -> String {
+    let (code, out, err) = run(args);
+    assert_eq!(code, 0, "jetbench {args:?} failed:\n{err}");
+    out
+}
+
+/// Column `name` of a CSV file with a header row.
+fn column(path: &PathBuf, name: &str) -> Vec<f64> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("read {}: {e}", path.display()));
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let c = header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("no column {name} in {header:?}"));
+    lines.map(|l| l.split(',').nth(c).expect("field").parse().expect("number")).collect()
+}
+
+fn mae(a: &[f64], b: &[f64]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).sum::<f64>() / a.len() as f64
+}
+
+#[test]
+fn an_effect_on_the_command_line_is_reproduced_by_a_model_file_with_it() {
+    let p = |x: &PathBuf| x.to_str().unwrap().to_owned();
+    let (delayed, nominal, truth) = (scratch("delayed.csv"), scratch("nominal.csv"), scratch("delayed-truth.csv"));
+    let common = ["sim-record", "--model", "p100-diesel", "--duration", "60", "--seed", "2"];
+    let delay = ["--effect", "input_delay:delay_s=0.1"];
+    let out = run_ok(&[&common[..], &delay, &["--out", &p(&delayed)]].concat());
+    assert!(out.contains("input_delay:delay_s=0.1"), "the summary names the effect: {out}");
+    run_ok(&[&common[..], &["--out", &p(&nominal)]].concat());
+    // Same campaign and plant, no noise: what the sensor read before the noise was added.
+    run_ok(&[&common[..], &delay, &["--noise-var", "0", "--out", &p(&truth)]].concat());
+    let measured = column(&delayed, "thrust_n");
+    assert_ne!(measured, column(&nominal, "thrust_n"), "the delay changes the recording");
+
+    let mut file = ModelFile::new(Preset::P100Diesel.params());
+    file.effects = Effects::new(["input_delay:delay_s=0.1".parse().unwrap()]).unwrap();
+    let model = scratch("p100-delayed.toml");
+    file.save(&model).unwrap();
+    assert!(std::fs::read_to_string(&model).unwrap().contains("[effects.input_delay]"));
+
+    let simulate = |model: &str, name: &str| {
+        let out = scratch(name);
+        run_ok(&["simulate", "--model", model, "--input", &p(&delayed), "--out", &p(&out)]);
+        column(&out, "thrust_n")
+    };
+    let with_effect = simulate(&p(&model), "sim-delayed.csv");
+    let without = simulate("p100-diesel", "sim-nominal.csv");
+    let truth = column(&truth, "thrust_n");
+    let (mae_with, mae_without) = (mae(&with_effect, &measured), mae(&without, &measured));
+    // White noise of variance 7 N²: mean absolute value sqrt(7·2/π) = 2.11 N.
+    assert!((1.9..2.3).contains(&mae_with), "with the effect: MAE {mae_with:.3} N, the noise level");
+    assert!(mae_without > mae_with + 0.05, "without the effect: MAE {mae_without:.3} N vs {mae_with:.3} N");
+    let (err_with, err_without) = (mae(&with_effect, &truth), mae(&without, &truth));
+    assert!(err_with < 0.05, "with the effect the noise-free plant is reproduced: MAE {err_with:.4} N");
+    assert!(err_without > 0.2, "without it, it is not: MAE {err_without:.4} N");
+}
+
+#[test]
+fn bad_effect_specs_are_clear_errors() {
+    let out = scratch("never.csv");
+    for (spec, names) in [
+        ("input_dealy:delay_s=0.1", ["input_dealy", "unknown effect"]),
+        ("input_delay:delay_s=abc", ["abc", "not a number"]),
+        ("input_delay:delay_s=99", ["99", "out of range"]),
+    ] {
+        let args = ["sim-record", "--model", "p100-diesel", "--duration", "10", "--effect", spec];
+        let (code, _, err) = run(&[&args[..], &["--out", out.to_str().unwrap()]].concat());
+        assert!(code != 0 && code != -1, "{spec}: exit code {code}");
+        assert!(!err.contains("panicked"), "{spec}: {err}");
+        for name in names {
+            assert!(err.contains(name), "{spec}: the message names `{name}`: {err}");
+        }
+        assert!(!out.exists(), "{spec}: no output written");
+    }
+}
