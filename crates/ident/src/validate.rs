@@ -7,7 +7,9 @@
 //! the mean absolute value of the noise, estimated from the data itself.
 
 use jetbench_estim::SavitzkyGolay;
-use jetbench_model::{Engine, Params, Plant, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S, SUBSTEPS};
+use jetbench_model::{
+    rk4_step, Engine, Params, Plant, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S, SUBSTEPS,
+};
 use serde::Serialize;
 
 use crate::series::Series;
@@ -75,13 +77,7 @@ pub fn free_run_fn(
     out.push(t);
     for (k, &u) in u_pct.iter().enumerate().take(u_pct.len().saturating_sub(1)) {
         for _ in 0..SUBSTEPS {
-            let f = |t: f64, d: f64| (d, accel(t, d, u));
-            let k1 = f(t, d);
-            let k2 = f(t + 0.5 * h * k1.0, d + 0.5 * h * k1.1);
-            let k3 = f(t + 0.5 * h * k2.0, d + 0.5 * h * k2.1);
-            let k4 = f(t + h * k3.0, d + h * k3.1);
-            t += h / 6.0 * (k1.0 + 2.0 * k2.0 + 2.0 * k3.0 + k4.0);
-            d += h / 6.0 * (k1.1 + 2.0 * k2.1 + 2.0 * k3.1 + k4.1);
+            (t, d) = rk4_step(t, d, h, |t, d| accel(t, d, u));
         }
         if !(t.is_finite() && d.is_finite() && t.abs() <= DIVERGENCE_THRUST_N && d.abs() <= DIVERGENCE_RATE_N_PER_S) {
             out.resize(u_pct.len(), f64::NAN);

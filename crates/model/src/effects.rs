@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 use std::fmt;
 use std::str::FromStr;
 
-use crate::{ModelError, Params, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S, SUBSTEPS};
+use crate::{rk4_step, ModelError, Params, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S, SUBSTEPS};
 
 /// Which physics an [`Effect`] adds. Names and parameter keys are part of the model-file
 /// and JSON contract.
@@ -476,13 +476,7 @@ impl PlantEngine {
                 let t_mid = self.t0_s + self.steps as f64 * STEP_S + (i as f64 + 0.5) * h;
                 v *= 1.0 - self.gain_per_s * t_mid;
             }
-            let accel = |t: f64, d: f64| p.f(t, d) + p.g(t, d) * v;
-            let k1 = (d, accel(t, d));
-            let k2 = (d + 0.5 * h * k1.1, accel(t + 0.5 * h * k1.0, d + 0.5 * h * k1.1));
-            let k3 = (d + 0.5 * h * k2.1, accel(t + 0.5 * h * k2.0, d + 0.5 * h * k2.1));
-            let k4 = (d + h * k3.1, accel(t + h * k3.0, d + h * k3.1));
-            t += h / 6.0 * (k1.0 + 2.0 * k2.0 + 2.0 * k3.0 + k4.0);
-            d += h / 6.0 * (k1.1 + 2.0 * k2.1 + 2.0 * k3.1 + k4.1);
+            (t, d) = rk4_step(t, d, h, |t, d| p.f(t, d) + p.g(t, d) * v);
             if !(t.is_finite() && d.is_finite() && t.abs() <= DIVERGENCE_THRUST_N && d.abs() <= DIVERGENCE_RATE_N_PER_S)
             {
                 self.failed = true;

@@ -133,16 +133,19 @@ impl Engine {
 
 /// One classic Runge-Kutta step of `[Ṫ, T̈]` with the throttle held.
 fn rk4(p: &Params, x: State, throttle_pct: f64, h: f64) -> State {
-    let deriv = |t: f64, d: f64| (d, p.accel(t, d, throttle_pct));
-    let (t0, d0) = (x.thrust_n, x.thrust_rate_n_per_s);
-    let k1 = deriv(t0, d0);
-    let k2 = deriv(t0 + 0.5 * h * k1.0, d0 + 0.5 * h * k1.1);
-    let k3 = deriv(t0 + 0.5 * h * k2.0, d0 + 0.5 * h * k2.1);
-    let k4 = deriv(t0 + h * k3.0, d0 + h * k3.1);
-    State {
-        thrust_n: t0 + h / 6.0 * (k1.0 + 2.0 * k2.0 + 2.0 * k3.0 + k4.0),
-        thrust_rate_n_per_s: d0 + h / 6.0 * (k1.1 + 2.0 * k2.1 + 2.0 * k3.1 + k4.1),
-    }
+    let (thrust_n, thrust_rate_n_per_s) =
+        rk4_step(x.thrust_n, x.thrust_rate_n_per_s, h, |t, d| p.accel(t, d, throttle_pct));
+    State { thrust_n, thrust_rate_n_per_s }
+}
+
+/// One classic Runge–Kutta step of length `h` of `Ṫ = d, ḋ = accel(T, d)` from
+/// `(t, d)`: the integrator of every simulator in the project.
+pub fn rk4_step(t: f64, d: f64, h: f64, accel: impl Fn(f64, f64) -> f64) -> (f64, f64) {
+    let k1 = (d, accel(t, d));
+    let k2 = (d + 0.5 * h * k1.1, accel(t + 0.5 * h * k1.0, d + 0.5 * h * k1.1));
+    let k3 = (d + 0.5 * h * k2.1, accel(t + 0.5 * h * k2.0, d + 0.5 * h * k2.1));
+    let k4 = (d + h * k3.1, accel(t + h * k3.0, d + h * k3.1));
+    (t + h / 6.0 * (k1.0 + 2.0 * k2.0 + 2.0 * k3.0 + k4.0), d + h / 6.0 * (k1.1 + 2.0 * k2.1 + 2.0 * k3.1 + k4.1))
 }
 
 /// Free run: one throttle value per [`STEP_S`]; returns the state after each step.

@@ -29,7 +29,8 @@ mod preset;
 
 pub use effects::{Effect, EffectKind, Effects, Plant, PlantEngine, PlantSample};
 pub use engine::{
-    settling_time_s, simulate, Engine, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, MAX_SETTLING_RUN_S,
+    rk4_step, settling_time_s, simulate, Engine, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N,
+    MAX_SETTLING_RUN_S,
 };
 pub use error::ModelError;
 pub use file::{resolve_model, resolve_params, ModelFile};

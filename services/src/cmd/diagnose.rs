@@ -205,54 +205,52 @@ fn plot(d: &Diagnosis, data: &[Series], dir: &Path) -> anyhow::Result<usize> {
         written += write_fit_plot(dir, &format!("diagnose-fit-{i}"), &fig)?.len();
     }
     let lags: Vec<f64> = (1..=d.before.whiteness.acf.len()).map(|k| k as f64 * 0.01).collect();
-    let bound = d.before.whiteness.bound;
-    written += write_line_plot(
-        dir,
-        "diagnose-acf",
-        &LinePlot {
+    let (b, a) = (&d.before, &d.after);
+    let bounds = |x: f64| vec![(x, "+95 %"), (-x, "-95 %")];
+    let figures = [
+        BeforeAfter {
+            stem: "diagnose-acf",
             title: "residual autocorrelation (white noise stays within the bounds)",
             x_label: "lag (s)",
             y_label: "autocorrelation",
-            series: &[("as given", &lags, &d.before.whiteness.acf), ("improved", &lags, &d.after.whiteness.acf)],
-            hlines: &[(bound, "+95 %"), (-bound, "-95 %")],
+            before: (&lags, &b.whiteness.acf),
+            after: (&lags, &a.whiteness.acf),
+            hlines: bounds(b.whiteness.bound),
             log_y: false,
         },
-    )?
-    .len();
-    let x = &d.before.input_correlation;
-    written += write_line_plot(
-        dir,
-        "diagnose-input-correlation",
-        &LinePlot {
+        BeforeAfter {
+            stem: "diagnose-input-correlation",
             title: "residual vs earlier throttle changes",
             x_label: "lag (s)",
             y_label: "correlation",
-            series: &[
-                ("as given", &x.lags_s, &x.values),
-                ("improved", &d.after.input_correlation.lags_s, &d.after.input_correlation.values),
-            ],
-            hlines: &[(x.bound, "+95 %"), (-x.bound, "-95 %")],
+            before: (&b.input_correlation.lags_s, &b.input_correlation.values),
+            after: (&a.input_correlation.lags_s, &a.input_correlation.values),
+            hlines: bounds(b.input_correlation.bound),
             log_y: false,
         },
-    )?
-    .len();
-    let sp = &d.before.spectrum;
-    written += write_line_plot(
-        dir,
-        "diagnose-spectrum",
-        &LinePlot {
+        BeforeAfter {
+            stem: "diagnose-spectrum",
             title: "residual power over its white level",
             x_label: "frequency (Hz)",
             y_label: "power / white level",
-            series: &[
-                ("as given", &sp.freq_hz, &sp.ratio),
-                ("improved", &d.after.spectrum.freq_hz, &d.after.spectrum.ratio),
-            ],
-            hlines: &[(1.0, "white")],
+            before: (&b.spectrum.freq_hz, &b.spectrum.ratio),
+            after: (&a.spectrum.freq_hz, &a.spectrum.ratio),
+            hlines: vec![(1.0, "white")],
             log_y: true,
         },
-    )?
-    .len();
+    ];
+    for f in figures {
+        let series = [("as given", f.before.0, f.before.1), ("improved", f.after.0, f.after.1)];
+        let plot = LinePlot {
+            title: f.title,
+            x_label: f.x_label,
+            y_label: f.y_label,
+            series: &series,
+            hlines: &f.hlines,
+            log_y: f.log_y,
+        };
+        written += write_line_plot(dir, f.stem, &plot)?.len();
+    }
     if written == 0 {
         bail!("no plot written");
     }
@@ -261,4 +259,16 @@ fn plot(d: &Diagnosis, data: &[Series], dir: &Path) -> anyhow::Result<usize> {
 
 fn names(d: &Diagnosis) -> String {
     d.effects.iter().map(|e| e.name).collect::<Vec<_>>().join(" + ")
+}
+
+/// One residual statistic drawn before and after the diagnosis, as `(x, y)` slices.
+struct BeforeAfter<'a> {
+    stem: &'a str,
+    title: &'a str,
+    x_label: &'a str,
+    y_label: &'a str,
+    before: (&'a [f64], &'a [f64]),
+    after: (&'a [f64], &'a [f64]),
+    hlines: Vec<(f64, &'a str)>,
+    log_y: bool,
 }
