@@ -7,6 +7,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
 use jetbench_bus::{Bus, Flow};
+use jetbench_control::{ControllerKind, BUILTIN_PROFILES};
 use jetbench_msgs::{format_fields, visit_channels, Channel, ChannelVisitor, Sample};
 use jetbench_record::Recording;
 use jetbench_stack::launch::{up, UpOptions};
@@ -26,27 +27,7 @@ enum Cmd {
     /// Start the service set (sensing, estimation, control, actuation, recorder).
     ///
     /// Example: jetbench up --sim --duration 10 --record run.mcap
-    Up {
-        /// Run against the simulated bench (engine, sensor and throttle board simulated).
-        #[arg(long)]
-        sim: bool,
-        /// Bench config (TOML); `--sim` without it uses the built-in config/sim.toml.
-        #[arg(long, value_name = "FILE")]
-        config: Option<PathBuf>,
-        /// Stop after this many seconds of running (default: until Ctrl-C).
-        #[arg(long, value_name = "SECONDS", allow_negative_numbers = true)]
-        duration: Option<f64>,
-        /// Record every channel to this MCAP file.
-        #[arg(long, value_name = "FILE.mcap")]
-        record: Option<PathBuf>,
-        /// No live status line.
-        #[arg(long)]
-        quiet: bool,
-        /// Play this throttle profile open loop instead of closing the loop
-        /// (CSV `time_s,throttle_pct`, e.g. from `jetbench excite`).
-        #[arg(long, value_name = "FILE.csv")]
-        open_loop: Option<PathBuf>,
-    },
+    Up(UpArgs),
     /// List the channels and bus nodes that exist now.
     List,
     /// Print the samples of a channel as they arrive, e.g. `jetbench echo bench/thrust`.
@@ -81,6 +62,10 @@ enum Cmd {
     ///
     /// Example: jetbench diagnose --model model.toml run.mcap --plot plots/ --out improved.toml
     Diagnose(cmd::diagnose::DiagnoseArgs),
+    /// Tracking figures of recorded runs, per controller: MAE, steady-state error, overshoot, settling, chattering.
+    ///
+    /// Example: jetbench metrics run.mcap --json
+    Metrics(cmd::metrics::MetricsArgs),
     /// Free-run simulation of a model from a throttle profile or a recording's throttle.
     Simulate(cmd::model::SimulateArgs),
     /// Generate an identification campaign (throttle profile) to play open loop.
@@ -110,9 +95,7 @@ fn run() -> anyhow::Result<ExitCode> {
     let cli = Cli::parse();
     jetbench_bus::namespace()?;
     match cli.command {
-        Cmd::Up { sim, config, duration, record, quiet, open_loop } => {
-            cmd_up(sim, config, duration, record, quiet, open_loop)
-        }
+        Cmd::Up(args) => cmd_up(args),
         Cmd::List => cmd_list(),
         Cmd::Echo { channel, count } => with_channel(&channel, Echo { count, result: Ok(()) }),
         Cmd::Hz { channel, window, duration } => {
@@ -125,6 +108,7 @@ fn run() -> anyhow::Result<ExitCode> {
         Cmd::Replay(args) => cmd::replay::run(args),
         Cmd::Identify(args) => cmd::identify::run(args),
         Cmd::Diagnose(args) => cmd::diagnose::run(args),
+        Cmd::Metrics(args) => cmd::metrics::run(args),
         Cmd::Simulate(args) => cmd::model::simulate(args),
         Cmd::Excite(args) => cmd::model::excite(args),
         Cmd::SimRecord(args) => cmd::model::sim_record(args),
@@ -140,34 +124,111 @@ fn bin_dir() -> anyhow::Result<PathBuf> {
     Ok(exe.parent().context("the jetbench binary has no folder")?.to_path_buf())
 }
 
-fn cmd_up(
+/// Options of `jetbench up`.
+#[derive(clap::Args)]
+struct UpArgs {
+    /// Run against the simulated bench (engine, sensor and throttle board simulated).
+    #[arg(long)]
     sim: bool,
+    /// Bench config (TOML); `--sim` without it uses the built-in config/sim.toml.
+    #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
+    /// Stop after this many seconds of running (default: until Ctrl-C).
+    #[arg(long, value_name = "SECONDS", allow_negative_numbers = true)]
     duration: Option<f64>,
+    /// Record every channel to this MCAP file.
+    #[arg(long, value_name = "FILE.mcap")]
     record: Option<PathBuf>,
+    /// No live status line.
+    #[arg(long)]
     quiet: bool,
+    /// Controller, overriding `[control] controller`: fbl and smc (the study), or mpc
+    /// (knows the throttle limits and the model's effects).
+    #[arg(long, value_name = "LAW")]
+    controller: Option<ControllerKind>,
+    /// Model for the estimator and the controller, overriding `[model] model`: a preset
+    /// or a model file, e.g. one from `jetbench identify` or `jetbench diagnose --out`.
+    #[arg(long, value_name = "PRESET|FILE")]
+    model: Option<String>,
+    /// Simulated engine, overriding `[plant] model` (with --sim): a preset or a model
+    /// file, which may carry effects (`[effects.input_delay]`, ...).
+    #[arg(long, value_name = "PRESET|FILE", requires = "sim")]
+    plant: Option<String>,
+    /// Built-in reference profile, scaled to the model's thrust range, overriding
+    /// `[reference]`: steps (includes full-range steps that saturate the throttle),
+    /// ramps, sines, chirp, or campaign (all four in turn).
+    #[arg(long, value_name = "NAME", value_parser = clap::builder::PossibleValuesParser::new(BUILTIN_PROFILES))]
+    profile: Option<String>,
+    /// Play this throttle profile open loop instead of closing the loop
+    /// (CSV `time_s,throttle_pct`, e.g. from `jetbench excite`).
+    #[arg(long, value_name = "FILE.csv", conflicts_with_all = ["controller", "profile"])]
     open_loop: Option<PathBuf>,
-) -> anyhow::Result<ExitCode> {
+}
+
+impl UpArgs {
+    fn overrides_config(&self) -> bool {
+        self.controller.is_some()
+            || self.model.is_some()
+            || self.plant.is_some()
+            || self.profile.is_some()
+            || self.open_loop.is_some()
+    }
+}
+
+/// A preset name as it is, a model file as an absolute path (the services run elsewhere).
+fn model_spec(spec: &str) -> String {
+    if spec.parse::<jetbench_model::Preset>().is_ok() {
+        return spec.to_string();
+    }
+    std::path::absolute(spec).map_or_else(|_| spec.to_string(), |p| p.display().to_string())
+}
+
+fn cmd_up(args: UpArgs) -> anyhow::Result<ExitCode> {
+    use jetbench_stack::config::{BenchConfig, Controller};
     // Check the config here so a typo is reported once, not by six services.
-    let mut checked = jetbench_stack::config::BenchConfig::load_or_default(config.as_deref())?;
-    // An open-loop run gets a derived config file that every service reads.
+    let mut checked = BenchConfig::load_or_default(args.config.as_deref())?;
+    // Command-line overrides go into a derived config file that every service reads.
     let mut derived = None;
-    let config = match open_loop {
-        Some(profile) => {
-            let profile = std::path::absolute(&profile).unwrap_or(profile);
-            checked.control.controller = jetbench_stack::config::Controller::OpenLoop;
-            checked.control.throttle_profile = Some(profile.display().to_string());
-            let text = toml::to_string(&checked).context("cannot write the open-loop config")?;
-            // Check it as the services will read it (this also loads the profile).
-            jetbench_stack::config::BenchConfig::from_toml_str(&text, "--open-loop", None)?;
-            let path = std::env::temp_dir().join(format!("jetbench-up-{}.toml", std::process::id()));
-            std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
-            derived = Some(path.clone());
-            Some(path)
+    let config = if args.overrides_config() {
+        if let Some(kind) = args.controller {
+            checked.control.controller = Controller::from(kind);
         }
-        None => config,
+        if let Some(model) = &args.model {
+            checked.model.model = model_spec(model);
+        }
+        if let Some(plant) = &args.plant {
+            checked.plant.model = model_spec(plant);
+        }
+        if let Some(name) = &args.profile {
+            let params = checked.model_params().context("--profile scales to the model's thrust range")?;
+            let range = params
+                .stable_equilibrium(jetbench_model::THROTTLE_MIN_PCT)
+                .zip(params.stable_equilibrium(jetbench_model::THROTTLE_MAX_PCT));
+            let (idle_n, max_n) = range.with_context(|| {
+                format!(
+                    "model {} has no stable thrust at 25 % or 100 % throttle to scale --profile to",
+                    checked.model.model
+                )
+            })?;
+            checked.reference = jetbench_control::Profile::builtin(name, idle_n, max_n)
+                .with_context(|| format!("the model's thrust range {idle_n:.1}..{max_n:.1} N is empty"))?;
+        }
+        if let Some(profile) = &args.open_loop {
+            let profile = std::path::absolute(profile).unwrap_or_else(|_| profile.clone());
+            checked.control.controller = Controller::OpenLoop;
+            checked.control.throttle_profile = Some(profile.display().to_string());
+        }
+        let text = toml::to_string(&checked).context("cannot write the derived bench config")?;
+        // Check it as the services will read it (this also loads models and profiles).
+        BenchConfig::from_toml_str(&text, "the command-line options", None)?;
+        let path = std::env::temp_dir().join(format!("jetbench-up-{}.toml", std::process::id()));
+        std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
+        derived = Some(path.clone());
+        Some(path)
+    } else {
+        args.config.clone()
     };
-    let result = run_up(sim, config, duration, record, quiet, &checked);
+    let result = run_up(args.sim, config, args.duration, args.record, args.quiet, &checked);
     if let Some(path) = derived {
         let _ = std::fs::remove_file(path);
     }

@@ -52,4 +52,14 @@ pub enum ControlError {
         /// The offending value.
         value: f64,
     },
+    /// A controller setting is outside the range it works in.
+    #[error("controller setting {name} = {value} is invalid: it must be {requirement}")]
+    SettingOutOfRange {
+        /// Setting name as in the config file.
+        name: &'static str,
+        /// The offending value.
+        value: f64,
+        /// What is accepted.
+        requirement: &'static str,
+    },
 }

@@ -1,4 +1,6 @@
-//! Thrust references and the feedback-linearising controller.
+//! Thrust references and the controllers that track them: the study's feedback
+//! linearisation (FBL) and sliding mode (SMC), and a model predictive controller (MPC)
+//! that knows the throttle limits and the identified model's effects.
 //!
 //! ```
 //! use jetbench_control::{Fbl, FblGains, Profile};
@@ -21,14 +23,44 @@
 //! ```
 //!
 //! References are pure functions of time with analytic derivatives, so the controller
-//! gets a consistent `[T_d, Ṫ_d, T̈_d]` and a replay reproduces them exactly. The
-//! controller is a plain `step` function; wiring it to sensors and the ECU is the
-//! service's job.
+//! gets a consistent `[T_d, Ṫ_d, T̈_d]`, a replay reproduces them exactly, and the MPC can
+//! look ahead. Every controller is a plain `step` function; [`Law`] picks one from the
+//! bench config; wiring it to sensors and the ECU is the service's job.
 
 mod error;
 mod fbl;
+mod law;
+mod metrics;
+mod mpc;
 mod profile;
+mod shaper;
+mod smc;
+mod throttle;
 
 pub use error::ControlError;
-pub use fbl::{clamp_throttle, Command, Fbl, FblGains, MIN_INPUT_GAIN};
-pub use profile::{Profile, Reference};
+pub use fbl::{Fbl, FblGains, MIN_INPUT_GAIN};
+pub use law::{ControllerKind, Law, LawOutput, LawSettings};
+pub use metrics::{
+    tracking_metrics, HoldMetrics, MetricsError, MetricsOptions, SolveTimeUs, StepMetrics, ThrottleLimit,
+    TrackingMetrics, TrackingSample, TRACKING_BAND_PCT,
+};
+pub use mpc::{Mpc, MpcOutput, MpcSettings};
+pub use profile::{Profile, Reference, Segment, BUILTIN_PROFILES};
+pub use shaper::{ReferenceShaper, ShaperSettings};
+pub use smc::{Smc, SmcGains};
+pub use throttle::{clamp_throttle, throttle_for_virtual, Command};
+
+/// Rejects a NaN or infinite state estimate or reference before any law uses it.
+pub(crate) fn check_inputs(thrust_n: f64, thrust_rate_n_per_s: f64, reference: &Reference) -> Result<(), ControlError> {
+    let inputs = [
+        ("thrust", thrust_n),
+        ("thrust rate", thrust_rate_n_per_s),
+        ("reference thrust", reference.thrust_n),
+        ("reference thrust rate", reference.thrust_rate_n_per_s),
+        ("reference thrust acceleration", reference.thrust_accel_n_per_s2),
+    ];
+    match inputs.into_iter().find(|(_, v)| !v.is_finite()) {
+        Some((what, value)) => Err(ControlError::NonFiniteInput { what, value }),
+        None => Ok(()),
+    }
+}

@@ -29,7 +29,7 @@ const MAX_JUMPS_IN_HORIZON: usize = (SMOOTHING_HORIZON * MAX_SMOOTHING_PER_HOLD)
 ///
 /// ```toml
 /// [reference]
-/// kind = "steps"            # steps | ramps | sines | chirp
+/// kind = "steps"            # steps | ramps | sines | chirp | campaign
 /// levels_n = [20.0, 50.0, 35.0, 70.0]
 /// hold_s = 2.5
 /// smoothing_s = 0.2
@@ -85,7 +85,26 @@ pub enum Profile {
         /// Sweep duration, s.
         sweep_s: f64,
     },
+    /// Other profiles one after the other, each for its `duration_s`, cycling. Each part
+    /// starts at its own time zero; the reference may jump where parts meet.
+    Campaign {
+        /// The parts, in order.
+        segments: Vec<Segment>,
+    },
 }
+
+/// One part of a [`Profile::Campaign`].
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Segment {
+    /// How long this part runs, s.
+    pub duration_s: f64,
+    /// The part.
+    pub profile: Profile,
+}
+
+/// Names of the built-in profiles, for `--profile`.
+pub const BUILTIN_PROFILES: [&str; 5] = ["steps", "ramps", "sines", "chirp", "campaign"];
 
 impl Default for Profile {
     /// Steps across the default plant's range (about 0-86 N): 20, 50, 35, 70, 45, 30 N,
@@ -103,7 +122,51 @@ impl Profile {
             Profile::Ramps { .. } => "ramps",
             Profile::Sines { .. } => "sines",
             Profile::Chirp { .. } => "chirp",
+            Profile::Campaign { .. } => "campaign",
         }
+    }
+
+    /// A built-in profile (see [`BUILTIN_PROFILES`]) for an engine whose steady thrust
+    /// runs from `idle_n` (at 25 % throttle) to `max_n` (at 100 %), so the same name suits
+    /// a P100 and a P220. Levels are fractions of that span:
+    ///
+    /// - `steps`: 20, 50, 30, 95, 25, 65, 60, 40, 45, 80, 20 %, 5 s each, smoothed with
+    ///   0.2 s. 30 → 95 % and 95 → 25 % are full-range steps that saturate the throttle;
+    ///   65 → 60 % and 40 → 45 % are small ones that should not.
+    /// - `ramps`: 10, 60, 30, 90 %, held 1.5 s, ramps of 2 s.
+    /// - `sines`: 50 % ± 30 %, period 4 s.
+    /// - `chirp`: 50 % ± 20 %, 0.05 → 1 Hz over 20 s.
+    /// - `campaign`: the four in turn (55 s, 14 s, 12 s, 20 s).
+    ///
+    /// `None` for an unknown name or a span that is not finite and positive.
+    pub fn builtin(name: &str, idle_n: f64, max_n: f64) -> Option<Profile> {
+        let span_n = max_n - idle_n;
+        if !(idle_n.is_finite() && span_n.is_finite() && span_n > 0.0) {
+            return None;
+        }
+        let at = |fraction: f64| idle_n + fraction * span_n;
+        let levels = |fractions: &[f64]| fractions.iter().map(|&f| at(f)).collect::<Vec<_>>();
+        Some(match name {
+            "steps" => Profile::Steps {
+                levels_n: levels(&[0.2, 0.5, 0.3, 0.95, 0.25, 0.65, 0.6, 0.4, 0.45, 0.8, 0.2]),
+                hold_s: 5.0,
+                smoothing_s: 0.2,
+            },
+            "ramps" => Profile::Ramps { levels_n: levels(&[0.1, 0.6, 0.3, 0.9]), ramp_s: 2.0, hold_s: 1.5 },
+            "sines" => Profile::Sines { offset_n: at(0.5), amplitude_n: 0.3 * span_n, period_s: 4.0 },
+            "chirp" => {
+                Profile::Chirp { offset_n: at(0.5), amplitude_n: 0.2 * span_n, f0_hz: 0.05, f1_hz: 1.0, sweep_s: 20.0 }
+            }
+            "campaign" => Profile::Campaign {
+                segments: [("steps", 55.0), ("ramps", 14.0), ("sines", 12.0), ("chirp", 20.0)]
+                    .into_iter()
+                    .map(|(part, duration_s)| {
+                        Profile::builtin(part, idle_n, max_n).map(|profile| Segment { duration_s, profile })
+                    })
+                    .collect::<Option<Vec<_>>>()?,
+            },
+            _ => return None,
+        })
     }
 
     /// Checks the settings, so a bad config fails at load rather than producing NaN.
@@ -138,6 +201,15 @@ impl Profile {
                 check_frequency("f0_hz", *f0_hz)?;
                 check_frequency("f1_hz", *f1_hz)?;
                 check_duration("sweep_s", *sweep_s, false)
+            }
+            Profile::Campaign { segments } => {
+                if segments.is_empty() {
+                    return Err(ControlError::EmptyLevels { kind: "campaign" });
+                }
+                segments.iter().try_for_each(|s| {
+                    check_duration("duration_s", s.duration_s, false)?;
+                    s.profile.validate()
+                })
             }
         }
     }
@@ -175,6 +247,18 @@ impl Profile {
                     thrust_accel_n_per_s2: amplitude_n * (cos * phase_accel - sin * phase_rate * phase_rate),
                 }
             }
+            Profile::Campaign { segments } => {
+                let total_s: f64 = segments.iter().map(|s| s.duration_s).sum();
+                let mut local_s = t - (t / total_s).floor() * total_s;
+                for segment in segments {
+                    if local_s < segment.duration_s {
+                        return segment.profile.at(local_s);
+                    }
+                    local_s -= segment.duration_s;
+                }
+                // Rounding left the time just past the end: the last part's end.
+                segments.last().map_or_else(Reference::default, |s| s.profile.at(s.duration_s))
+            }
         }
     }
 
@@ -191,6 +275,11 @@ impl Profile {
             Profile::Sines { offset_n, amplitude_n, .. } | Profile::Chirp { offset_n, amplitude_n, .. } => {
                 (offset_n - amplitude_n.abs(), offset_n + amplitude_n.abs())
             }
+            Profile::Campaign { segments } => segments
+                .iter()
+                .map(|s| s.profile.span_n())
+                .reduce(|(lo, hi), (l, h)| (lo.min(l), hi.max(h)))
+                .unwrap_or((0.0, 0.0)),
         }
     }
 }

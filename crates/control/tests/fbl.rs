@@ -166,7 +166,7 @@ fn non_finite_inputs_and_settings_are_errors() {
     assert!(matches!(fbl.step(f64::NAN, 0.0, &r), Err(ControlError::NonFiniteInput { what: "thrust", .. })));
     let bad = Reference { thrust_accel_n_per_s2: f64::INFINITY, ..r };
     assert!(fbl.step(10.0, 0.0, &bad).is_err());
-    let mut fbl = Fbl::new(params, FblGains { kp: f64::NAN, kd: 1.0 });
+    let mut fbl = Fbl::new(params, FblGains { kp: f64::NAN, kd: 1.0, ki: 0.0 });
     assert!(matches!(fbl.step(10.0, 0.0, &r), Err(ControlError::InvalidSetting { name: "kp", .. })));
 }
 
@@ -184,7 +184,11 @@ fn default_gains_are_the_study_gains() {
     let gains = FblGains::default();
     assert_eq!(gains.kp, 10.0);
     assert!((gains.kd - 2.0 * 10.0_f64.sqrt()).abs() < 1e-15);
+    assert_eq!(gains.ki, 0.0);
     let parsed: FblGains = toml::from_str("kp = 4.0\nkd = 4.0\n").unwrap();
-    assert_eq!(parsed, FblGains { kp: 4.0, kd: 4.0 });
-    assert!(toml::from_str::<FblGains>("kp = 4.0\nkd = 4.0\nki = 1.0\n").is_err());
+    assert_eq!(parsed, FblGains { kp: 4.0, kd: 4.0, ki: 0.0 });
+    // Keys left out keep the study's values; a typo is an error.
+    let parsed: FblGains = toml::from_str("ki = 1.0\n").unwrap();
+    assert_eq!(parsed, FblGains { ki: 1.0, ..FblGains::default() });
+    assert!(toml::from_str::<FblGains>("kp = 4.0\nkd = 4.0\nkj = 1.0\n").is_err());
 }

@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use jetbench_control::{FblGains, Profile};
+use jetbench_control::{ControllerKind, FblGains, Law, LawSettings, MpcSettings, Profile, ShaperSettings, SmcGains};
 use jetbench_model::{ModelFile, Params, Plant};
 use serde::{Deserialize, Serialize};
 
@@ -21,6 +21,15 @@ pub enum ConfigError {
     Parse { origin: String, message: String },
     #[error("bench config {origin}: {message}")]
     Invalid { origin: String, message: String },
+}
+
+/// Why the control law could not be set up.
+#[derive(Debug, thiserror::Error)]
+pub enum ControlSetupError {
+    #[error("controller model: {0}")]
+    Model(#[from] jetbench_model::ModelError),
+    #[error("throttle profile: {0}")]
+    Profile(#[from] jetbench_ident::series::DataError),
 }
 
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
@@ -143,34 +152,59 @@ impl EstimatorSection {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Deserialize, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Controller {
-    /// Feedback linearisation tracking `[reference]`.
+    /// Feedback linearisation tracking `[reference]` (the study).
     #[default]
     Fbl,
+    /// Sliding mode tracking `[reference]` (the study).
+    Smc,
+    /// Model predictive control with the throttle limits and the model's effects.
+    Mpc,
     /// `throttle_profile` played open loop (identification campaigns).
     OpenLoop,
 }
 
-#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+impl Controller {
+    /// The closed-loop law, `None` for open loop.
+    pub fn kind(self) -> Option<ControllerKind> {
+        match self {
+            Controller::Fbl => Some(ControllerKind::Fbl),
+            Controller::Smc => Some(ControllerKind::Smc),
+            Controller::Mpc => Some(ControllerKind::Mpc),
+            Controller::OpenLoop => None,
+        }
+    }
+}
+
+impl From<ControllerKind> for Controller {
+    fn from(kind: ControllerKind) -> Self {
+        match kind {
+            ControllerKind::Fbl => Controller::Fbl,
+            ControllerKind::Smc => Controller::Smc,
+            ControllerKind::Mpc => Controller::Mpc,
+        }
+    }
+}
+
+/// `[control]`: which law runs, and every law's tunables in its own sub-table
+/// (`[control.fbl]`, `[control.smc]`, `[control.mpc]`, `[control.shaping]`), so a gain
+/// changes without recompiling and the unused laws' settings are still checked.
+#[derive(Clone, Debug, PartialEq, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ControlSection {
     pub controller: Controller,
-    pub kp: f64,
-    pub kd: f64,
+    pub fbl: FblGains,
+    pub smc: SmcGains,
+    pub mpc: MpcSettings,
+    pub shaping: ShaperSettings,
     /// CSV `time_s,throttle_pct` at 100 Hz (e.g. from `jetbench excite`), for `open-loop`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub throttle_profile: Option<String>,
 }
 
-impl Default for ControlSection {
-    fn default() -> Self {
-        let g = FblGains::default();
-        ControlSection { controller: Controller::Fbl, kp: g.kp, kd: g.kd, throttle_profile: None }
-    }
-}
-
 impl ControlSection {
-    pub fn gains(&self) -> FblGains {
-        FblGains { kp: self.kp, kd: self.kd }
+    /// The tunables of every law.
+    pub fn law_settings(&self) -> LawSettings {
+        LawSettings { fbl: self.fbl, smc: self.smc, mpc: self.mpc, shaping: self.shaping }
     }
 }
 
@@ -258,13 +292,31 @@ impl BenchConfig {
         for (key, v) in [
             ("[estimator] measurement_var_n2", self.estimator.measurement_var_n2),
             ("[estimator] accel_noise_n_per_s2", self.estimator.accel_noise_n_per_s2),
-            ("[control] kp", self.control.kp),
-            ("[control] kd", self.control.kd),
+            ("[control.fbl] kp", self.control.fbl.kp),
+            ("[control.fbl] kd", self.control.fbl.kd),
+            ("[control.smc] a1", self.control.smc.a1),
+            ("[control.smc] k", self.control.smc.k),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(invalid(format!("{key} = {v} must be a positive number")));
             }
         }
+        for (key, v) in [("[control.fbl] ki", self.control.fbl.ki), ("[control.smc] beta", self.control.smc.beta)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(invalid(format!("{key} = {v} must be a number >= 0")));
+            }
+        }
+        let shaping = &self.control.shaping;
+        if !(shaping.authority > 0.0 && shaping.authority <= 1.0) {
+            return Err(invalid(format!("[control.shaping] authority = {} must be in (0, 1]", shaping.authority)));
+        }
+        if !(shaping.bandwidth_rad_per_s.is_finite() && shaping.bandwidth_rad_per_s > 0.0) {
+            return Err(invalid(format!(
+                "[control.shaping] bandwidth_rad_per_s = {} must be a positive number",
+                shaping.bandwidth_rad_per_s
+            )));
+        }
+        self.control.mpc.validate().map_err(|e| invalid(format!("[control.mpc] {e}")))?;
         if self.actuation.idle_after_missed_cycles == 0 {
             return Err(invalid("[actuation] idle_after_missed_cycles must be at least 1".into()));
         }
@@ -285,13 +337,14 @@ impl BenchConfig {
         self.plant_model().map_err(|e| invalid(format!("[plant] model: {e}")))?;
         let model =
             jetbench_model::resolve_model(&self.model.model).map_err(|e| invalid(format!("[model] model: {e}")))?;
-        if !model.effects.is_empty() {
+        if !model.effects.is_empty() && self.control.controller != Controller::Mpc {
             // Not an error: the same file can serve as [plant] and as [model].
             tracing::warn!(
-                "{origin}: [model] model {} has effects ({}); the estimator and the controller use only its ten \
-                 parameters so far",
+                "{origin}: [model] model {} has effects ({}); the estimator and the {} controller use only its \
+                 ten parameters (the mpc controller uses the effects too)",
                 self.model.model,
-                model.effects
+                model.effects,
+                self.control.controller.kind().map_or("open-loop", ControllerKind::name)
             );
         }
         Ok(())
@@ -320,9 +373,30 @@ impl BenchConfig {
         self.plant_model().map(|file| file.plant())
     }
 
-    /// Parameters the estimator and controller use (effects in the file are not used yet).
+    /// Parameters the estimator and controller use.
     pub fn model_params(&self) -> Result<Params, jetbench_model::ModelError> {
         jetbench_model::resolve_params(&self.model.model)
+    }
+
+    /// The control law `[control]` chooses, on the controller's model.
+    pub fn control_law(&self) -> Result<crate::step::ControlLaw, ControlSetupError> {
+        Ok(match self.control.controller.kind() {
+            Some(kind) => crate::step::ControlLaw::Closed(Box::new(Law::new(
+                kind,
+                &self.control_plant()?,
+                &self.control.law_settings(),
+            ))),
+            None => crate::step::ControlLaw::OpenLoop {
+                throttle_pct: self.throttle_profile()?,
+                model: self.model_params()?,
+            },
+        })
+    }
+
+    /// The controller's model: the parameters and any effects of `[model] model` (the
+    /// MPC predicts with the effects; FBL and SMC use the parameters).
+    pub fn control_plant(&self) -> Result<Plant, jetbench_model::ModelError> {
+        jetbench_model::resolve_model(&self.model.model).map(|file| file.plant())
     }
 }
 

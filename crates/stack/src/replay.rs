@@ -51,7 +51,6 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use jetbench_control::Fbl;
 use jetbench_estim::{EstimError, ObserverConfig};
 use jetbench_model::{ModelError, ModelFile, Params};
 use jetbench_msgs::{channels, state_flags, Actuation, Channel, Sample, StateEstimate, Thrust, CDR_HEADER};
@@ -621,6 +620,8 @@ pub enum SyntheticError {
     Model(#[from] ModelError),
     #[error(transparent)]
     Sim(#[from] SimError),
+    #[error(transparent)]
+    ControlSetup(#[from] crate::config::ControlSetupError),
     #[error("cycle {cycle}: {service} rejected its input: {message}")]
     Step { cycle: usize, service: &'static str, message: String },
 }
@@ -648,7 +649,7 @@ pub fn synthetic_recording(config: &BenchConfig, cycles: usize) -> Result<Record
     )?;
     let mut sensing = Sensing::new(&config.sensor);
     let mut estimation = Estimation::new(model, config.estimator.observer_config());
-    let mut control = Control::new(Fbl::new(model, config.control.gains()), config.reference.clone());
+    let mut control = Control::with_law(config.control_law()?, config.reference.clone());
     let mut actuator = Actuator::new(config.actuation.idle_after_missed_cycles);
 
     let step_error = |cycle: usize, service: &'static str, e: &dyn std::fmt::Display| SyntheticError::Step {

@@ -9,14 +9,13 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use jetbench_bus::{AnySubscriber, Bus, BusError, Flow, LoopExit, Publisher, Trigger, Wake};
-use jetbench_control::Fbl;
 use jetbench_io::sim::{BusForceSink, BusForceSource, BusThrottleInput, BusThrottleOutput};
 use jetbench_io::{DeviceError, ForceSink, ForceSource, ThrottleInput, ThrottleOutput};
-use jetbench_msgs::{channels, visit_channels, Channel, ChannelVisitor, Sample, ServiceId};
+use jetbench_msgs::{channels, command_flags, visit_channels, Channel, ChannelVisitor, Sample, ServiceId};
 use jetbench_record::{spawn_writer, RawRecord, RecordError};
 
 use crate::clock::{monotonic_ns, realtime_ns, PERIOD_NS};
-use crate::config::{BenchConfig, ConfigError, Controller, Devices};
+use crate::config::{BenchConfig, ConfigError, Devices};
 use crate::health::HealthReporter;
 use crate::step::{Actuator, Control, ControlLaw, Estimation, Sensing, SimBench, SimError};
 
@@ -48,6 +47,8 @@ pub enum ServiceError {
     Record(#[from] RecordError),
     #[error("throttle profile: {0}")]
     Profile(#[from] jetbench_ident::series::DataError),
+    #[error(transparent)]
+    ControlSetup(#[from] crate::config::ControlSetupError),
     #[error("{0}")]
     Other(String),
 }
@@ -227,18 +228,14 @@ pub fn run_control(config: &BenchConfig) -> Result<(), ServiceError> {
     let mut reference_pub = bus.publisher(channels::REFERENCE)?;
     let mut command_pub = bus.publisher(channels::COMMAND)?;
     let mut health = HealthReporter::new(&bus, ServiceId::Control)?;
-    let model = config.model_params()?;
-    let law = match config.control.controller {
-        Controller::Fbl => ControlLaw::Fbl(Fbl::new(model, config.control.gains())),
-        Controller::OpenLoop => {
-            let throttle_pct = config.throttle_profile()?;
-            tracing::info!(
-                "playing a {:.1} s throttle profile open loop",
-                throttle_pct.len() as f64 * jetbench_model::STEP_S
-            );
-            ControlLaw::OpenLoop { throttle_pct, model }
-        }
-    };
+    let law = config.control_law()?;
+    match &law {
+        ControlLaw::Closed(law) => tracing::info!("controller {} on model {}", law.kind(), config.model.model),
+        ControlLaw::OpenLoop { throttle_pct, .. } => tracing::info!(
+            "playing a {:.1} s throttle profile open loop",
+            throttle_pct.len() as f64 * jetbench_model::STEP_S
+        ),
+    }
     let mut step = Control::with_law(law, config.reference.clone());
     announce_ready();
 
@@ -252,6 +249,10 @@ pub fn run_control(config: &BenchConfig) -> Result<(), ServiceError> {
                     started = true;
                     match step.step(&state) {
                         Ok((reference, command)) => {
+                            if command.flags & command_flags::FALLBACK != 0 {
+                                health.error();
+                                log_rejection(step.fallbacks(), "MPC solve", &"fell back to FBL for this cycle");
+                            }
                             publish_now(&mut reference_pub, reference, |r, ns| r.publish_ns = ns)?;
                             publish_now(&mut command_pub, command, |c, ns| c.publish_ns = ns)?;
                         }

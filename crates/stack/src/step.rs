@@ -3,15 +3,15 @@
 //! The same code runs live (wired to the bus by [`crate::service`]), in
 //! replay and in tests. Time comes in as arguments, never from a clock.
 
-use jetbench_control::{Fbl, Profile};
+use jetbench_control::{ControllerKind, Law, Profile};
 use jetbench_estim::{EstimError, ObserverConfig, ThrustObserver};
 use jetbench_io::ForceReading;
 use jetbench_model::{
     ModelError, Params, Plant, PlantEngine, PlantSample, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT,
 };
 use jetbench_msgs::{
-    actuation_flags, command_flags, sensor_status, state_flags, thrust_flags, Actuation, Command, Reference, SimTruth,
-    StateEstimate, Thrust,
+    actuation_flags, command_flags, controller_kind, sensor_status, state_flags, thrust_flags, Actuation, Command,
+    Reference, SimTruth, StateEstimate, Thrust,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -126,10 +126,10 @@ impl Estimation {
 }
 
 /// How the control step computes the throttle.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub enum ControlLaw {
-    /// Feedback linearisation tracking the reference profile.
-    Fbl(Fbl),
+    /// A feedback law (FBL, SMC or MPC) tracking the reference profile.
+    Closed(Box<Law>),
     /// A recorded throttle profile played open loop (identification campaigns):
     /// one value per 10 ms from the first estimate on, then idle. The published
     /// reference is the thrust `model` would settle to at that throttle.
@@ -137,28 +137,34 @@ pub enum ControlLaw {
 }
 
 /// Control: the reference profile and the control law.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct Control {
     law: ControlLaw,
     profile: Profile,
     start_ns: Option<u64>,
+    fallbacks: u64,
 }
 
 impl Control {
-    pub fn new(fbl: Fbl, profile: Profile) -> Self {
-        Control::with_law(ControlLaw::Fbl(fbl), profile)
+    pub fn new(law: Law, profile: Profile) -> Self {
+        Control::with_law(ControlLaw::Closed(Box::new(law)), profile)
     }
 
     pub fn with_law(law: ControlLaw, profile: Profile) -> Self {
-        Control { law, profile, start_ns: None }
+        Control { law, profile, start_ns: None, fallbacks: 0 }
     }
 
     /// True once an open-loop profile has been played to its end.
     pub fn finished(&self, profile_time_s: f64) -> bool {
         match &self.law {
             ControlLaw::OpenLoop { throttle_pct, .. } => profile_time_s / STEP_S >= throttle_pct.len() as f64 - 0.5,
-            ControlLaw::Fbl(_) => false,
+            ControlLaw::Closed(_) => false,
         }
+    }
+
+    /// Cycles whose command came from the fallback law (a failed MPC solve).
+    pub fn fallbacks(&self) -> u64 {
+        self.fallbacks
     }
 
     /// One state estimate: the reference at the estimate's time (the profile
@@ -166,10 +172,15 @@ impl Control {
     pub fn step(&mut self, state: &StateEstimate) -> Result<(Reference, Command), jetbench_control::ControlError> {
         let start_ns = *self.start_ns.get_or_insert(state.stamp_ns);
         let profile_time_s = state.stamp_ns.saturating_sub(start_ns) as f64 * 1e-9;
-        let (r, c) = match &mut self.law {
-            ControlLaw::Fbl(fbl) => {
-                let r = self.profile.at(profile_time_s);
-                (r, fbl.step(state.thrust_n, state.thrust_rate_n_per_s, &r)?)
+        let (r, c, controller, fallback, solve_s) = match &mut self.law {
+            ControlLaw::Closed(law) => {
+                let out = law.step(state.thrust_n, state.thrust_rate_n_per_s, profile_time_s, &self.profile)?;
+                let code = match law.kind() {
+                    ControllerKind::Fbl => controller_kind::FBL,
+                    ControllerKind::Smc => controller_kind::SMC,
+                    ControllerKind::Mpc => controller_kind::MPC,
+                };
+                (out.reference, out.command, code, out.fallback, out.solve_s)
             }
             ControlLaw::OpenLoop { throttle_pct, model } => {
                 // Nearest profile sample: estimates arrive every 10 ms with some jitter.
@@ -187,7 +198,7 @@ impl Control {
                     virtual_input: model.v(applied),
                     saturated: applied != u,
                 };
-                (r, command)
+                (r, command, controller_kind::OPEN_LOOP, false, 0.0)
             }
         };
         let mut flags = 0;
@@ -197,6 +208,10 @@ impl Control {
             } else {
                 command_flags::SATURATED_HIGH
             };
+        }
+        if fallback {
+            self.fallbacks += 1;
+            flags |= command_flags::FALLBACK;
         }
         let reference = Reference {
             seq: 0,
@@ -217,6 +232,8 @@ impl Control {
             unclamped_pct: c.unclamped_pct,
             virtual_input: c.virtual_input,
             flags,
+            controller,
+            solve_us: (solve_s * 1e6).round().min(u32::MAX as f64) as u32,
         };
         Ok((reference, command))
     }
@@ -398,7 +415,7 @@ pub enum SimError {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use jetbench_control::FblGains;
+    use jetbench_control::LawSettings;
     use jetbench_model::{Effects, Preset};
 
     fn command(seq: u64, throttle_pct: f64) -> Command {
@@ -462,13 +479,21 @@ mod tests {
     /// The whole loop on the model, with the same step code the services run:
     /// sim-bench -> sensing -> estimation -> control -> actuation -> sim-bench.
     #[test]
-    fn closed_loop_tracks_the_reference() {
+    fn closed_loop_tracks_the_reference_with_every_law() {
+        for kind in ControllerKind::ALL {
+            closed_loop_tracks_the_reference(kind);
+        }
+    }
+
+    fn closed_loop_tracks_the_reference(kind: ControllerKind) {
         let params = Preset::P100Diesel.params();
+        let plant = Plant::new(params, Effects::none());
         let config = crate::config::BenchConfig::default_sim().unwrap();
-        let mut sim = SimBench::new(&Plant::new(params, Effects::none()), 7.0, 3, 25.0).unwrap();
+        let mut sim = SimBench::new(&plant, 7.0, 3, 25.0).unwrap();
         let mut sensing = Sensing::new(&config.sensor);
         let mut estimation = Estimation::new(params, config.estimator.observer_config());
-        let mut control = Control::new(Fbl::new(params, FblGains::default()), config.reference.clone());
+        let law = Law::new(kind, &plant, &LawSettings::default());
+        let mut control = Control::new(law, config.reference.clone());
         let mut actuator = Actuator::new(3);
         let mut throttle = None;
         let mut errors = Vec::new();
@@ -489,7 +514,8 @@ mod tests {
         errors.sort_by(f64::total_cmp);
         let median = errors[errors.len() / 2];
         let (lo, hi) = config.reference.span_n();
-        assert!(median < 0.05 * (hi - lo), "median error {median:.2} N over span {:.1} N", hi - lo);
+        assert!(median < 0.05 * (hi - lo), "{kind}: median error {median:.2} N over span {:.1} N", hi - lo);
+        assert_eq!(control.fallbacks(), 0, "{kind}");
     }
 
     /// The time the true thrust takes to rise 5 N after a throttle step from idle

@@ -2,5 +2,6 @@
 
 pub mod diagnose;
 pub mod identify;
+pub mod metrics;
 pub mod model;
 pub mod replay;

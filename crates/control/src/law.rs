@@ -1,0 +1,248 @@
+//! The control law a bench config chooses, behind one `step`.
+
+use std::fmt;
+use std::str::FromStr;
+
+use jetbench_model::{EffectKind, Plant, PlantEngine, State, STEP_S};
+use serde::{Deserialize, Serialize};
+
+use crate::mpc::PREDICTION_SUBSTEPS;
+use crate::throttle::resting_throttle;
+use crate::{
+    Command, ControlError, Fbl, FblGains, Mpc, MpcSettings, Profile, Reference, ReferenceShaper, ShaperSettings, Smc,
+    SmcGains,
+};
+
+/// Which controller tracks the reference.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ControllerKind {
+    /// Feedback linearisation (the study).
+    Fbl,
+    /// Sliding mode (the study).
+    Smc,
+    /// Model predictive control with the throttle limits and the model's effects.
+    Mpc,
+}
+
+impl ControllerKind {
+    /// Every kind, in the order reports list them.
+    pub const ALL: [ControllerKind; 3] = [ControllerKind::Fbl, ControllerKind::Smc, ControllerKind::Mpc];
+
+    /// The name used in configs and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            ControllerKind::Fbl => "fbl",
+            ControllerKind::Smc => "smc",
+            ControllerKind::Mpc => "mpc",
+        }
+    }
+}
+
+impl fmt::Display for ControllerKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for ControllerKind {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.name() == s)
+            .ok_or_else(|| format!("unknown controller '{s}'; choose fbl, smc or mpc"))
+    }
+}
+
+/// The tunables of every law, as the `[control]` section of a bench config gives them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LawSettings {
+    /// FBL gains (also the MPC's fallback).
+    pub fbl: FblGains,
+    /// SMC gains.
+    pub smc: SmcGains,
+    /// MPC settings.
+    pub mpc: MpcSettings,
+    /// Reference shaping for FBL and SMC.
+    pub shaping: ShaperSettings,
+}
+
+/// One control cycle's result.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LawOutput {
+    /// The profile's reference now: what the bench is asked to track.
+    pub reference: Reference,
+    /// The command.
+    pub command: Command,
+    /// True when the chosen law failed this cycle and FBL computed the command.
+    pub fallback: bool,
+    /// Time the law took to compute, s (the MPC's optimisation; 0 for FBL and SMC).
+    pub solve_s: f64,
+}
+
+enum Inner {
+    Fbl(Fbl),
+    Smc(Smc),
+    Mpc(Box<Mpc>),
+}
+
+/// A controller tracking a profile. FBL and SMC follow the profile through a
+/// [`ReferenceShaper`] (when enabled), so they are never asked for thrust the throttle
+/// cannot give; the MPC sees the profile itself, over its whole horizon, and the limits.
+///
+/// When the model has an input delay, FBL and SMC act on a prediction (a Smith-type
+/// predictor): the state the engine will be in once this command reaches it, from the
+/// model fed with the commands still in flight, tracked against the reference at that
+/// time. The MPC predicts through every input-side effect itself.
+///
+/// ```
+/// use jetbench_control::{ControllerKind, Law, LawSettings, Profile};
+/// use jetbench_model::{Effects, Plant, Preset, STEP_S};
+///
+/// let plant = Plant::new(Preset::P100Diesel.params(), Effects::none());
+/// let profile = Profile::default();
+/// let mut law = Law::new(ControllerKind::Mpc, &plant, &LawSettings::default());
+/// let mut engine = plant.at_equilibrium(25.0);
+/// for k in 0..400 {
+///     let s = engine.state();
+///     let out = law.step(s.thrust_n, s.thrust_rate_n_per_s, k as f64 * STEP_S, &profile)?;
+///     engine.step(out.command.throttle_pct)?;
+/// }
+/// assert!((engine.state().thrust_n - 50.0).abs() < 1.0);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub struct Law {
+    kind: ControllerKind,
+    shaper: ReferenceShaper,
+    inner: Inner,
+    predictor: Option<DelayPredictor>,
+    started: bool,
+}
+
+impl fmt::Debug for Law {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Law").field("kind", &self.kind).finish()
+    }
+}
+
+impl Law {
+    /// The law `kind` for the controller model `plant`. FBL and SMC use its ten
+    /// parameters; the MPC uses its effects too.
+    pub fn new(kind: ControllerKind, plant: &Plant, settings: &LawSettings) -> Self {
+        let inner = match kind {
+            ControllerKind::Fbl => Inner::Fbl(Fbl::new(plant.params, settings.fbl)),
+            ControllerKind::Smc => Inner::Smc(Smc::new(plant.params, settings.smc)),
+            ControllerKind::Mpc => Inner::Mpc(Box::new(Mpc::new(plant.clone(), settings.mpc, settings.fbl))),
+        };
+        let predictor = match kind {
+            ControllerKind::Mpc => None,
+            ControllerKind::Fbl | ControllerKind::Smc => DelayPredictor::new(plant),
+        };
+        Self { kind, shaper: ReferenceShaper::new(plant.params, settings.shaping), inner, predictor, started: false }
+    }
+
+    /// Which law this is.
+    pub fn kind(&self) -> ControllerKind {
+        self.kind
+    }
+
+    /// Throttle for the state estimate at `t_s` seconds into `profile`. Each call is one
+    /// 10 ms cycle.
+    pub fn step(
+        &mut self,
+        thrust_n: f64,
+        thrust_rate_n_per_s: f64,
+        t_s: f64,
+        profile: &Profile,
+    ) -> Result<LawOutput, ControlError> {
+        let reference = profile.at(t_s);
+        if !self.started && thrust_n.is_finite() && thrust_rate_n_per_s.is_finite() {
+            // At rest: an observer's first rate estimates are still settling.
+            self.shaper.start_at(thrust_n, 0.0);
+            self.started = true;
+        }
+        let (command, fallback, solve_s) = match &mut self.inner {
+            Inner::Mpc(mpc) => {
+                let out = mpc.step(thrust_n, thrust_rate_n_per_s, t_s, profile)?;
+                (out.command, out.fallback, out.solve_s)
+            }
+            inner => {
+                let now = State { thrust_n, thrust_rate_n_per_s };
+                let (at, lead_s) = match self.predictor.as_mut() {
+                    Some(p) => (p.predict(now, t_s), p.lead_s()),
+                    None => (now, 0.0),
+                };
+                let shaped = self.shaper.step(&profile.at(t_s + lead_s));
+                let command = match inner {
+                    Inner::Fbl(fbl) => fbl.step(at.thrust_n, at.thrust_rate_n_per_s, &shaped)?,
+                    Inner::Smc(smc) => smc.step(at.thrust_n, at.thrust_rate_n_per_s, &shaped)?,
+                    Inner::Mpc(_) => unreachable!("handled above"),
+                };
+                if let Some(p) = self.predictor.as_mut() {
+                    p.sent(command.throttle_pct);
+                }
+                (command, false, 0.0)
+            }
+        };
+        Ok(LawOutput { reference, command, fallback, solve_s })
+    }
+}
+
+/// Predicts the engine's state one input delay ahead from the commands in flight.
+struct DelayPredictor {
+    plant: Plant,
+    /// Whole 10 ms steps the delay spans (rounded up).
+    steps: usize,
+    shadow: Option<PlantEngine>,
+    scratch: Option<PlantEngine>,
+    last_pct: f64,
+}
+
+impl DelayPredictor {
+    /// `None` when the model has no input delay.
+    fn new(plant: &Plant) -> Option<Self> {
+        let delay_s = plant.effects.get(EffectKind::InputDelay)?.values()[0];
+        let steps = (delay_s / STEP_S - 1e-9).ceil().max(0.0) as usize;
+        (steps > 0).then(|| Self { plant: plant.clone(), steps, shadow: None, scratch: None, last_pct: 0.0 })
+    }
+
+    /// How far ahead the prediction looks, s.
+    fn lead_s(&self) -> f64 {
+        self.steps as f64 * STEP_S
+    }
+
+    /// The state `lead_s` from now; `now` itself if the model diverges on the way.
+    fn predict(&mut self, now: State, t_s: f64) -> State {
+        let shadow = match self.shadow.as_mut() {
+            Some(shadow) => shadow,
+            None => {
+                self.last_pct = resting_throttle(&self.plant.params, now.thrust_n);
+                self.shadow.insert(self.plant.coarse_engine(now, self.last_pct, t_s, PREDICTION_SUBSTEPS))
+            }
+        };
+        shadow.set_state(now);
+        let scratch = self.scratch.get_or_insert_with(|| shadow.clone());
+        scratch.clone_from(shadow);
+        // Over the delay the engine sees commands already sent; what is fed here only
+        // enters the model's history.
+        for _ in 0..self.steps {
+            if scratch.step(self.last_pct).is_err() {
+                return now;
+            }
+        }
+        scratch.state()
+    }
+
+    /// The command sent this cycle.
+    fn sent(&mut self, throttle_pct: f64) {
+        self.last_pct = throttle_pct;
+        if let Some(shadow) = self.shadow.as_mut() {
+            if shadow.step(throttle_pct).is_err() {
+                self.shadow = None;
+            }
+        }
+    }
+}

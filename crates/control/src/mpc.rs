@@ -1,0 +1,444 @@
+//! Model predictive control that knows the throttle limits and the model's effects.
+
+use std::time::Instant;
+
+use clarabel::algebra::CscMatrix;
+use clarabel::solver::{DefaultSettingsBuilder, DefaultSolver, IPSolver, NonnegativeConeT, SolverStatus};
+use jetbench_model::{Params, Plant, PlantEngine, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
+use serde::{Deserialize, Serialize};
+
+use crate::throttle::{clamp_throttle, resting_throttle};
+use crate::{Command, ControlError, Fbl, FblGains, Profile};
+
+/// Settings of the [`Mpc`].
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MpcSettings {
+    /// Prediction horizon, s (at 10 ms steps). Keep it longer than the model's input
+    /// delay plus the engine's rise time.
+    pub horizon_s: f64,
+    /// Free throttle moves over the horizon (move blocking): short blocks first, longer
+    /// ones later, so the first move is 10 ms and the problem stays small.
+    pub moves: usize,
+    /// Weight of the squared thrust error, per N² and per 10 ms step.
+    pub thrust_weight: f64,
+    /// Weight of the squared throttle change between moves, per %².
+    pub move_weight: f64,
+    /// Gauss–Newton passes per cycle (each re-linearises the model about the plan).
+    pub iterations: usize,
+    /// Time budget of one cycle's optimisation, s: no further pass starts once it is
+    /// spent, and the plan of the passes so far is used (the first pass always runs).
+    pub time_budget_s: f64,
+    /// Use the reference profile's future over the horizon (it is a known function of
+    /// time); off, the reference is held at its present value.
+    pub preview: bool,
+}
+
+impl Default for MpcSettings {
+    fn default() -> Self {
+        Self {
+            horizon_s: 0.8,
+            moves: 10,
+            thrust_weight: 1.0,
+            move_weight: 0.05,
+            iterations: 2,
+            time_budget_s: 0.004,
+            preview: true,
+        }
+    }
+}
+
+impl MpcSettings {
+    /// Checks the settings; the error names the first bad one.
+    pub fn validate(&self) -> Result<(), ControlError> {
+        let bad = |name: &'static str, value: f64, requirement: &'static str| {
+            Err(ControlError::SettingOutOfRange { name, value, requirement })
+        };
+        let steps = self.horizon_s / STEP_S;
+        if !(steps.is_finite() && (1.0..=1000.0).contains(&steps.round())) {
+            return bad("horizon_s", self.horizon_s, "between 0.01 and 10 s");
+        }
+        if self.moves == 0 || self.moves > 50 || self.moves as f64 > steps.round() {
+            return bad("moves", self.moves as f64, "1 to 50, and at most one per 10 ms of horizon");
+        }
+        if !(self.thrust_weight.is_finite() && self.thrust_weight > 0.0) {
+            return bad("thrust_weight", self.thrust_weight, "a positive number");
+        }
+        if !(self.move_weight.is_finite() && self.move_weight >= 0.0) {
+            return bad("move_weight", self.move_weight, "a number >= 0");
+        }
+        if self.iterations == 0 || self.iterations > 10 {
+            return bad("iterations", self.iterations as f64, "1 to 10");
+        }
+        if !(self.time_budget_s > 0.0 && self.time_budget_s <= 0.01) {
+            return bad("time_budget_s", self.time_budget_s, "in (0, 0.01] s, inside the 10 ms cycle");
+        }
+        Ok(())
+    }
+}
+
+/// One MPC cycle's result.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MpcOutput {
+    /// The command applied.
+    pub command: Command,
+    /// True when the optimisation failed this cycle and FBL computed the command.
+    pub fallback: bool,
+    /// Time the cycle's optimisation took, s.
+    pub solve_s: f64,
+}
+
+/// Throttle change used for finite-difference sensitivities, %.
+const PERTURBATION_PCT: f64 = 0.5;
+/// RK4 steps per 10 ms in the prediction: 5 ms steps are accurate to well under the
+/// sensor's resolution on this model, at a fifth of the simulator's cost.
+pub(crate) const PREDICTION_SUBSTEPS: usize = 2;
+/// Interior-point iterations per QP; a 10-variable box QP takes about a dozen.
+const MAX_SOLVER_ITERATIONS: u32 = 40;
+/// Levenberg damping of a Gauss–Newton pass, per %², keeps the QP strictly convex.
+const DAMPING: f64 = 1e-4;
+
+/// Model predictive control by sequential quadratic programming on the identified
+/// model, effects included:
+///
+/// ```text
+/// min over u_0..u_{M-1}   Σ_k q·(T_k(u) − r_k)²  +  λ·Σ_j (u_j − u_{j−1})²
+/// subject to              25 % ≤ u_j ≤ 100 %
+/// ```
+///
+/// `T_k(u)` is the model stepped from the state estimate over the horizon with the plan
+/// held on each move's block. The model is the controller's own [`PlantEngine`], fed
+/// with every command the controller sends, so its throttle history holds what the
+/// engine has yet to see through an input delay, and its rate limiter and actuator lag
+/// are where the commands have put them: the controller predicts through the delay
+/// instead of fighting it. Each pass linearises `T(u)` about the plan by finite
+/// differences and solves the box-constrained QP with Clarabel (an interior-point
+/// solver); the plan is warm-started from the previous cycle's, and no pass starts once
+/// the cycle's time budget is spent. When a pass fails (the solver does not converge in
+/// its iterations, the model diverges, the numbers are not finite) the cycle's command
+/// comes from feedback linearisation instead and is flagged, so the loop never stalls.
+pub struct Mpc {
+    plant: Plant,
+    settings: MpcSettings,
+    invalid: Option<ControlError>,
+    /// Block boundaries in steps: move `j` is held on steps `bounds[j]..bounds[j + 1]`.
+    bounds: Vec<usize>,
+    fallback_law: Fbl,
+    shadow: Option<PlantEngine>,
+    scratch: Option<PlantEngine>,
+    last_pct: f64,
+    plan_pct: Vec<f64>,
+    shifted_pct: Vec<f64>,
+    reference_n: Vec<f64>,
+    nominal_n: Vec<f64>,
+    perturbed_n: Vec<f64>,
+    /// Sensitivities `∂T_k/∂u_j`, row-major `k·M + j`, N/%.
+    sensitivity: Vec<f64>,
+    qp: Option<Qp>,
+    fallbacks: u64,
+}
+
+impl std::fmt::Debug for Mpc {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Mpc").field("settings", &self.settings).field("fallbacks", &self.fallbacks).finish()
+    }
+}
+
+impl Mpc {
+    /// A controller for `plant` (the ten parameters and any effects), falling back to FBL
+    /// with `fallback_gains`. Bad settings do not panic: every step returns the reason.
+    pub fn new(plant: Plant, settings: MpcSettings, fallback_gains: FblGains) -> Self {
+        let invalid = settings.validate().err().or_else(|| {
+            Params::NAMES
+                .into_iter()
+                .zip(plant.params.to_array())
+                .find(|(_, value)| !value.is_finite())
+                .map(|(name, value)| ControlError::InvalidSetting { name, value })
+        });
+        let steps = ((settings.horizon_s / STEP_S).round() as usize).max(1);
+        let moves = settings.moves.clamp(1, steps);
+        Self {
+            fallback_law: Fbl::new(plant.params, fallback_gains),
+            plant,
+            settings,
+            invalid,
+            bounds: block_bounds(steps, moves),
+            shadow: None,
+            scratch: None,
+            last_pct: THROTTLE_MIN_PCT,
+            plan_pct: vec![THROTTLE_MIN_PCT; moves],
+            shifted_pct: vec![THROTTLE_MIN_PCT; moves],
+            reference_n: vec![0.0; steps],
+            nominal_n: vec![0.0; steps],
+            perturbed_n: vec![0.0; steps],
+            sensitivity: vec![0.0; steps * moves],
+            qp: None,
+            fallbacks: 0,
+        }
+    }
+
+    /// The settings.
+    pub fn settings(&self) -> &MpcSettings {
+        &self.settings
+    }
+
+    /// Cycles so far whose command came from the fallback law.
+    pub fn fallbacks(&self) -> u64 {
+        self.fallbacks
+    }
+
+    /// The current plan, one throttle per move, %.
+    pub fn plan_pct(&self) -> &[f64] {
+        &self.plan_pct
+    }
+
+    /// Throttle for the state estimate at `t_s` seconds into `profile`.
+    pub fn step(
+        &mut self,
+        thrust_n: f64,
+        thrust_rate_n_per_s: f64,
+        t_s: f64,
+        profile: &Profile,
+    ) -> Result<MpcOutput, ControlError> {
+        if let Some(e) = self.invalid {
+            return Err(e);
+        }
+        let now = profile.at(t_s);
+        crate::check_inputs(thrust_n, thrust_rate_n_per_s, &now)?;
+        let started = Instant::now();
+        let state = State { thrust_n, thrust_rate_n_per_s };
+        let planned = self.plan(state, t_s, profile, started);
+        let solve_s = started.elapsed().as_secs_f64();
+        let (command, fallback) = match planned {
+            Some(u_pct) => {
+                let throttle_pct = clamp_throttle(u_pct);
+                let at_limit = throttle_pct <= THROTTLE_MIN_PCT + 1e-6 || throttle_pct >= THROTTLE_MAX_PCT - 1e-6;
+                let command = Command {
+                    throttle_pct,
+                    unclamped_pct: u_pct,
+                    virtual_input: self.plant.params.v(throttle_pct),
+                    saturated: at_limit,
+                };
+                (command, false)
+            }
+            None => {
+                self.fallbacks += 1;
+                (self.fallback_law.step(thrust_n, thrust_rate_n_per_s, &now)?, true)
+            }
+        };
+        self.last_pct = command.throttle_pct;
+        if let Some(shadow) = self.shadow.as_mut() {
+            // The engine sees this command (after any delay): so must the model.
+            if shadow.step(command.throttle_pct).is_err() {
+                self.shadow = None;
+            }
+        }
+        Ok(MpcOutput { command, fallback, solve_s })
+    }
+
+    /// The first move of the optimal plan, or `None` when the optimisation failed.
+    fn plan(&mut self, state: State, t_s: f64, profile: &Profile, started: Instant) -> Option<f64> {
+        let shadow = match self.shadow.as_mut() {
+            Some(shadow) => shadow,
+            None => {
+                // First cycle (or after a failure): assume the engine has been resting at
+                // the throttle that holds its present thrust.
+                let u0 = resting_throttle(&self.plant.params, state.thrust_n);
+                self.last_pct = u0;
+                self.plan_pct.iter_mut().for_each(|u| *u = u0);
+                self.shadow.insert(self.plant.coarse_engine(state, u0, t_s, PREDICTION_SUBSTEPS))
+            }
+        };
+        shadow.set_state(state);
+        let preview = self.settings.preview;
+        let held = profile.at(t_s).thrust_n;
+        for (k, r) in self.reference_n.iter_mut().enumerate() {
+            *r = if preview { profile.at(t_s + (k + 1) as f64 * STEP_S).thrust_n } else { held };
+        }
+        self.warm_start();
+        for pass in 0..self.settings.iterations {
+            if pass > 0 && started.elapsed().as_secs_f64() > self.settings.time_budget_s {
+                break;
+            }
+            if self.linearise().and_then(|()| self.solve_pass()).is_none() {
+                // Start the next cycle afresh: a plan held at the last command, a new solver.
+                self.qp = None;
+                let last = self.last_pct;
+                self.plan_pct.iter_mut().for_each(|u| *u = last);
+                return None;
+            }
+        }
+        Some(self.plan_pct[0])
+    }
+
+    /// Shifts last cycle's plan one step forward in time.
+    fn warm_start(&mut self) {
+        let moves = self.plan_pct.len();
+        for j in 0..moves {
+            let step = self.bounds[j] + 1;
+            let from = (0..moves).rev().find(|&i| self.bounds[i] <= step).unwrap_or(0);
+            self.shifted_pct[j] = self.plan_pct[from];
+        }
+        self.plan_pct.copy_from_slice(&self.shifted_pct);
+    }
+
+    /// Nominal prediction and finite-difference sensitivities about the plan.
+    fn linearise(&mut self) -> Option<()> {
+        let moves = self.plan_pct.len();
+        let shadow = self.shadow.as_ref()?;
+        let scratch = self.scratch.get_or_insert_with(|| shadow.clone());
+        rollout(shadow, scratch, &self.bounds, &self.plan_pct, &mut self.nominal_n)?;
+        for j in 0..moves {
+            let saved = self.plan_pct[j];
+            // Perturb inward, so the model is never run far outside the throttle range.
+            let du =
+                if saved > 0.5 * (THROTTLE_MIN_PCT + THROTTLE_MAX_PCT) { -PERTURBATION_PCT } else { PERTURBATION_PCT };
+            self.plan_pct[j] = saved + du;
+            let ok = rollout(shadow, scratch, &self.bounds, &self.plan_pct, &mut self.perturbed_n);
+            self.plan_pct[j] = saved;
+            ok?;
+            for (k, (p, n)) in self.perturbed_n.iter().zip(&self.nominal_n).enumerate() {
+                self.sensitivity[k * moves + j] = (p - n) / du;
+            }
+        }
+        Some(())
+    }
+
+    /// One QP in the plan change; applies it.
+    fn solve_pass(&mut self) -> Option<()> {
+        let moves = self.plan_pct.len();
+        let qp = match self.qp.as_mut() {
+            Some(qp) => qp,
+            None => self.qp.insert(Qp::new(moves)?),
+        };
+        let (w, lambda) = (self.settings.thrust_weight, self.settings.move_weight);
+        // P = w·SᵀS + λ·DᵀD + μI (upper triangle, column by column), q = w·Sᵀ(T̄ − r) + λ·Dᵀ(Dū − e₀·u₋₁).
+        let mut at = 0;
+        for col in 0..moves {
+            for row in 0..=col {
+                let mut sum = 0.0;
+                for k in 0..self.nominal_n.len() {
+                    sum += self.sensitivity[k * moves + row] * self.sensitivity[k * moves + col];
+                }
+                let dtd = match col - row {
+                    0 => {
+                        if col + 1 < moves {
+                            2.0
+                        } else {
+                            1.0
+                        }
+                    }
+                    1 => -1.0,
+                    _ => 0.0,
+                };
+                qp.p[at] = w * sum + lambda * dtd + if row == col { DAMPING } else { 0.0 };
+                at += 1;
+            }
+        }
+        for j in 0..moves {
+            let mut grad = 0.0;
+            for (k, (n, r)) in self.nominal_n.iter().zip(&self.reference_n).enumerate() {
+                grad += self.sensitivity[k * moves + j] * (n - r);
+            }
+            // (Dū − e₀·u₋₁)_i = ū_i − ū_{i−1} with ū_{−1} = the last command.
+            let diff = |i: usize| self.plan_pct[i] - if i == 0 { self.last_pct } else { self.plan_pct[i - 1] };
+            let mut dt_diff = diff(j);
+            if j + 1 < moves {
+                dt_diff -= diff(j + 1);
+            }
+            qp.q[j] = w * grad + lambda * dt_diff;
+            qp.b[j] = THROTTLE_MAX_PCT - self.plan_pct[j];
+            qp.b[moves + j] = self.plan_pct[j] - THROTTLE_MIN_PCT;
+        }
+        let delta = qp.solve()?;
+        for (u, d) in self.plan_pct.iter_mut().zip(delta) {
+            *u = (*u + d).clamp(THROTTLE_MIN_PCT, THROTTLE_MAX_PCT);
+        }
+        Some(())
+    }
+}
+
+/// Steps the model over the horizon with the plan; `None` if it diverges.
+fn rollout(
+    shadow: &PlantEngine,
+    scratch: &mut PlantEngine,
+    bounds: &[usize],
+    plan_pct: &[f64],
+    out_n: &mut [f64],
+) -> Option<()> {
+    scratch.clone_from(shadow);
+    for (j, &u) in plan_pct.iter().enumerate() {
+        for out in &mut out_n[bounds[j]..bounds[j + 1]] {
+            *out = scratch.step(u).ok()?.state.thrust_n;
+        }
+    }
+    Some(())
+}
+
+/// Move-blocking boundaries: quadratic spacing, so early moves are short.
+fn block_bounds(steps: usize, moves: usize) -> Vec<usize> {
+    let mut bounds = Vec::with_capacity(moves + 1);
+    bounds.push(0);
+    for j in 1..moves {
+        let b = ((steps as f64) * (j as f64 / moves as f64).powi(2)).round() as usize;
+        let prev = *bounds.last().unwrap_or(&0);
+        // At least one step per block, and room left for the blocks still to come.
+        bounds.push(b.max(prev + 1).min(steps - (moves - j)));
+    }
+    bounds.push(steps);
+    bounds
+}
+
+/// The box-constrained QP `min ½δᵀPδ + qᵀδ  s.t.  δ ≤ b_hi, −δ ≤ b_lo`, with a dense upper
+/// triangle of `P`, kept between cycles so only the numbers change.
+struct Qp {
+    solver: DefaultSolver<f64>,
+    p: Vec<f64>,
+    q: Vec<f64>,
+    b: Vec<f64>,
+}
+
+impl Qp {
+    fn new(moves: usize) -> Option<Self> {
+        let mut colptr = vec![0];
+        let mut rowval = Vec::new();
+        for col in 0..moves {
+            rowval.extend(0..=col);
+            colptr.push(rowval.len());
+        }
+        // Start from P = I, so the solver's scaling sees a well-posed problem; every
+        // position of the upper triangle is stored, so later updates keep the pattern.
+        let p: Vec<f64> =
+            (0..moves).flat_map(|col| (0..=col).map(move |row| if row == col { 1.0 } else { 0.0 })).collect();
+        let p_matrix = CscMatrix::new(moves, moves, colptr, rowval, p.clone());
+        let a_matrix = CscMatrix::new(
+            2 * moves,
+            moves,
+            (0..=moves).map(|j| 2 * j).collect(),
+            (0..moves).flat_map(|j| [j, moves + j]).collect(),
+            (0..moves).flat_map(|_| [1.0, -1.0]).collect(),
+        );
+        let settings = DefaultSettingsBuilder::default()
+            .verbose(false)
+            .presolve_enable(false)
+            // Bounded by iterations, not the solver's clock: its clock includes the setup
+            // time of the first cycle, which would fail every later solve after a slow start.
+            .max_iter(MAX_SOLVER_ITERATIONS)
+            .build()
+            .ok()?;
+        let q = vec![0.0; moves];
+        let b = vec![1.0; 2 * moves];
+        let solver = DefaultSolver::new(&p_matrix, &q, &a_matrix, &b, &[NonnegativeConeT(2 * moves)], settings).ok()?;
+        Some(Self { solver, p, q, b })
+    }
+
+    fn solve(&mut self) -> Option<&[f64]> {
+        self.solver.update_P(&self.p).ok()?;
+        self.solver.update_q(&self.q).ok()?;
+        self.solver.update_b(&self.b).ok()?;
+        self.solver.solve();
+        let ok = matches!(self.solver.solution.status, SolverStatus::Solved | SolverStatus::AlmostSolved);
+        let x = &self.solver.solution.x;
+        (ok && x.iter().all(|v| v.is_finite())).then_some(x.as_slice())
+    }
+}
