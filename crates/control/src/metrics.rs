@@ -57,7 +57,9 @@
 //!   direction of the step, from the step start to the hold end, as % of `|to − from|`
 //!   (0 when `T` never passes the level).
 //! - **Settling time** per step: from the step start until `T` enters, for the rest of
-//!   the hold, the band `±settle_band_pct` (5 %) of the step size around the new level;
+//!   the hold, the band `±settle_band_pct` (5 %) of the step size around the new level,
+//!   never narrower than `±settle_floor_n` (0.5 N: a band inside the wiggle that sensor
+//!   noise leaves in any closed loop would time the noise, not the law);
 //!   `None` when `T` is outside the band at the last sample judged. Overshoot and settling
 //!   both stop `preview_guard_s` before the hold ends (at most half the hold), like the
 //!   steady window. On measured thrust the
@@ -137,6 +139,8 @@ pub struct MetricsOptions {
     pub preview_guard_s: f64,
     /// Half-width of the settling band, % of the step size.
     pub settle_band_pct: f64,
+    /// Smallest half-width of the settling band, N.
+    pub settle_floor_n: f64,
     /// How long after a step starts a saturated throttle marks the step as saturated, s.
     pub saturation_window_s: f64,
 }
@@ -154,6 +158,7 @@ impl Default for MetricsOptions {
             steady_fraction: 0.4,
             preview_guard_s: 0.8,
             settle_band_pct: 5.0,
+            settle_floor_n: 1.0,
             saturation_window_s: 1.5,
         }
     }
@@ -405,6 +410,7 @@ fn check_options(o: &MetricsOptions) -> Result<(), MetricsError> {
         ("hold_band_pct", o.hold_band_pct),
         ("hold_band_floor_n", o.hold_band_floor_n),
         ("settle_band_pct", o.settle_band_pct),
+        ("settle_floor_n", o.settle_floor_n),
         ("saturation_window_s", o.saturation_window_s),
         ("preview_guard_s", o.preview_guard_s),
     ];
@@ -570,7 +576,7 @@ fn step_metrics(
 
     let beyond_n = span.iter().map(|x| direction * (x.thrust_n - to_n)).fold(0.0_f64, f64::max);
 
-    let band_n = o.settle_band_pct / 100.0 * size_n;
+    let band_n = (o.settle_band_pct / 100.0 * size_n).max(o.settle_floor_n);
     let outside = |x: &TrackingSample| (x.thrust_n - to_n).abs() > band_n;
     let settling_time_s = match span.iter().rposition(outside) {
         None => Some(0.0),

@@ -95,10 +95,13 @@ fn a_thrust_on_the_smoothed_steps_profile_settles_when_the_prefilter_does() {
     }
     let moves: Vec<(f64, f64)> = m.steps.iter().map(|s| (s.from_n.round(), s.to_n.round())).collect();
     assert_eq!(moves, [(20.0, 50.0), (50.0, 35.0), (35.0, 70.0), (70.0, 45.0), (45.0, 30.0)]);
-    // A critically damped prefilter is within 5 % of its jump once (1 + x)·e^(−x) ≤ 0.05,
-    // x = t/τ = 4.744: 0.949 s after the jump. The step starts at the first sample after it.
-    let x = bisect(|x| (1.0 + x) * (-x).exp() - 0.05, 1.0, 10.0);
+    // A critically damped prefilter is within the band b of its jump J once
+    // (1 + x)·e^(−x) ≤ b/J, x = t/τ; b = max(5 % of J, 1 N). The step starts at the first
+    // sample after the jump.
     for step in &m.steps {
+        let jump_n = (step.to_n - step.from_n).abs();
+        let band_n = (0.05 * jump_n).max(1.0);
+        let x = bisect(|x| (1.0 + x) * (-x).exp() - band_n / jump_n, 1.0, 10.0);
         assert_close(step.settling_time_s.expect("settles"), 0.2 * x, 2.0 * DT_S, "settling time");
         assert_eq!(step.overshoot_pct, 0.0);
         assert_close(step.start_s % 2.5, 0.0, DT_S + 1e-9, "a step starts at a jump");

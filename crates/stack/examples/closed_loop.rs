@@ -5,7 +5,8 @@
 //! (controller, plant, controller model, profile, seconds; `noshape` as a sixth argument
 //! turns reference shaping off).
 
-use jetbench_control::{ControllerKind, Profile};
+use jetbench_control::{tracking_metrics, ControllerKind, MetricsOptions, Profile, ThrottleLimit, TrackingSample};
+use jetbench_msgs::command_flags;
 use jetbench_stack::config::BenchConfig;
 use jetbench_stack::step::{Actuator, Control, Estimation, Sensing, SimBench};
 
@@ -29,6 +30,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if std::env::var_os("JETBENCH_NO_PREVIEW").is_some() {
         config.control.mpc.preview = false;
     }
+    if let Ok(h) = std::env::var("JETBENCH_MPC_HORIZON") {
+        config.control.mpc.horizon_s = h.parse()?;
+    }
     if let Ok(w) = std::env::var("JETBENCH_MPC_MOVE_WEIGHT") {
         config.control.mpc.move_weight = w.parse()?;
     }
@@ -44,10 +48,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut control = Control::with_law(config.control_law()?, config.reference.clone());
     let mut actuator = Actuator::new(3);
     let mut throttle = None;
-    let (mut abs_n, mut n, mut tv, mut last_u, mut sat) = (0.0, 0usize, 0.0, 25.0, 0usize);
-    let mut solve_us = Vec::new();
-    let mut hold: Vec<(f64, f64, f64)> = Vec::new();
-    let mut holds = Vec::new();
+    let mut samples = Vec::new();
     for k in 0..(seconds * 100.0) as u64 {
         let now_ns = k * 10_000_000;
         let (reading, truth) = sim.step(now_ns, throttle)?;
@@ -57,37 +58,47 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let applied = actuator.on_command(&command);
         estimation.set_applied(applied.applied_pct);
         throttle = Some(applied.applied_pct);
-        abs_n += (reference.thrust_n - truth.thrust_n).abs();
-        n += 1;
-        tv += (command.throttle_pct - last_u).abs();
-        last_u = command.throttle_pct;
-        sat += (command.flags & 3 != 0) as usize;
-        solve_us.push(command.solve_us);
-        // The built-in steps hold each level 4 s.
-        if k > 0 && k % 500 == 0 {
-            holds.push(std::mem::take(&mut hold));
-        }
-        hold.push((reference.thrust_n, truth.thrust_n, state.thrust_n));
+        samples.push(TrackingSample {
+            time_s: k as f64 * 0.01,
+            reference_n: reference.thrust_n,
+            reference_rate_n_per_s: reference.thrust_rate_n_per_s,
+            thrust_n: truth.thrust_n,
+            throttle_pct: command.throttle_pct,
+            saturated: match command.flags & 3 {
+                0 => None,
+                1 => Some(ThrottleLimit::Low),
+                _ => Some(ThrottleLimit::High),
+            },
+            fallback: command.flags & command_flags::FALLBACK != 0,
+            solve_us: command.solve_us,
+        });
     }
-    holds.push(hold);
-    solve_us.sort();
-    print!(
-        "{kind} plant {} model {}: MAE {:.2} N, TV {:.0} %/s, saturated {:.0} %, fallbacks {}, solve p99 {} µs; SS error %:",
+    let m = tracking_metrics(&samples, &MetricsOptions { skip_s: 1.0, ..MetricsOptions::default() })?;
+    println!(
+        "{kind} plant {} model {}: MAE {:.2} N, worst SS error {:.2} %, TV {:.0} %/s, at a limit {:.0} %, \
+         fallbacks {}, solve p99 {} µs",
         config.plant.model,
         config.model.model,
-        abs_n / n as f64,
-        tv / seconds,
-        100.0 * sat as f64 / n as f64,
-        control.fallbacks(),
-        solve_us[solve_us.len() * 99 / 100]
+        m.mae_n,
+        m.holds.iter().skip(1).map(|h| h.steady_state_error_pct.abs()).fold(0.0, f64::max),
+        m.throttle_tv_pct_per_s,
+        m.saturation_pct,
+        m.fallbacks,
+        m.solve_us.p99
     );
-    for h in holds.iter().filter(|h| h.len() >= 200) {
-        // Settled, and before a controller with preview starts on the next step.
-        let tail = &h[h.len() / 2..h.len() - 100];
-        let err: f64 = tail.iter().map(|(r, t, _)| t - r).sum::<f64>() / tail.len() as f64;
-        let est: f64 = tail.iter().map(|(r, _, e)| e - r).sum::<f64>() / tail.len() as f64;
-        print!(" {:+.1}({:+.1})", 100.0 * err / tail[0].0, 100.0 * est / tail[0].0);
-    }
-    println!();
+    let settling: Vec<String> = m
+        .steps
+        .iter()
+        .map(|s| {
+            format!(
+                "{}{}",
+                s.settling_time_s.map_or("-".into(), |t| format!("{t:.2}")),
+                if s.saturated { "*" } else { "" }
+            )
+        })
+        .collect();
+    println!("  settling s per step (* saturated): {}", settling.join(" "));
+    let ss: Vec<String> = m.holds.iter().map(|h| format!("{:+.2}", h.steady_state_error_n)).collect();
+    println!("  steady-state error N per hold: {}", ss.join(" "));
     Ok(())
 }
