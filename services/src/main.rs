@@ -89,6 +89,14 @@ enum Cmd {
     SimRecord(cmd::model::SimRecordArgs),
     /// Write a recording's identification data (time, applied throttle, thrust) as CSV.
     Export(cmd::model::ExportArgs),
+    /// Decode a force-sensor candump log (`candump -l`) into CSV on stdout; rejections by kind on stderr.
+    ///
+    /// Example: jetbench can-decode recordings/can/sensor-example.log > forces.csv
+    CanDecode(cmd::can_decode::CanDecodeArgs),
+    /// Average the force sensor at rest and print (or --write) the [sensor] tare offsets.
+    ///
+    /// Example: jetbench tare --config bench.toml --seconds 2 --write
+    Tare(cmd::tare::TareArgs),
 }
 
 fn main() -> ExitCode {
@@ -129,6 +137,8 @@ fn run() -> anyhow::Result<ExitCode> {
         Cmd::Excite(args) => cmd::model::excite(args),
         Cmd::SimRecord(args) => cmd::model::sim_record(args),
         Cmd::Export(args) => cmd::model::export(args),
+        Cmd::CanDecode(args) => cmd::can_decode::run(args),
+        Cmd::Tare(args) => cmd::tare::run(args),
     }
 }
 

@@ -21,6 +21,9 @@
 //! # }
 //! ```
 
+pub mod calib;
+pub mod can;
+pub mod candump;
 pub mod sim;
 
 use std::time::Duration;
@@ -56,6 +59,10 @@ pub trait ForceSource {
     /// Rejected or lost frames so far.
     fn rejected(&self) -> u64 {
         0
+    }
+    /// Rejections by kind, where the source decodes frames itself.
+    fn reject_counts(&self) -> Option<can::RejectCounts> {
+        None
     }
     /// A short description for logs, e.g. `sim bus` or `can0`.
     fn describe(&self) -> String;

@@ -338,6 +338,9 @@ pub mod thrust_flags {
     pub const SENSOR_STATUS: u32 = 1 << 0;
     /// Frames were lost before this one.
     pub const FRAME_GAP: u32 = 1 << 1;
+    /// The first sample after the sensor was silent for at least one input
+    /// deadline (sensing reported it in `bench/health` meanwhile).
+    pub const SENSOR_RESUMED: u32 = 1 << 2;
 }
 
 /// Flags of [`StateEstimate`](crate::StateEstimate).

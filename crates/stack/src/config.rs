@@ -3,6 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use jetbench_control::{FblGains, Profile};
+use jetbench_io::can::source::{CanInterface, InterfaceError};
 use jetbench_model::{ModelFile, Params, Plant};
 use serde::{Deserialize, Serialize};
 
@@ -74,6 +75,10 @@ pub struct PlantSection {
     pub seed: u64,
     #[serde(default = "default_idle")]
     pub initial_throttle_pct: f64,
+    /// The simulated sensor's reading at zero load `[Fx, Fy, Fz, Tx, Ty, Tz]`,
+    /// N and N·m: the offset `jetbench tare` finds and `[sensor] tare` removes.
+    #[serde(default)]
+    pub sensor_zero: [f64; 6],
 }
 
 fn default_noise() -> f64 {
@@ -106,13 +111,92 @@ impl Axis {
     }
 }
 
-#[derive(Clone, Debug, PartialEq, Default, Deserialize, Serialize)]
+/// The force/torque sensor: where its CAN frames travel, and its calibration.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct SensorSection {
+    /// Calibrated force axis that carries the thrust.
     #[serde(default)]
     pub thrust_axis: Axis,
-    #[serde(default)]
-    pub tare_n: [f64; 3],
+    /// Tare offsets `[Fx, Fy, Fz, Tx, Ty, Tz]` subtracted after calibration,
+    /// N and N·m (`jetbench tare` measures them).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tare: Option<[f64; 6]>,
+    /// Older configs: force-only tare `[Fx, Fy, Fz]`, N (torque tare 0). Use `tare`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tare_n: Option<[f64; 3]>,
+    /// 6×6 calibration matrix, rows as in the sensor's calibration sheet:
+    /// `calibrated = calibration · [Fx, Fy, Fz, Tx, Ty, Tz] − tare`.
+    #[serde(default = "identity6")]
+    pub calibration: [[f64; 6]; 6],
+    /// `can0` (SocketCAN at the bench) or `user:NAME` (userspace bus).
+    #[serde(default = "default_can_interface")]
+    pub can_interface: String,
+    /// Base identifier: forces on base+1, torques on base+2.
+    #[serde(default = "default_can_base_id")]
+    pub can_base_id: u16,
+}
+
+fn identity6() -> [[f64; 6]; 6] {
+    std::array::from_fn(|r| std::array::from_fn(|c| if r == c { 1.0 } else { 0.0 }))
+}
+
+/// The userspace CAN bus of the simulated bench.
+pub const SIM_CAN_INTERFACE: &str = "user:simcan0";
+
+fn default_can_interface() -> String {
+    SIM_CAN_INTERFACE.into()
+}
+
+fn default_can_base_id() -> u16 {
+    jetbench_io::can::DEFAULT_BASE_ID
+}
+
+impl Default for SensorSection {
+    fn default() -> Self {
+        SensorSection {
+            thrust_axis: Axis::default(),
+            tare: None,
+            tare_n: None,
+            calibration: identity6(),
+            can_interface: default_can_interface(),
+            can_base_id: default_can_base_id(),
+        }
+    }
+}
+
+impl SensorSection {
+    /// The six tare offsets (`tare`, else `tare_n` with zero torque tare).
+    pub fn tare_offsets(&self) -> [f64; 6] {
+        match (self.tare, self.tare_n) {
+            (Some(t), _) => t,
+            (None, Some([x, y, z])) => [x, y, z, 0.0, 0.0, 0.0],
+            (None, None) => [0.0; 6],
+        }
+    }
+
+    /// Calibration matrix and tare.
+    pub fn calibration(&self) -> Result<jetbench_io::calib::Calibration, jetbench_io::calib::CalibrationError> {
+        jetbench_io::calib::Calibration::new(&self.calibration, self.tare_offsets())
+    }
+
+    pub fn interface(&self) -> Result<CanInterface, InterfaceError> {
+        self.can_interface.parse()
+    }
+
+    pub fn codec(&self) -> Result<jetbench_io::can::Codec, jetbench_io::can::CodecError> {
+        jetbench_io::can::Codec::new(self.can_base_id)
+    }
+
+    fn validate(&self) -> Result<(), String> {
+        if self.tare.is_some() && self.tare_n.is_some() {
+            return Err("[sensor] has both tare and tare_n: keep only tare = [Fx, Fy, Fz, Tx, Ty, Tz]".into());
+        }
+        self.calibration().map_err(|e| format!("[sensor] {e}"))?;
+        self.interface().map_err(|e| format!("[sensor] can_interface: {e}"))?;
+        self.codec().map_err(|e| format!("[sensor] can_base_id: {e}"))?;
+        Ok(())
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
@@ -265,6 +349,7 @@ impl BenchConfig {
                 return Err(invalid(format!("{key} = {v} must be a positive number")));
             }
         }
+        self.sensor.validate().map_err(invalid)?;
         if self.actuation.idle_after_missed_cycles == 0 {
             return Err(invalid("[actuation] idle_after_missed_cycles must be at least 1".into()));
         }
@@ -335,6 +420,34 @@ mod tests {
         let c = BenchConfig::default_sim().unwrap();
         assert_eq!(c.bench.devices, Devices::Sim);
         assert_eq!(c.actuation.idle_after_missed_cycles, 3);
+    }
+
+    #[test]
+    fn sensor_section_keeps_old_tare_and_checks_the_can_keys() {
+        let c = BenchConfig::default_sim().unwrap();
+        assert_eq!(c.sensor.interface().unwrap().to_string(), "user:simcan0");
+        assert_eq!(c.sensor.codec().unwrap().force_id(), 0x101);
+        assert_eq!(c.sensor.calibration().unwrap(), jetbench_io::calib::Calibration::identity());
+        // An older config: force-only tare_n, no CAN keys.
+        let old = DEFAULT_SIM_CONFIG.replace("tare = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]", "tare_n = [1.0, 2.0, 3.0]");
+        let c = BenchConfig::from_toml_str(&old, "old.toml", None).unwrap();
+        assert_eq!(c.sensor.tare_offsets(), [1.0, 2.0, 3.0, 0.0, 0.0, 0.0]);
+        let both = DEFAULT_SIM_CONFIG.replace("tare = [", "tare_n = [0.0, 0.0, 0.0]\ntare = [");
+        let e = BenchConfig::from_toml_str(&both, "t.toml", None).unwrap_err().to_string();
+        assert!(e.contains("both tare and tare_n"), "{e}");
+        for (from, to, says) in [
+            ("can_interface = \"user:simcan0\"", "can_interface = \"can 0\"", "can_interface"),
+            ("can_base_id = 0x100", "can_base_id = 0x7fe", "can_base_id"),
+            ("[0.0, 0.0, 0.0, 0.0, 0.0, 1.0],", "[0.0, 0.0, 0.0, 0.0, 0.0, nan],", "[5][5]"),
+        ] {
+            let e = BenchConfig::from_toml_str(&DEFAULT_SIM_CONFIG.replace(from, to), "t.toml", None)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(says), "{e}");
+        }
+        // The config round-trips through TOML (the open-loop launcher writes it).
+        let text = toml::to_string(&c).unwrap();
+        assert_eq!(BenchConfig::from_toml_str(&text, "rt.toml", None).unwrap(), c);
     }
 
     #[test]

@@ -10,7 +10,9 @@ use std::time::{Duration, Instant};
 
 use jetbench_bus::{AnySubscriber, Bus, BusError, Flow, LoopExit, Publisher, Trigger, Wake};
 use jetbench_control::Fbl;
-use jetbench_io::sim::{BusForceSink, BusForceSource, BusThrottleInput, BusThrottleOutput};
+use jetbench_io::can::source::{CanForceSink, CanForceSource};
+use jetbench_io::can::RejectCounts;
+use jetbench_io::sim::{BusThrottleInput, BusThrottleOutput};
 use jetbench_io::{DeviceError, ForceSink, ForceSource, ThrottleInput, ThrottleOutput};
 use jetbench_msgs::{channels, visit_channels, Channel, ChannelVisitor, Sample, ServiceId};
 use jetbench_record::{spawn_writer, RawRecord, RecordError};
@@ -84,7 +86,9 @@ pub fn run_sim_bench(config: &BenchConfig) -> Result<(), ServiceError> {
         config.plant.initial_throttle_pct,
     )?;
     let bus = Bus::open("sim-bench")?;
-    let mut sensor: Box<dyn ForceSink> = Box::new(BusForceSink::open(&bus)?);
+    // The force sensor: real CAN frames on the configured interface (the
+    // userspace bus here, vcan or can0 where the kernel has CAN).
+    let mut sensor = SimSensor::open(config)?;
     let mut board: Box<dyn ThrottleInput> = Box::new(BusThrottleInput::open(&bus)?);
     let mut truth_pub = bus.publisher(channels::SIM_TRUTH)?;
     let mut health = HealthReporter::new(&bus, ServiceId::SimBench)?;
@@ -112,26 +116,86 @@ pub fn run_sim_bench(config: &BenchConfig) -> Result<(), ServiceError> {
     Ok(())
 }
 
-/// Sensing: force frames in, `bench/thrust` out; clocked by the sensor.
+/// File that, while it exists, unplugs sim-bench's force sensor (it stops
+/// sending frames): `touch` it to test the silent-sensor path, remove it and
+/// the frames come back. In the run's sim folder (`config::sim_port_link`).
+pub const SENSOR_UNPLUGGED_FILE: &str = "sensor-unplugged";
+
+/// Sim-bench's force sensor: adds the sensor's zero offset and sends the
+/// reading as the two CAN frames, unless unplugged.
+struct SimSensor {
+    sink: CanForceSink,
+    zero: [f64; 6],
+    unplugged_file: std::path::PathBuf,
+    unplugged: bool,
+}
+
+impl SimSensor {
+    fn open(config: &BenchConfig) -> Result<Self, ServiceError> {
+        let interface = config.sensor.interface().map_err(|e| ServiceError::Other(e.to_string()))?;
+        let codec = config.sensor.codec().map_err(|e| ServiceError::Other(e.to_string()))?;
+        let ns = jetbench_bus::namespace()?.unwrap_or_else(|| "default".into());
+        let unplugged_file = std::env::temp_dir().join(format!("jetbench-sim-{ns}")).join(SENSOR_UNPLUGGED_FILE);
+        // A marker left by an earlier run must not start this one unplugged.
+        let _ = std::fs::remove_file(&unplugged_file);
+        tracing::info!("force sensor sends CAN frames (base {:#x}) on {interface}", codec.base_id());
+        Ok(SimSensor {
+            sink: CanForceSink::open(&interface, codec)?,
+            zero: config.plant.sensor_zero,
+            unplugged_file,
+            unplugged: false,
+        })
+    }
+
+    fn emit(&mut self, reading: &jetbench_io::ForceReading, now_ns: u64) -> Result<(), ServiceError> {
+        let unplugged = self.unplugged_file.exists();
+        if unplugged != self.unplugged {
+            self.unplugged = unplugged;
+            if unplugged {
+                tracing::warn!("force sensor unplugged ({} exists): no frames", self.unplugged_file.display());
+            } else {
+                tracing::info!("force sensor plugged back in");
+            }
+        }
+        if unplugged {
+            return Ok(());
+        }
+        let mut r = *reading;
+        for i in 0..3 {
+            r.force_n[i] += self.zero[i];
+            r.torque_nm[i] += self.zero[3 + i];
+        }
+        self.sink.emit(&r, now_ns)?;
+        Ok(())
+    }
+}
+
+/// Sensing: force/torque CAN frames in, `bench/thrust` out; clocked by the
+/// sensor. A sensor silent for one input deadline (15 ms) is reported in
+/// `bench/health` (input overdue) every deadline until it is back; the first
+/// sample after it carries `SENSOR_RESUMED`. The link reopens by itself.
 pub fn run_sensing(config: &BenchConfig) -> Result<(), ServiceError> {
     let bus = Bus::open("sensing")?;
-    let mut source: Box<dyn ForceSource> = match config.bench.devices {
-        Devices::Sim => Box::new(BusForceSource::open(&bus)?),
-    };
+    let interface = config.sensor.interface().map_err(|e| ServiceError::Other(e.to_string()))?;
+    let codec = config.sensor.codec().map_err(|e| ServiceError::Other(e.to_string()))?;
+    let mut source = CanForceSource::open(&interface, codec)?;
     tracing::info!("reading {}", source.describe());
-    let mut step = Sensing::new(&config.sensor);
+    let mut step = Sensing::new(&config.sensor).map_err(|e| ServiceError::Other(format!("[sensor] {e}")))?;
     let mut thrust_pub = bus.publisher(channels::THRUST)?;
     let mut health = HealthReporter::new(&bus, ServiceId::Sensing)?;
     announce_ready();
 
-    let mut started = false;
+    let mut seen = RejectCounts::default();
     let mut rejected = 0;
     while !bus.stop_requested() {
         let reading = source.read(INPUT_DEADLINE)?;
         let start_ns = monotonic_ns();
         match reading {
             Some(reading) => {
-                started = true;
+                if let Some(since) = step.silent_since_ns() {
+                    let silent_ms = start_ns.saturating_sub(since) as f64 * 1e-6;
+                    tracing::info!("force sensor back after {:.0} ms", silent_ms + INPUT_DEADLINE.as_secs_f64() * 1e3);
+                }
                 match step.step(&reading, start_ns) {
                     Ok(thrust) => {
                         publish_now(&mut thrust_pub, thrust, |t, ns| t.publish_ns = ns)?;
@@ -139,17 +203,33 @@ pub fn run_sensing(config: &BenchConfig) -> Result<(), ServiceError> {
                     Err(e) => {
                         rejected += 1;
                         health.error();
-                        log_rejection(rejected, "force frame", &e);
+                        log_rejection(rejected, "force reading", &e);
                     }
                 }
-                health.set_input_gaps(source.rejected());
+                let counts = *source.counts();
+                for _ in seen.frames_rejected()..counts.frames_rejected() {
+                    health.error();
+                }
+                if counts != seen {
+                    log_rejection(counts.frames_rejected() + counts.sequence_jump, "CAN frames", &counts);
+                    seen = counts;
+                }
+                health.set_input_gaps(counts.lost_pairs);
                 health.cycle(start_ns, monotonic_ns(), false)?;
             }
             // The sensor went quiet: say so every deadline.
-            None if started => health.cycle(start_ns, monotonic_ns(), true)?,
-            None => {}
+            None => {
+                if step.silent(start_ns) {
+                    tracing::warn!("force sensor silent: no reading for {} ms", INPUT_DEADLINE.as_millis());
+                }
+                if step.silent_since_ns().is_some() {
+                    health.cycle(start_ns, monotonic_ns(), true)?;
+                }
+            }
         }
     }
+    let (frames, pairs) = source.frames_and_pairs();
+    tracing::info!("force sensor: {frames} frames in, {pairs} readings; rejected: {}", source.counts());
     Ok(())
 }
 
