@@ -11,6 +11,7 @@
 //! no AF_CAN, so opening the socket fails with "Address family not supported
 //! by protocol") and passes: live CAN cannot exist there.
 
+use std::io::Write;
 use std::time::Duration;
 
 use jetbench_io::can::socketcan::SocketCan;
@@ -27,7 +28,9 @@ fn open_or_skip(ifname: &str) -> Option<SocketCan> {
     match SocketCan::open(ifname) {
         Ok(s) => Some(s),
         Err(e) => {
-            println!("SKIPPED: the SocketCAN test needs {ifname}: {e}");
+            // Straight to stderr, past the test harness's capture, so the
+            // reason shows in every run, not only with --nocapture.
+            let _ = writeln!(std::io::stderr(), "SKIPPED: the SocketCAN test needs {ifname}: {e}");
             None
         }
     }
