@@ -198,6 +198,9 @@ fn run_up(
     if !sim && checked.bench.devices == jetbench_stack::config::Devices::Sim {
         bail!("the config selects the simulated devices ([bench] devices = \"sim\"); add --sim to confirm");
     }
+    if sim && checked.bench.devices == jetbench_stack::config::Devices::Bench {
+        bail!("the config selects the real bench ([bench] devices = \"bench\"); drop --sim to run against it");
+    }
     let duration = match duration {
         Some(d) if d.is_finite() && d > 0.0 => Some(Duration::from_secs_f64(d)),
         Some(d) => bail!("--duration {d} must be a positive number of seconds"),
@@ -216,6 +219,7 @@ fn run_up(
         record: record.clone().map(|r| std::path::absolute(&r).unwrap_or(r)),
         bin_dir: bin_dir()?,
         status: !quiet,
+        simulated: checked.bench.devices == jetbench_stack::config::Devices::Sim,
     };
     up(&options)?;
     println!("all services stopped cleanly");

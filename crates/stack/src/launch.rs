@@ -47,6 +47,8 @@ pub struct UpOptions {
     pub bin_dir: PathBuf,
     /// Print the live status line.
     pub status: bool,
+    /// Start sim-bench (the config's `[bench] devices = "sim"`); at the real bench the devices are real.
+    pub simulated: bool,
 }
 
 /// A started service process.
@@ -77,19 +79,16 @@ pub fn describe_exit(status: ExitStatus) -> String {
 }
 
 /// Start order: the recorder first so it sees every sample, then consumers
-/// before producers, and the simulated bench, which clocks the loop, last.
-pub fn start_order(record: bool) -> Vec<ServiceId> {
+/// before producers, and the simulated bench (when `simulated`), which clocks the loop, last.
+pub fn start_order(record: bool, simulated: bool) -> Vec<ServiceId> {
     let mut order = Vec::new();
     if record {
         order.push(ServiceId::Recorder);
     }
-    order.extend([
-        ServiceId::Actuation,
-        ServiceId::Control,
-        ServiceId::Estimation,
-        ServiceId::Sensing,
-        ServiceId::SimBench,
-    ]);
+    order.extend([ServiceId::Actuation, ServiceId::Control, ServiceId::Estimation, ServiceId::Sensing]);
+    if simulated {
+        order.push(ServiceId::SimBench);
+    }
     order
 }
 
@@ -266,7 +265,7 @@ pub fn up(options: &UpOptions) -> Result<(), LaunchError> {
     if cleaned > 0 {
         println!("cleaned up {cleaned} bus node(s) left by a previous run");
     }
-    let order = start_order(options.record.is_some());
+    let order = start_order(options.record.is_some(), options.simulated);
     for id in &order {
         binary(&options.bin_dir, *id)?;
     }

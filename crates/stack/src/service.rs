@@ -12,8 +12,9 @@ use jetbench_bus::{AnySubscriber, Bus, BusError, Flow, LoopExit, Publisher, Trig
 use jetbench_control::Fbl;
 use jetbench_io::can::source::{CanForceSink, CanForceSource};
 use jetbench_io::can::RejectCounts;
-use jetbench_io::sim::{BusThrottleInput, BusThrottleOutput};
-use jetbench_io::{DeviceError, ForceSink, ForceSource, ThrottleInput, ThrottleOutput};
+use jetbench_io::emulate::{EcuModel, PtyBoard, PtyEcu};
+use jetbench_io::serial::{EcuPoller, ThrottleBoard, SILENT_AFTER};
+use jetbench_io::{DeviceError, ForceSink, ForceSource, ThrottleOutput};
 use jetbench_msgs::{channels, visit_channels, Channel, ChannelVisitor, Sample, ServiceId};
 use jetbench_record::{spawn_writer, RawRecord, RecordError};
 
@@ -89,7 +90,12 @@ pub fn run_sim_bench(config: &BenchConfig) -> Result<(), ServiceError> {
     // The force sensor: real CAN frames on the configured interface (the
     // userspace bus here, vcan or can0 where the kernel has CAN).
     let mut sensor = SimSensor::open(config)?;
-    let mut board: Box<dyn ThrottleInput> = Box::new(BusThrottleInput::open(&bus)?);
+    // The throttle board and the ECU, each on its own pty pair, published
+    // where actuation opens them (see `config::sim_port_link`).
+    let board = PtyBoard::spawn(&config.board_port(), monotonic_ns)?;
+    let mut ecu_model = EcuModel::settled(0.0, config.plant.initial_throttle_pct);
+    let ecu = PtyEcu::spawn(&config.ecu_port(), ecu_model.reading())?;
+    tracing::info!("throttle board on {}, ECU on {}", board.link().display(), ecu.link().display());
     let mut truth_pub = bus.publisher(channels::SIM_TRUTH)?;
     let mut health = HealthReporter::new(&bus, ServiceId::SimBench)?;
     announce_ready();
@@ -104,15 +110,33 @@ pub fn run_sim_bench(config: &BenchConfig) -> Result<(), ServiceError> {
         let now = Instant::now();
         let late = now > next + period;
         next = if now > next + STALL { now + period } else { next + period };
-        let frame = board.poll()?;
-        let (reading, truth) = sim.step(start_ns, frame).map_err(|e| {
+        // Idle while the board idles (disarmed, or its watchdog tripped).
+        let throttle_pct = board.output_pct(start_ns).unwrap_or(jetbench_model::THROTTLE_MIN_PCT);
+        let (reading, truth) = sim.step_driven(start_ns, throttle_pct).map_err(|e| {
             tracing::error!("the simulated engine failed: {e}");
             e
         })?;
+        ecu_model.step(truth.thrust_n, truth.engine_throttle_pct, PERIOD_NS as f64 * 1e-9);
+        ecu.set_reading(ecu_model.reading());
         sensor.emit(&reading, start_ns)?;
         truth_pub.publish(truth)?;
         health.cycle(start_ns, monotonic_ns(), late)?;
     }
+    let fw = board.firmware();
+    let c = fw.counters();
+    tracing::info!(
+        "throttle board emulator: {} valid frames, {} commands applied; rejected: crc={} truncated={} bad_length={} \
+         unknown_type={} out_of_range={} garbage_bytes={}; ECU emulator answered {} polls",
+        c.frames,
+        board.applied_count(),
+        c.crc_errors,
+        c.truncated,
+        c.bad_length,
+        c.unknown_type,
+        c.out_of_range,
+        c.garbage_bytes,
+        ecu.polls()
+    );
     Ok(())
 }
 
@@ -132,10 +156,10 @@ struct SimSensor {
 
 impl SimSensor {
     fn open(config: &BenchConfig) -> Result<Self, ServiceError> {
-        let interface = config.sensor.interface().map_err(|e| ServiceError::Other(e.to_string()))?;
+        let interface =
+            config.sensor.interface(config.bench.devices).map_err(|e| ServiceError::Other(e.to_string()))?;
         let codec = config.sensor.codec().map_err(|e| ServiceError::Other(e.to_string()))?;
-        let ns = jetbench_bus::namespace()?.unwrap_or_else(|| "default".into());
-        let unplugged_file = std::env::temp_dir().join(format!("jetbench-sim-{ns}")).join(SENSOR_UNPLUGGED_FILE);
+        let unplugged_file = crate::config::sim_port_link(SENSOR_UNPLUGGED_FILE);
         // A marker left by an earlier run must not start this one unplugged.
         let _ = std::fs::remove_file(&unplugged_file);
         tracing::info!("force sensor sends CAN frames (base {:#x}) on {interface}", codec.base_id());
@@ -352,23 +376,28 @@ pub fn run_control(config: &BenchConfig) -> Result<(), ServiceError> {
     })
 }
 
-/// Actuation: `bench/command` in, throttle board and `bench/actuation` out.
-/// Without fresh commands it holds, then idles after the configured cycles.
+/// Actuation: `bench/command` in; throttle board, `bench/actuation` and
+/// `bench/ecu` out. Without fresh commands it holds, then idles after the
+/// configured cycles. The board and the ECU are serial devices opened by
+/// path (sim-bench's ptys with `devices = "sim"`); the ECU is polled on its
+/// own thread and its samples are published here without waiting.
 pub fn run_actuation(config: &BenchConfig) -> Result<(), ServiceError> {
     let bus = Bus::open("actuation")?;
     let command_sub = bus.subscriber(channels::COMMAND, 16)?;
-    let mut board: Box<dyn ThrottleOutput> = match config.bench.devices {
-        Devices::Sim => Box::new(BusThrottleOutput::open(&bus, monotonic_ns)?),
-    };
-    tracing::info!("driving {}", board.describe());
+    let mut board = ThrottleBoard::new(config.board_port(), config.actuation.board_baud, monotonic_ns);
+    tracing::info!("driving the {}", board.describe());
+    let ecu = EcuPoller::spawn(config.ecu_port(), config.ecu.baud, config.ecu.poll_hz, monotonic_ns)?;
+    tracing::info!("polling the {} at {} Hz", ecu.describe(), config.ecu.poll_hz);
     let mut actuation_pub = bus.publisher(channels::ACTUATION)?;
+    let mut ecu_pub = bus.publisher(channels::ECU)?;
     let mut health = HealthReporter::new(&bus, ServiceId::Actuation)?;
     let mut step = Actuator::new(config.actuation.idle_after_missed_cycles);
     announce_ready();
 
     let mut was_idle = false;
     let mut started = false;
-    consume(&bus, &[(&command_sub, Some(COMMAND_DEADLINE))], |wake| {
+    let mut links = LinkLog::default();
+    let result = consume(&bus, &[(&command_sub, Some(COMMAND_DEADLINE))], |wake| {
         let start_ns = monotonic_ns();
         // Before the first command the board is kept at idle; that is the
         // expected start, not a missed deadline.
@@ -383,13 +412,22 @@ pub fn run_actuation(config: &BenchConfig) -> Result<(), ServiceError> {
             Wake::Missed(_) => (step.on_missed(), started),
             Wake::Tick => return Ok(()),
         };
-        let mut output = output;
         if let Err(e) = board.write(output.applied_pct) {
             health.error();
             log_rejection(health.counters().errors, "throttle write", &e);
         }
-        output.round_trip_ns = board.round_trip_ns().unwrap_or(0);
+        let output = step.with_board(output, board.acknowledged(), board.unacked_writes(), board.silent_writes());
         publish_now(&mut actuation_pub, output, |a, ns| a.publish_ns = ns)?;
+        let board_silent = board.silent_writes() >= SILENT_AFTER;
+        if links.board(board_silent, &board) {
+            health.error();
+        }
+        for telemetry in ecu.try_iter() {
+            if links.ecu(telemetry.flags, &ecu) {
+                health.error();
+            }
+            publish_now(&mut ecu_pub, telemetry, |t, ns| t.publish_ns = ns)?;
+        }
         let idle = step.is_idle_fallback();
         if idle != was_idle {
             if !started {
@@ -401,11 +439,81 @@ pub fn run_actuation(config: &BenchConfig) -> Result<(), ServiceError> {
             }
             was_idle = idle;
         }
-        health.set_fallback(idle);
+        health.set_fallback(idle || board_silent);
         health.set_input_gaps(command_sub.gaps());
         health.cycle(start_ns, monotonic_ns(), late)?;
         Ok(())
-    })
+    });
+    // Disarm, whatever ended the loop.
+    board.stop();
+    let c = board.counters();
+    tracing::info!(
+        "throttle board: {} acknowledged frames, {} rejected from the board ({} CRC, {} truncated), {} late acks, \
+         opened {} times; ECU: {:?}",
+        c.frames,
+        c.rejected(),
+        c.crc_errors,
+        c.truncated,
+        board.late_acks(),
+        board.opens(),
+        ecu.shared().counters
+    );
+    result
+}
+
+/// Logs each serial device going silent and coming back, once per change.
+#[derive(Default)]
+struct LinkLog {
+    board_seen: bool,
+    board_silent: bool,
+    ecu_seen: bool,
+    ecu_silent: bool,
+}
+
+impl LinkLog {
+    /// Returns true when the board has just gone silent after answering.
+    fn board(&mut self, silent: bool, board: &ThrottleBoard) -> bool {
+        let changed = silent != self.board_silent;
+        self.board_silent = silent;
+        match (changed, silent, self.board_seen) {
+            (true, true, true) => {
+                let why = board.link_error().unwrap_or("no acknowledgement");
+                tracing::warn!("{} is silent ({why}); reopening it", board.describe());
+                true
+            }
+            (_, false, false) if board.acknowledged().is_some() => {
+                self.board_seen = true;
+                tracing::info!("{} answers", board.describe());
+                false
+            }
+            (true, false, true) => {
+                tracing::info!("{} answers again (port opened {} times)", board.describe(), board.opens());
+                false
+            }
+            _ => false,
+        }
+    }
+
+    /// One ECU sample's flags; returns true when the ECU has just gone silent after answering.
+    fn ecu(&mut self, flags: u32, ecu: &EcuPoller) -> bool {
+        let fresh = flags & jetbench_msgs::ecu_flags::STALE == 0;
+        let silent = flags & jetbench_msgs::ecu_flags::SILENT != 0;
+        let mut went_silent = false;
+        if fresh && !self.ecu_seen {
+            self.ecu_seen = true;
+            tracing::info!("{} answers", ecu.describe());
+        } else if fresh && self.ecu_silent {
+            tracing::info!("{} answers again", ecu.describe());
+        } else if silent && !self.ecu_silent && self.ecu_seen {
+            let why = ecu.shared().link_error.unwrap_or_else(|| "no valid reply".into());
+            tracing::warn!("{} is silent ({why}); reopening it", ecu.describe());
+            went_silent = true;
+        }
+        if fresh || silent {
+            self.ecu_silent = silent;
+        }
+        went_silent
+    }
 }
 
 /// Per-channel counts the recorder reports at exit.

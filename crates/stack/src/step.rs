@@ -5,7 +5,7 @@
 
 use jetbench_control::{Fbl, Profile};
 use jetbench_estim::{EstimError, ObserverConfig, ThrustObserver};
-use jetbench_io::ForceReading;
+use jetbench_io::{Acknowledgement, ForceReading};
 use jetbench_model::{
     ModelError, Params, Plant, PlantEngine, PlantSample, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT,
 };
@@ -292,6 +292,38 @@ impl Actuator {
         }
     }
 
+    /// Completes this cycle's sample with what the board acknowledged:
+    /// `applied_pct` and `round_trip_ns` from the newest acknowledgement, and
+    /// flags when the board has not acknowledged this cycle's command in time
+    /// (`UNACKED`: the newest acknowledged value stands) or has said nothing
+    /// for [`SILENT_AFTER`](jetbench_io::serial::SILENT_AFTER) cycles
+    /// (`BOARD_SILENT`: the board idles by its own watchdog, so idle is reported).
+    /// `ack = None` with zero counts (a device without acknowledgements)
+    /// leaves the sample as it is.
+    pub fn with_board(
+        &self,
+        mut out: Actuation,
+        ack: Option<Acknowledgement>,
+        unacked_writes: u32,
+        silent_writes: u32,
+    ) -> Actuation {
+        if let Some(a) = ack {
+            out.applied_pct = a.applied_pct;
+            out.round_trip_ns = a.round_trip_ns;
+            if a.idle_fallback {
+                out.flags |= actuation_flags::BOARD_IDLE;
+            }
+        }
+        if unacked_writes > 0 {
+            out.flags |= actuation_flags::UNACKED;
+        }
+        if silent_writes >= jetbench_io::serial::SILENT_AFTER {
+            out.flags |= actuation_flags::BOARD_SILENT;
+            out.applied_pct = THROTTLE_MIN_PCT;
+        }
+        out
+    }
+
     /// True while idling for lack of commands.
     pub fn is_idle_fallback(&self) -> bool {
         self.missed >= self.idle_after_missed || (self.missed > 0 && self.last.is_none())
@@ -325,7 +357,7 @@ pub struct BoardEmulator {
 
 impl BoardEmulator {
     /// The board's own watchdog, as on the real board.
-    pub const WATCHDOG_NS: u64 = 100_000_000;
+    pub const WATCHDOG_NS: u64 = jetbench_io::emulate::BOARD_WATCHDOG_NS;
 
     pub fn new() -> Self {
         BoardEmulator { throttle_pct: THROTTLE_MIN_PCT, last_frame_ns: None }
@@ -391,7 +423,14 @@ impl SimBench {
         if let Some(t) = throttle_frame {
             self.board.receive(t, now_ns);
         }
-        let throttle_pct = self.board.output_pct(now_ns);
+        self.step_driven(now_ns, self.board.output_pct(now_ns))
+    }
+
+    /// One 10 ms step with the engine driven at `throttle_pct` by a board
+    /// emulated elsewhere (sim-bench's pty board, which keeps its own
+    /// watchdog); below idle counts as idle, as in the engine's ECU.
+    pub fn step_driven(&mut self, now_ns: u64, throttle_pct: f64) -> Result<(ForceReading, SimTruth), ModelError> {
+        let throttle_pct = if throttle_pct.is_finite() { throttle_pct.max(THROTTLE_MIN_PCT) } else { THROTTLE_MIN_PCT };
         let PlantSample { state: State { thrust_n, thrust_rate_n_per_s }, measured_n, engine_throttle_pct } =
             self.engine.step(throttle_pct)?;
         self.counter = self.counter.wrapping_add(1) & 0xff;
@@ -457,6 +496,24 @@ mod tests {
         // A fresh command ends the fallback.
         assert_eq!(a.on_command(&command(6, 40.0)).flags, 0);
         assert!(!a.is_idle_fallback());
+    }
+
+    #[test]
+    fn actuation_reports_the_acknowledged_command_and_a_silent_board() {
+        let a = Actuator::new(3);
+        let out = Actuation { applied_pct: 42.345, ..Actuation::default() };
+        let ack =
+            Acknowledgement { seq: 9, applied_pct: 42.35, round_trip_ns: 180_000, armed: true, idle_fallback: false };
+        let acked = a.with_board(out, Some(ack), 0, 0);
+        assert_eq!((acked.applied_pct, acked.round_trip_ns, acked.flags), (42.35, 180_000, 0));
+        let late = a.with_board(out, Some(ack), 5, 0);
+        assert_eq!((late.applied_pct, late.flags), (42.35, actuation_flags::UNACKED), "slow but alive");
+        let silent = a.with_board(out, Some(ack), 3, 3);
+        assert_eq!(silent.applied_pct, THROTTLE_MIN_PCT);
+        assert_eq!(silent.flags, actuation_flags::UNACKED | actuation_flags::BOARD_SILENT);
+        let never = a.with_board(out, None, 1, 1);
+        assert_eq!((never.applied_pct, never.flags), (42.345, actuation_flags::UNACKED));
+        assert_eq!(a.with_board(out, None, 0, 0), out, "a device without acknowledgements");
     }
 
     #[test]
