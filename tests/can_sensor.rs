@@ -53,6 +53,7 @@ fn an_unplugged_sensor_is_reported_and_resumes_without_a_restart() {
     }
     std::thread::sleep(Duration::from_secs(2));
     let marker = unplug_marker();
+    std::fs::create_dir_all(marker.parent().expect("a folder")).expect("the sim folder");
     std::fs::write(&marker, b"").expect("unplug the simulated sensor");
     std::thread::sleep(Duration::from_millis(600));
     std::fs::remove_file(&marker).expect("plug it back in");

@@ -200,7 +200,7 @@ impl SimSensor {
 /// sample after it carries `SENSOR_RESUMED`. The link reopens by itself.
 pub fn run_sensing(config: &BenchConfig) -> Result<(), ServiceError> {
     let bus = Bus::open("sensing")?;
-    let interface = config.sensor.interface().map_err(|e| ServiceError::Other(e.to_string()))?;
+    let interface = config.sensor.interface(config.bench.devices).map_err(|e| ServiceError::Other(e.to_string()))?;
     let codec = config.sensor.codec().map_err(|e| ServiceError::Other(e.to_string()))?;
     let mut source = CanForceSource::open(&interface, codec)?;
     tracing::info!("reading {}", source.describe());

@@ -158,7 +158,7 @@ pub fn run(args: TareArgs) -> anyhow::Result<ExitCode> {
         }
         #[allow(unreachable_patterns)]
         _ => {
-            let interface = config.sensor.interface()?;
+            let interface = config.sensor.interface(config.bench.devices)?;
             eprintln!("tare: reading the sensor on {interface}; the engine must be off and the stand untouched");
             (interface, false)
         }
