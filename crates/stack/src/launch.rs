@@ -265,6 +265,17 @@ pub fn up(options: &UpOptions) -> Result<(), LaunchError> {
     if cleaned > 0 {
         println!("cleaned up {cleaned} bus node(s) left by a previous run");
     }
+    if options.simulated {
+        // A sim-bench killed last time may have left its pty links behind,
+        // pointing at ptys the system may since have given to someone else:
+        // actuation starts first and must not open those.
+        for name in [crate::config::SIM_BOARD_LINK, crate::config::SIM_ECU_LINK] {
+            let link = crate::config::sim_port_link(name);
+            if std::fs::symlink_metadata(&link).is_ok_and(|m| m.file_type().is_symlink()) {
+                let _ = std::fs::remove_file(&link);
+            }
+        }
+    }
     let order = start_order(options.record.is_some(), options.simulated);
     for id in &order {
         binary(&options.bin_dir, *id)?;
