@@ -181,6 +181,41 @@ fn up_records_a_complete_closed_loop_run() {
         assert_eq!((t.seq, t.stamp_ns), (s.source_seq, s.stamp_ns), "state {} does not match its thrust sample", s.seq);
     }
 
+    // Actuation goes through the throttle board on a real pty: each cycle's
+    // sample carries the board's acknowledgement (the applied throttle, to the
+    // wire's 0.01 %) and the measured round trip.
+    assert!(log.contains("throttle board on /") && log.contains("baud answers"), "no board on a pty:\n{log}");
+    let acked: Vec<_> = actuation.iter().filter(|a| a.flags == 0).collect();
+    assert!(acked.len() >= 900, "only {} of {} actuation samples acknowledged in time", acked.len(), actuation.len());
+    for a in &acked {
+        assert!(
+            (a.applied_pct - a.commanded_pct).abs() <= 0.005 + 1e-9,
+            "seq {}: board applied {} for {}",
+            a.seq,
+            a.applied_pct,
+            a.commanded_pct
+        );
+        assert!(a.round_trip_ns > 0, "seq {}: no round trip measured", a.seq);
+    }
+    let mut rtt_us: Vec<f64> = acked.iter().map(|a| a.round_trip_ns as f64 * 1e-3).collect();
+    rtt_us.sort_by(f64::total_cmp);
+    println!("board round trip: median {:.0} us, max {:.0} us", rtt_us[rtt_us.len() / 2], rtt_us[rtt_us.len() - 1]);
+
+    // ECU telemetry polled over its own pty, at least 100 samples, RPM
+    // following thrust as the emulated ECU computes it.
+    let ecu = recording.samples(channels::ECU);
+    assert_eq!(seq_gaps(&ecu), 0);
+    let fresh: Vec<_> = ecu.iter().filter(|e| e.flags == 0).collect();
+    assert!(ecu.len() >= 100 && fresh.len() >= 100, "{} ECU messages, {} fresh", ecu.len(), fresh.len());
+    let truth = recording.samples(channels::SIM_TRUTH);
+    let rpm_errors = fresh.iter().filter(|e| {
+        let i = truth.partition_point(|t| t.stamp_ns < e.stamp_ns).min(truth.len() - 1);
+        let expected =
+            jetbench_io::emulate::IDLE_RPM + jetbench_io::emulate::RPM_PER_SQRT_N * truth[i].thrust_n.max(0.0).sqrt();
+        (e.rpm - expected).abs() > 0.02 * expected
+    });
+    assert!(rpm_errors.count() * 20 <= fresh.len(), "RPM does not follow thrust");
+
     // Every message decodes with the reference Python reader to the published values.
     let python = python_decode(&out);
     let mut compare = CompareWithPython { recording: &recording, python: &python, compared: 0, failures: vec![] };

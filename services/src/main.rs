@@ -74,6 +74,14 @@ enum Cmd {
     SimRecord(cmd::model::SimRecordArgs),
     /// Write a recording's identification data (time, applied throttle, thrust) as CSV.
     Export(cmd::model::ExportArgs),
+    /// Decode a force-sensor candump log (`candump -l`) into CSV on stdout; rejections by kind on stderr.
+    ///
+    /// Example: jetbench can-decode recordings/can/sensor-example.log > forces.csv
+    CanDecode(cmd::can_decode::CanDecodeArgs),
+    /// Average the force sensor at rest and print (or --write) the [sensor] tare offsets.
+    ///
+    /// Example: jetbench tare --config bench.toml --seconds 2 --write
+    Tare(cmd::tare::TareArgs),
 }
 
 fn main() -> ExitCode {
@@ -113,6 +121,8 @@ fn run() -> anyhow::Result<ExitCode> {
         Cmd::Excite(args) => cmd::model::excite(args),
         Cmd::SimRecord(args) => cmd::model::sim_record(args),
         Cmd::Export(args) => cmd::model::export(args),
+        Cmd::CanDecode(args) => cmd::can_decode::run(args),
+        Cmd::Tare(args) => cmd::tare::run(args),
     }
 }
 
@@ -249,6 +259,9 @@ fn run_up(
     if !sim && checked.bench.devices == jetbench_stack::config::Devices::Sim {
         bail!("the config selects the simulated devices ([bench] devices = \"sim\"); add --sim to confirm");
     }
+    if sim && checked.bench.devices == jetbench_stack::config::Devices::Bench {
+        bail!("the config selects the real bench ([bench] devices = \"bench\"); drop --sim to run against it");
+    }
     let duration = match duration {
         Some(d) if d.is_finite() && d > 0.0 => Some(Duration::from_secs_f64(d)),
         Some(d) => bail!("--duration {d} must be a positive number of seconds"),
@@ -267,6 +280,7 @@ fn run_up(
         record: record.clone().map(|r| std::path::absolute(&r).unwrap_or(r)),
         bin_dir: bin_dir()?,
         status: !quiet,
+        simulated: checked.bench.devices == jetbench_stack::config::Devices::Sim,
     };
     up(&options)?;
     println!("all services stopped cleanly");

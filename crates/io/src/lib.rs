@@ -21,6 +21,13 @@
 //! # }
 //! ```
 
+pub mod board;
+pub mod calib;
+pub mod can;
+pub mod candump;
+pub mod ecu;
+pub mod emulate;
+pub mod serial;
 pub mod sim;
 
 use std::time::Duration;
@@ -57,8 +64,27 @@ pub trait ForceSource {
     fn rejected(&self) -> u64 {
         0
     }
+    /// Rejections by kind, where the source decodes frames itself.
+    fn reject_counts(&self) -> Option<can::RejectCounts> {
+        None
+    }
     /// A short description for logs, e.g. `sim bus` or `can0`.
     fn describe(&self) -> String;
+}
+
+/// A device's acknowledgement of a throttle command.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Acknowledgement {
+    /// The command's sequence number as sent.
+    pub seq: u64,
+    /// The throttle the device reports it outputs after the command, %.
+    pub applied_pct: f64,
+    /// From sending the command to receiving its acknowledgement, ns.
+    pub round_trip_ns: u64,
+    /// The device is armed (drives the engine).
+    pub armed: bool,
+    /// The device idles by its own watchdog.
+    pub idle_fallback: bool,
 }
 
 /// The throttle board, driven by the actuation service.
@@ -70,6 +96,22 @@ pub trait ThrottleOutput {
     fn round_trip_ns(&self) -> Option<u64> {
         None
     }
+    /// The newest acknowledgement, where the device acknowledges; it is the
+    /// last write's when [`unacked_writes`](Self::unacked_writes) is 0.
+    fn acknowledged(&self) -> Option<Acknowledgement> {
+        None
+    }
+    /// Consecutive writes without an acknowledgement (0 for devices that do not acknowledge).
+    fn unacked_writes(&self) -> u32 {
+        0
+    }
+    /// Consecutive writes during which nothing valid came back from the
+    /// device (no late acknowledgement, no status either): it is silent.
+    fn silent_writes(&self) -> u32 {
+        0
+    }
+    /// Puts the device in its safe state at shutdown (the board disarms).
+    fn stop(&mut self) {}
     fn describe(&self) -> String;
 }
 

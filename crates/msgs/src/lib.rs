@@ -342,6 +342,9 @@ pub mod thrust_flags {
     pub const SENSOR_STATUS: u32 = 1 << 0;
     /// Frames were lost before this one.
     pub const FRAME_GAP: u32 = 1 << 1;
+    /// The first sample after the sensor was silent for at least one input
+    /// deadline (sensing reported it in `bench/health` meanwhile).
+    pub const SENSOR_RESUMED: u32 = 1 << 2;
 }
 
 /// Flags of [`StateEstimate`](crate::StateEstimate).
@@ -390,6 +393,22 @@ pub mod actuation_flags {
     pub const IDLE_FALLBACK: u32 = 1 << 0;
     /// This cycle had no fresh command; the last one was held.
     pub const STALE: u32 = 1 << 1;
+    /// The board has not acknowledged this cycle's command (yet); `applied_pct`
+    /// is the newest acknowledged value.
+    pub const UNACKED: u32 = 1 << 2;
+    /// Nothing heard from the board for 3 or more cycles: it is silent, its port
+    /// is being reopened, and `applied_pct` is idle (the board's own watchdog).
+    pub const BOARD_SILENT: u32 = 1 << 3;
+    /// The board reports it idles by its own watchdog.
+    pub const BOARD_IDLE: u32 = 1 << 4;
+}
+
+/// Flags of [`EcuTelemetry`](crate::EcuTelemetry).
+pub mod ecu_flags {
+    /// This poll got no valid reply; the values are the last valid ones.
+    pub const STALE: u32 = 1 << 0;
+    /// No valid reply for 3 or more polls: the ECU is silent and its port is being reopened.
+    pub const SILENT: u32 = 1 << 1;
 }
 
 /// Flags of [`Health`](crate::Health).

@@ -43,7 +43,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let seconds: f64 = arg(4, "27").parse()?;
 
     let mut sim = SimBench::new(&config.plant()?, config.plant.noise_var_n2, 3, 25.0)?;
-    let mut sensing = Sensing::new(&config.sensor);
+    let mut sensing = Sensing::new(&config.sensor)?;
     let mut estimation = Estimation::new(params, config.estimator.observer_config());
     let mut control = Control::with_law(config.control_law()?, config.reference.clone());
     let mut actuator = Actuator::new(3);

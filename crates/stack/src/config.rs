@@ -3,6 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use jetbench_control::{ControllerKind, FblGains, Law, LawSettings, MpcSettings, Profile, ShaperSettings, SmcGains};
+use jetbench_io::can::source::{CanInterface, InterfaceError};
 use jetbench_model::{ModelFile, Params, Plant};
 use serde::{Deserialize, Serialize};
 
@@ -47,6 +48,8 @@ pub struct BenchConfig {
     #[serde(default)]
     pub actuation: ActuationSection,
     #[serde(default)]
+    pub ecu: EcuSection,
+    #[serde(default)]
     pub reference: Profile,
     #[serde(default)]
     pub recorder: RecorderSection,
@@ -68,8 +71,13 @@ fn default_rate() -> f64 {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Devices {
-    /// Simulated engine and devices, frames over the bus.
+    /// Simulated engine and devices: sim-bench emulates the sensor, the
+    /// throttle board and the ECU, which the services reach through the same
+    /// drivers as at the bench.
     Sim,
+    /// The real bench: the sensor on `[sensor] can_interface`, the throttle
+    /// board on `[actuation] board_port`, the ECU on `[ecu] port`.
+    Bench,
 }
 
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
@@ -83,6 +91,10 @@ pub struct PlantSection {
     pub seed: u64,
     #[serde(default = "default_idle")]
     pub initial_throttle_pct: f64,
+    /// The simulated sensor's reading at zero load `[Fx, Fy, Fz, Tx, Ty, Tz]`,
+    /// N and N·m: the offset `jetbench tare` finds and `[sensor] tare` removes.
+    #[serde(default)]
+    pub sensor_zero: [f64; 6],
 }
 
 fn default_noise() -> f64 {
@@ -115,13 +127,95 @@ impl Axis {
     }
 }
 
-#[derive(Clone, Debug, PartialEq, Default, Deserialize, Serialize)]
+/// The force/torque sensor: where its CAN frames travel, and its calibration.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct SensorSection {
+    /// Calibrated force axis that carries the thrust.
     #[serde(default)]
     pub thrust_axis: Axis,
-    #[serde(default)]
-    pub tare_n: [f64; 3],
+    /// Tare offsets `[Fx, Fy, Fz, Tx, Ty, Tz]` subtracted after calibration,
+    /// N and N·m (`jetbench tare` measures them).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tare: Option<[f64; 6]>,
+    /// Older configs: force-only tare `[Fx, Fy, Fz]`, N (torque tare 0). Use `tare`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tare_n: Option<[f64; 3]>,
+    /// 6×6 calibration matrix, rows as in the sensor's calibration sheet:
+    /// `calibrated = calibration · [Fx, Fy, Fz, Tx, Ty, Tz] − tare`.
+    #[serde(default = "identity6")]
+    pub calibration: [[f64; 6]; 6],
+    /// `can0` (SocketCAN at the bench) or `user:NAME` (userspace bus). Unset:
+    /// `user:simcan0` with `devices = "sim"`, `can0` otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub can_interface: Option<String>,
+    /// Base identifier: forces on base+1, torques on base+2.
+    #[serde(default = "default_can_base_id")]
+    pub can_base_id: u16,
+}
+
+fn identity6() -> [[f64; 6]; 6] {
+    std::array::from_fn(|r| std::array::from_fn(|c| if r == c { 1.0 } else { 0.0 }))
+}
+
+/// The userspace CAN bus of the simulated bench.
+pub const SIM_CAN_INTERFACE: &str = "user:simcan0";
+
+fn default_can_base_id() -> u16 {
+    jetbench_io::can::DEFAULT_BASE_ID
+}
+
+impl Default for SensorSection {
+    fn default() -> Self {
+        SensorSection {
+            thrust_axis: Axis::default(),
+            tare: None,
+            tare_n: None,
+            calibration: identity6(),
+            can_interface: None,
+            can_base_id: default_can_base_id(),
+        }
+    }
+}
+
+impl SensorSection {
+    /// The six tare offsets (`tare`, else `tare_n` with zero torque tare).
+    pub fn tare_offsets(&self) -> [f64; 6] {
+        match (self.tare, self.tare_n) {
+            (Some(t), _) => t,
+            (None, Some([x, y, z])) => [x, y, z, 0.0, 0.0, 0.0],
+            (None, None) => [0.0; 6],
+        }
+    }
+
+    /// Calibration matrix and tare.
+    pub fn calibration(&self) -> Result<jetbench_io::calib::Calibration, jetbench_io::calib::CalibrationError> {
+        jetbench_io::calib::Calibration::new(&self.calibration, self.tare_offsets())
+    }
+
+    /// The configured interface, else the default for `devices`.
+    pub fn interface(&self, devices: Devices) -> Result<CanInterface, InterfaceError> {
+        match (&self.can_interface, devices) {
+            (Some(name), _) => name.parse(),
+            (None, Devices::Sim) => SIM_CAN_INTERFACE.parse(),
+            #[allow(unreachable_patterns)]
+            (None, _) => "can0".parse(),
+        }
+    }
+
+    pub fn codec(&self) -> Result<jetbench_io::can::Codec, jetbench_io::can::CodecError> {
+        jetbench_io::can::Codec::new(self.can_base_id)
+    }
+
+    fn validate(&self, devices: Devices) -> Result<(), String> {
+        if self.tare.is_some() && self.tare_n.is_some() {
+            return Err("[sensor] has both tare and tare_n: keep only tare = [Fx, Fy, Fz, Tx, Ty, Tz]".into());
+        }
+        self.calibration().map_err(|e| format!("[sensor] {e}"))?;
+        self.interface(devices).map_err(|e| format!("[sensor] can_interface: {e}"))?;
+        self.codec().map_err(|e| format!("[sensor] can_base_id: {e}"))?;
+        Ok(())
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
@@ -212,12 +306,53 @@ impl ControlSection {
 #[serde(deny_unknown_fields, default)]
 pub struct ActuationSection {
     pub idle_after_missed_cycles: u32,
+    /// Serial port of the throttle board, e.g. `/dev/ttyUSB0`. Unset with
+    /// `devices = "sim"`: the pty link sim-bench publishes ([`sim_port_link`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub board_port: Option<String>,
+    /// Baud rate of the throttle board (8N1).
+    pub board_baud: u32,
 }
 
 impl Default for ActuationSection {
     fn default() -> Self {
-        ActuationSection { idle_after_missed_cycles: 3 }
+        ActuationSection { idle_after_missed_cycles: 3, board_port: None, board_baud: 115_200 }
     }
+}
+
+/// The engine ECU's telemetry port, polled by the actuation service.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EcuSection {
+    /// Serial port of the ECU, e.g. `/dev/ttyUSB1`. Unset with `devices = "sim"`:
+    /// the pty link sim-bench publishes ([`sim_port_link`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub port: Option<String>,
+    /// Baud rate (8N1).
+    pub baud: u32,
+    /// Polls per second; one poll and its reply take about 45 ms at 9600 baud.
+    pub poll_hz: f64,
+}
+
+impl Default for EcuSection {
+    fn default() -> Self {
+        EcuSection { port: None, baud: 9600, poll_hz: 15.0 }
+    }
+}
+
+/// File name of the throttle board's link in the sim port folder.
+pub const SIM_BOARD_LINK: &str = "throttle-board";
+/// File name of the ECU's link in the sim port folder.
+pub const SIM_ECU_LINK: &str = "ecu";
+
+/// Where sim-bench publishes the pty of an emulated serial device (`name`
+/// is [`SIM_BOARD_LINK`] or [`SIM_ECU_LINK`]): a symlink to the pty slave in
+/// `$TMPDIR/jetbench-sim-<bus namespace>/`, so every process of one run finds
+/// the same path without being told, and parallel runs in other namespaces
+/// do not meet.
+pub fn sim_port_link(name: &str) -> PathBuf {
+    let ns = jetbench_bus::namespace().ok().flatten().unwrap_or_else(|| "default".into());
+    std::env::temp_dir().join(format!("jetbench-sim-{ns}")).join(name)
 }
 
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
@@ -317,6 +452,19 @@ impl BenchConfig {
             )));
         }
         self.control.mpc.validate().map_err(|e| invalid(format!("[control.mpc] {e}")))?;
+        if self.bench.devices == Devices::Bench && (self.actuation.board_port.is_none() || self.ecu.port.is_none()) {
+            return Err(invalid(
+                "devices = \"bench\" needs [actuation] board_port and [ecu] port (e.g. \"/dev/ttyUSB0\", \"/dev/ttyUSB1\")"
+                    .into(),
+            ));
+        }
+        if self.actuation.board_baud == 0 || self.ecu.baud == 0 {
+            return Err(invalid("[actuation] board_baud and [ecu] baud must be positive".into()));
+        }
+        if !(self.ecu.poll_hz.is_finite() && (10.0..=50.0).contains(&self.ecu.poll_hz)) {
+            return Err(invalid(format!("[ecu] poll_hz = {} must be within 10..50", self.ecu.poll_hz)));
+        }
+        self.sensor.validate(self.bench.devices).map_err(invalid)?;
         if self.actuation.idle_after_missed_cycles == 0 {
             return Err(invalid("[actuation] idle_after_missed_cycles must be at least 1".into()));
         }
@@ -373,6 +521,16 @@ impl BenchConfig {
         self.plant_model().map(|file| file.plant())
     }
 
+    /// The throttle board's serial port: the configured one, else (simulated bench) sim-bench's pty link.
+    pub fn board_port(&self) -> PathBuf {
+        self.actuation.board_port.as_ref().map_or_else(|| sim_port_link(SIM_BOARD_LINK), PathBuf::from)
+    }
+
+    /// The ECU's serial port: the configured one, else (simulated bench) sim-bench's pty link.
+    pub fn ecu_port(&self) -> PathBuf {
+        self.ecu.port.as_ref().map_or_else(|| sim_port_link(SIM_ECU_LINK), PathBuf::from)
+    }
+
     /// Parameters the estimator and controller use.
     pub fn model_params(&self) -> Result<Params, jetbench_model::ModelError> {
         jetbench_model::resolve_params(&self.model.model)
@@ -409,6 +567,59 @@ mod tests {
         let c = BenchConfig::default_sim().unwrap();
         assert_eq!(c.bench.devices, Devices::Sim);
         assert_eq!(c.actuation.idle_after_missed_cycles, 3);
+    }
+
+    #[test]
+    fn sensor_section_keeps_old_tare_and_checks_the_can_keys() {
+        let c = BenchConfig::default_sim().unwrap();
+        assert_eq!(c.sensor.interface(Devices::Sim).unwrap().to_string(), "user:simcan0");
+        let unset = SensorSection::default();
+        assert_eq!(unset.interface(Devices::Sim).unwrap().to_string(), "user:simcan0");
+        assert_eq!(c.sensor.codec().unwrap().force_id(), 0x101);
+        assert_eq!(c.sensor.calibration().unwrap(), jetbench_io::calib::Calibration::identity());
+        // An older config: force-only tare_n, no CAN keys.
+        let old = DEFAULT_SIM_CONFIG.replace("tare = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]", "tare_n = [1.0, 2.0, 3.0]");
+        let c = BenchConfig::from_toml_str(&old, "old.toml", None).unwrap();
+        assert_eq!(c.sensor.tare_offsets(), [1.0, 2.0, 3.0, 0.0, 0.0, 0.0]);
+        let both = DEFAULT_SIM_CONFIG.replace("tare = [", "tare_n = [0.0, 0.0, 0.0]\ntare = [");
+        let e = BenchConfig::from_toml_str(&both, "t.toml", None).unwrap_err().to_string();
+        assert!(e.contains("both tare and tare_n"), "{e}");
+        for (from, to, says) in [
+            ("can_interface = \"user:simcan0\"", "can_interface = \"can 0\"", "can_interface"),
+            ("can_base_id = 0x100", "can_base_id = 0x7fe", "can_base_id"),
+            ("[0.0, 0.0, 0.0, 0.0, 0.0, 1.0],", "[0.0, 0.0, 0.0, 0.0, 0.0, nan],", "[5][5]"),
+        ] {
+            let e = BenchConfig::from_toml_str(&DEFAULT_SIM_CONFIG.replace(from, to), "t.toml", None)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(says), "{e}");
+        }
+        // The config round-trips through TOML (the open-loop launcher writes it).
+        let text = toml::to_string(&c).unwrap();
+        assert_eq!(BenchConfig::from_toml_str(&text, "rt.toml", None).unwrap(), c);
+    }
+
+    #[test]
+    fn the_example_bench_config_names_its_serial_ports() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/bench.example.toml");
+        let c = BenchConfig::load(&path).unwrap();
+        assert_eq!(c.bench.devices, Devices::Bench);
+        assert_eq!((c.board_port(), c.actuation.board_baud), (PathBuf::from("/dev/ttyUSB0"), 115_200));
+        assert_eq!((c.ecu_port(), c.ecu.baud, c.ecu.poll_hz), (PathBuf::from("/dev/ttyUSB1"), 9600, 15.0));
+        let text = std::fs::read_to_string(&path).unwrap().replace("port = \"/dev/ttyUSB1\"", "");
+        let e = BenchConfig::from_toml_str(&text, "t.toml", None).unwrap_err().to_string();
+        assert!(e.contains("[ecu] port"), "{e}");
+    }
+
+    #[test]
+    fn sim_serial_ports_are_links_in_the_bus_namespace_folder() {
+        let c = BenchConfig::default_sim().unwrap();
+        let board = c.board_port();
+        assert_eq!(board.file_name().and_then(|n| n.to_str()), Some(SIM_BOARD_LINK));
+        assert_eq!(board.parent(), c.ecu_port().parent());
+        let text = DEFAULT_SIM_CONFIG.replace("poll_hz = 15.0", "poll_hz = 5.0");
+        let e = BenchConfig::from_toml_str(&text, "t.toml", None).unwrap_err().to_string();
+        assert!(e.contains("poll_hz"), "{e}");
     }
 
     #[test]

@@ -47,6 +47,8 @@ pub struct UpOptions {
     pub bin_dir: PathBuf,
     /// Print the live status line.
     pub status: bool,
+    /// Start sim-bench (the config's `[bench] devices = "sim"`); at the real bench the devices are real.
+    pub simulated: bool,
 }
 
 /// A started service process.
@@ -77,19 +79,16 @@ pub fn describe_exit(status: ExitStatus) -> String {
 }
 
 /// Start order: the recorder first so it sees every sample, then consumers
-/// before producers, and the simulated bench, which clocks the loop, last.
-pub fn start_order(record: bool) -> Vec<ServiceId> {
+/// before producers, and the simulated bench (when `simulated`), which clocks the loop, last.
+pub fn start_order(record: bool, simulated: bool) -> Vec<ServiceId> {
     let mut order = Vec::new();
     if record {
         order.push(ServiceId::Recorder);
     }
-    order.extend([
-        ServiceId::Actuation,
-        ServiceId::Control,
-        ServiceId::Estimation,
-        ServiceId::Sensing,
-        ServiceId::SimBench,
-    ]);
+    order.extend([ServiceId::Actuation, ServiceId::Control, ServiceId::Estimation, ServiceId::Sensing]);
+    if simulated {
+        order.push(ServiceId::SimBench);
+    }
     order
 }
 
@@ -266,7 +265,18 @@ pub fn up(options: &UpOptions) -> Result<(), LaunchError> {
     if cleaned > 0 {
         println!("cleaned up {cleaned} bus node(s) left by a previous run");
     }
-    let order = start_order(options.record.is_some());
+    if options.simulated {
+        // A sim-bench killed last time may have left its pty links behind,
+        // pointing at ptys the system may since have given to someone else:
+        // actuation starts first and must not open those.
+        for name in [crate::config::SIM_BOARD_LINK, crate::config::SIM_ECU_LINK] {
+            let link = crate::config::sim_port_link(name);
+            if std::fs::symlink_metadata(&link).is_ok_and(|m| m.file_type().is_symlink()) {
+                let _ = std::fs::remove_file(&link);
+            }
+        }
+    }
+    let order = start_order(options.record.is_some(), options.simulated);
     for id in &order {
         binary(&options.bin_dir, *id)?;
     }

@@ -647,7 +647,11 @@ pub fn synthetic_recording(config: &BenchConfig, cycles: usize) -> Result<Record
         config.plant.seed,
         config.plant.initial_throttle_pct,
     )?;
-    let mut sensing = Sensing::new(&config.sensor);
+    let mut sensing = Sensing::new(&config.sensor).map_err(|e| SyntheticError::Step {
+        cycle: 0,
+        service: "sensing",
+        message: e.to_string(),
+    })?;
     let mut estimation = Estimation::new(model, config.estimator.observer_config());
     let mut control = Control::with_law(config.control_law()?, config.reference.clone());
     let mut actuator = Actuator::new(config.actuation.idle_after_missed_cycles);
@@ -710,7 +714,7 @@ mod tests {
         let params = config.model_params().unwrap();
         let mut sim =
             SimBench::new(&jetbench_model::Plant::new(params, jetbench_model::Effects::none()), 7.0, 11, 25.0).unwrap();
-        let mut sensing = Sensing::new(&config.sensor);
+        let mut sensing = Sensing::new(&config.sensor).unwrap();
         let mut estimation = Estimation::new(params, config.estimator.observer_config());
         let mut messages = Vec::new();
         let mut frame = None;

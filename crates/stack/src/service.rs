@@ -9,8 +9,11 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use jetbench_bus::{AnySubscriber, Bus, BusError, Flow, LoopExit, Publisher, Trigger, Wake};
-use jetbench_io::sim::{BusForceSink, BusForceSource, BusThrottleInput, BusThrottleOutput};
-use jetbench_io::{DeviceError, ForceSink, ForceSource, ThrottleInput, ThrottleOutput};
+use jetbench_io::can::source::{CanForceSink, CanForceSource};
+use jetbench_io::can::RejectCounts;
+use jetbench_io::emulate::{EcuModel, PtyBoard, PtyEcu};
+use jetbench_io::serial::{EcuPoller, ThrottleBoard, SILENT_AFTER};
+use jetbench_io::{DeviceError, ForceSink, ForceSource, ThrottleOutput};
 use jetbench_msgs::{channels, command_flags, visit_channels, Channel, ChannelVisitor, Sample, ServiceId};
 use jetbench_record::{spawn_writer, RawRecord, RecordError};
 
@@ -85,8 +88,15 @@ pub fn run_sim_bench(config: &BenchConfig) -> Result<(), ServiceError> {
         config.plant.initial_throttle_pct,
     )?;
     let bus = Bus::open("sim-bench")?;
-    let mut sensor: Box<dyn ForceSink> = Box::new(BusForceSink::open(&bus)?);
-    let mut board: Box<dyn ThrottleInput> = Box::new(BusThrottleInput::open(&bus)?);
+    // The force sensor: real CAN frames on the configured interface (the
+    // userspace bus here, vcan or can0 where the kernel has CAN).
+    let mut sensor = SimSensor::open(config)?;
+    // The throttle board and the ECU, each on its own pty pair, published
+    // where actuation opens them (see `config::sim_port_link`).
+    let board = PtyBoard::spawn(&config.board_port(), monotonic_ns)?;
+    let mut ecu_model = EcuModel::settled(0.0, config.plant.initial_throttle_pct);
+    let ecu = PtyEcu::spawn(&config.ecu_port(), ecu_model.reading())?;
+    tracing::info!("throttle board on {}, ECU on {}", board.link().display(), ecu.link().display());
     let mut truth_pub = bus.publisher(channels::SIM_TRUTH)?;
     let mut health = HealthReporter::new(&bus, ServiceId::SimBench)?;
     announce_ready();
@@ -101,38 +111,116 @@ pub fn run_sim_bench(config: &BenchConfig) -> Result<(), ServiceError> {
         let now = Instant::now();
         let late = now > next + period;
         next = if now > next + STALL { now + period } else { next + period };
-        let frame = board.poll()?;
-        let (reading, truth) = sim.step(start_ns, frame).map_err(|e| {
+        // Idle while the board idles (disarmed, or its watchdog tripped).
+        let throttle_pct = board.output_pct(start_ns).unwrap_or(jetbench_model::THROTTLE_MIN_PCT);
+        let (reading, truth) = sim.step_driven(start_ns, throttle_pct).map_err(|e| {
             tracing::error!("the simulated engine failed: {e}");
             e
         })?;
+        ecu_model.step(truth.thrust_n, truth.engine_throttle_pct, PERIOD_NS as f64 * 1e-9);
+        ecu.set_reading(ecu_model.reading());
         sensor.emit(&reading, start_ns)?;
         truth_pub.publish(truth)?;
         health.cycle(start_ns, monotonic_ns(), late)?;
     }
+    let fw = board.firmware();
+    let c = fw.counters();
+    tracing::info!(
+        "throttle board emulator: {} valid frames, {} commands applied; rejected: crc={} truncated={} bad_length={} \
+         unknown_type={} out_of_range={} garbage_bytes={}; ECU emulator answered {} polls",
+        c.frames,
+        board.applied_count(),
+        c.crc_errors,
+        c.truncated,
+        c.bad_length,
+        c.unknown_type,
+        c.out_of_range,
+        c.garbage_bytes,
+        ecu.polls()
+    );
     Ok(())
 }
 
-/// Sensing: force frames in, `bench/thrust` out; clocked by the sensor.
+/// File that, while it exists, unplugs sim-bench's force sensor (it stops
+/// sending frames): `touch` it to test the silent-sensor path, remove it and
+/// the frames come back. In the run's sim folder (`config::sim_port_link`).
+pub const SENSOR_UNPLUGGED_FILE: &str = "sensor-unplugged";
+
+/// Sim-bench's force sensor: adds the sensor's zero offset and sends the
+/// reading as the two CAN frames, unless unplugged.
+struct SimSensor {
+    sink: CanForceSink,
+    zero: [f64; 6],
+    unplugged_file: std::path::PathBuf,
+    unplugged: bool,
+}
+
+impl SimSensor {
+    fn open(config: &BenchConfig) -> Result<Self, ServiceError> {
+        let interface =
+            config.sensor.interface(config.bench.devices).map_err(|e| ServiceError::Other(e.to_string()))?;
+        let codec = config.sensor.codec().map_err(|e| ServiceError::Other(e.to_string()))?;
+        let unplugged_file = crate::config::sim_port_link(SENSOR_UNPLUGGED_FILE);
+        // A marker left by an earlier run must not start this one unplugged.
+        let _ = std::fs::remove_file(&unplugged_file);
+        tracing::info!("force sensor sends CAN frames (base {:#x}) on {interface}", codec.base_id());
+        Ok(SimSensor {
+            sink: CanForceSink::open(&interface, codec)?,
+            zero: config.plant.sensor_zero,
+            unplugged_file,
+            unplugged: false,
+        })
+    }
+
+    fn emit(&mut self, reading: &jetbench_io::ForceReading, now_ns: u64) -> Result<(), ServiceError> {
+        let unplugged = self.unplugged_file.exists();
+        if unplugged != self.unplugged {
+            self.unplugged = unplugged;
+            if unplugged {
+                tracing::warn!("force sensor unplugged ({} exists): no frames", self.unplugged_file.display());
+            } else {
+                tracing::info!("force sensor plugged back in");
+            }
+        }
+        if unplugged {
+            return Ok(());
+        }
+        let mut r = *reading;
+        for i in 0..3 {
+            r.force_n[i] += self.zero[i];
+            r.torque_nm[i] += self.zero[3 + i];
+        }
+        self.sink.emit(&r, now_ns)?;
+        Ok(())
+    }
+}
+
+/// Sensing: force/torque CAN frames in, `bench/thrust` out; clocked by the
+/// sensor. A sensor silent for one input deadline (15 ms) is reported in
+/// `bench/health` (input overdue) every deadline until it is back; the first
+/// sample after it carries `SENSOR_RESUMED`. The link reopens by itself.
 pub fn run_sensing(config: &BenchConfig) -> Result<(), ServiceError> {
     let bus = Bus::open("sensing")?;
-    let mut source: Box<dyn ForceSource> = match config.bench.devices {
-        Devices::Sim => Box::new(BusForceSource::open(&bus)?),
-    };
+    let interface = config.sensor.interface(config.bench.devices).map_err(|e| ServiceError::Other(e.to_string()))?;
+    let codec = config.sensor.codec().map_err(|e| ServiceError::Other(e.to_string()))?;
+    let mut source = CanForceSource::open(&interface, codec)?;
     tracing::info!("reading {}", source.describe());
-    let mut step = Sensing::new(&config.sensor);
+    let mut step = Sensing::new(&config.sensor).map_err(|e| ServiceError::Other(format!("[sensor] {e}")))?;
     let mut thrust_pub = bus.publisher(channels::THRUST)?;
     let mut health = HealthReporter::new(&bus, ServiceId::Sensing)?;
     announce_ready();
 
-    let mut started = false;
+    let mut seen = RejectCounts::default();
     let mut rejected = 0;
     while !bus.stop_requested() {
         let reading = source.read(INPUT_DEADLINE)?;
         let start_ns = monotonic_ns();
         match reading {
             Some(reading) => {
-                started = true;
+                if let Some(since) = step.silent_since_ns() {
+                    let silent_ms = start_ns.saturating_sub(since) as f64 * 1e-6;
+                    tracing::info!("force sensor back after {:.0} ms", silent_ms + INPUT_DEADLINE.as_secs_f64() * 1e3);
+                }
                 match step.step(&reading, start_ns) {
                     Ok(thrust) => {
                         publish_now(&mut thrust_pub, thrust, |t, ns| t.publish_ns = ns)?;
@@ -140,17 +228,33 @@ pub fn run_sensing(config: &BenchConfig) -> Result<(), ServiceError> {
                     Err(e) => {
                         rejected += 1;
                         health.error();
-                        log_rejection(rejected, "force frame", &e);
+                        log_rejection(rejected, "force reading", &e);
                     }
                 }
-                health.set_input_gaps(source.rejected());
+                let counts = *source.counts();
+                for _ in seen.frames_rejected()..counts.frames_rejected() {
+                    health.error();
+                }
+                if counts != seen {
+                    log_rejection(counts.frames_rejected() + counts.sequence_jump, "CAN frames", &counts);
+                    seen = counts;
+                }
+                health.set_input_gaps(counts.lost_pairs);
                 health.cycle(start_ns, monotonic_ns(), false)?;
             }
             // The sensor went quiet: say so every deadline.
-            None if started => health.cycle(start_ns, monotonic_ns(), true)?,
-            None => {}
+            None => {
+                if step.silent(start_ns) {
+                    tracing::warn!("force sensor silent: no reading for {} ms", INPUT_DEADLINE.as_millis());
+                }
+                if step.silent_since_ns().is_some() {
+                    health.cycle(start_ns, monotonic_ns(), true)?;
+                }
+            }
         }
     }
+    let (frames, pairs) = source.frames_and_pairs();
+    tracing::info!("force sensor: {frames} frames in, {pairs} readings; rejected: {}", source.counts());
     Ok(())
 }
 
@@ -273,23 +377,28 @@ pub fn run_control(config: &BenchConfig) -> Result<(), ServiceError> {
     })
 }
 
-/// Actuation: `bench/command` in, throttle board and `bench/actuation` out.
-/// Without fresh commands it holds, then idles after the configured cycles.
+/// Actuation: `bench/command` in; throttle board, `bench/actuation` and
+/// `bench/ecu` out. Without fresh commands it holds, then idles after the
+/// configured cycles. The board and the ECU are serial devices opened by
+/// path (sim-bench's ptys with `devices = "sim"`); the ECU is polled on its
+/// own thread and its samples are published here without waiting.
 pub fn run_actuation(config: &BenchConfig) -> Result<(), ServiceError> {
     let bus = Bus::open("actuation")?;
     let command_sub = bus.subscriber(channels::COMMAND, 16)?;
-    let mut board: Box<dyn ThrottleOutput> = match config.bench.devices {
-        Devices::Sim => Box::new(BusThrottleOutput::open(&bus, monotonic_ns)?),
-    };
-    tracing::info!("driving {}", board.describe());
+    let mut board = ThrottleBoard::new(config.board_port(), config.actuation.board_baud, monotonic_ns);
+    tracing::info!("driving the {}", board.describe());
+    let ecu = EcuPoller::spawn(config.ecu_port(), config.ecu.baud, config.ecu.poll_hz, monotonic_ns)?;
+    tracing::info!("polling the {} at {} Hz", ecu.describe(), config.ecu.poll_hz);
     let mut actuation_pub = bus.publisher(channels::ACTUATION)?;
+    let mut ecu_pub = bus.publisher(channels::ECU)?;
     let mut health = HealthReporter::new(&bus, ServiceId::Actuation)?;
     let mut step = Actuator::new(config.actuation.idle_after_missed_cycles);
     announce_ready();
 
     let mut was_idle = false;
     let mut started = false;
-    consume(&bus, &[(&command_sub, Some(COMMAND_DEADLINE))], |wake| {
+    let mut links = LinkLog::default();
+    let result = consume(&bus, &[(&command_sub, Some(COMMAND_DEADLINE))], |wake| {
         let start_ns = monotonic_ns();
         // Before the first command the board is kept at idle; that is the
         // expected start, not a missed deadline.
@@ -304,13 +413,22 @@ pub fn run_actuation(config: &BenchConfig) -> Result<(), ServiceError> {
             Wake::Missed(_) => (step.on_missed(), started),
             Wake::Tick => return Ok(()),
         };
-        let mut output = output;
         if let Err(e) = board.write(output.applied_pct) {
             health.error();
             log_rejection(health.counters().errors, "throttle write", &e);
         }
-        output.round_trip_ns = board.round_trip_ns().unwrap_or(0);
+        let output = step.with_board(output, board.acknowledged(), board.unacked_writes(), board.silent_writes());
         publish_now(&mut actuation_pub, output, |a, ns| a.publish_ns = ns)?;
+        let board_silent = board.silent_writes() >= SILENT_AFTER;
+        if links.board(board_silent, &board) {
+            health.error();
+        }
+        for telemetry in ecu.try_iter() {
+            if links.ecu(telemetry.flags, &ecu) {
+                health.error();
+            }
+            publish_now(&mut ecu_pub, telemetry, |t, ns| t.publish_ns = ns)?;
+        }
         let idle = step.is_idle_fallback();
         if idle != was_idle {
             if !started {
@@ -322,11 +440,81 @@ pub fn run_actuation(config: &BenchConfig) -> Result<(), ServiceError> {
             }
             was_idle = idle;
         }
-        health.set_fallback(idle);
+        health.set_fallback(idle || board_silent);
         health.set_input_gaps(command_sub.gaps());
         health.cycle(start_ns, monotonic_ns(), late)?;
         Ok(())
-    })
+    });
+    // Disarm, whatever ended the loop.
+    board.stop();
+    let c = board.counters();
+    tracing::info!(
+        "throttle board: {} acknowledged frames, {} rejected from the board ({} CRC, {} truncated), {} late acks, \
+         opened {} times; ECU: {:?}",
+        c.frames,
+        c.rejected(),
+        c.crc_errors,
+        c.truncated,
+        board.late_acks(),
+        board.opens(),
+        ecu.shared().counters
+    );
+    result
+}
+
+/// Logs each serial device going silent and coming back, once per change.
+#[derive(Default)]
+struct LinkLog {
+    board_seen: bool,
+    board_silent: bool,
+    ecu_seen: bool,
+    ecu_silent: bool,
+}
+
+impl LinkLog {
+    /// Returns true when the board has just gone silent after answering.
+    fn board(&mut self, silent: bool, board: &ThrottleBoard) -> bool {
+        let changed = silent != self.board_silent;
+        self.board_silent = silent;
+        match (changed, silent, self.board_seen) {
+            (true, true, true) => {
+                let why = board.link_error().unwrap_or("no acknowledgement");
+                tracing::warn!("{} is silent ({why}); reopening it", board.describe());
+                true
+            }
+            (_, false, false) if board.acknowledged().is_some() => {
+                self.board_seen = true;
+                tracing::info!("{} answers", board.describe());
+                false
+            }
+            (true, false, true) => {
+                tracing::info!("{} answers again (port opened {} times)", board.describe(), board.opens());
+                false
+            }
+            _ => false,
+        }
+    }
+
+    /// One ECU sample's flags; returns true when the ECU has just gone silent after answering.
+    fn ecu(&mut self, flags: u32, ecu: &EcuPoller) -> bool {
+        let fresh = flags & jetbench_msgs::ecu_flags::STALE == 0;
+        let silent = flags & jetbench_msgs::ecu_flags::SILENT != 0;
+        let mut went_silent = false;
+        if fresh && !self.ecu_seen {
+            self.ecu_seen = true;
+            tracing::info!("{} answers", ecu.describe());
+        } else if fresh && self.ecu_silent {
+            tracing::info!("{} answers again", ecu.describe());
+        } else if silent && !self.ecu_silent && self.ecu_seen {
+            let why = ecu.shared().link_error.unwrap_or_else(|| "no valid reply".into());
+            tracing::warn!("{} is silent ({why}); reopening it", ecu.describe());
+            went_silent = true;
+        }
+        if fresh || silent {
+            self.ecu_silent = silent;
+        }
+        went_silent
+    }
 }
 
 /// Per-channel counts the recorder reports at exit.

@@ -5,7 +5,7 @@
 
 use jetbench_control::{ControllerKind, Law, Profile};
 use jetbench_estim::{EstimError, ObserverConfig, ThrustObserver};
-use jetbench_io::ForceReading;
+use jetbench_io::{Acknowledgement, ForceReading};
 use jetbench_model::{
     ModelError, Params, Plant, PlantEngine, PlantSample, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT,
 };
@@ -17,7 +17,9 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
+use crate::clock::PERIOD_NS;
 use crate::config::SensorSection;
+use jetbench_io::calib::{Calibration, CalibrationError};
 
 /// Why sensing rejected a reading.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -26,43 +28,59 @@ pub enum SensingError {
     NonFinite([f64; 3]),
 }
 
-/// Sensing: calibrates a force reading into a thrust sample.
+/// Sensing: calibrates a force/torque reading into a thrust sample, and
+/// keeps track of the sensor's frame counter and of silences.
 #[derive(Debug, Clone)]
 pub struct Sensing {
     axis: usize,
-    tare_n: [f64; 3],
-    last_counter: Option<u32>,
+    calibration: Calibration,
+    last: Option<(u32, u64)>,
     frame_seq: u64,
+    silent_since_ns: Option<u64>,
 }
 
 impl Sensing {
-    pub fn new(sensor: &SensorSection) -> Self {
-        Sensing { axis: sensor.thrust_axis.index(), tare_n: sensor.tare_n, last_counter: None, frame_seq: 0 }
+    /// With the section's calibration matrix, tare and thrust axis.
+    pub fn new(sensor: &SensorSection) -> Result<Self, CalibrationError> {
+        Ok(Sensing {
+            axis: sensor.thrust_axis.index(),
+            calibration: sensor.calibration()?,
+            last: None,
+            frame_seq: 0,
+            silent_since_ns: None,
+        })
     }
 
-    /// One frame received at `received_ns`. `counter` jumps set `FRAME_GAP`.
+    /// One reading (raw sensor units, N and N·m) received at `received_ns`:
+    /// `calibrated = C · raw − tare`, thrust the calibrated force on the
+    /// thrust axis. A counter jump sets `FRAME_GAP`; the first reading after
+    /// [`Sensing::silent`] sets `SENSOR_RESUMED`.
     pub fn step(&mut self, reading: &ForceReading, received_ns: u64) -> Result<Thrust, SensingError> {
         if reading.force_n.iter().chain(&reading.torque_nm).any(|v| !v.is_finite()) {
             return Err(SensingError::NonFinite(reading.force_n));
         }
         let mut flags = 0;
-        if let Some(last) = self.last_counter {
-            // The wire counter is 8 bits wide and wraps.
-            let step = reading.counter.wrapping_sub(last) & 0xff;
-            if step != 1 {
+        if let Some((last, last_ns)) = self.last {
+            // The wire counter is 8 bits wide and wraps; after a long silence
+            // the time since the last frame tells how many times it wrapped.
+            let step = u64::from(reading.counter.wrapping_sub(last) & 0xff);
+            let elapsed = received_ns.saturating_sub(last_ns) / PERIOD_NS;
+            let wraps = if elapsed > step + 128 { (elapsed - step + 128) / 256 } else { 0 };
+            let frames = step + 256 * wraps;
+            if frames != 1 {
                 flags |= thrust_flags::FRAME_GAP;
             }
-            self.frame_seq += u64::from(step.max(1));
+            self.frame_seq += frames.max(1);
         }
-        self.last_counter = Some(reading.counter);
+        self.last = Some((reading.counter, received_ns));
+        if self.silent_since_ns.take().is_some() {
+            flags |= thrust_flags::SENSOR_RESUMED;
+        }
         if reading.status & (sensor_status::OVERLOAD | sensor_status::CALIBRATION_INVALID) != 0 {
             flags |= thrust_flags::SENSOR_STATUS;
         }
-        let force_n = [
-            reading.force_n[0] - self.tare_n[0],
-            reading.force_n[1] - self.tare_n[1],
-            reading.force_n[2] - self.tare_n[2],
-        ];
+        let c = self.calibration.apply(reading);
+        let force_n = [c[0], c[1], c[2]];
         Ok(Thrust {
             seq: 0,
             stamp_ns: received_ns,
@@ -70,10 +88,25 @@ impl Sensing {
             frame_seq: self.frame_seq,
             thrust_n: force_n[self.axis],
             force_n,
-            torque_nm: reading.torque_nm,
+            torque_nm: [c[3], c[4], c[5]],
             status: reading.status,
             flags,
         })
+    }
+
+    /// No reading within the input deadline at `now_ns`. True when this
+    /// starts a silence (so the service reports it once).
+    pub fn silent(&mut self, now_ns: u64) -> bool {
+        if self.last.is_none() || self.silent_since_ns.is_some() {
+            return false;
+        }
+        self.silent_since_ns = Some(now_ns);
+        true
+    }
+
+    /// Since when the sensor has been silent, if it is.
+    pub fn silent_since_ns(&self) -> Option<u64> {
+        self.silent_since_ns
     }
 }
 
@@ -276,6 +309,38 @@ impl Actuator {
         }
     }
 
+    /// Completes this cycle's sample with what the board acknowledged:
+    /// `applied_pct` and `round_trip_ns` from the newest acknowledgement, and
+    /// flags when the board has not acknowledged this cycle's command in time
+    /// (`UNACKED`: the newest acknowledged value stands) or has said nothing
+    /// for [`SILENT_AFTER`](jetbench_io::serial::SILENT_AFTER) cycles
+    /// (`BOARD_SILENT`: the board idles by its own watchdog, so idle is reported).
+    /// `ack = None` with zero counts (a device without acknowledgements)
+    /// leaves the sample as it is.
+    pub fn with_board(
+        &self,
+        mut out: Actuation,
+        ack: Option<Acknowledgement>,
+        unacked_writes: u32,
+        silent_writes: u32,
+    ) -> Actuation {
+        if let Some(a) = ack {
+            out.applied_pct = a.applied_pct;
+            out.round_trip_ns = a.round_trip_ns;
+            if a.idle_fallback {
+                out.flags |= actuation_flags::BOARD_IDLE;
+            }
+        }
+        if unacked_writes > 0 {
+            out.flags |= actuation_flags::UNACKED;
+        }
+        if silent_writes >= jetbench_io::serial::SILENT_AFTER {
+            out.flags |= actuation_flags::BOARD_SILENT;
+            out.applied_pct = THROTTLE_MIN_PCT;
+        }
+        out
+    }
+
     /// True while idling for lack of commands.
     pub fn is_idle_fallback(&self) -> bool {
         self.missed >= self.idle_after_missed || (self.missed > 0 && self.last.is_none())
@@ -309,7 +374,7 @@ pub struct BoardEmulator {
 
 impl BoardEmulator {
     /// The board's own watchdog, as on the real board.
-    pub const WATCHDOG_NS: u64 = 100_000_000;
+    pub const WATCHDOG_NS: u64 = jetbench_io::emulate::BOARD_WATCHDOG_NS;
 
     pub fn new() -> Self {
         BoardEmulator { throttle_pct: THROTTLE_MIN_PCT, last_frame_ns: None }
@@ -375,7 +440,14 @@ impl SimBench {
         if let Some(t) = throttle_frame {
             self.board.receive(t, now_ns);
         }
-        let throttle_pct = self.board.output_pct(now_ns);
+        self.step_driven(now_ns, self.board.output_pct(now_ns))
+    }
+
+    /// One 10 ms step with the engine driven at `throttle_pct` by a board
+    /// emulated elsewhere (sim-bench's pty board, which keeps its own
+    /// watchdog); below idle counts as idle, as in the engine's ECU.
+    pub fn step_driven(&mut self, now_ns: u64, throttle_pct: f64) -> Result<(ForceReading, SimTruth), ModelError> {
+        let throttle_pct = if throttle_pct.is_finite() { throttle_pct.max(THROTTLE_MIN_PCT) } else { THROTTLE_MIN_PCT };
         let PlantSample { state: State { thrust_n, thrust_rate_n_per_s }, measured_n, engine_throttle_pct } =
             self.engine.step(throttle_pct)?;
         self.counter = self.counter.wrapping_add(1) & 0xff;
@@ -444,6 +516,24 @@ mod tests {
     }
 
     #[test]
+    fn actuation_reports_the_acknowledged_command_and_a_silent_board() {
+        let a = Actuator::new(3);
+        let out = Actuation { applied_pct: 42.345, ..Actuation::default() };
+        let ack =
+            Acknowledgement { seq: 9, applied_pct: 42.35, round_trip_ns: 180_000, armed: true, idle_fallback: false };
+        let acked = a.with_board(out, Some(ack), 0, 0);
+        assert_eq!((acked.applied_pct, acked.round_trip_ns, acked.flags), (42.35, 180_000, 0));
+        let late = a.with_board(out, Some(ack), 5, 0);
+        assert_eq!((late.applied_pct, late.flags), (42.35, actuation_flags::UNACKED), "slow but alive");
+        let silent = a.with_board(out, Some(ack), 3, 3);
+        assert_eq!(silent.applied_pct, THROTTLE_MIN_PCT);
+        assert_eq!(silent.flags, actuation_flags::UNACKED | actuation_flags::BOARD_SILENT);
+        let never = a.with_board(out, None, 1, 1);
+        assert_eq!((never.applied_pct, never.flags), (42.345, actuation_flags::UNACKED));
+        assert_eq!(a.with_board(out, None, 0, 0), out, "a device without acknowledgements");
+    }
+
+    #[test]
     fn actuator_clamps_and_rejects_nan() {
         let mut a = Actuator::new(3);
         assert_eq!(a.on_command(&command(1, 140.0)).applied_pct, THROTTLE_MAX_PCT);
@@ -462,18 +552,40 @@ mod tests {
 
     #[test]
     fn sensing_flags_frame_gaps_and_rejects_nan() {
-        let mut s = Sensing::new(&SensorSection::default());
+        let mut s = Sensing::new(&SensorSection::default()).unwrap();
         let mut r = ForceReading { force_n: [40.0, 0.1, 0.2], counter: 254, ..ForceReading::default() };
         assert_eq!(s.step(&r, 1).unwrap().flags, 0);
         r.counter = 255;
-        assert_eq!(s.step(&r, 2).unwrap().flags, 0);
+        assert_eq!(s.step(&r, PERIOD_NS).unwrap().flags, 0);
         r.counter = 1; // wrapped past 0: frame 0 lost
-        let t = s.step(&r, 3).unwrap();
+        let t = s.step(&r, 3 * PERIOD_NS).unwrap();
         assert_ne!(t.flags & thrust_flags::FRAME_GAP, 0);
         assert_eq!(t.frame_seq, 3);
         assert_eq!(t.thrust_n, 40.0);
         r.force_n[0] = f64::NAN;
-        assert!(s.step(&r, 4).is_err());
+        assert!(s.step(&r, 4 * PERIOD_NS).is_err());
+    }
+
+    #[test]
+    fn sensing_calibrates_and_reports_silence() {
+        let mut section = SensorSection { tare: Some([1.0, 0.0, 0.0, 0.0, 0.0, 0.5]), ..SensorSection::default() };
+        section.calibration[0][0] = 2.0;
+        section.calibration[5][2] = 0.1; // Fz leaks into Tz
+        let mut s = Sensing::new(&section).unwrap();
+        assert!(!s.silent(0), "no silence before the first reading");
+        let r = ForceReading { force_n: [20.5, 0.0, 10.0], torque_nm: [0.0, 0.0, 0.25], counter: 7, status: 0 };
+        let t = s.step(&r, 0).unwrap();
+        assert!((t.thrust_n - 40.0).abs() < 1e-12, "2 * 20.5 - 1 = 40, got {}", t.thrust_n);
+        assert!((t.torque_nm[2] - (0.25 + 1.0 - 0.5)).abs() < 1e-12);
+        // Silent from 15 ms on; back after 3.0 s: counter 7 + 300 frames = 51 (mod 256).
+        assert!(s.silent(15_000_000));
+        assert!(!s.silent(25_000_000), "reported once per silence");
+        let back = ForceReading { counter: (7 + 300) % 256, ..r };
+        let t = s.step(&back, 3_000_000_000).unwrap();
+        assert_eq!(t.flags, thrust_flags::FRAME_GAP | thrust_flags::SENSOR_RESUMED);
+        assert_eq!(t.frame_seq, 300, "the counter wrapped once during the silence");
+        let next = ForceReading { counter: back.counter + 1, ..r };
+        assert_eq!(s.step(&next, 3_010_000_000).unwrap().flags, 0);
     }
 
     /// The whole loop on the model, with the same step code the services run:
@@ -490,7 +602,7 @@ mod tests {
         let plant = Plant::new(params, Effects::none());
         let config = crate::config::BenchConfig::default_sim().unwrap();
         let mut sim = SimBench::new(&plant, 7.0, 3, 25.0).unwrap();
-        let mut sensing = Sensing::new(&config.sensor);
+        let mut sensing = Sensing::new(&config.sensor).unwrap();
         let mut estimation = Estimation::new(params, config.estimator.observer_config());
         let law = Law::new(kind, &plant, &LawSettings::default());
         let mut control = Control::new(law, config.reference.clone());

@@ -1,7 +1,9 @@
 //! Offline commands of the `jetbench` CLI, one module each.
 
+pub mod can_decode;
 pub mod diagnose;
 pub mod identify;
 pub mod metrics;
 pub mod model;
 pub mod replay;
+pub mod tare;

@@ -1,0 +1,177 @@
+//! Kernel CAN (SocketCAN) through the `socketcan` crate: `can0` at the bench,
+//! `vcan0` for tests where the kernel has vcan.
+//!
+//! A read or write error (the adapter unplugged, the interface taken down)
+//! closes the socket; the next calls try to open it again, at most every
+//! [`REOPEN_EVERY`], and report silence meanwhile, so the stack keeps running
+//! and the sensor comes back by itself.
+//!
+//! ```no_run
+//! use jetbench_io::can::socketcan::SocketCan;
+//! use jetbench_io::can::source::CanTransport;
+//! use std::time::Duration;
+//!
+//! # fn main() -> Result<(), jetbench_io::DeviceError> {
+//! let mut can = SocketCan::open("can0")?;
+//! if let Some(Ok(frame)) = can.recv(Duration::from_millis(30))? {
+//!     println!("{:03x} {:02x?}", frame.id, frame.data());
+//! }
+//! # Ok(())
+//! # }
+//! ```
+
+use std::io::ErrorKind;
+use std::time::{Duration, Instant};
+
+use ::socketcan::{CanSocket, EmbeddedFrame, Socket, StandardId};
+
+use super::source::CanTransport;
+use super::{CanFrame, RejectKind, CAN_EFF_FLAG, CAN_ERR_FLAG, CAN_RTR_FLAG};
+use crate::DeviceError;
+
+/// How often a closed socket is tried again.
+pub const REOPEN_EVERY: Duration = Duration::from_millis(100);
+
+/// A raw CAN socket on one interface.
+pub struct SocketCan {
+    ifname: String,
+    socket: Option<CanSocket>,
+    last_attempt: Instant,
+    /// Read/write errors that closed the socket.
+    pub link_errors: u64,
+    /// Times the socket was opened again after an error.
+    pub reopens: u64,
+}
+
+/// Whether this kernel can open a raw CAN socket at all (`AF_CAN`), whatever
+/// interfaces exist: `Err` with the socket error where it cannot.
+pub fn probe_af_can() -> std::io::Result<()> {
+    // SAFETY: socket(2) with constant arguments; the descriptor is closed at once.
+    let fd = unsafe { libc::socket(libc::AF_CAN, libc::SOCK_RAW, libc::CAN_RAW) };
+    if fd < 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    // SAFETY: `fd` is the descriptor just opened and owned here.
+    unsafe { libc::close(fd) };
+    Ok(())
+}
+
+/// The reason a CAN socket cannot be opened, with what to do about it.
+fn open_error(ifname: &str, e: &std::io::Error) -> DeviceError {
+    let hint = match (e.raw_os_error(), probe_af_can()) {
+        (_, Err(af)) => format!(
+            " (this kernel has no CAN support: socket(AF_CAN) fails with \"{af}\"; use a userspace bus, `user:NAME`)"
+        ),
+        (Some(libc::ENODEV), Ok(())) => {
+            " (no such interface: check `ip link`; for a test bus: `ip link add dev vcan0 type vcan`)".into()
+        }
+        _ => String::new(),
+    };
+    DeviceError::Io { device: ifname.into(), reason: format!("cannot open the CAN socket: {e}{hint}") }
+}
+
+impl SocketCan {
+    /// Opens `ifname`; fails if the interface or kernel CAN is missing.
+    pub fn open(ifname: &str) -> Result<Self, DeviceError> {
+        let socket = CanSocket::open(ifname).map_err(|e| open_error(ifname, &e))?;
+        Ok(SocketCan {
+            ifname: ifname.into(),
+            socket: Some(socket),
+            last_attempt: Instant::now(),
+            link_errors: 0,
+            reopens: 0,
+        })
+    }
+
+    /// True while the socket is open.
+    pub fn is_open(&self) -> bool {
+        self.socket.is_some()
+    }
+
+    fn fail(&mut self, what: &str, e: &std::io::Error) {
+        self.link_errors += 1;
+        if self.link_errors <= 5 || self.link_errors.is_multiple_of(100) {
+            tracing::warn!("{}: {what} failed ({e}); reopening", self.ifname);
+        }
+        self.socket = None;
+        self.last_attempt = Instant::now();
+    }
+
+    fn ensure_open(&mut self) -> bool {
+        if self.socket.is_none() && self.last_attempt.elapsed() >= REOPEN_EVERY {
+            self.last_attempt = Instant::now();
+            if let Ok(s) = CanSocket::open(&self.ifname) {
+                self.socket = Some(s);
+                self.reopens += 1;
+            }
+        }
+        self.socket.is_some()
+    }
+}
+
+impl CanTransport for SocketCan {
+    fn recv(&mut self, timeout: Duration) -> Result<Option<Result<CanFrame, RejectKind>>, DeviceError> {
+        if !self.ensure_open() {
+            // Down: report silence after the wait a frame would have had.
+            std::thread::sleep(timeout.min(REOPEN_EVERY));
+            return Ok(None);
+        }
+        let Some(socket) = &self.socket else { return Ok(None) };
+        let result =
+            socket.set_read_timeout(timeout.max(Duration::from_micros(100))).and_then(|()| socket.read_raw_frame());
+        match result {
+            Ok(raw) => {
+                if raw.can_dlc > 8 {
+                    return Ok(Some(Err(RejectKind::BadDlc)));
+                }
+                Ok(Some(Ok(CanFrame { id: raw.can_id, len: raw.can_dlc, data: raw.data })))
+            }
+            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted) => {
+                Ok(None)
+            }
+            Err(e) => {
+                self.fail("read", &e);
+                Ok(None)
+            }
+        }
+    }
+
+    fn send(&mut self, frame: &CanFrame) -> Result<(), DeviceError> {
+        if frame.id & (CAN_EFF_FLAG | CAN_RTR_FLAG | CAN_ERR_FLAG) != 0 {
+            return Err(DeviceError::InvalidValue {
+                device: self.ifname.clone(),
+                reason: "only classic data frames are sent".into(),
+            });
+        }
+        let id = u16::try_from(frame.id).ok().and_then(StandardId::new);
+        let Some(out) = id.and_then(|id| ::socketcan::CanFrame::new(id, frame.data())) else {
+            return Err(DeviceError::InvalidValue {
+                device: self.ifname.clone(),
+                reason: format!("bad frame {frame:?}"),
+            });
+        };
+        if !self.ensure_open() {
+            return Ok(()); // down: the frame is lost, as on a disconnected bus
+        }
+        if let Some(socket) = &self.socket {
+            if let Err(e) = socket.write_frame(&out) {
+                if e.kind() != ErrorKind::WouldBlock {
+                    self.fail("write", &e);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn reopen(&mut self) -> Result<(), DeviceError> {
+        self.socket = None;
+        let socket = CanSocket::open(&self.ifname).map_err(|e| open_error(&self.ifname, &e))?;
+        self.socket = Some(socket);
+        self.reopens += 1;
+        Ok(())
+    }
+
+    fn describe(&self) -> String {
+        format!("SocketCAN {}", self.ifname)
+    }
+}

@@ -1,0 +1,573 @@
+//! Serial drivers: the throttle board and the ECU poller.
+//!
+//! Both open their port by path (`/dev/ttyUSB0` at the bench, the link to a
+//! pseudo-terminal that sim-bench creates here) and survive the device going
+//! away: a silent device is reported within [`SILENT_AFTER`] cycles, its port
+//! is closed, and it is reopened by path until it answers again, without
+//! restarting anything.
+//!
+//! ```no_run
+//! use jetbench_io::serial::{EcuPoller, ThrottleBoard};
+//! use jetbench_io::ThrottleOutput;
+//!
+//! fn clock() -> u64 {
+//!     std::time::UNIX_EPOCH.elapsed().map_or(0, |d| d.as_nanos() as u64)
+//! }
+//! let mut board = ThrottleBoard::new("/dev/ttyUSB0", 115_200, clock);
+//! board.write(42.5).unwrap(); // opens, arms, sends, waits up to ACK_WAIT for the ack
+//! if let Some(ack) = board.acknowledged() {
+//!     println!("board applies {} % ({} ns round trip)", ack.applied_pct, ack.round_trip_ns);
+//! }
+//! let ecu = EcuPoller::spawn("/dev/ttyUSB1", 9600, 20.0, clock).unwrap();
+//! for telemetry in ecu.try_iter() {
+//!     println!("{} rpm, EGT {} °C", telemetry.rpm, telemetry.egt_c);
+//! }
+//! ```
+
+use std::io::{ErrorKind, Read, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use crossbeam_channel::{Receiver, Sender, TrySendError};
+use jetbench_msgs::{ecu_flags, EcuTelemetry};
+use serialport::{SerialPort, TTYPort};
+
+use crate::board::{self, board_flags, BoardStatus, Deframer, Frame, Throttle};
+use crate::ecu::{self, EcuCounters, LineDecoder};
+use crate::{Acknowledgement, DeviceError, ThrottleOutput};
+
+/// How long a write waits for the board's acknowledgement before the cycle
+/// goes on without it (a late ack is still read, and counted, next cycle).
+pub const ACK_WAIT: Duration = Duration::from_millis(4);
+/// Cycles (board writes, ECU polls) without an answer after which the
+/// device is reported silent and its port is reopened.
+pub const SILENT_AFTER: u32 = 3;
+/// While a board is unreachable, its port is reopened every this many writes.
+pub const REOPEN_EVERY: u32 = 5;
+use crate::emulate::PARTIAL_FRAME_NS;
+
+/// Opens a serial port by path, 8N1, no flow control, exclusive.
+pub fn open_port(path: &Path, baud: u32) -> Result<TTYPort, serialport::Error> {
+    serialport::new(path.to_string_lossy(), baud)
+        .data_bits(serialport::DataBits::Eight)
+        .parity(serialport::Parity::None)
+        .stop_bits(serialport::StopBits::One)
+        .flow_control(serialport::FlowControl::None)
+        .timeout(ACK_WAIT)
+        .open_native()
+}
+
+/// The throttle board driver. Implements [`ThrottleOutput`]: every
+/// [`write`](ThrottleOutput::write) sends one set-throttle frame and waits at
+/// most [`ACK_WAIT`] for its acknowledgement.
+pub struct ThrottleBoard {
+    path: PathBuf,
+    baud: u32,
+    clock: fn() -> u64,
+    ack_wait: Duration,
+    port: Option<TTYPort>,
+    deframer: Deframer,
+    next_seq: u16,
+    need_arm: bool,
+    last_ack: Option<Acknowledgement>,
+    status: Option<BoardStatus>,
+    /// Send times of the latest commands, to time acknowledgements that come late.
+    sent: [(u16, u64); 8],
+    heard: bool,
+    unacked: u32,
+    silent: u32,
+    writes_down: u32,
+    link_error: Option<String>,
+    opens: u64,
+    late_acks: u64,
+    last_rx_ns: u64,
+}
+
+impl ThrottleBoard {
+    /// A driver for the board at `path`; the port is opened on the first write.
+    pub fn new(path: impl Into<PathBuf>, baud: u32, clock: fn() -> u64) -> Self {
+        ThrottleBoard {
+            path: path.into(),
+            baud,
+            clock,
+            ack_wait: ACK_WAIT,
+            port: None,
+            deframer: Deframer::new(),
+            next_seq: 0,
+            need_arm: true,
+            last_ack: None,
+            status: None,
+            sent: [(u16::MAX, 0); 8],
+            heard: false,
+            unacked: 0,
+            silent: 0,
+            writes_down: 0,
+            link_error: None,
+            opens: 0,
+            late_acks: 0,
+            last_rx_ns: 0,
+        }
+    }
+
+    /// Changes the bounded wait for acknowledgements.
+    pub fn with_ack_wait(mut self, wait: Duration) -> Self {
+        self.ack_wait = wait;
+        self
+    }
+
+    /// Opens the port now and arms the board.
+    pub fn connect(&mut self) -> Result<(), DeviceError> {
+        self.port = None;
+        let port = open_port(&self.path, self.baud).map_err(|e| self.io_error(e.to_string()))?;
+        // Bytes from before this open (a previous session's acks) are not ours.
+        let _ = port.clear(serialport::ClearBuffer::All);
+        self.port = Some(port);
+        self.opens += 1;
+        self.need_arm = true;
+        self.link_error = None;
+        self.arm()
+    }
+
+    fn arm(&mut self) -> Result<(), DeviceError> {
+        let seq = self.take_seq();
+        self.need_arm = false;
+        if self.send(&Frame::Arm { seq }) {
+            self.wait_for_ack(seq, (self.clock)());
+        }
+        Ok(())
+    }
+
+    fn io_error(&self, reason: String) -> DeviceError {
+        DeviceError::Io { device: self.describe(), reason }
+    }
+
+    fn take_seq(&mut self) -> u16 {
+        let seq = self.next_seq;
+        self.next_seq = self.next_seq.wrapping_add(1);
+        seq
+    }
+
+    fn sent_at(&self, seq: u16) -> Option<u64> {
+        self.sent.iter().find(|(s, _)| *s == seq).map(|(_, t)| *t)
+    }
+
+    /// Sends a frame; on failure the link is dropped (and reopened later).
+    fn send(&mut self, frame: &Frame) -> bool {
+        let Some(port) = self.port.as_mut() else { return false };
+        let sent_ns = (self.clock)();
+        match port.write_all(&board::encode(frame)) {
+            Ok(()) => {
+                if let Frame::SetThrottle { seq, .. } | Frame::Arm { seq } | Frame::Disarm { seq } = *frame {
+                    self.sent[usize::from(seq) % self.sent.len()] = (seq, sent_ns);
+                }
+                true
+            }
+            Err(e) => {
+                self.drop_link(format!("write failed: {e}"));
+                false
+            }
+        }
+    }
+
+    fn drop_link(&mut self, reason: String) {
+        self.port = None;
+        self.link_error = Some(reason);
+        self.writes_down = 0;
+    }
+
+    /// Reads until the ack of `seq` arrives or the wait ends; true if it came.
+    fn wait_for_ack(&mut self, seq: u16, sent_ns: u64) -> bool {
+        let deadline_ns = sent_ns + self.ack_wait.as_nanos() as u64;
+        let mut buf = [0u8; 256];
+        let mut acked = false;
+        loop {
+            let now_ns = (self.clock)();
+            let Some(port) = self.port.as_mut() else { return acked };
+            if acked && port.bytes_to_read().unwrap_or(0) == 0 {
+                return true;
+            }
+            let left_ns = deadline_ns.saturating_sub(now_ns);
+            if left_ns == 0 && !acked {
+                break;
+            }
+            let _ = port.set_timeout(Duration::from_nanos(left_ns.max(1)));
+            match port.read(&mut buf) {
+                Ok(0) => {
+                    self.drop_link("the port closed".into());
+                    return acked;
+                }
+                Ok(n) => {
+                    let rx_ns = (self.clock)();
+                    let mut frames = Vec::new();
+                    // A partial frame the line went quiet on is not continued by these bytes.
+                    while self.deframer.pending() > 0 && rx_ns.saturating_sub(self.last_rx_ns) > PARTIAL_FRAME_NS {
+                        self.deframer.expire_partial(|f| frames.push(f));
+                    }
+                    self.last_rx_ns = rx_ns;
+                    self.deframer.push(&buf[..n], |f| frames.push(f));
+                    for frame in frames {
+                        acked |= self.on_frame(frame, seq, sent_ns, rx_ns);
+                    }
+                }
+                Err(e) if matches!(e.kind(), ErrorKind::TimedOut | ErrorKind::Interrupted | ErrorKind::WouldBlock) => {
+                    if acked {
+                        return true;
+                    }
+                    if (self.clock)() >= deadline_ns {
+                        break;
+                    }
+                }
+                Err(e) => {
+                    self.drop_link(format!("read failed: {e}"));
+                    return acked;
+                }
+            }
+        }
+        if self.deframer.pending() > 0 && (self.clock)().saturating_sub(self.last_rx_ns) > PARTIAL_FRAME_NS {
+            let mut frames = Vec::new();
+            self.deframer.expire_partial(|f| frames.push(f));
+            for frame in frames {
+                self.on_frame(frame, seq, sent_ns, self.last_rx_ns);
+            }
+        }
+        acked
+    }
+
+    fn on_frame(&mut self, frame: Frame, want: u16, sent_ns: u64, rx_ns: u64) -> bool {
+        match frame {
+            Frame::Ack { seq, applied, flags } => {
+                self.heard = true;
+                let sent_ns = if seq == want { Some(sent_ns) } else { self.sent_at(seq) };
+                // An ack of an earlier command (late) still tells what the board applied,
+                // unless a newer command's ack is already in.
+                let newer = self.last_ack.is_none_or(|a| seq.wrapping_sub(a.seq as u16) < u16::MAX / 2);
+                if seq != want {
+                    self.late_acks += 1;
+                }
+                if let (Some(sent_ns), true) = (sent_ns, newer) {
+                    self.last_ack = Some(Acknowledgement {
+                        seq: u64::from(seq),
+                        applied_pct: applied.pct(),
+                        round_trip_ns: rx_ns.saturating_sub(sent_ns),
+                        armed: flags & board_flags::ARMED != 0,
+                        idle_fallback: flags & board_flags::IDLE_FALLBACK != 0,
+                    });
+                }
+                if flags & board_flags::ARMED == 0 {
+                    // The board restarted (or was disarmed by someone else): arm it again.
+                    self.need_arm = true;
+                }
+                seq == want
+            }
+            Frame::Status(s) => {
+                self.heard = true;
+                self.status = Some(s);
+                false
+            }
+            // Commands are the PC's to send; a board never sends them.
+            Frame::SetThrottle { .. } | Frame::Arm { .. } | Frame::Disarm { .. } => false,
+        }
+    }
+
+    /// The board's latest status report.
+    pub fn board_status(&self) -> Option<BoardStatus> {
+        self.status
+    }
+
+    /// Rejections on the board-to-PC line, by kind.
+    pub fn counters(&self) -> &board::Counters {
+        self.deframer.counters()
+    }
+
+    /// Times the port was opened (1 + reopenings).
+    pub fn opens(&self) -> u64 {
+        self.opens
+    }
+
+    /// Acknowledgements that came after their wait (or for another command).
+    pub fn late_acks(&self) -> u64 {
+        self.late_acks
+    }
+
+    /// Why the link is down, while it is.
+    pub fn link_error(&self) -> Option<&str> {
+        if self.port.is_some() {
+            None
+        } else {
+            self.link_error.as_deref().or(Some("not opened yet"))
+        }
+    }
+
+    pub fn is_open(&self) -> bool {
+        self.port.is_some()
+    }
+}
+
+impl ThrottleOutput for ThrottleBoard {
+    fn write(&mut self, throttle_pct: f64) -> Result<(), DeviceError> {
+        let throttle = Throttle::from_pct(throttle_pct).ok_or_else(|| DeviceError::InvalidValue {
+            device: self.describe(),
+            reason: format!("throttle {throttle_pct} % is outside 0..100 or not a number"),
+        })?;
+        if self.port.is_none() {
+            if self.writes_down.is_multiple_of(REOPEN_EVERY) {
+                // A failed reopen is the silence the caller already sees; the
+                // reason is kept for `link_error`.
+                if let Err(e) = self.connect() {
+                    self.link_error = Some(e.to_string());
+                }
+            }
+            self.writes_down = self.writes_down.wrapping_add(1);
+        } else if self.need_arm {
+            self.arm()?;
+        }
+        let mut acked = false;
+        self.heard = false;
+        if self.port.is_some() {
+            let seq = self.take_seq();
+            let sent_ns = (self.clock)();
+            if self.send(&Frame::SetThrottle { seq, throttle }) {
+                acked = self.wait_for_ack(seq, sent_ns);
+            }
+        }
+        self.unacked = if acked { 0 } else { self.unacked.saturating_add(1) };
+        // A late ack or a status report shows the board alive, if slow.
+        self.silent = if self.heard { 0 } else { self.silent.saturating_add(1) };
+        // Silent: close the port now and again every REOPEN_EVERY cycles
+        // while it stays silent; the next write reopens it by path.
+        let silent_for = self.silent.wrapping_sub(SILENT_AFTER);
+        if self.silent >= SILENT_AFTER && silent_for.is_multiple_of(REOPEN_EVERY) && self.port.is_some() {
+            self.drop_link(format!("nothing heard for {} commands", self.silent));
+        }
+        Ok(())
+    }
+
+    fn round_trip_ns(&self) -> Option<u64> {
+        self.last_ack.map(|a| a.round_trip_ns)
+    }
+
+    fn acknowledged(&self) -> Option<Acknowledgement> {
+        self.last_ack
+    }
+
+    fn unacked_writes(&self) -> u32 {
+        self.unacked
+    }
+
+    fn silent_writes(&self) -> u32 {
+        self.silent
+    }
+
+    fn stop(&mut self) {
+        let seq = self.take_seq();
+        if self.send(&Frame::Disarm { seq }) {
+            self.wait_for_ack(seq, (self.clock)());
+        }
+        self.port = None;
+    }
+
+    fn describe(&self) -> String {
+        format!("throttle board on {} at {} baud", self.path.display(), self.baud)
+    }
+}
+
+/// Polls the ECU on its own thread and hands each telemetry sample over a
+/// channel, so the 100 Hz command path never waits on the 9600 baud line.
+///
+/// Every poll yields one sample: a fresh reading, or, when the ECU did not
+/// answer validly within the poll period, the last reading flagged
+/// [`ecu_flags::STALE`] (and [`ecu_flags::SILENT`] from the
+/// [`SILENT_AFTER`]th unanswered poll on, when the port is also reopened).
+pub struct EcuPoller {
+    samples: Receiver<EcuTelemetry>,
+    shared: Arc<Mutex<EcuShared>>,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+    describe: String,
+}
+
+/// What the poller thread shares with its owner.
+#[derive(Clone, Debug, Default)]
+pub struct EcuShared {
+    pub counters: EcuCounters,
+    /// Samples dropped because the owner did not take them.
+    pub dropped: u64,
+    pub opens: u64,
+    pub link_error: Option<String>,
+}
+
+impl EcuPoller {
+    /// Starts polling the ECU at `path` at `poll_hz` (the port is opened by the thread).
+    pub fn spawn(path: impl Into<PathBuf>, baud: u32, poll_hz: f64, clock: fn() -> u64) -> Result<Self, DeviceError> {
+        let path = path.into();
+        let describe = format!("ECU on {} at {baud} baud", path.display());
+        if !(poll_hz.is_finite() && poll_hz > 0.0) {
+            return Err(DeviceError::InvalidValue { device: describe, reason: format!("poll rate {poll_hz} Hz") });
+        }
+        let (tx, rx) = crossbeam_channel::bounded(256);
+        let shared = Arc::new(Mutex::new(EcuShared::default()));
+        let stop = Arc::new(AtomicBool::new(false));
+        let worker = EcuWorker {
+            path,
+            baud,
+            period_ns: (1e9 / poll_hz) as u64,
+            clock,
+            tx,
+            shared: shared.clone(),
+            stop: stop.clone(),
+        };
+        let thread = std::thread::Builder::new()
+            .name("ecu-poller".into())
+            .spawn(move || worker.run())
+            .map_err(|e| DeviceError::Io { device: describe.clone(), reason: format!("cannot start thread: {e}") })?;
+        Ok(EcuPoller { samples: rx, shared, stop, thread: Some(thread), describe })
+    }
+
+    /// The samples polled since the last call, oldest first; never blocks.
+    pub fn try_iter(&self) -> impl Iterator<Item = EcuTelemetry> + '_ {
+        self.samples.try_iter()
+    }
+
+    /// Counters and link state of the poller thread.
+    pub fn shared(&self) -> EcuShared {
+        self.shared.lock().map(|s| s.clone()).unwrap_or_default()
+    }
+
+    pub fn describe(&self) -> &str {
+        &self.describe
+    }
+}
+
+impl Drop for EcuPoller {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+struct EcuWorker {
+    path: PathBuf,
+    baud: u32,
+    period_ns: u64,
+    clock: fn() -> u64,
+    tx: Sender<EcuTelemetry>,
+    shared: Arc<Mutex<EcuShared>>,
+    stop: Arc<AtomicBool>,
+}
+
+impl EcuWorker {
+    fn update(&self, f: impl FnOnce(&mut EcuShared)) {
+        if let Ok(mut s) = self.shared.lock() {
+            f(&mut s);
+        }
+    }
+
+    fn run(self) {
+        let mut port: Option<TTYPort> = None;
+        let mut decoder = LineDecoder::new();
+        let mut last = EcuTelemetry::default();
+        let mut missed: u32 = 0;
+        let mut next_ns = (self.clock)();
+        let mut buf = [0u8; 256];
+        while !self.stop.load(Ordering::Relaxed) {
+            let poll_ns = next_ns;
+            next_ns += self.period_ns;
+            if port.is_none() {
+                match open_port(&self.path, self.baud) {
+                    Ok(p) => {
+                        let _ = p.clear(serialport::ClearBuffer::All);
+                        port = Some(p);
+                        self.update(|s| {
+                            s.opens += 1;
+                            s.link_error = None;
+                        });
+                    }
+                    Err(e) => self.update(|s| s.link_error = Some(e.to_string())),
+                }
+            }
+            // Answer window: most of the period, leaving time to publish.
+            let answer_by_ns = poll_ns + self.period_ns * 9 / 10;
+            let mut reading = None;
+            if let Some(p) = port.as_mut() {
+                if let Err(e) = p.write_all(ecu::POLL) {
+                    self.update(|s| s.link_error = Some(format!("write failed: {e}")));
+                    port = None;
+                }
+            }
+            while let (Some(p), None) = (port.as_mut(), reading) {
+                let left_ns = answer_by_ns.saturating_sub((self.clock)());
+                if left_ns == 0 || self.stop.load(Ordering::Relaxed) {
+                    break;
+                }
+                let _ = p.set_timeout(Duration::from_nanos(left_ns));
+                match p.read(&mut buf) {
+                    Ok(0) => port = None,
+                    Ok(n) => {
+                        let received_ns = (self.clock)();
+                        decoder.push(&buf[..n], |r| reading = Some((r, received_ns)));
+                    }
+                    Err(e)
+                        if matches!(e.kind(), ErrorKind::TimedOut | ErrorKind::Interrupted | ErrorKind::WouldBlock) => {
+                    }
+                    Err(e) => {
+                        self.update(|s| s.link_error = Some(format!("read failed: {e}")));
+                        port = None;
+                    }
+                }
+            }
+            let sample = match reading {
+                Some((r, received_ns)) => {
+                    missed = 0;
+                    last = EcuTelemetry {
+                        seq: 0,
+                        stamp_ns: received_ns,
+                        publish_ns: 0,
+                        rpm: r.rpm,
+                        egt_c: r.egt_c,
+                        pump_v: r.pump_v,
+                        throttle_pct: r.throttle_pct,
+                        state: r.state,
+                        flags: 0,
+                    };
+                    last
+                }
+                None => {
+                    decoder.expire_partial();
+                    missed = missed.saturating_add(1);
+                    let mut flags = ecu_flags::STALE;
+                    if missed >= SILENT_AFTER {
+                        flags |= ecu_flags::SILENT;
+                        if port.take().is_some() {
+                            self.update(|s| s.link_error = Some(format!("no valid reply to {SILENT_AFTER} polls")));
+                        }
+                    }
+                    EcuTelemetry { stamp_ns: (self.clock)(), flags, ..last }
+                }
+            };
+            let counters = *decoder.counters();
+            let dropped = matches!(self.tx.try_send(sample), Err(TrySendError::Full(_)));
+            self.update(|s| {
+                s.counters = counters;
+                s.dropped += u64::from(dropped);
+            });
+            // Sleep to the next poll in short steps, so a stop is seen promptly.
+            loop {
+                let now_ns = (self.clock)();
+                if now_ns >= next_ns || self.stop.load(Ordering::Relaxed) {
+                    break;
+                }
+                std::thread::sleep(Duration::from_nanos((next_ns - now_ns).min(20_000_000)));
+            }
+            // After a long stall, poll now rather than in a burst.
+            let now_ns = (self.clock)();
+            if now_ns > next_ns + self.period_ns {
+                next_ns = now_ns;
+            }
+        }
+    }
+}
