@@ -1,19 +1,19 @@
-//! Bench devices behind traits.
+//! Bench devices behind traits, with the codecs and drivers of the real ones.
 //!
-//! The services talk to a [`ForceSource`] (the force/torque sensor) and a
-//! [`ThrottleOutput`] (the throttle board); the simulated bench plays the
-//! other side through a [`ForceSink`] and a [`ThrottleInput`]. The
-//! implementations here carry device frames over the bus, which is how the
-//! simulated bench runs on machines without CAN or serial hardware.
+//! The services talk to a [`ForceSource`] (the force/torque sensor on CAN) and a
+//! [`ThrottleOutput`] (the throttle board on a serial port); the simulated bench
+//! plays the sensor through a [`ForceSink`] sending the same CAN frames, and the
+//! throttle board and the ECU on pseudo-terminals ([`emulate`]), so the code that
+//! runs at the bench runs here too.
 //!
 //! ```no_run
-//! use jetbench_bus::Bus;
-//! use jetbench_io::{sim, ForceSource};
+//! use jetbench_io::can::source::{CanForceSource, CanInterface};
+//! use jetbench_io::can::{Codec, DEFAULT_BASE_ID};
+//! use jetbench_io::ForceSource;
 //! use std::time::Duration;
 //!
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
-//! let bus = Bus::open("io-example")?;
-//! let mut sensor = sim::BusForceSource::open(&bus)?;
+//! let mut sensor = CanForceSource::open(&"can0".parse::<CanInterface>()?, Codec::new(DEFAULT_BASE_ID)?)?;
 //! if let Some(reading) = sensor.read(Duration::from_millis(30))? {
 //!     println!("Fx = {} N", reading.force_n[0]);
 //! }
@@ -28,7 +28,6 @@ pub mod candump;
 pub mod ecu;
 pub mod emulate;
 pub mod serial;
-pub mod sim;
 
 use std::time::Duration;
 
@@ -118,10 +117,4 @@ pub trait ThrottleOutput {
 /// The simulated sensor's output side: emits readings to sensing.
 pub trait ForceSink {
     fn emit(&mut self, reading: &ForceReading, sampled_ns: u64) -> Result<(), DeviceError>;
-}
-
-/// The simulated throttle board's input side: receives commands.
-pub trait ThrottleInput {
-    /// The newest valid throttle command received since the last call.
-    fn poll(&mut self) -> Result<Option<f64>, DeviceError>;
 }

@@ -288,33 +288,6 @@ sample! {
 }
 
 sample! {
-    /// Force/torque frame as the simulated sensor emits it (`sim/force`).
-    #[type_name("jetbench_msgs/msg/SimForceFrame")]
-    pub struct SimForceFrame {
-        pub seq: u64,
-        /// Monotonic time the frame was sampled, ns.
-        pub stamp_ns: u64,
-        pub force_n: [f64; 3],
-        pub torque_nm: [f64; 3],
-        /// Sensor status bits (see [`sensor_status`]).
-        pub status: u32,
-        /// Wrapping frame counter as on the wire.
-        pub counter: u32,
-    }
-}
-
-sample! {
-    /// Throttle frame to the simulated throttle board (`sim/throttle`).
-    #[type_name("jetbench_msgs/msg/SimThrottleFrame")]
-    pub struct SimThrottleFrame {
-        pub seq: u64,
-        pub stamp_ns: u64,
-        pub throttle_pct: f64,
-        pub flags: u64,
-    }
-}
-
-sample! {
     /// Ground truth of the simulated engine (`sim/truth`), for evaluation only.
     #[type_name("jetbench_msgs/msg/SimTruth")]
     pub struct SimTruth {
@@ -495,8 +468,6 @@ pub mod channels {
     pub const ACTUATION: Channel<Actuation> = Channel::new("bench/actuation");
     pub const ECU: Channel<EcuTelemetry> = Channel::new("bench/ecu");
     pub const HEALTH: Channel<Health> = Channel::new("bench/health");
-    pub const SIM_FORCE: Channel<SimForceFrame> = Channel::new("sim/force");
-    pub const SIM_THROTTLE: Channel<SimThrottleFrame> = Channel::new("sim/throttle");
     pub const SIM_TRUTH: Channel<SimTruth> = Channel::new("sim/truth");
 }
 
@@ -518,8 +489,6 @@ pub fn visit_channels<V: ChannelVisitor>(visitor: &mut V) {
     visitor.visit(ACTUATION);
     visitor.visit(ECU);
     visitor.visit(HEALTH);
-    visitor.visit(SIM_FORCE);
-    visitor.visit(SIM_THROTTLE);
     visitor.visit(SIM_TRUTH);
 }
 
