@@ -55,12 +55,7 @@ impl Fbl {
     /// A controller for the model `params`. Non-finite gains or parameters do not panic:
     /// every [`Fbl::step`] then returns the reason.
     pub fn new(params: Params, gains: FblGains) -> Self {
-        let settings = [("kp", gains.kp), ("kd", gains.kd), ("ki", gains.ki)];
-        let invalid = settings
-            .into_iter()
-            .chain(Params::NAMES.into_iter().zip(params.to_array()))
-            .find(|(_, value)| !value.is_finite())
-            .map(|(name, value)| ControlError::InvalidSetting { name, value });
+        let invalid = crate::non_finite_setting(&[("kp", gains.kp), ("kd", gains.kd), ("ki", gains.ki)], &params);
         Self { params, gains, integral_ns: 0.0, invalid }
     }
 

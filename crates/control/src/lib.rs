@@ -50,6 +50,20 @@ pub use shaper::{ReferenceShaper, ShaperSettings};
 pub use smc::{Smc, SmcGains};
 pub use throttle::{clamp_throttle, throttle_for_virtual, Command};
 
+/// The first gain or model parameter that is NaN or infinite, as the error every step of
+/// a controller built with it returns.
+pub(crate) fn non_finite_setting(
+    gains: &[(&'static str, f64)],
+    params: &jetbench_model::Params,
+) -> Option<ControlError> {
+    gains
+        .iter()
+        .copied()
+        .chain(jetbench_model::Params::NAMES.into_iter().zip(params.to_array()))
+        .find(|(_, value)| !value.is_finite())
+        .map(|(name, value)| ControlError::InvalidSetting { name, value })
+}
+
 /// Rejects a NaN or infinite state estimate or reference before any law uses it.
 pub(crate) fn check_inputs(thrust_n: f64, thrust_rate_n_per_s: f64, reference: &Reference) -> Result<(), ControlError> {
     let inputs = [

@@ -4,7 +4,7 @@ use std::time::Instant;
 
 use clarabel::algebra::CscMatrix;
 use clarabel::solver::{DefaultSettingsBuilder, DefaultSolver, IPSolver, NonnegativeConeT, SolverStatus};
-use jetbench_model::{Params, Plant, PlantEngine, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
+use jetbench_model::{Plant, PlantEngine, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
 use serde::{Deserialize, Serialize};
 
 use crate::throttle::{clamp_throttle, resting_throttle};
@@ -148,13 +148,7 @@ impl Mpc {
     /// A controller for `plant` (the ten parameters and any effects), falling back to FBL
     /// with `fallback_gains`. Bad settings do not panic: every step returns the reason.
     pub fn new(plant: Plant, settings: MpcSettings, fallback_gains: FblGains) -> Self {
-        let invalid = settings.validate().err().or_else(|| {
-            Params::NAMES
-                .into_iter()
-                .zip(plant.params.to_array())
-                .find(|(_, value)| !value.is_finite())
-                .map(|(name, value)| ControlError::InvalidSetting { name, value })
-        });
+        let invalid = settings.validate().err().or_else(|| crate::non_finite_setting(&[], &plant.params));
         let steps = ((settings.horizon_s / STEP_S).round() as usize).max(1);
         let moves = settings.moves.clamp(1, steps);
         Self {

@@ -51,12 +51,7 @@ impl Smc {
     /// A controller for the model `params`. Non-finite gains or parameters do not panic:
     /// every [`Smc::step`] then returns the reason.
     pub fn new(params: Params, gains: SmcGains) -> Self {
-        let settings = [("a1", gains.a1), ("beta", gains.beta), ("k", gains.k)];
-        let invalid = settings
-            .into_iter()
-            .chain(Params::NAMES.into_iter().zip(params.to_array()))
-            .find(|(_, value)| !value.is_finite())
-            .map(|(name, value)| ControlError::InvalidSetting { name, value });
+        let invalid = crate::non_finite_setting(&[("a1", gains.a1), ("beta", gains.beta), ("k", gains.k)], &params);
         Self { params, gains, invalid }
     }
 
