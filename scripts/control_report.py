@@ -135,7 +135,7 @@ if diagnosis.exists():
 
 bench = work / "mpc-bench.txt"
 if bench.exists():
-    lines += ["## MPC solve time", "", "`cargo bench -p jetbench-control --bench mpc`, run right after the above:", "", "```"]
+    lines += ["## MPC solve time", "", "`cargo bench -p jetbench-control --bench mpc`, on the idle machine (a loaded one stretches the tail):", "", "```"]
     lines += bench.read_text().rstrip().splitlines()
     lines += ["```", ""]
 
