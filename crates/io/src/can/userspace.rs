@@ -167,7 +167,7 @@ impl CanTransport for UserspaceCan {
         let bytes = frame.to_bytes();
         let mut gone = Vec::new();
         for (i, peer) in self.peers.iter().enumerate() {
-            match self.sender.send_to(&bytes, peer) {
+            match send_with_patience(&self.sender, &bytes, peer) {
                 Ok(_) => {}
                 Err(e) if e.kind() == ErrorKind::WouldBlock => self.dropped += 1,
                 Err(e) if e.kind() == ErrorKind::ConnectionRefused => {
@@ -197,3 +197,22 @@ impl CanTransport for UserspaceCan {
         format!("userspace CAN bus user:{} ({})", self.name, self.dir.display())
     }
 }
+
+/// Sends one datagram, giving a full receive queue up to [`SEND_PATIENCE`] to drain.
+/// A Unix datagram queue holds only `net.unix.max_dgram_qlen` (10 by default) frames,
+/// so the catch-up burst after a scheduling hiccup of the sender would otherwise
+/// overflow it and lose frames a kernel CAN socket's buffer would have kept.
+fn send_with_patience(socket: &UnixDatagram, bytes: &[u8], peer: &Path) -> std::io::Result<usize> {
+    let started = Instant::now();
+    loop {
+        match socket.send_to(bytes, peer) {
+            Err(e) if e.kind() == ErrorKind::WouldBlock && started.elapsed() < SEND_PATIENCE => {
+                std::thread::sleep(Duration::from_micros(100));
+            }
+            other => return other,
+        }
+    }
+}
+
+/// How long a frame waits for a full receive queue before it is counted as dropped.
+const SEND_PATIENCE: Duration = Duration::from_millis(2);
