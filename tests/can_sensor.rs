@@ -7,7 +7,7 @@
 //! Real processes; hangs are caught by a watchdog; no runtime is asserted.
 
 use std::path::PathBuf;
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use jetbench_msgs::{channels, health_flags, thrust_flags, ServiceId};
@@ -33,15 +33,7 @@ static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
 fn an_unplugged_sensor_is_reported_and_resumes_without_a_restart() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let out = common::scratch(SUITE, "unplug.mcap");
-    let mut child = jetbench()
-        .args(["up", "--sim", "--quiet", "--duration", "8", "--record"])
-        .arg(&out)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("start jetbench up");
-    let stdout = common::lines_of(child.stdout.take().expect("stdout"));
-    let stderr = common::lines_of(child.stderr.take().expect("stderr"));
+    let (mut child, stdout, stderr) = common::spawn_up(jetbench(), 8, &out);
     let deadline = Instant::now() + Duration::from_secs(60);
     loop {
         if let Ok(line) = stdout.recv_timeout(Duration::from_secs(1)) {

@@ -7,7 +7,6 @@
 use std::io::Write;
 use std::os::unix::fs::OpenOptionsExt;
 use std::path::PathBuf;
-use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use jetbench_io::board::{crc16, encode, Frame, Throttle, SYNC};
@@ -18,7 +17,7 @@ use rand_chacha::ChaCha8Rng;
 
 mod common;
 
-use common::{lines_of, wait_with_watchdog};
+use common::wait_with_watchdog;
 
 /// A burst of line noise: random bytes, then a corrupted set-throttle frame
 /// (a flipped bit or a cut), a valid-CRC frame out of range (150 %), one of
@@ -61,15 +60,7 @@ fn counter(line: &str, name: &str) -> u64 {
 fn garbage_on_the_board_tty_mid_run_is_rejected_and_the_link_resynchronises() {
     let out = common::scratch("serial_bench", "garbage.mcap");
     let namespace_suite = "serial";
-    let mut child = common::jetbench(namespace_suite)
-        .args(["up", "--sim", "--quiet", "--duration", "8", "--record"])
-        .arg(&out)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("start jetbench up");
-    let stdout = lines_of(child.stdout.take().expect("stdout"));
-    let stderr = lines_of(child.stderr.take().expect("stderr"));
+    let (mut child, stdout, stderr) = common::spawn_up(common::jetbench(namespace_suite), 8, &out);
     let deadline = Instant::now() + Duration::from_secs(60);
     while !stdout.recv_timeout(Duration::from_secs(1)).is_ok_and(|l| l.starts_with("all ") && l.contains("ready")) {
         assert!(Instant::now() < deadline, "the service set never became ready");

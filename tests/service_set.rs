@@ -243,15 +243,7 @@ fn up_records_a_complete_closed_loop_run() {
 fn killing_control_idles_actuation_and_a_restart_is_clean() {
     let _bus = BUS.lock().unwrap_or_else(|e| e.into_inner());
     let out = scratch("kill.mcap");
-    let mut child = jetbench()
-        .args(["up", "--sim", "--quiet", "--duration", "60", "--record"])
-        .arg(&out)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("start jetbench up");
-    let stdout = lines_of(child.stdout.take().expect("stdout"));
-    let stderr = lines_of(child.stderr.take().expect("stderr"));
+    let (mut child, stdout, stderr) = common::spawn_up(jetbench(), 60, &out);
 
     // Find the control process, wait for the loop to run, then SIGKILL it.
     let mut control_pid = None;

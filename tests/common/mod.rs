@@ -92,3 +92,22 @@ pub fn python() -> PathBuf {
     assert!(out.status.success(), "scripts/pyenv.sh failed:\n{}", String::from_utf8_lossy(&out.stderr));
     PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
 }
+
+/// Starts `command up --sim --quiet --duration SECONDS --record RECORD` with its
+/// stdout and stderr read line by line on threads: the child and both streams.
+pub fn spawn_up(
+    mut command: Command,
+    duration_s: u32,
+    record: &Path,
+) -> (Child, mpsc::Receiver<String>, mpsc::Receiver<String>) {
+    let mut child = command
+        .args(["up", "--sim", "--quiet", "--duration", &duration_s.to_string(), "--record"])
+        .arg(record)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start jetbench up");
+    let stdout = lines_of(child.stdout.take().expect("stdout"));
+    let stderr = lines_of(child.stderr.take().expect("stderr"));
+    (child, stdout, stderr)
+}
