@@ -36,10 +36,24 @@ pub struct ServiceArgs {
     /// Bench config (TOML); the built-in simulated bench if omitted.
     #[arg(long, value_name = "FILE")]
     pub config: Option<std::path::PathBuf>,
+    /// Run at the config's `[rt]` SCHED_FIFO priority and CPUs with memory locked,
+    /// as if `[rt] enabled = true` (what the kernel refuses is logged, not fatal).
+    #[arg(long)]
+    pub rt: bool,
 }
 
 impl ServiceArgs {
     pub fn load(&self) -> anyhow::Result<jetbench_stack::config::BenchConfig> {
         Ok(jetbench_stack::config::BenchConfig::load_or_default(self.config.as_deref())?)
+    }
+
+    /// Loads the config and applies the real-time settings of service `id`
+    /// (before any thread starts, so every thread inherits them).
+    pub fn start(&self, id: jetbench_msgs::ServiceId) -> anyhow::Result<jetbench_stack::config::BenchConfig> {
+        let config = self.load()?;
+        if let Some(request) = config.rt.request(id, self.rt) {
+            jetbench_stack::rt::apply(&request).log(id.name());
+        }
+        Ok(config)
     }
 }

@@ -152,6 +152,10 @@ struct UpArgs {
     /// No live status line.
     #[arg(long)]
     quiet: bool,
+    /// Real-time settings for every service: the config's `[rt]` SCHED_FIFO priorities
+    /// and CPUs, memory locked (what the kernel refuses is reported, and the run goes on).
+    #[arg(long)]
+    rt: bool,
     /// Controller, overriding `[control] controller`: fbl and smc (the study), or mpc
     /// (knows the throttle limits and the model's effects).
     #[arg(long, value_name = "LAW")]
@@ -238,7 +242,7 @@ fn cmd_up(args: UpArgs) -> anyhow::Result<ExitCode> {
     } else {
         args.config.clone()
     };
-    let result = run_up(args.sim, config, args.duration, args.record, args.quiet, &checked);
+    let result = run_up(args.sim, config, args.duration, args.record, args.quiet, args.rt, &checked);
     if let Some(path) = derived {
         let _ = std::fs::remove_file(path);
     }
@@ -251,6 +255,7 @@ fn run_up(
     duration: Option<f64>,
     record: Option<PathBuf>,
     quiet: bool,
+    rt: bool,
     checked: &jetbench_stack::config::BenchConfig,
 ) -> anyhow::Result<ExitCode> {
     if !sim && config.is_none() {
@@ -281,6 +286,7 @@ fn run_up(
         bin_dir: bin_dir()?,
         status: !quiet,
         simulated: checked.bench.devices == jetbench_stack::config::Devices::Sim,
+        rt,
     };
     up(&options)?;
     println!("all services stopped cleanly");

@@ -100,6 +100,11 @@ pub trait ThrottleOutput {
     fn acknowledged(&self) -> Option<Acknowledgement> {
         None
     }
+    /// When the last write's frame was handed to the device (the monotonic clock
+    /// the driver was given, ns); `None` when the last write sent nothing.
+    fn written_ns(&self) -> Option<u64> {
+        None
+    }
     /// Consecutive writes without an acknowledgement (0 for devices that do not acknowledge).
     fn unacked_writes(&self) -> u32 {
         0

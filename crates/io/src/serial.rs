@@ -84,6 +84,8 @@ pub struct ThrottleBoard {
     opens: u64,
     late_acks: u64,
     last_rx_ns: u64,
+    /// When the last set-throttle frame left, if the last write sent one.
+    written_ns: Option<u64>,
 }
 
 impl ThrottleBoard {
@@ -109,6 +111,7 @@ impl ThrottleBoard {
             opens: 0,
             late_acks: 0,
             last_rx_ns: 0,
+            written_ns: None,
         }
     }
 
@@ -326,10 +329,12 @@ impl ThrottleOutput for ThrottleBoard {
         }
         let mut acked = false;
         self.heard = false;
+        self.written_ns = None;
         if self.port.is_some() {
             let seq = self.take_seq();
             let sent_ns = (self.clock)();
             if self.send(&Frame::SetThrottle { seq, throttle }) {
+                self.written_ns = Some((self.clock)());
                 acked = self.wait_for_ack(seq, sent_ns);
             }
         }
@@ -351,6 +356,10 @@ impl ThrottleOutput for ThrottleBoard {
 
     fn acknowledged(&self) -> Option<Acknowledgement> {
         self.last_ack
+    }
+
+    fn written_ns(&self) -> Option<u64> {
+        self.written_ns
     }
 
     fn unacked_writes(&self) -> u32 {

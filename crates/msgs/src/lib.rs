@@ -228,6 +228,9 @@ sample! {
         pub seq: u64,
         pub stamp_ns: u64,
         pub publish_ns: u64,
+        /// Monotonic time the command frame was handed to the throttle board, ns
+        /// (0 when nothing was sent this cycle): the end of the control path.
+        pub written_ns: u64,
         /// `seq` of the command applied (or last seen when stale).
         pub command_seq: u64,
         /// Throttle sent to the throttle board, %.

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 use jetbench_control::{ControllerKind, FblGains, Law, LawSettings, MpcSettings, Profile, ShaperSettings, SmcGains};
 use jetbench_io::can::source::{CanInterface, InterfaceError};
 use jetbench_model::{ModelFile, Params, Plant};
+use jetbench_msgs::ServiceId;
 use serde::{Deserialize, Serialize};
 
 /// The configuration `jetbench up --sim` uses when no file is given.
@@ -53,6 +54,8 @@ pub struct BenchConfig {
     pub reference: Profile,
     #[serde(default)]
     pub recorder: RecorderSection,
+    #[serde(default)]
+    pub rt: RtSection,
 }
 
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
@@ -367,6 +370,100 @@ impl Default for RecorderSection {
     }
 }
 
+/// Real-time settings of the service processes (`[rt]`).
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RtSection {
+    /// Apply the settings on every start; `jetbench up --rt` and `jetbench latency --rt`
+    /// apply them for one run.
+    pub enabled: bool,
+    /// Lock every page of each service in memory (`mlockall`).
+    pub lock_memory: bool,
+    /// SCHED_FIFO priority of each service, 1–99.
+    pub priority: PerService<u8>,
+    /// CPUs each service may run on; an empty list leaves it to the scheduler.
+    pub cpus: PerService<Vec<usize>>,
+}
+
+impl Default for RtSection {
+    fn default() -> Self {
+        RtSection {
+            enabled: false,
+            lock_memory: true,
+            // The sensor side first: a late sensing cycle delays everything after it.
+            priority: PerService {
+                sim_bench: 90,
+                sensing: 80,
+                estimation: 70,
+                control: 60,
+                actuation: 50,
+                recorder: 40,
+            },
+            // The control chain on one core, so each hand-over wakes a process on the
+            // core it runs on; the simulated devices and the recorder on the other.
+            cpus: PerService {
+                sim_bench: vec![0],
+                sensing: vec![1],
+                estimation: vec![1],
+                control: vec![1],
+                actuation: vec![1],
+                recorder: vec![0],
+            },
+        }
+    }
+}
+
+/// One value per service, keyed by the service's name.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct PerService<T> {
+    #[serde(rename = "sim-bench")]
+    pub sim_bench: T,
+    pub sensing: T,
+    pub estimation: T,
+    pub control: T,
+    pub actuation: T,
+    pub recorder: T,
+}
+
+impl<T> PerService<T> {
+    pub fn get(&self, id: ServiceId) -> &T {
+        match id {
+            ServiceId::SimBench => &self.sim_bench,
+            ServiceId::Sensing => &self.sensing,
+            ServiceId::Estimation => &self.estimation,
+            ServiceId::Control => &self.control,
+            ServiceId::Actuation => &self.actuation,
+            ServiceId::Recorder => &self.recorder,
+        }
+    }
+}
+
+impl RtSection {
+    /// What service `id` asks of the kernel; `None` when real-time settings are
+    /// off (neither `enabled` nor `force`).
+    pub fn request(&self, id: ServiceId, force: bool) -> Option<crate::rt::RtRequest> {
+        (self.enabled || force).then(|| crate::rt::RtRequest {
+            priority: Some(*self.priority.get(id)),
+            cpus: self.cpus.get(id).clone(),
+            lock_memory: self.lock_memory,
+        })
+    }
+
+    fn validate(&self) -> Result<(), String> {
+        for id in ServiceId::ALL {
+            let priority = *self.priority.get(id);
+            if !(1..=99).contains(&priority) {
+                return Err(format!("[rt] priority.{} = {priority} must be within 1..99", id.name()));
+            }
+            if let Some(cpu) = self.cpus.get(id).iter().find(|&&c| c >= 1024) {
+                return Err(format!("[rt] cpus.{} names CPU {cpu}: CPUs are numbered from 0", id.name()));
+            }
+        }
+        Ok(())
+    }
+}
+
 impl BenchConfig {
     /// The built-in simulated-bench configuration.
     pub fn default_sim() -> Result<Self, ConfigError> {
@@ -465,6 +562,7 @@ impl BenchConfig {
             return Err(invalid(format!("[ecu] poll_hz = {} must be within 10..50", self.ecu.poll_hz)));
         }
         self.sensor.validate(self.bench.devices).map_err(invalid)?;
+        self.rt.validate().map_err(invalid)?;
         if self.actuation.idle_after_missed_cycles == 0 {
             return Err(invalid("[actuation] idle_after_missed_cycles must be at least 1".into()));
         }

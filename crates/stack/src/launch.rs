@@ -49,6 +49,8 @@ pub struct UpOptions {
     pub status: bool,
     /// Start sim-bench (the config's `[bench] devices = "sim"`); at the real bench the devices are real.
     pub simulated: bool,
+    /// Ask every service for its `[rt]` settings (`--rt`), whatever `[rt] enabled` says.
+    pub rt: bool,
 }
 
 /// A started service process.
@@ -108,6 +110,9 @@ fn spawn(options: &UpOptions, id: ServiceId, ready_tx: &mpsc::Sender<ServiceId>)
     let mut command = Command::new(binary(&options.bin_dir, id)?);
     if let Some(config) = &options.config {
         command.arg("--config").arg(config);
+    }
+    if options.rt {
+        command.arg("--rt");
     }
     if id == ServiceId::Recorder {
         if let Some(out) = &options.record {

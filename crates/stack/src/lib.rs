@@ -13,5 +13,6 @@ pub mod config;
 pub mod health;
 pub mod launch;
 pub mod replay;
+pub mod rt;
 pub mod service;
 pub mod step;

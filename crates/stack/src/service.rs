@@ -417,7 +417,8 @@ pub fn run_actuation(config: &BenchConfig) -> Result<(), ServiceError> {
             health.error();
             log_rejection(health.counters().errors, "throttle write", &e);
         }
-        let output = step.with_board(output, board.acknowledged(), board.unacked_writes(), board.silent_writes());
+        let mut output = step.with_board(output, board.acknowledged(), board.unacked_writes(), board.silent_writes());
+        output.written_ns = board.written_ns().unwrap_or(0);
         publish_now(&mut actuation_pub, output, |a, ns| a.publish_ns = ns)?;
         let board_silent = board.silent_writes() >= SILENT_AFTER;
         if links.board(board_silent, &board) {

@@ -353,6 +353,7 @@ impl Actuator {
             seq: 0,
             stamp_ns,
             publish_ns: 0,
+            written_ns: 0,
             command_seq,
             applied_pct,
             // No command yet: report idle rather than a NaN a reader must special-case.

@@ -16,5 +16,7 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    run_service("actuation", || Ok(jetbench_stack::service::run_actuation(&args.service.load()?)?))
+    run_service("actuation", || {
+        Ok(jetbench_stack::service::run_actuation(&args.service.start(jetbench_msgs::ServiceId::Actuation)?)?)
+    })
 }

@@ -16,5 +16,7 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    run_service("control", || Ok(jetbench_stack::service::run_control(&args.service.load()?)?))
+    run_service("control", || {
+        Ok(jetbench_stack::service::run_control(&args.service.start(jetbench_msgs::ServiceId::Control)?)?)
+    })
 }

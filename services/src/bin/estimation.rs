@@ -16,5 +16,7 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    run_service("estimation", || Ok(jetbench_stack::service::run_estimation(&args.service.load()?)?))
+    run_service("estimation", || {
+        Ok(jetbench_stack::service::run_estimation(&args.service.start(jetbench_msgs::ServiceId::Estimation)?)?)
+    })
 }

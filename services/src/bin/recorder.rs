@@ -21,7 +21,8 @@ struct Args {
 fn main() -> ExitCode {
     let args = Args::parse();
     run_service("recorder", || {
-        let report = jetbench_stack::service::run_recorder(&args.service.load()?, &args.out)?;
+        let report =
+            jetbench_stack::service::run_recorder(&args.service.start(jetbench_msgs::ServiceId::Recorder)?, &args.out)?;
         eprint!("{report}");
         if report.dropped_full > 0 {
             anyhow::bail!("{} samples were dropped because the disk writer fell behind", report.dropped_full);

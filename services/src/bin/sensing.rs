@@ -16,5 +16,7 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    run_service("sensing", || Ok(jetbench_stack::service::run_sensing(&args.service.load()?)?))
+    run_service("sensing", || {
+        Ok(jetbench_stack::service::run_sensing(&args.service.start(jetbench_msgs::ServiceId::Sensing)?)?)
+    })
 }

@@ -16,5 +16,7 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    run_service("sim-bench", || Ok(jetbench_stack::service::run_sim_bench(&args.service.load()?)?))
+    run_service("sim-bench", || {
+        Ok(jetbench_stack::service::run_sim_bench(&args.service.start(jetbench_msgs::ServiceId::SimBench)?)?)
+    })
 }
