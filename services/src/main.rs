@@ -82,6 +82,9 @@ enum Cmd {
     ///
     /// Example: jetbench tare --config bench.toml --seconds 2 --write
     Tare(cmd::tare::TareArgs),
+    /// One process of a `jetbench latency` reference chain (started by it, not by hand).
+    #[command(hide = true)]
+    LatencyStage(cmd::latency_stage::LatencyStageArgs),
 }
 
 fn main() -> ExitCode {
@@ -123,6 +126,7 @@ fn run() -> anyhow::Result<ExitCode> {
         Cmd::Export(args) => cmd::model::export(args),
         Cmd::CanDecode(args) => cmd::can_decode::run(args),
         Cmd::Tare(args) => cmd::tare::run(args),
+        Cmd::LatencyStage(args) => cmd::latency_stage::run(args),
     }
 }
 

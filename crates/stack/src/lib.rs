@@ -8,6 +8,7 @@
 //! assert_eq!(config.actuation.idle_after_missed_cycles, 3);
 //! ```
 
+pub mod chain;
 pub mod clock;
 pub mod config;
 pub mod health;

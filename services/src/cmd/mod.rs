@@ -3,6 +3,7 @@
 pub mod can_decode;
 pub mod diagnose;
 pub mod identify;
+pub mod latency_stage;
 pub mod metrics;
 pub mod model;
 pub mod replay;

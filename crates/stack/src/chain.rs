@@ -1,0 +1,993 @@
+//! Reference chains for `jetbench latency`: the service set's control path
+//! rebuilt with a chosen transport, so the real pipeline's latency can be
+//! read against what the machine and a copying transport would give.
+//!
+//! The control path is sensing → estimation → control → actuation: four
+//! processes, three hand-overs. A chain runs four `jetbench latency-stage`
+//! processes in that shape, each at the real-time settings of the service it
+//! stands for, and stamps every hand-over with `CLOCK_MONOTONIC`:
+//! - [`Transport::EventFd`], the machine's floor: a bare eventfd ping from
+//!   process to process, no payload and no work. No chain can be faster.
+//! - [`Transport::Uds`], the copying baseline: the real steps
+//!   ([`Sensing`](crate::step::Sensing), [`Estimation`](crate::step::Estimation),
+//!   [`Control`](crate::step::Control), [`Actuator`](crate::step::Actuator)) with their
+//!   samples copied through Unix domain sockets (`SOCK_SEQPACKET`).
+//! - [`Transport::Iceoryx`]: the same steps over iceoryx2 shared memory
+//!   (`jetbench_bus`, each consumer in a WaitSet, as the services consume),
+//!   on channels private to the run (`latency/<run>/thrust`, `.../state`,
+//!   `.../command`), so a running service set is not disturbed.
+//!
+//! Stage 0 is clocked like a sensor: `clock_nanosleep(TIMER_ABSTIME)` at the
+//! period; the time it wakes is the cycle's `t0` (the pipeline's "sensor frame
+//! received"). Stage 3 stamps the time the actuator's output was ready (the
+//! pipeline's "command frame written"). No stage busy-waits: each blocks in
+//! `poll`, a WaitSet or `clock_nanosleep`, which is what makes SCHED_FIFO on
+//! two cores safe. Stages keep their stamps in memory and send them to the
+//! parent on their own pipe in batches, after forwarding, so reporting never
+//! holds up a hand-over; the parent joins them by cycle.
+//!
+//! ```no_run
+//! use jetbench_stack::chain::{run_chain, ChainOptions, Transport};
+//! use jetbench_stack::config::BenchConfig;
+//! use std::time::Duration;
+//!
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let config = BenchConfig::default_sim()?;
+//! let mut options = ChainOptions::new(Transport::EventFd, std::env::current_exe()?);
+//! options.duration = Duration::from_secs(20);
+//! options.rt = jetbench_stack::chain::stage_rt_requests(&config.rt, true);
+//! let run = run_chain(&options)?;
+//! let mut e2e_ns = run.e2e_ns();
+//! e2e_ns.sort_unstable();
+//! println!("{} cycles, {} lost, median {} µs", run.cycles.len(), run.lost, e2e_ns[e2e_ns.len() / 2] / 1000);
+//! # Ok(())
+//! # }
+//! ```
+
+use std::collections::HashMap;
+use std::fmt;
+use std::fs::File;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::os::fd::{AsRawFd, FromRawFd, OwnedFd, RawFd};
+use std::os::unix::process::CommandExt;
+use std::path::PathBuf;
+use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
+use std::str::FromStr;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::mpsc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use jetbench_bus::stop_requested;
+use jetbench_msgs::ServiceId;
+
+use crate::clock::PERIOD_NS;
+use crate::config::RtSection;
+use crate::launch::describe_exit;
+use crate::rt::{RtOutcome, RtRequest};
+
+mod stage;
+
+pub use stage::{inherited_fd, run_stage, StageError, StageOptions};
+
+/// Processes in the control path.
+pub const STAGES: usize = 4;
+/// Process-to-process hand-overs in the control path.
+pub const HOPS: usize = STAGES - 1;
+/// The service each stage stands for (its real-time settings are that service's).
+pub const STAGE_SERVICES: [ServiceId; STAGES] =
+    [ServiceId::Sensing, ServiceId::Estimation, ServiceId::Control, ServiceId::Actuation];
+
+/// How long a stage may take to start and create its ports.
+const READY_TIMEOUT: Duration = Duration::from_secs(20);
+/// How long a stage may take to exit after SIGTERM before SIGKILL.
+const STOP_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// How the stages hand a cycle on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Transport {
+    /// A bare eventfd ping, no payload, no work: the machine's floor.
+    EventFd,
+    /// The real steps, samples copied over Unix domain sockets.
+    Uds,
+    /// The real steps, samples in iceoryx2 shared memory (as the services run).
+    Iceoryx,
+}
+
+impl Transport {
+    pub const ALL: [Transport; 3] = [Transport::EventFd, Transport::Uds, Transport::Iceoryx];
+
+    /// `eventfd`, `uds` or `iceoryx2`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Transport::EventFd => "eventfd",
+            Transport::Uds => "uds",
+            Transport::Iceoryx => "iceoryx2",
+        }
+    }
+
+    /// True when the stages run the real steps on real samples.
+    pub fn carries_samples(self) -> bool {
+        self != Transport::EventFd
+    }
+}
+
+impl fmt::Display for Transport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A transport name that is none of `eventfd`, `uds`, `iceoryx2`.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("unknown transport {0:?}: use eventfd, uds or iceoryx2")]
+pub struct ParseTransportError(String);
+
+impl FromStr for Transport {
+    type Err = ParseTransportError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "eventfd" => Ok(Transport::EventFd),
+            "uds" => Ok(Transport::Uds),
+            "iceoryx2" | "iceoryx" => Ok(Transport::Iceoryx),
+            _ => Err(ParseTransportError(s.to_string())),
+        }
+    }
+}
+
+/// The real-time request of each stage: that of the service it stands for
+/// (`None` when `[rt]` is off and not forced, as `jetbench up --rt` forces it).
+pub fn stage_rt_requests(rt: &RtSection, force: bool) -> Option<[RtRequest; STAGES]> {
+    let requests: Vec<RtRequest> = STAGE_SERVICES.iter().filter_map(|&id| rt.request(id, force)).collect();
+    requests.try_into().ok()
+}
+
+/// What [`run_chain`] runs.
+#[derive(Clone, Debug)]
+pub struct ChainOptions {
+    pub transport: Transport,
+    /// How long the source runs: `duration / period` cycles.
+    pub duration: Duration,
+    /// The source's period (the control period, 10 ms).
+    pub period: Duration,
+    /// Real-time settings per stage (see [`stage_rt_requests`]); `None` runs
+    /// every stage with the normal scheduler.
+    pub rt: Option<[RtRequest; STAGES]>,
+    /// The `jetbench` binary, whose hidden `latency-stage` command runs a stage.
+    pub exe: PathBuf,
+    /// Bench config for the steps' settings (model, estimator, control law,
+    /// calibration); `None` is the built-in simulated bench.
+    pub config: Option<PathBuf>,
+    /// Bus namespace of the stages (`JETBENCH_BUS`); `None` inherits this process's.
+    pub bus_namespace: Option<String>,
+}
+
+impl ChainOptions {
+    /// 10 s at the control period, without real-time settings, on the built-in config.
+    pub fn new(transport: Transport, exe: impl Into<PathBuf>) -> Self {
+        ChainOptions {
+            transport,
+            duration: Duration::from_secs(10),
+            period: Duration::from_nanos(PERIOD_NS),
+            rt: None,
+            exe: exe.into(),
+            config: None,
+            bus_namespace: None,
+        }
+    }
+
+    /// The number of cycles the source sends.
+    pub fn cycles(&self) -> Result<u64, ChainError> {
+        if self.period.is_zero() || self.period > Duration::from_secs(1) {
+            return Err(ChainError::Options(format!("the period must be within 0 and 1 s, not {:?}", self.period)));
+        }
+        let cycles = (self.duration.as_nanos() / self.period.as_nanos()) as u64;
+        if cycles == 0 {
+            return Err(ChainError::Options(format!(
+                "a run of {:?} is shorter than one period ({:?})",
+                self.duration, self.period
+            )));
+        }
+        Ok(cycles)
+    }
+}
+
+/// Why a chain run failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ChainError {
+    #[error("invalid chain options: {0}")]
+    Options(String),
+    #[error("cannot create the {what} of the latency chain: {source}")]
+    Setup { what: &'static str, source: std::io::Error },
+    #[error("cannot start chain stage {stage} ({service}) from {exe}: {source} (is it the jetbench binary?)")]
+    Spawn { stage: usize, service: &'static str, exe: PathBuf, source: std::io::Error },
+    #[error("chain stage {stage} ({service}) did not report ready within {timeout:?}; see its log above")]
+    NotReady { stage: usize, service: &'static str, timeout: Duration },
+    #[error("chain stage {stage} ({service}) {how}; see its log above")]
+    StageDied { stage: usize, service: &'static str, how: String },
+    #[error("chain stage {stage} ({service}) did not finish within {timeout:?} of the run's end")]
+    NotFinished { stage: usize, service: &'static str, timeout: Duration },
+    #[error("chain stage {stage} ({service}) sent malformed output: {what}")]
+    Protocol { stage: usize, service: &'static str, what: String },
+    #[error("the {transport} chain completed no cycle (the source sent {sent})")]
+    NoRecords { transport: Transport, sent: u64 },
+    #[error("the chain run was interrupted")]
+    Interrupted,
+}
+
+/// One stage's stamps of one cycle, as a stage reports them.
+///
+/// Stage 0 fills every field. Downstream stages of a sample-carrying chain
+/// give the cycle's `stamp_ns` (its `t0`, which every step copies from its
+/// input) and [`StageRecord::NO_CYCLE`]; eventfd stages, which carry no
+/// payload, count the pings instead (an eventfd cannot lose one) and give
+/// `stamp_ns = 0`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StageRecord {
+    pub cycle: u64,
+    /// The cycle's `t0`, ns (`CLOCK_MONOTONIC`); 0 when unknown.
+    pub stamp_ns: u64,
+    /// When the stage woke with its input in hand (stage 0: its clock), ns.
+    pub wake_ns: u64,
+    /// When its output was sent (stage 3: the actuator's output ready), ns.
+    pub sent_ns: u64,
+    /// Stage 0 only: when it was scheduled to wake, ns.
+    pub scheduled_ns: u64,
+}
+
+impl StageRecord {
+    /// The cycle number of a record joined by its `stamp_ns`.
+    pub const NO_CYCLE: u64 = u64::MAX;
+    /// Bytes of a record on the result pipe.
+    pub const BYTES: usize = 40;
+
+    fn to_bytes(self) -> [u8; Self::BYTES] {
+        let mut out = [0; Self::BYTES];
+        for (i, v) in [self.cycle, self.stamp_ns, self.wake_ns, self.sent_ns, self.scheduled_ns].iter().enumerate() {
+            out[8 * i..8 * i + 8].copy_from_slice(&v.to_le_bytes());
+        }
+        out
+    }
+
+    fn from_bytes(bytes: &[u8]) -> Option<Self> {
+        if bytes.len() != Self::BYTES {
+            return None;
+        }
+        let v = |i: usize| u64::from_le_bytes(bytes[8 * i..8 * i + 8].try_into().expect("8 bytes"));
+        Some(StageRecord { cycle: v(0), stamp_ns: v(1), wake_ns: v(2), sent_ns: v(3), scheduled_ns: v(4) })
+    }
+}
+
+/// One cycle that went through every stage. Times are `CLOCK_MONOTONIC` ns,
+/// comparable across the stage processes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ChainCycle {
+    pub cycle: u64,
+    /// When the source was scheduled to wake.
+    pub scheduled_ns: u64,
+    /// When each stage woke with the cycle's input (stage 0: `t0`).
+    pub wake_ns: [u64; STAGES],
+    /// When each stage had sent its output (stage 3: the actuator's output ready).
+    pub sent_ns: [u64; STAGES],
+}
+
+impl ChainCycle {
+    /// `t0`: the source woke (the pipeline's sensor frame received).
+    pub fn t0_ns(&self) -> u64 {
+        self.wake_ns[0]
+    }
+
+    /// End to end: from `t0` to the actuator's output ready, ns. Equals the
+    /// sum of [`ChainCycle::hop_ns`] and [`ChainCycle::actuate_ns`].
+    pub fn e2e_ns(&self) -> u64 {
+        self.sent_ns[STAGES - 1].saturating_sub(self.t0_ns())
+    }
+
+    /// Hop `h`: from stage `h` waking to stage `h + 1` waking (stage `h`'s
+    /// work, its send, and the wake-up of the next process), ns.
+    pub fn hop_ns(&self) -> [u64; HOPS] {
+        std::array::from_fn(|h| self.wake_ns[h + 1].saturating_sub(self.wake_ns[h]))
+    }
+
+    /// The last stage's own work: woke to output ready, ns.
+    pub fn actuate_ns(&self) -> u64 {
+        self.sent_ns[STAGES - 1].saturating_sub(self.wake_ns[STAGES - 1])
+    }
+
+    /// Each stage's work and send: woke to sent, ns. (A hand-over alone,
+    /// `wake[h + 1] - sent[h]`, is not given: the next stage, on another CPU,
+    /// may wake before the sender has read the clock.)
+    pub fn work_ns(&self) -> [u64; STAGES] {
+        std::array::from_fn(|k| self.sent_ns[k].saturating_sub(self.wake_ns[k]))
+    }
+
+    /// The source woke more than a period after its schedule, or the cycle
+    /// took longer than a period end to end.
+    pub fn late(&self, period: Duration) -> bool {
+        let period_ns = period.as_nanos() as u64;
+        self.t0_ns().saturating_sub(self.scheduled_ns) > period_ns || self.e2e_ns() > period_ns
+    }
+}
+
+/// What one stage process reported about itself.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct StageReport {
+    pub stage: usize,
+    pub service: ServiceId,
+    /// What it was asked to set.
+    pub requested: Option<RtRequest>,
+    /// What it set and what the kernel refused, with the reasons.
+    pub rt: RtOutcome,
+    /// Its scheduling policy once set up, e.g. `SCHED_FIFO`, and priority.
+    pub policy: String,
+    pub priority: i32,
+    /// Cycles it handled.
+    pub handled: u64,
+    /// Inputs its step rejected (their cycles go no further).
+    pub errors: u64,
+}
+
+impl StageReport {
+    fn new(stage: usize, requested: Option<RtRequest>) -> Self {
+        StageReport {
+            stage,
+            service: STAGE_SERVICES[stage],
+            requested,
+            rt: RtOutcome::default(),
+            policy: String::new(),
+            priority: 0,
+            handled: 0,
+            errors: 0,
+        }
+    }
+
+    /// True when the stage ran under SCHED_FIFO.
+    pub fn fifo(&self) -> bool {
+        self.policy == "SCHED_FIFO"
+    }
+}
+
+/// The outcome of [`run_chain`].
+#[derive(Clone, Debug)]
+pub struct ChainRun {
+    pub transport: Transport,
+    pub period: Duration,
+    /// Cycles the source sent.
+    pub sent: u64,
+    /// Cycles that reached every stage, in order.
+    pub cycles: Vec<ChainCycle>,
+    /// Cycles the source sent that never reached the last stage.
+    pub lost: u64,
+    /// `|actual period - period|` of the source, one per cycle after the first, ns.
+    pub period_jitter_ns: Vec<u64>,
+    /// Cycles whose source woke more than a period late, or that took more
+    /// than a period end to end.
+    pub late: u64,
+    /// One per stage, in chain order (empty for runs built from records alone).
+    pub stages: Vec<StageReport>,
+}
+
+impl ChainRun {
+    /// Joins the stages' records (index = stage) by cycle.
+    pub fn from_records(
+        transport: Transport,
+        period: Duration,
+        records: &[Vec<StageRecord>; STAGES],
+        stages: Vec<StageReport>,
+    ) -> Result<ChainRun, ChainError> {
+        let mut source = records[0].clone();
+        source.sort_by_key(|r| r.cycle);
+        source.dedup_by_key(|r| r.cycle);
+        let by_cycle: HashMap<u64, usize> = source.iter().enumerate().map(|(i, r)| (r.cycle, i)).collect();
+        let by_stamp: HashMap<u64, usize> = source.iter().enumerate().map(|(i, r)| (r.stamp_ns, i)).collect();
+        let mut cycles: Vec<ChainCycle> = source
+            .iter()
+            .map(|r| ChainCycle {
+                cycle: r.cycle,
+                scheduled_ns: r.scheduled_ns,
+                wake_ns: [r.wake_ns, 0, 0, 0],
+                sent_ns: [r.sent_ns, 0, 0, 0],
+            })
+            .collect();
+        let mut seen = vec![1u8; source.len()];
+        for (k, stage) in records.iter().enumerate().skip(1) {
+            for r in stage {
+                let slot = if r.stamp_ns != 0 { by_stamp.get(&r.stamp_ns) } else { by_cycle.get(&r.cycle) };
+                if let Some(&i) = slot {
+                    cycles[i].wake_ns[k] = r.wake_ns;
+                    cycles[i].sent_ns[k] = r.sent_ns;
+                    seen[i] |= 1 << k;
+                }
+            }
+        }
+        let all = (1u8 << STAGES) - 1;
+        let period_ns = period.as_nanos() as u64;
+        let sent = source.len() as u64;
+        let mut late = 0;
+        for ((r, c), &s) in source.iter().zip(&cycles).zip(&seen) {
+            if r.wake_ns.saturating_sub(r.scheduled_ns) > period_ns || (s == all && c.late(period)) {
+                late += 1;
+            }
+        }
+        let period_jitter_ns =
+            source.windows(2).map(|w| w[1].wake_ns.saturating_sub(w[0].wake_ns).abs_diff(period_ns)).collect();
+        let complete: Vec<ChainCycle> =
+            cycles.into_iter().zip(seen).filter(|&(_, s)| s == all).map(|(c, _)| c).collect();
+        if complete.is_empty() {
+            return Err(ChainError::NoRecords { transport, sent });
+        }
+        Ok(ChainRun {
+            transport,
+            period,
+            sent,
+            lost: sent - complete.len() as u64,
+            cycles: complete,
+            period_jitter_ns,
+            late,
+            stages,
+        })
+    }
+
+    /// End-to-end latency of every complete cycle, ns, in cycle order.
+    pub fn e2e_ns(&self) -> Vec<u64> {
+        self.cycles.iter().map(ChainCycle::e2e_ns).collect()
+    }
+
+    /// Hop `hop` (0..3) of every complete cycle, ns, in cycle order.
+    pub fn hop_ns(&self, hop: usize) -> Vec<u64> {
+        self.cycles.iter().map(|c| c.hop_ns()[hop]).collect()
+    }
+}
+
+// ---------------------------------------------------------------------------
+// The parent: start the stages, run, stop, join.
+
+/// Runs one chain: starts the four stages (each applies its real-time request
+/// first), waits until all are ready, lets the source run `duration`, waits for
+/// the last cycle to reach the last stage, stops and reaps the stages, and
+/// joins their records. Blocks for about `duration` plus start-up.
+///
+/// A SIGINT/SIGTERM flagged through `jetbench_bus` ends the run early with
+/// [`ChainError::Interrupted`]; the stages are stopped either way, and get
+/// SIGTERM from the kernel should this process (the calling thread) die.
+pub fn run_chain(options: &ChainOptions) -> Result<ChainRun, ChainError> {
+    let cycles = options.cycles()?;
+    if !options.exe.is_file() {
+        return Err(ChainError::Spawn {
+            stage: 0,
+            service: STAGE_SERVICES[0].name(),
+            exe: options.exe.clone(),
+            source: std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
+        });
+    }
+    let run_id = next_run_id();
+    let links = Links::new(options.transport)?;
+    let (line_tx, line_rx) = mpsc::channel();
+    let mut stages = Stages { stages: Vec::with_capacity(STAGES) };
+    for k in 0..STAGES {
+        let (result_read, result_write) = pipe().map_err(|source| ChainError::Setup { what: "result pipe", source })?;
+        let spec = SpawnSpec {
+            stage: k,
+            cycles,
+            run_id: &run_id,
+            input: links.input(k),
+            output: links.output(k),
+            results: result_write.as_raw_fd(),
+        };
+        let mut child = spawn_stage(options, &spec)?;
+        // The child has its own copy; ours must go so the pipe ends when the child does.
+        drop(result_write);
+        let stdout = child.stdout.take().expect("stdout is piped");
+        let tx = line_tx.clone();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                if tx.send((k, line)).is_err() {
+                    break;
+                }
+            }
+        });
+        let results = std::thread::spawn(move || {
+            let mut bytes = Vec::new();
+            File::from(result_read).read_to_end(&mut bytes).map(|_| bytes)
+        });
+        let stdin = child.stdin.take();
+        stages.stages.push(StageProcess {
+            child,
+            stdin,
+            results: Some(results),
+            exited: None,
+            report: StageReport::new(k, options.rt.as_ref().map(|r| r[k].clone())),
+            ready: false,
+            done: false,
+        });
+    }
+    // The stages hold their ends; the sockets close when the stages do.
+    drop(links);
+    drop(line_tx);
+
+    stages.pump(
+        &line_rx,
+        READY_TIMEOUT,
+        |s| s.ready,
+        |s, timeout| ChainError::NotReady { stage: s.report.stage, service: s.report.service.name(), timeout },
+    )?;
+    if let Some(mut stdin) = stages.stages[0].stdin.take() {
+        writeln!(stdin, "{GO}").map_err(|_| stages.died(0))?;
+    }
+    let finish = options.duration + Duration::from_secs(10) + options.duration / 4;
+    stages.pump(
+        &line_rx,
+        finish,
+        |s| s.done,
+        |s, timeout| ChainError::NotFinished { stage: s.report.stage, service: s.report.service.name(), timeout },
+    )?;
+    stages.stop()?;
+
+    let mut records: [Vec<StageRecord>; STAGES] = Default::default();
+    for (k, s) in stages.stages.iter_mut().enumerate() {
+        let protocol = |what: String| ChainError::Protocol { stage: k, service: STAGE_SERVICES[k].name(), what };
+        let bytes = s
+            .results
+            .take()
+            .expect("joined once")
+            .join()
+            .map_err(|_| protocol("the result reader panicked".into()))?
+            .map_err(|e| protocol(format!("cannot read its results: {e}")))?;
+        if bytes.len() % StageRecord::BYTES != 0 {
+            return Err(protocol(format!("{} bytes of results is not a whole number of records", bytes.len())));
+        }
+        records[k] = bytes.chunks_exact(StageRecord::BYTES).filter_map(StageRecord::from_bytes).collect();
+    }
+    let reports = stages.stages.iter().map(|s| s.report.clone()).collect();
+    ChainRun::from_records(options.transport, options.period, &records, reports)
+}
+
+/// A run id unique on this machine while the process lives: channel names
+/// of different runs never meet.
+fn next_run_id() -> String {
+    static RUNS: AtomicU32 = AtomicU32::new(0);
+    format!("{}-{}", std::process::id(), RUNS.fetch_add(1, Ordering::Relaxed))
+}
+
+/// The parent's side of the hand-overs: for hop `h`, the fd stage `h` writes
+/// and the fd stage `h + 1` reads (one eventfd, or the two ends of a socket pair).
+struct Links {
+    hops: Vec<(OwnedFd, Option<OwnedFd>)>,
+}
+
+impl Links {
+    fn new(transport: Transport) -> Result<Links, ChainError> {
+        let mut hops = Vec::new();
+        for _ in 0..HOPS {
+            match transport {
+                Transport::EventFd => {
+                    // SAFETY: eventfd has no memory preconditions; the fd is checked and owned at once.
+                    let fd = unsafe { libc::eventfd(0, libc::EFD_CLOEXEC | libc::EFD_NONBLOCK) };
+                    hops.push((owned(fd).map_err(|source| ChainError::Setup { what: "eventfd", source })?, None));
+                }
+                Transport::Uds => {
+                    let mut fds = [-1; 2];
+                    // SAFETY: `fds` has room for the two descriptors socketpair writes.
+                    let rc = unsafe {
+                        libc::socketpair(
+                            libc::AF_UNIX,
+                            libc::SOCK_SEQPACKET | libc::SOCK_CLOEXEC | libc::SOCK_NONBLOCK,
+                            0,
+                            fds.as_mut_ptr(),
+                        )
+                    };
+                    let setup = |source| ChainError::Setup { what: "Unix socket pair", source };
+                    if rc != 0 {
+                        return Err(setup(std::io::Error::last_os_error()));
+                    }
+                    hops.push((owned(fds[0]).map_err(setup)?, Some(owned(fds[1]).map_err(setup)?)));
+                }
+                Transport::Iceoryx => {}
+            }
+        }
+        Ok(Links { hops })
+    }
+
+    /// The fd stage `k` reads its input from.
+    fn input(&self, k: usize) -> Option<RawFd> {
+        let (write, read) = self.hops.get(k.checked_sub(1)?)?;
+        Some(read.as_ref().unwrap_or(write).as_raw_fd())
+    }
+
+    /// The fd stage `k` sends its output on.
+    fn output(&self, k: usize) -> Option<RawFd> {
+        self.hops.get(k).map(|(write, _)| write.as_raw_fd())
+    }
+}
+
+fn owned(fd: RawFd) -> std::io::Result<OwnedFd> {
+    if fd < 0 {
+        Err(std::io::Error::last_os_error())
+    } else {
+        // SAFETY: `fd` was just returned by the kernel to us and nothing else owns it.
+        Ok(unsafe { OwnedFd::from_raw_fd(fd) })
+    }
+}
+
+/// A pipe, both ends close-on-exec: (read, write).
+fn pipe() -> std::io::Result<(OwnedFd, OwnedFd)> {
+    let mut fds = [-1; 2];
+    // SAFETY: `fds` has room for the two descriptors pipe2 writes.
+    if unsafe { libc::pipe2(fds.as_mut_ptr(), libc::O_CLOEXEC) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    Ok((owned(fds[0])?, owned(fds[1])?))
+}
+
+struct SpawnSpec<'a> {
+    stage: usize,
+    cycles: u64,
+    run_id: &'a str,
+    input: Option<RawFd>,
+    output: Option<RawFd>,
+    results: RawFd,
+}
+
+/// Protocol lines of a stage on its stdout, and the parent's go on the source's stdin.
+const READY: &str = "ready";
+const GO: &str = "go";
+const DONE: &str = "done";
+const RT: &str = "rt";
+
+fn spawn_stage(options: &ChainOptions, spec: &SpawnSpec) -> Result<Child, ChainError> {
+    let k = spec.stage;
+    let mut command = Command::new(&options.exe);
+    command.arg("latency-stage").args([
+        "--transport",
+        options.transport.name(),
+        "--stage",
+        &k.to_string(),
+        "--cycles",
+        &spec.cycles.to_string(),
+        "--period-ns",
+        &(options.period.as_nanos() as u64).to_string(),
+        "--run-id",
+        spec.run_id,
+        "--result-fd",
+        &spec.results.to_string(),
+    ]);
+    if let Some(fd) = spec.input {
+        command.arg("--input-fd").arg(fd.to_string());
+    }
+    if let Some(fd) = spec.output {
+        command.arg("--output-fd").arg(fd.to_string());
+    }
+    if let Some(config) = &options.config {
+        command.arg("--config").arg(config);
+    }
+    if let Some(rt) = &options.rt {
+        let rt = &rt[k];
+        if let Some(priority) = rt.priority {
+            command.arg("--priority").arg(priority.to_string());
+        }
+        if !rt.cpus.is_empty() {
+            let cpus: Vec<String> = rt.cpus.iter().map(usize::to_string).collect();
+            command.arg("--cpus").arg(cpus.join(","));
+        }
+        if rt.lock_memory {
+            command.arg("--lock-memory");
+        }
+    }
+    if let Some(ns) = &options.bus_namespace {
+        command.env(jetbench_bus::NAMESPACE_ENV, ns);
+    }
+    // Own process group: a Ctrl-C reaches only the parent, which stops the chain.
+    command
+        .process_group(0)
+        .stdin(if k == 0 { Stdio::piped() } else { Stdio::null() })
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit());
+    let inherit = [spec.input.unwrap_or(-1), spec.output.unwrap_or(-1), spec.results];
+    // SAFETY: runs between fork and exec and calls only async-signal-safe
+    // functions (fcntl, prctl) on plain integers; it allocates nothing.
+    unsafe {
+        command.pre_exec(move || {
+            for fd in inherit {
+                if fd >= 0 && libc::fcntl(fd, libc::F_SETFD, 0) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+            }
+            // A stage must not outlive its parent: it would hold the chain's CPU at its priority.
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM as libc::c_ulong) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    command.spawn().map_err(|source| ChainError::Spawn {
+        stage: k,
+        service: STAGE_SERVICES[k].name(),
+        exe: options.exe.clone(),
+        source,
+    })
+}
+
+struct StageProcess {
+    child: Child,
+    stdin: Option<ChildStdin>,
+    results: Option<JoinHandle<std::io::Result<Vec<u8>>>>,
+    exited: Option<ExitStatus>,
+    report: StageReport,
+    ready: bool,
+    done: bool,
+}
+
+/// The running stages; dropping them stops whatever still runs.
+struct Stages {
+    stages: Vec<StageProcess>,
+}
+
+impl Stages {
+    /// Handles stage output until `reached` holds for every stage, failing
+    /// when a stage ends, `timeout` passes, or a stop is requested.
+    fn pump(
+        &mut self,
+        lines: &mpsc::Receiver<(usize, String)>,
+        timeout: Duration,
+        reached: impl Fn(&StageProcess) -> bool,
+        overdue: impl Fn(&StageProcess, Duration) -> ChainError,
+    ) -> Result<(), ChainError> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            while let Ok((k, line)) = lines.try_recv() {
+                self.handle_line(k, &line)?;
+            }
+            if self.stages.iter().all(&reached) {
+                return Ok(());
+            }
+            if self.reap() {
+                // The last lines of a stage that ended may still be on their way.
+                std::thread::sleep(Duration::from_millis(20));
+                while let Ok((k, line)) = lines.try_recv() {
+                    self.handle_line(k, &line)?;
+                }
+            }
+            if let Some(k) = self.stages.iter().position(|s| s.exited.is_some() && !reached(s)) {
+                return Err(self.died(k));
+            }
+            if stop_requested() {
+                return Err(ChainError::Interrupted);
+            }
+            if Instant::now() > deadline {
+                let late = self.stages.iter().find(|s| !reached(s)).expect("one has not reached it");
+                return Err(overdue(late, timeout));
+            }
+            match lines.recv_timeout(Duration::from_millis(100)) {
+                Ok((k, line)) => self.handle_line(k, &line)?,
+                Err(mpsc::RecvTimeoutError::Timeout | mpsc::RecvTimeoutError::Disconnected) => {}
+            }
+        }
+    }
+
+    fn handle_line(&mut self, k: usize, line: &str) -> Result<(), ChainError> {
+        let s = &mut self.stages[k];
+        let protocol = |what: String| ChainError::Protocol { stage: k, service: STAGE_SERVICES[k].name(), what };
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some(READY) => s.ready = true,
+            Some(DONE) => {
+                let mut count = || words.next().and_then(|w| w.parse::<u64>().ok());
+                match (count(), count()) {
+                    (Some(handled), Some(errors)) => {
+                        s.report.handled = handled;
+                        s.report.errors = errors;
+                        s.done = true;
+                    }
+                    _ => return Err(protocol(format!("bad line {line:?}"))),
+                }
+            }
+            Some(RT) => {
+                let rest = |skip: usize| line.splitn(skip + 1, ' ').nth(skip).unwrap_or("").to_string();
+                match words.next() {
+                    Some("applied") => s.report.rt.applied.push(rest(2)),
+                    Some("refused") => s.report.rt.refused.push(rest(2)),
+                    Some("policy") => {
+                        s.report.policy = words.next().unwrap_or("").to_string();
+                        s.report.priority = words.next().and_then(|p| p.parse().ok()).unwrap_or(0);
+                    }
+                    _ => return Err(protocol(format!("bad line {line:?}"))),
+                }
+            }
+            // Not protocol: pass it on, attributed.
+            _ => eprintln!("latency stage {k} ({}): {line}", STAGE_SERVICES[k].name()),
+        }
+        Ok(())
+    }
+
+    /// Notes the stages that ended since the last look; true if any did.
+    fn reap(&mut self) -> bool {
+        let mut any = false;
+        for s in self.stages.iter_mut().filter(|s| s.exited.is_none()) {
+            if let Ok(Some(status)) = s.child.try_wait() {
+                s.exited = Some(status);
+                any = true;
+            }
+        }
+        any
+    }
+
+    fn died(&mut self, k: usize) -> ChainError {
+        let s = &mut self.stages[k];
+        let status = s.exited.or_else(|| s.child.try_wait().ok().flatten());
+        let how = match status {
+            Some(status) => format!("{} before the run ended", describe_exit(status)),
+            None => "stopped listening to its parent".into(),
+        };
+        ChainError::StageDied { stage: k, service: STAGE_SERVICES[k].name(), how }
+    }
+
+    /// SIGTERM to every stage, then reaps them; SIGKILL for one that does not
+    /// exit in time. The first that did not end cleanly is the error.
+    fn stop(&mut self) -> Result<(), ChainError> {
+        for s in &self.stages {
+            if s.exited.is_none() {
+                // SAFETY: kill(2) on our own child's pid; no memory is involved.
+                unsafe { libc::kill(s.child.id() as libc::pid_t, libc::SIGTERM) };
+            }
+        }
+        let mut failure = None;
+        for (k, s) in self.stages.iter_mut().enumerate() {
+            s.stdin = None;
+            let deadline = Instant::now() + STOP_TIMEOUT;
+            while s.exited.is_none() {
+                match s.child.try_wait() {
+                    Ok(Some(status)) => s.exited = Some(status),
+                    Ok(None) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(5)),
+                    _ => {
+                        let _ = s.child.kill();
+                        s.exited = s.child.wait().ok();
+                        failure = failure.or(Some(ChainError::StageDied {
+                            stage: k,
+                            service: STAGE_SERVICES[k].name(),
+                            how: format!("did not stop within {STOP_TIMEOUT:?} and was killed"),
+                        }));
+                    }
+                }
+            }
+            if let Some(status) = s.exited.filter(|status| !status.success()) {
+                failure = failure.or(Some(ChainError::StageDied {
+                    stage: k,
+                    service: STAGE_SERVICES[k].name(),
+                    how: format!("{} while stopping", describe_exit(status)),
+                }));
+            }
+        }
+        failure.map_or(Ok(()), Err)
+    }
+}
+
+impl Drop for Stages {
+    fn drop(&mut self) {
+        if self.stages.iter().any(|s| s.exited.is_none()) {
+            let _ = self.stop();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const PERIOD: Duration = Duration::from_millis(10);
+    const MS: u64 = 1_000_000;
+
+    /// Stage 0's record of cycle `c`, woken `late_ns` after its schedule.
+    fn source(c: u64, late_ns: u64) -> StageRecord {
+        let scheduled_ns = 1_000 * MS + c * 10 * MS;
+        let t0 = scheduled_ns + late_ns;
+        StageRecord { cycle: c, stamp_ns: t0, wake_ns: t0, sent_ns: t0 + 1_000, scheduled_ns }
+    }
+
+    fn downstream(src: &StageRecord, k: u64, by_stamp: bool) -> StageRecord {
+        let wake_ns = src.wake_ns + k * 20_000;
+        StageRecord {
+            cycle: if by_stamp { StageRecord::NO_CYCLE } else { src.cycle },
+            stamp_ns: if by_stamp { src.stamp_ns } else { 0 },
+            wake_ns,
+            sent_ns: wake_ns + 3_000,
+            scheduled_ns: 0,
+        }
+    }
+
+    /// The records of a chain that passed `src`, except where `keep(stage, record)` says no.
+    fn chain_records(
+        src: &[StageRecord],
+        by_stamp: bool,
+        keep: impl Fn(usize, &StageRecord) -> bool,
+    ) -> [Vec<StageRecord>; STAGES] {
+        std::array::from_fn(|k| match k {
+            0 => src.to_vec(),
+            // Downstream stages report in any order.
+            _ => src.iter().rev().filter(|r| keep(k, r)).map(|r| downstream(r, k as u64, by_stamp)).collect(),
+        })
+    }
+
+    #[test]
+    fn records_join_by_stamp_and_a_cycle_missing_downstream_is_lost() {
+        let src: Vec<_> = (0..5).map(|c| source(c, 50_000)).collect();
+        // Cycle 2 is dropped on hop 1 (stage 1 to stage 2).
+        let records = chain_records(&src, true, |k, r| k < 2 || r.cycle != 2);
+        let run = ChainRun::from_records(Transport::Iceoryx, PERIOD, &records, Vec::new()).unwrap();
+        assert_eq!((run.sent, run.lost, run.late), (5, 1, 0));
+        assert_eq!(run.cycles.iter().map(|c| c.cycle).collect::<Vec<_>>(), [0, 1, 3, 4]);
+        for c in &run.cycles {
+            assert_eq!(c.hop_ns(), [20_000; HOPS]);
+            assert_eq!(c.e2e_ns(), 63_000);
+            assert_eq!(c.e2e_ns(), c.hop_ns().iter().sum::<u64>() + c.actuate_ns());
+            assert_eq!(c.work_ns(), [1_000, 3_000, 3_000, 3_000]);
+        }
+        assert_eq!(run.period_jitter_ns, [0; 4]);
+    }
+
+    #[test]
+    fn eventfd_records_join_by_cycle_count() {
+        let src: Vec<_> = (0..3).map(|c| source(c, 0)).collect();
+        let records = chain_records(&src, false, |_, _| true);
+        let run = ChainRun::from_records(Transport::EventFd, PERIOD, &records, Vec::new()).unwrap();
+        assert_eq!((run.sent, run.lost), (3, 0));
+        assert_eq!(run.e2e_ns(), [63_000; 3]);
+        assert_eq!(run.hop_ns(2), [20_000; 3]);
+    }
+
+    #[test]
+    fn late_wakes_slow_cycles_and_jitter_are_counted() {
+        // Cycle 1 wakes 12 ms late (a late cycle), cycle 2 still 3 ms late;
+        // cycle 3 takes 11 ms end to end (a late cycle).
+        let src: Vec<_> = [0, 12 * MS, 3 * MS, 0].iter().enumerate().map(|(c, &l)| source(c as u64, l)).collect();
+        let mut records = chain_records(&src, true, |_, _| true);
+        // Reported in reverse order: cycle 3 is the first record of stage 3.
+        records[3][0].sent_ns = src[3].wake_ns + 11 * MS;
+        let run = ChainRun::from_records(Transport::Uds, PERIOD, &records, Vec::new()).unwrap();
+        assert_eq!(run.late, 2);
+        assert_eq!(run.period_jitter_ns, [12 * MS, 9 * MS, 3 * MS]);
+        assert!(run.cycles[3].late(PERIOD) && !run.cycles[2].late(PERIOD));
+    }
+
+    #[test]
+    fn no_complete_cycle_is_an_error() {
+        let mut records: [Vec<StageRecord>; STAGES] = Default::default();
+        records[0] = vec![source(0, 0)];
+        let e = ChainRun::from_records(Transport::Uds, PERIOD, &records, Vec::new()).unwrap_err();
+        assert!(matches!(e, ChainError::NoRecords { sent: 1, .. }), "{e}");
+    }
+
+    #[test]
+    fn records_survive_the_pipe_format() {
+        let r = StageRecord { cycle: 7, stamp_ns: 1, wake_ns: 2, sent_ns: u64::MAX - 1, scheduled_ns: 4 };
+        assert_eq!(StageRecord::from_bytes(&r.to_bytes()), Some(r));
+        assert_eq!(StageRecord::from_bytes(&[0; 39]), None);
+    }
+
+    #[test]
+    fn transports_read_and_print_their_names() {
+        for t in Transport::ALL {
+            assert_eq!(t.to_string().parse::<Transport>(), Ok(t));
+        }
+        assert_eq!("iceoryx2".parse(), Ok(Transport::Iceoryx));
+        assert!("tcp".parse::<Transport>().unwrap_err().to_string().contains("eventfd, uds or iceoryx2"));
+    }
+
+    #[test]
+    fn stages_ask_for_their_services_real_time_settings() {
+        let rt = RtSection::default();
+        assert_eq!(stage_rt_requests(&rt, false), None);
+        let requests = stage_rt_requests(&rt, true).expect("forced");
+        let priorities: Vec<_> = requests.iter().map(|r| r.priority).collect();
+        assert_eq!(priorities, [Some(80), Some(70), Some(60), Some(50)]);
+        assert_eq!(requests[0].cpus, rt.cpus.sensing);
+    }
+
+    #[test]
+    fn a_run_shorter_than_a_period_is_refused() {
+        let mut options = ChainOptions::new(Transport::EventFd, "/nonexistent");
+        assert_eq!(options.cycles().unwrap(), 1000);
+        options.duration = Duration::from_millis(5);
+        assert!(matches!(options.cycles(), Err(ChainError::Options(_))));
+    }
+}
