@@ -85,6 +85,14 @@ enum Cmd {
     /// One process of a `jetbench latency` reference chain (started by it, not by hand).
     #[command(hide = true)]
     LatencyStage(cmd::latency_stage::LatencyStageArgs),
+    /// Does the 100 Hz loop hold under load? The service set's latency, hop by hop, against the
+    /// machine's floor (a bare eventfd ping) and a Unix-socket baseline, in one run.
+    ///
+    /// Example: jetbench latency --duration 60 --load cpu --rt --plot latency.png
+    Latency(cmd::latency::LatencyArgs),
+    /// The built-in background load of `jetbench latency` (used where stress-ng is not installed).
+    #[command(hide = true)]
+    LatencyLoad(cmd::load::LoadArgs),
 }
 
 fn main() -> ExitCode {
@@ -127,6 +135,8 @@ fn run() -> anyhow::Result<ExitCode> {
         Cmd::CanDecode(args) => cmd::can_decode::run(args),
         Cmd::Tare(args) => cmd::tare::run(args),
         Cmd::LatencyStage(args) => cmd::latency_stage::run(args),
+        Cmd::Latency(args) => cmd::latency::run(args),
+        Cmd::LatencyLoad(args) => cmd::load::run(args).map(|()| ExitCode::SUCCESS),
     }
 }
 

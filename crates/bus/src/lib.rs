@@ -285,8 +285,25 @@ impl Bus {
 
     /// Creates a subscriber on `channel` that queues up to `depth` samples
     /// (at most [`limits::MAX_BUFFER`]); older samples are dropped on overflow
-    /// and show up as `seq` gaps.
+    /// and show up as `seq` gaps. Every publish wakes it ([`Bus::run`]).
     pub fn subscriber<T: Sample>(&self, channel: Channel<T>, depth: usize) -> Result<Subscriber<T>, BusError> {
+        self.make_subscriber(channel, depth, true)
+    }
+
+    /// A subscriber for a reader that polls on its own clock (the recorder, the
+    /// launcher's status line): it has no listener, so publishers never wake it
+    /// and it costs the control path no system call. It cannot be an input of
+    /// [`Bus::run`]; size `depth` for the samples of one polling period and more.
+    pub fn polled_subscriber<T: Sample>(&self, channel: Channel<T>, depth: usize) -> Result<Subscriber<T>, BusError> {
+        self.make_subscriber(channel, depth, false)
+    }
+
+    fn make_subscriber<T: Sample>(
+        &self,
+        channel: Channel<T>,
+        depth: usize,
+        woken: bool,
+    ) -> Result<Subscriber<T>, BusError> {
         let port_err = |e: String| BusError::PortCreate { channel: channel.name.into(), reason: e };
         let subscriber = self
             .pubsub(channel)?
@@ -294,7 +311,11 @@ impl Bus {
             .buffer_size(depth.clamp(1, limits::MAX_BUFFER))
             .create()
             .map_err(|e| port_err(format!("{e:?}")))?;
-        let listener = self.event(channel.name)?.listener_builder().create().map_err(|e| port_err(format!("{e:?}")))?;
+        let listener = if woken {
+            Some(self.event(channel.name)?.listener_builder().create().map_err(|e| port_err(format!("{e:?}")))?)
+        } else {
+            None
+        };
         Ok(Subscriber {
             subscriber,
             listener,
@@ -329,9 +350,12 @@ impl Bus {
             .map_err(|e| wait_err("create waitset", format!("{e:?}")))?;
         let mut guards = Vec::with_capacity(inputs.len());
         for (trigger, deadline) in inputs {
+            let listener = trigger.listener().ok_or_else(|| {
+                wait_err("attach input", "a polled subscriber has no listener to wake a loop with".into())
+            })?;
             let guard = match deadline {
-                Some(d) => waitset.attach_deadline(trigger.listener(), *d),
-                None => waitset.attach_notification(trigger.listener()),
+                Some(d) => waitset.attach_deadline(listener, *d),
+                None => waitset.attach_notification(listener),
             }
             .map_err(|e| wait_err("attach input", format!("{e:?}")))?;
             guards.push(guard);
@@ -424,10 +448,13 @@ pub enum LoopExit {
 
 /// Something [`Bus::run`] can wait on.
 pub trait Trigger {
-    fn listener(&self) -> &Listener<ipc::Service>;
+    /// The listener publishers wake; `None` for a polled subscriber.
+    fn listener(&self) -> Option<&Listener<ipc::Service>>;
     /// Consumes pending notifications so they do not wake the loop again.
     fn consume_events(&self) {
-        let _ = self.listener().try_wait(|_| {});
+        if let Some(listener) = self.listener() {
+            let _ = listener.try_wait(|_| {});
+        }
     }
 }
 
@@ -466,7 +493,7 @@ impl<T: Sample> Publisher<T> {
 /// Receives samples of one type and counts lost ones from `seq` gaps.
 pub struct Subscriber<T: Sample> {
     subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, T, ()>,
-    listener: Listener<ipc::Service>,
+    listener: Option<Listener<ipc::Service>>,
     channel: Channel<T>,
     /// Next expected `seq` per publisher.
     seq_tracks: RefCell<Vec<(iceoryx2::identifiers::UniquePublisherId, u64)>>,
@@ -522,7 +549,12 @@ impl<T: Sample> Subscriber<T> {
             if now >= deadline || stop_requested() {
                 return Ok(None);
             }
-            match self.listener.timed_wait(|_| {}, (deadline - now).min(SIGNAL_POLL)) {
+            let Some(listener) = &self.listener else {
+                // Polled: look again shortly.
+                std::thread::sleep((deadline - now).min(Duration::from_millis(1)));
+                continue;
+            };
+            match listener.timed_wait(|_| {}, (deadline - now).min(SIGNAL_POLL)) {
                 // A signal cut the wait short; the stop flag decides what it meant.
                 Ok(_) | Err(ListenerWaitError::InterruptSignal) => {}
                 Err(e) => {
@@ -553,8 +585,8 @@ impl<T: Sample> Subscriber<T> {
 }
 
 impl<T: Sample> Trigger for Subscriber<T> {
-    fn listener(&self) -> &Listener<ipc::Service> {
-        &self.listener
+    fn listener(&self) -> Option<&Listener<ipc::Service>> {
+        self.listener.as_ref()
     }
 }
 

@@ -212,13 +212,20 @@ pub fn expected_len(kind: u8) -> Option<usize> {
 
 /// Encodes a frame into its wire bytes.
 pub fn encode(frame: &Frame) -> Vec<u8> {
+    let mut out = Vec::with_capacity(MAX_FRAME);
+    encode_into(frame, &mut out);
+    out
+}
+
+/// Encodes a frame into `out`, replacing its contents: the per-cycle form of
+/// [`encode`], which allocates nothing once `out` holds [`MAX_FRAME`] bytes.
+pub fn encode_into(frame: &Frame, out: &mut Vec<u8>) {
     let (payload, len) = payload_of(frame);
-    let mut out = Vec::with_capacity(len + OVERHEAD);
+    out.clear();
     out.extend_from_slice(&[SYNC, frame.kind(), len as u8]);
     out.extend_from_slice(&payload[..len]);
     let crc = crc16(&out[1..]);
     out.extend_from_slice(&crc.to_le_bytes());
-    out
 }
 
 fn u16_at(p: &[u8], i: usize) -> u16 {

@@ -25,6 +25,7 @@
 //! ```
 
 use std::io::{ErrorKind, Read, Write};
+use std::os::fd::AsRawFd;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -60,6 +61,30 @@ pub fn open_port(path: &Path, baud: u32) -> Result<TTYPort, serialport::Error> {
         .open_native()
 }
 
+/// Waits up to `timeout_ns` for `fd` to have bytes to read (or to report an
+/// error or hang-up, which the following read then returns).
+fn wait_readable(fd: std::os::fd::RawFd, timeout_ns: u64) -> std::io::Result<bool> {
+    let mut pollfd = libc::pollfd { fd, events: libc::POLLIN, revents: 0 };
+    let timeout = libc::timespec {
+        tv_sec: (timeout_ns / 1_000_000_000) as libc::time_t,
+        tv_nsec: (timeout_ns % 1_000_000_000) as libc::c_long,
+    };
+    // SAFETY: one valid pollfd, a valid timespec, no signal mask.
+    let n = unsafe { libc::ppoll(&mut pollfd, 1, &timeout, std::ptr::null()) };
+    match n {
+        n if n > 0 => Ok(true),
+        0 => Ok(false),
+        _ => {
+            let e = std::io::Error::last_os_error();
+            if e.kind() == ErrorKind::Interrupted {
+                Ok(false)
+            } else {
+                Err(e)
+            }
+        }
+    }
+}
+
 /// The throttle board driver. Implements [`ThrottleOutput`]: every
 /// [`write`](ThrottleOutput::write) sends one set-throttle frame and waits at
 /// most [`ACK_WAIT`] for its acknowledgement.
@@ -86,6 +111,9 @@ pub struct ThrottleBoard {
     last_rx_ns: u64,
     /// When the last set-throttle frame left, if the last write sent one.
     written_ns: Option<u64>,
+    /// Reused buffers of the per-cycle path (it allocates nothing once they have grown).
+    tx: Vec<u8>,
+    rx_frames: Vec<Frame>,
 }
 
 impl ThrottleBoard {
@@ -112,6 +140,8 @@ impl ThrottleBoard {
             late_acks: 0,
             last_rx_ns: 0,
             written_ns: None,
+            tx: Vec::with_capacity(board::MAX_FRAME),
+            rx_frames: Vec::with_capacity(16),
         }
     }
 
@@ -161,7 +191,8 @@ impl ThrottleBoard {
     fn send(&mut self, frame: &Frame) -> bool {
         let Some(port) = self.port.as_mut() else { return false };
         let sent_ns = (self.clock)();
-        match port.write_all(&board::encode(frame)) {
+        board::encode_into(frame, &mut self.tx);
+        match port.write_all(&self.tx) {
             Ok(()) => {
                 if let Frame::SetThrottle { seq, .. } | Frame::Arm { seq } | Frame::Disarm { seq } = *frame {
                     self.sent[usize::from(seq) % self.sent.len()] = (seq, sent_ns);
@@ -196,24 +227,35 @@ impl ThrottleBoard {
             if left_ns == 0 && !acked {
                 break;
             }
-            let _ = port.set_timeout(Duration::from_nanos(left_ns.max(1)));
-            match port.read(&mut buf) {
+            // Wait for bytes with poll(2) rather than a read timeout: the port's timed-out
+            // read builds a boxed error, and this runs every cycle.
+            let ready = match wait_readable(port.as_raw_fd(), left_ns.max(1)) {
+                Ok(ready) => ready,
+                Err(e) => {
+                    self.drop_link(format!("poll failed: {e}"));
+                    return acked;
+                }
+            };
+            let read = if ready { port.read(&mut buf) } else { Err(ErrorKind::TimedOut.into()) };
+            match read {
                 Ok(0) => {
                     self.drop_link("the port closed".into());
                     return acked;
                 }
                 Ok(n) => {
                     let rx_ns = (self.clock)();
-                    let mut frames = Vec::new();
+                    let mut frames = std::mem::take(&mut self.rx_frames);
+                    frames.clear();
                     // A partial frame the line went quiet on is not continued by these bytes.
                     while self.deframer.pending() > 0 && rx_ns.saturating_sub(self.last_rx_ns) > PARTIAL_FRAME_NS {
                         self.deframer.expire_partial(|f| frames.push(f));
                     }
                     self.last_rx_ns = rx_ns;
                     self.deframer.push(&buf[..n], |f| frames.push(f));
-                    for frame in frames {
+                    for frame in frames.drain(..) {
                         acked |= self.on_frame(frame, seq, sent_ns, rx_ns);
                     }
+                    self.rx_frames = frames;
                 }
                 Err(e) if matches!(e.kind(), ErrorKind::TimedOut | ErrorKind::Interrupted | ErrorKind::WouldBlock) => {
                     if acked {

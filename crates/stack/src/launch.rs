@@ -206,12 +206,12 @@ struct Status {
 impl Status {
     fn new(bus: &Bus) -> Result<Self, BusError> {
         Ok(Status {
-            thrust: bus.subscriber(channels::THRUST, 256)?,
-            state: bus.subscriber(channels::STATE, 256)?,
-            reference: bus.subscriber(channels::REFERENCE, 256)?,
-            command: bus.subscriber(channels::COMMAND, 256)?,
-            actuation: bus.subscriber(channels::ACTUATION, 256)?,
-            health: bus.subscriber(channels::HEALTH, 512)?,
+            thrust: bus.polled_subscriber(channels::THRUST, 256)?,
+            state: bus.polled_subscriber(channels::STATE, 256)?,
+            reference: bus.polled_subscriber(channels::REFERENCE, 256)?,
+            command: bus.polled_subscriber(channels::COMMAND, 256)?,
+            actuation: bus.polled_subscriber(channels::ACTUATION, 256)?,
+            health: bus.polled_subscriber(channels::HEALTH, 512)?,
             counts: [0; 5],
             misses: [0; 8],
             last_thrust_n: f64::NAN,

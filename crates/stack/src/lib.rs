@@ -12,6 +12,7 @@ pub mod chain;
 pub mod clock;
 pub mod config;
 pub mod health;
+pub mod latency;
 pub mod launch;
 pub mod replay;
 pub mod rt;

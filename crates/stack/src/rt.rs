@@ -99,6 +99,25 @@ pub fn apply(request: &RtRequest) -> RtOutcome {
     outcome
 }
 
+/// What [`apply`] would set and refuse for `request`, found out on a
+/// short-lived thread (priority and affinity are per thread) and by locking
+/// and unlocking memory, so the calling process is left as it was.
+pub fn probe(request: &RtRequest) -> RtOutcome {
+    let thread_request = RtRequest { lock_memory: false, ..request.clone() };
+    let mut outcome = std::thread::spawn(move || apply(&thread_request)).join().unwrap_or_default();
+    if request.lock_memory {
+        // SAFETY: mlockall/munlockall have no memory-safety preconditions.
+        if unsafe { libc::mlockall(libc::MCL_CURRENT) } == 0 {
+            unsafe { libc::munlockall() };
+            outcome.applied.insert(0, "memory locked".into());
+        } else {
+            let e = std::io::Error::last_os_error();
+            outcome.refused.insert(0, format!("cannot lock memory: {}", permission_hint(&e, "memlock")));
+        }
+    }
+    outcome
+}
+
 fn set_fifo(priority: u8) -> std::io::Result<()> {
     if !(1..=99).contains(&priority) {
         return Err(std::io::Error::new(std::io::ErrorKind::InvalidInput, "priority must be 1 to 99"));
