@@ -1,8 +1,8 @@
 //! FBL, SMC and MPC on the model itself: limits, steady state, saturation, delay, failure.
 
 use jetbench_control::{
-    ControlError, ControllerKind, FblGains, Law, LawSettings, Mpc, MpcSettings, Profile, Reference, ReferenceShaper,
-    ShaperSettings, Smc, SmcGains,
+    ControlError, ControllerKind, FblGains, Law, LawSettings, Mpc, MpcSettings, Profile, ProfileSpec, Reference,
+    ReferenceShaper, ShaperSettings, Smc, SmcGains,
 };
 use jetbench_model::{Effects, Params, Plant, Preset, STEP_S};
 
@@ -136,7 +136,7 @@ fn a_diverging_model_makes_the_mpc_fall_back_not_stall() {
     params.k_t = 400.0;
     let model = Plant::new(params, Effects::none());
     let truth = p100();
-    let profile = Profile::Steps { levels_n: vec![20.0, 80.0], hold_s: 3.0, smoothing_s: 0.0 };
+    let profile = Profile::from(ProfileSpec::Steps { levels_n: vec![20.0, 80.0], hold_s: 3.0, smoothing_s: 0.0 });
     let mut mpc = Mpc::new(model, MpcSettings::default(), FblGains::default());
     let mut engine = truth.at_equilibrium(25.0);
     let mut fallbacks = 0;
@@ -172,7 +172,7 @@ fn the_shaper_passes_a_feasible_reference_and_limits_an_infeasible_one() {
     let params = Preset::P100Diesel.params();
     let settings = ShaperSettings::default();
     // A slow sine inside the range passes unchanged once the shaper is on it.
-    let sine = Profile::Sines { offset_n: 40.0, amplitude_n: 10.0, period_s: 8.0 };
+    let sine = Profile::from(ProfileSpec::Sines { offset_n: 40.0, amplitude_n: 10.0, period_s: 8.0 });
     let mut shaper = ReferenceShaper::new(params, settings);
     for k in 0..800 {
         let t = k as f64 * STEP_S;
@@ -184,7 +184,7 @@ fn the_shaper_passes_a_feasible_reference_and_limits_an_infeasible_one() {
     }
     // A raw step beyond full thrust: the shaped reference stays in the steady range and
     // never asks for more acceleration than the model has at full throttle.
-    let step = Profile::Steps { levels_n: vec![20.0, 150.0], hold_s: 2.0, smoothing_s: 0.0 };
+    let step = Profile::from(ProfileSpec::Steps { levels_n: vec![20.0, 150.0], hold_s: 2.0, smoothing_s: 0.0 });
     let max_n = params.stable_equilibrium(100.0).unwrap();
     let mut shaper = ReferenceShaper::new(params, settings);
     shaper.start_at(20.0, 0.0);
