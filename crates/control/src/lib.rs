@@ -45,7 +45,7 @@ pub use metrics::{
     TrackingMetrics, TrackingSample, TRACKING_BAND_PCT,
 };
 pub use mpc::{Mpc, MpcOutput, MpcSettings};
-pub use profile::{Profile, Reference, Segment, BUILTIN_PROFILES};
+pub use profile::{Profile, ProfileSpec, Reference, Segment, BUILTIN_PROFILES};
 pub use shaper::{ReferenceShaper, ShaperSettings};
 pub use smc::{Smc, SmcGains};
 pub use throttle::{clamp_throttle, throttle_for_virtual, Command};

@@ -4,7 +4,7 @@ use std::time::Instant;
 
 use clarabel::algebra::CscMatrix;
 use clarabel::solver::{DefaultSettingsBuilder, DefaultSolver, IPSolver, NonnegativeConeT, SolverStatus};
-use jetbench_model::{Plant, PlantEngine, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
+use jetbench_model::{Params, Plant, PlantEngine, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
 use serde::{Deserialize, Serialize};
 
 use crate::throttle::{clamp_throttle, resting_throttle};
@@ -32,6 +32,12 @@ pub struct MpcSettings {
     /// Use the reference profile's future over the horizon (it is a known function of
     /// time); off, the reference is held at its present value.
     pub preview: bool,
+    /// Bandwidth ω with which the controller's model state follows the state estimate,
+    /// rad/s: the model-to-engine error decays like `s² + 2ω·s + ω²` (critically damped).
+    /// It is the MPC's feedback bandwidth to estimate noise and model error; the default
+    /// `√10` gives the error dynamics of FBL with the study's gains (`kp = 10`,
+    /// `kd = 2√10`). See [`Mpc`].
+    pub correction_rad_per_s: f64,
 }
 
 impl Default for MpcSettings {
@@ -44,6 +50,7 @@ impl Default for MpcSettings {
             iterations: 2,
             time_budget_s: 0.004,
             preview: true,
+            correction_rad_per_s: 10.0_f64.sqrt(),
         }
     }
 }
@@ -73,6 +80,13 @@ impl MpcSettings {
         if !(self.time_budget_s > 0.0 && self.time_budget_s <= 0.01) {
             return bad("time_budget_s", self.time_budget_s, "in (0, 0.01] s, inside the 10 ms cycle");
         }
+        if !(self.correction_rad_per_s > 0.0 && self.correction_rad_per_s <= MAX_CORRECTION_RAD_PER_S) {
+            return bad(
+                "correction_rad_per_s",
+                self.correction_rad_per_s,
+                "in (0, 20] rad/s, slow against the 10 ms cycle",
+            );
+        }
         Ok(())
     }
 }
@@ -97,6 +111,9 @@ pub(crate) const PREDICTION_SUBSTEPS: usize = 2;
 const MAX_SOLVER_ITERATIONS: u32 = 40;
 /// Levenberg damping of a Gauss–Newton pass, per %², keeps the QP strictly convex.
 const DAMPING: f64 = 1e-4;
+/// Fastest correction of the model state, rad/s: the correction is applied once per
+/// 10 ms cycle, which stays close to its continuous-time design while `ω·Δt ≤ 0.2`.
+const MAX_CORRECTION_RAD_PER_S: f64 = 20.0;
 
 /// Model predictive control by sequential quadratic programming on the identified
 /// model, effects included:
@@ -106,17 +123,49 @@ const DAMPING: f64 = 1e-4;
 /// subject to              25 % ≤ u_j ≤ 100 %
 /// ```
 ///
-/// `T_k(u)` is the model stepped from the state estimate over the horizon with the plan
-/// held on each move's block. The model is the controller's own [`PlantEngine`], fed
-/// with every command the controller sends, so its throttle history holds what the
-/// engine has yet to see through an input delay, and its rate limiter and actuator lag
-/// are where the commands have put them: the controller predicts through the delay
-/// instead of fighting it. Each pass linearises `T(u)` about the plan by finite
+/// `T_k(u)` is the model stepped over the horizon with the plan held on each move's
+/// block, `r_k` the reference profile ahead. The model is the controller's own
+/// [`PlantEngine`], fed with every command the controller sends, so its throttle history
+/// holds what the engine has yet to see through an input delay, and its rate limiter and
+/// actuator lag are where the commands have put them: the controller predicts through the
+/// delay instead of fighting it. Each pass linearises `T(u)` about the plan by finite
 /// differences and solves the box-constrained QP with Clarabel (an interior-point
 /// solver); the plan is warm-started from the previous cycle's, and no pass starts once
 /// the cycle's time budget is spent. When a pass fails (the solver does not converge in
 /// its iterations, the model diverges, the numbers are not finite) the cycle's command
 /// comes from feedback linearisation instead and is flagged, so the loop never stalls.
+///
+/// # Two degrees of freedom: plan on the model, correct it slowly
+///
+/// The plan starts from the model's own state `(T_m, Ṫ_m)`, not from the state estimate
+/// `(T̂, Ṫ̂)`. The model runs alongside the engine on the same commands, and each cycle
+/// its state is pulled towards the estimated thrust:
+///
+/// ```text
+/// ε = T̂ − T_m        T_m += Δt·l₁·ε        Ṫ_m += Δt·l₂·ε
+/// l₁ = 2ω + b        l₂ = ω² + a + l₁·b     (a = ∂T̈/∂T, b = ∂T̈/∂Ṫ of the model, here)
+/// ```
+///
+/// which puts the poles of the model-to-engine error `e = T − T_m` at `(s + ω)²`,
+/// whatever the model's own stiffness and damping at the operating point. So the two
+/// jobs of a tracking controller are split:
+///
+/// - Feed-forward: the optimisation is fast and sees the reference ahead and the limits,
+///   on a state free of estimate noise. On a reference the engine can follow, the model
+///   follows it too and there is nothing to feed back; on a saturating step the model
+///   knows how far the engine lags, because it was fed the same saturated throttle.
+/// - Feedback: estimate noise and model error reach the throttle only through the
+///   correction, at the bandwidth `ω` ([`MpcSettings::correction_rad_per_s`]). The
+///   default `√10` makes the error dynamics `s² + 2√10·s + 10`, those of FBL with the
+///   study's gains, so the MPC passes estimate noise to the thrust about as FBL does,
+///   and a constant acceleration error `Δa` of the model leaves FBL's offset, `Δa/ω²`
+///   (no integral, like the study's FBL).
+///
+/// Re-anchoring the plan on the estimate every cycle (`ω → ∞`) makes the optimisation's
+/// own bandwidth, far above FBL's, the feedback bandwidth: it chased the observer's noise
+/// (sensor noise 7 N²) and the thrust wandered beyond ±1 N at steady state, so small
+/// steps did not settle. The estimated rate `Ṫ̂` is not used: it is the observer's
+/// noisiest output, and the model's own rate, anchored on the thrust, is smoother.
 pub struct Mpc {
     plant: Plant,
     settings: MpcSettings,
@@ -124,9 +173,13 @@ pub struct Mpc {
     /// Block boundaries in steps: move `j` is held on steps `bounds[j]..bounds[j + 1]`.
     bounds: Vec<usize>,
     fallback_law: Fbl,
+    /// The model run on the commands sent, its state corrected towards the estimate.
     shadow: Option<PlantEngine>,
     scratch: Option<PlantEngine>,
     last_pct: f64,
+    /// Throttle the model's engine followed in its last step (after delay, rate limit,
+    /// lag), %: where the correction linearises it.
+    engine_pct: f64,
     plan_pct: Vec<f64>,
     shifted_pct: Vec<f64>,
     reference_n: Vec<f64>,
@@ -160,6 +213,7 @@ impl Mpc {
             shadow: None,
             scratch: None,
             last_pct: THROTTLE_MIN_PCT,
+            engine_pct: THROTTLE_MIN_PCT,
             plan_pct: vec![THROTTLE_MIN_PCT; moves],
             shifted_pct: vec![THROTTLE_MIN_PCT; moves],
             reference_n: vec![0.0; steps],
@@ -223,8 +277,9 @@ impl Mpc {
         self.last_pct = command.throttle_pct;
         if let Some(shadow) = self.shadow.as_mut() {
             // The engine sees this command (after any delay): so must the model.
-            if shadow.step(command.throttle_pct).is_err() {
-                self.shadow = None;
+            match shadow.step(command.throttle_pct) {
+                Ok(sample) => self.engine_pct = sample.engine_throttle_pct,
+                Err(_) => self.shadow = None,
             }
         }
         Ok(MpcOutput { command, fallback, solve_s })
@@ -232,18 +287,21 @@ impl Mpc {
 
     /// The first move of the optimal plan, or `None` when the optimisation failed.
     fn plan(&mut self, state: State, t_s: f64, profile: &Profile, started: Instant) -> Option<f64> {
-        let shadow = match self.shadow.as_mut() {
-            Some(shadow) => shadow,
+        match self.shadow.as_mut() {
+            Some(shadow) => {
+                let omega = self.settings.correction_rad_per_s;
+                shadow.set_state(corrected(&self.plant.params, shadow.state(), self.engine_pct, state, omega));
+            }
             None => {
-                // First cycle (or after a failure): assume the engine has been resting at
-                // the throttle that holds its present thrust.
+                // First cycle (or after the model diverged): start on the estimate, and
+                // assume the engine has been resting at the throttle that holds its thrust.
                 let u0 = resting_throttle(&self.plant.params, state.thrust_n);
                 self.last_pct = u0;
+                self.engine_pct = u0;
                 self.plan_pct.iter_mut().for_each(|u| *u = u0);
-                self.shadow.insert(self.plant.coarse_engine(state, u0, t_s, PREDICTION_SUBSTEPS))
+                self.shadow = Some(self.plant.coarse_engine(state, u0, t_s, PREDICTION_SUBSTEPS));
             }
-        };
-        shadow.set_state(state);
+        }
         let preview = self.settings.preview;
         let held = profile.at(t_s).thrust_n;
         for (k, r) in self.reference_n.iter_mut().enumerate() {
@@ -349,6 +407,26 @@ impl Mpc {
             *u = (*u + d).clamp(THROTTLE_MIN_PCT, THROTTLE_MAX_PCT);
         }
         Some(())
+    }
+}
+
+/// The model state `model` pulled one cycle towards the `estimate`'s thrust, so that the
+/// error between engine and model decays like `(s + ω)²` (see [`Mpc`]); the estimate
+/// itself where the model's slopes are not finite.
+fn corrected(params: &Params, model: State, engine_pct: f64, estimate: State, omega_rad_per_s: f64) -> State {
+    let slopes = params.accel_partials(model.thrust_n, model.thrust_rate_n_per_s, engine_pct);
+    let (a, b) = (slopes.d_thrust_per_s2, slopes.d_rate_per_s);
+    let l1 = 2.0 * omega_rad_per_s + b;
+    let l2 = omega_rad_per_s * omega_rad_per_s + a + l1 * b;
+    let innovation_n = estimate.thrust_n - model.thrust_n;
+    let next = State {
+        thrust_n: model.thrust_n + STEP_S * l1 * innovation_n,
+        thrust_rate_n_per_s: model.thrust_rate_n_per_s + STEP_S * l2 * innovation_n,
+    };
+    if next.thrust_n.is_finite() && next.thrust_rate_n_per_s.is_finite() {
+        next
+    } else {
+        estimate
     }
 }
 

@@ -35,11 +35,36 @@ const MAX_JUMPS_IN_HORIZON: usize = (SMOOTHING_HORIZON * MAX_SMOOTHING_PER_HOLD)
 /// smoothing_s = 0.2
 /// ```
 ///
-/// Every profile repeats, so any run length works, and is a pure function of time, so
-/// a replay gives the same reference. Unknown keys are rejected.
+/// or made from a [`ProfileSpec`] (`Profile::from(ProfileSpec::Steps { .. })`). Every
+/// profile repeats, so any run length works, and is a pure function of time, so a replay
+/// gives the same reference. Unknown keys are rejected.
+///
+/// The spec is checked once, when the profile is made, and cannot change afterwards:
+/// [`Profile::at`] runs every control cycle (the MPC evaluates the horizon ahead, about
+/// 80 times a cycle) and only looks up the verdict.
+///
+/// ```
+/// use jetbench_control::{Profile, ProfileSpec};
+///
+/// let profile = Profile::from(ProfileSpec::Steps { levels_n: vec![20.0, 60.0], hold_s: 2.0, smoothing_s: 0.0 });
+/// assert!(profile.validate().is_ok());
+/// assert_eq!(profile.at(2.5).thrust_n, 60.0);
+/// let bad = Profile::from(ProfileSpec::Steps { levels_n: vec![], hold_s: 2.0, smoothing_s: 0.0 });
+/// assert!(bad.validate().is_err());
+/// assert_eq!(bad.at(2.5).thrust_n, 0.0);
+/// ```
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(from = "ProfileSpec", into = "ProfileSpec")]
+pub struct Profile {
+    spec: ProfileSpec,
+    /// Why the spec cannot be followed, found once by [`ProfileSpec::validate`].
+    invalid: Option<ControlError>,
+}
+
+/// The shape of a [`Profile`]: its kind and settings, as a config file gives them.
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(tag = "kind", rename_all = "lowercase", deny_unknown_fields)]
-pub enum Profile {
+pub enum ProfileSpec {
     /// Levels held for `hold_s` each, cycling. Each jump passes through a critically
     /// damped second-order prefilter `1/(τs + 1)²` with `τ = smoothing_s`, evaluated in
     /// closed form so `r`, `r'` and `r''` are exact; `smoothing_s = 0` gives raw steps
@@ -93,7 +118,7 @@ pub enum Profile {
     },
 }
 
-/// One part of a [`Profile::Campaign`].
+/// One part of a [`ProfileSpec::Campaign`].
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Segment {
@@ -110,20 +135,38 @@ impl Default for Profile {
     /// Steps across the default plant's range (about 0-86 N): 20, 50, 35, 70, 45, 30 N,
     /// 2.5 s each, smoothed with 0.2 s.
     fn default() -> Self {
-        Profile::Steps { levels_n: vec![20.0, 50.0, 35.0, 70.0, 45.0, 30.0], hold_s: 2.5, smoothing_s: 0.2 }
+        Profile::from(ProfileSpec::Steps {
+            levels_n: vec![20.0, 50.0, 35.0, 70.0, 45.0, 30.0],
+            hold_s: 2.5,
+            smoothing_s: 0.2,
+        })
+    }
+}
+
+impl From<ProfileSpec> for Profile {
+    /// Checks the spec once; a spec that fails [`ProfileSpec::validate`] still makes a
+    /// profile, whose [`Profile::validate`] returns the reason and whose reference is zero.
+    fn from(spec: ProfileSpec) -> Self {
+        let invalid = spec.validate().err();
+        Self { spec, invalid }
+    }
+}
+
+impl From<Profile> for ProfileSpec {
+    fn from(profile: Profile) -> Self {
+        profile.spec
     }
 }
 
 impl Profile {
+    /// The spec the profile was made from.
+    pub fn spec(&self) -> &ProfileSpec {
+        &self.spec
+    }
+
     /// The `kind` name used in config files.
     pub fn kind(&self) -> &'static str {
-        match self {
-            Profile::Steps { .. } => "steps",
-            Profile::Ramps { .. } => "ramps",
-            Profile::Sines { .. } => "sines",
-            Profile::Chirp { .. } => "chirp",
-            Profile::Campaign { .. } => "campaign",
-        }
+        self.spec.kind()
     }
 
     /// A built-in profile (see [`BUILTIN_PROFILES`]) for an engine whose steady thrust
@@ -146,18 +189,22 @@ impl Profile {
         }
         let at = |fraction: f64| idle_n + fraction * span_n;
         let levels = |fractions: &[f64]| fractions.iter().map(|&f| at(f)).collect::<Vec<_>>();
-        Some(match name {
-            "steps" => Profile::Steps {
+        let spec = match name {
+            "steps" => ProfileSpec::Steps {
                 levels_n: levels(&[0.2, 0.5, 0.3, 0.95, 0.25, 0.65, 0.6, 0.4, 0.45, 0.8, 0.2]),
                 hold_s: 5.0,
                 smoothing_s: 0.2,
             },
-            "ramps" => Profile::Ramps { levels_n: levels(&[0.1, 0.6, 0.3, 0.9]), ramp_s: 2.0, hold_s: 1.5 },
-            "sines" => Profile::Sines { offset_n: at(0.5), amplitude_n: 0.3 * span_n, period_s: 4.0 },
-            "chirp" => {
-                Profile::Chirp { offset_n: at(0.5), amplitude_n: 0.2 * span_n, f0_hz: 0.05, f1_hz: 1.0, sweep_s: 20.0 }
-            }
-            "campaign" => Profile::Campaign {
+            "ramps" => ProfileSpec::Ramps { levels_n: levels(&[0.1, 0.6, 0.3, 0.9]), ramp_s: 2.0, hold_s: 1.5 },
+            "sines" => ProfileSpec::Sines { offset_n: at(0.5), amplitude_n: 0.3 * span_n, period_s: 4.0 },
+            "chirp" => ProfileSpec::Chirp {
+                offset_n: at(0.5),
+                amplitude_n: 0.2 * span_n,
+                f0_hz: 0.05,
+                f1_hz: 1.0,
+                sweep_s: 20.0,
+            },
+            "campaign" => ProfileSpec::Campaign {
                 segments: [("steps", 55.0), ("ramps", 14.0), ("sines", 12.0), ("chirp", 20.0)]
                     .into_iter()
                     .map(|(part, duration_s)| {
@@ -166,66 +213,28 @@ impl Profile {
                     .collect::<Option<Vec<_>>>()?,
             },
             _ => return None,
-        })
+        };
+        Some(Profile::from(spec))
     }
 
-    /// Checks the settings, so a bad config fails at load rather than producing NaN.
+    /// Whether the spec can be followed (checked when the profile was made), so a bad
+    /// config fails at load rather than producing NaN.
     pub fn validate(&self) -> Result<(), ControlError> {
-        match self {
-            Profile::Steps { levels_n, hold_s, smoothing_s } => {
-                check_levels(self.kind(), levels_n)?;
-                check_duration("hold_s", *hold_s, false)?;
-                check_duration("smoothing_s", *smoothing_s, true)?;
-                if *smoothing_s > MAX_SMOOTHING_PER_HOLD * hold_s {
-                    return Err(ControlError::InvalidDuration {
-                        field: "smoothing_s",
-                        value_s: *smoothing_s,
-                        requirement: "at most 100 times hold_s",
-                    });
-                }
-                Ok(())
-            }
-            Profile::Ramps { levels_n, ramp_s, hold_s } => {
-                check_levels(self.kind(), levels_n)?;
-                check_duration("ramp_s", *ramp_s, false)?;
-                check_duration("hold_s", *hold_s, true)
-            }
-            Profile::Sines { offset_n, amplitude_n, period_s } => {
-                check_finite("offset_n", *offset_n)?;
-                check_finite("amplitude_n", *amplitude_n)?;
-                check_duration("period_s", *period_s, false)
-            }
-            Profile::Chirp { offset_n, amplitude_n, f0_hz, f1_hz, sweep_s } => {
-                check_finite("offset_n", *offset_n)?;
-                check_finite("amplitude_n", *amplitude_n)?;
-                check_frequency("f0_hz", *f0_hz)?;
-                check_frequency("f1_hz", *f1_hz)?;
-                check_duration("sweep_s", *sweep_s, false)
-            }
-            Profile::Campaign { segments } => {
-                if segments.is_empty() {
-                    return Err(ControlError::EmptyLevels { kind: "campaign" });
-                }
-                segments.iter().try_for_each(|s| {
-                    check_duration("duration_s", s.duration_s, false)?;
-                    s.profile.validate()
-                })
-            }
-        }
+        self.invalid.map_or(Ok(()), Err)
     }
 
     /// Reference at `t_s` seconds since the profile start. Negative or non-finite times
     /// count as 0. A profile that fails [`Profile::validate`] gives a zero reference
     /// rather than NaN.
     pub fn at(&self, t_s: f64) -> Reference {
-        if self.validate().is_err() {
+        if self.invalid.is_some() {
             return Reference::default();
         }
         let t = if t_s.is_finite() && t_s > 0.0 { t_s } else { 0.0 };
-        match self {
-            Profile::Steps { levels_n, hold_s, smoothing_s } => steps_at(levels_n, *hold_s, *smoothing_s, t),
-            Profile::Ramps { levels_n, ramp_s, hold_s } => ramps_at(levels_n, *ramp_s, *hold_s, t),
-            Profile::Sines { offset_n, amplitude_n, period_s } => {
+        match &self.spec {
+            ProfileSpec::Steps { levels_n, hold_s, smoothing_s } => steps_at(levels_n, *hold_s, *smoothing_s, t),
+            ProfileSpec::Ramps { levels_n, ramp_s, hold_s } => ramps_at(levels_n, *ramp_s, *hold_s, t),
+            ProfileSpec::Sines { offset_n, amplitude_n, period_s } => {
                 let w = 2.0 * PI / period_s;
                 let (sin, cos) = (w * t).sin_cos();
                 Reference {
@@ -234,7 +243,7 @@ impl Profile {
                     thrust_accel_n_per_s2: -amplitude_n * w * w * sin,
                 }
             }
-            Profile::Chirp { offset_n, amplitude_n, f0_hz, f1_hz, sweep_s } => {
+            ProfileSpec::Chirp { offset_n, amplitude_n, f0_hz, f1_hz, sweep_s } => {
                 let ts = t - (t / sweep_s).floor() * sweep_s;
                 let k = (f1_hz - f0_hz) / sweep_s;
                 let phase = 2.0 * PI * (f0_hz * ts + 0.5 * k * ts * ts);
@@ -247,7 +256,7 @@ impl Profile {
                     thrust_accel_n_per_s2: amplitude_n * (cos * phase_accel - sin * phase_rate * phase_rate),
                 }
             }
-            Profile::Campaign { segments } => {
+            ProfileSpec::Campaign { segments } => {
                 let total_s: f64 = segments.iter().map(|s| s.duration_s).sum();
                 let mut local_s = t - (t / total_s).floor() * total_s;
                 for segment in segments {
@@ -265,21 +274,79 @@ impl Profile {
     /// Lowest and highest thrust the profile visits, N (the step prefilter does not
     /// overshoot). `(0, 0)` for an empty level list.
     pub fn span_n(&self) -> (f64, f64) {
-        match self {
-            Profile::Steps { levels_n, .. } | Profile::Ramps { levels_n, .. } => {
+        match &self.spec {
+            ProfileSpec::Steps { levels_n, .. } | ProfileSpec::Ramps { levels_n, .. } => {
                 if levels_n.is_empty() {
                     return (0.0, 0.0);
                 }
                 levels_n.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &l| (lo.min(l), hi.max(l)))
             }
-            Profile::Sines { offset_n, amplitude_n, .. } | Profile::Chirp { offset_n, amplitude_n, .. } => {
+            ProfileSpec::Sines { offset_n, amplitude_n, .. } | ProfileSpec::Chirp { offset_n, amplitude_n, .. } => {
                 (offset_n - amplitude_n.abs(), offset_n + amplitude_n.abs())
             }
-            Profile::Campaign { segments } => segments
+            ProfileSpec::Campaign { segments } => segments
                 .iter()
                 .map(|s| s.profile.span_n())
                 .reduce(|(lo, hi), (l, h)| (lo.min(l), hi.max(h)))
                 .unwrap_or((0.0, 0.0)),
+        }
+    }
+}
+
+impl ProfileSpec {
+    /// The `kind` name used in config files.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            ProfileSpec::Steps { .. } => "steps",
+            ProfileSpec::Ramps { .. } => "ramps",
+            ProfileSpec::Sines { .. } => "sines",
+            ProfileSpec::Chirp { .. } => "chirp",
+            ProfileSpec::Campaign { .. } => "campaign",
+        }
+    }
+
+    /// Checks the settings: what [`Profile`] does once, when it is made.
+    pub fn validate(&self) -> Result<(), ControlError> {
+        match self {
+            ProfileSpec::Steps { levels_n, hold_s, smoothing_s } => {
+                check_levels(self.kind(), levels_n)?;
+                check_duration("hold_s", *hold_s, false)?;
+                check_duration("smoothing_s", *smoothing_s, true)?;
+                if *smoothing_s > MAX_SMOOTHING_PER_HOLD * hold_s {
+                    return Err(ControlError::InvalidDuration {
+                        field: "smoothing_s",
+                        value_s: *smoothing_s,
+                        requirement: "at most 100 times hold_s",
+                    });
+                }
+                Ok(())
+            }
+            ProfileSpec::Ramps { levels_n, ramp_s, hold_s } => {
+                check_levels(self.kind(), levels_n)?;
+                check_duration("ramp_s", *ramp_s, false)?;
+                check_duration("hold_s", *hold_s, true)
+            }
+            ProfileSpec::Sines { offset_n, amplitude_n, period_s } => {
+                check_finite("offset_n", *offset_n)?;
+                check_finite("amplitude_n", *amplitude_n)?;
+                check_duration("period_s", *period_s, false)
+            }
+            ProfileSpec::Chirp { offset_n, amplitude_n, f0_hz, f1_hz, sweep_s } => {
+                check_finite("offset_n", *offset_n)?;
+                check_finite("amplitude_n", *amplitude_n)?;
+                check_frequency("f0_hz", *f0_hz)?;
+                check_frequency("f1_hz", *f1_hz)?;
+                check_duration("sweep_s", *sweep_s, false)
+            }
+            ProfileSpec::Campaign { segments } => {
+                if segments.is_empty() {
+                    return Err(ControlError::EmptyLevels { kind: "campaign" });
+                }
+                segments.iter().try_for_each(|s| {
+                    check_duration("duration_s", s.duration_s, false)?;
+                    s.profile.validate()
+                })
+            }
         }
     }
 }

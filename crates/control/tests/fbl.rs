@@ -1,6 +1,6 @@
 //! Feedback linearisation: closed-loop tracking on the model and output bounds.
 
-use jetbench_control::{clamp_throttle, ControlError, Fbl, FblGains, Profile, Reference};
+use jetbench_control::{clamp_throttle, ControlError, Fbl, FblGains, Profile, ProfileSpec, Reference};
 use jetbench_model::{Engine, Preset, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -25,7 +25,7 @@ fn closed_loop(profile: &Profile, initial: State, duration_s: f64) -> Vec<(f64, 
 
 #[test]
 fn tracks_a_step_from_20_to_60_n() {
-    let profile = Profile::Steps { levels_n: vec![20.0, 60.0], hold_s: 6.0, smoothing_s: 0.2 };
+    let profile = Profile::from(ProfileSpec::Steps { levels_n: vec![20.0, 60.0], hold_s: 6.0, smoothing_s: 0.2 });
     let initial = State { thrust_n: 20.0, thrust_rate_n_per_s: 0.0 };
     let trace = closed_loop(&profile, initial, 12.0);
     for &(t_s, thrust_n, reference_n, _) in &trace {
@@ -42,7 +42,7 @@ fn tracks_a_step_from_20_to_60_n() {
 
 #[test]
 fn tracks_a_smooth_reference_closely_throughout() {
-    let profile = Profile::Sines { offset_n: 45.0, amplitude_n: 15.0, period_s: 5.0 };
+    let profile = Profile::from(ProfileSpec::Sines { offset_n: 45.0, amplitude_n: 15.0, period_s: 5.0 });
     let initial = State { thrust_n: 45.0, thrust_rate_n_per_s: 0.0 };
     let trace = closed_loop(&profile, initial, 20.0);
     for &(t_s, thrust_n, reference_n, saturated) in &trace {

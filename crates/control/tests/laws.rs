@@ -1,10 +1,14 @@
 //! FBL, SMC and MPC on the model itself: limits, steady state, saturation, delay, failure.
 
 use jetbench_control::{
-    ControlError, ControllerKind, FblGains, Law, LawSettings, Mpc, MpcSettings, Profile, Reference, ReferenceShaper,
-    ShaperSettings, Smc, SmcGains,
+    tracking_metrics, ControlError, ControllerKind, FblGains, Law, LawSettings, MetricsOptions, Mpc, MpcSettings,
+    Profile, ProfileSpec, Reference, ReferenceShaper, ShaperSettings, Smc, SmcGains, ThrottleLimit, TrackingMetrics,
+    TrackingSample,
 };
-use jetbench_model::{Effects, Params, Plant, Preset, STEP_S};
+use jetbench_estim::{ObserverConfig, ThrustObserver};
+use jetbench_model::{Effects, Params, Plant, Preset, STEP_S, THROTTLE_MIN_PCT};
+use rand::SeedableRng;
+use rand_distr::{Distribution, Normal};
 
 /// One closed-loop run on the true state: reference, thrust, throttle per cycle.
 struct Run {
@@ -87,6 +91,82 @@ fn mpc_tracks_saturating_steps_much_better_than_fbl() {
     assert!(mpc < 0.7 * fbl, "MPC MAE {mpc:.2} N vs FBL {fbl:.2} N");
 }
 
+/// One closed-loop run as on the simulated bench: the force sensor's noise (7 N²), the
+/// bench's EKF observer (`[estimator]` of config/sim.toml) between sensor and law, the
+/// throttle applied reaching the observer a cycle later; scored on the true thrust.
+fn noisy_run(kind: ControllerKind, plant: &Plant, profile: &Profile, seed: u64) -> TrackingMetrics {
+    let mut law = Law::new(kind, plant, &LawSettings::default());
+    let config = ObserverConfig { measurement_var_n2: 7.0, accel_noise_n_per_s2: 150.0, ..ObserverConfig::default() };
+    let mut observer = ThrustObserver::new(plant.params, config);
+    let mut engine = plant.at_equilibrium(25.0);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let noise = Normal::new(0.0, 7.0_f64.sqrt()).unwrap();
+    let mut applied_pct = THROTTLE_MIN_PCT;
+    let mut samples = Vec::with_capacity(5600);
+    for k in 0..5600 {
+        let truth = engine.state();
+        let estimate = observer.step(engine.measured_n() + noise.sample(&mut rng), applied_pct).unwrap();
+        let time_s = k as f64 * STEP_S;
+        let out = law.step(estimate.thrust_n, estimate.thrust_rate_n_per_s, time_s, profile).unwrap();
+        applied_pct = out.command.throttle_pct;
+        engine.step(applied_pct).unwrap();
+        let limit = if out.command.unclamped_pct < THROTTLE_MIN_PCT { ThrottleLimit::Low } else { ThrottleLimit::High };
+        samples.push(TrackingSample {
+            time_s,
+            reference_n: out.reference.thrust_n,
+            reference_rate_n_per_s: out.reference.thrust_rate_n_per_s,
+            thrust_n: truth.thrust_n,
+            throttle_pct: applied_pct,
+            saturated: out.command.saturated.then_some(limit),
+            fallback: out.fallback,
+            solve_us: 0,
+        });
+    }
+    tracking_metrics(&samples, &MetricsOptions { skip_s: 1.0, ..MetricsOptions::default() }).unwrap()
+}
+
+/// The control issue's acceptance on the steps with sensor noise: the MPC's MAE at least
+/// 30 % below FBL's, its steady-state error under 2 %, and on the small steps where FBL
+/// does not saturate (56 → 52, 52 → 34, 34 → 39 N on this plant) settling
+/// (±max(5 % of the step, 1 N)) no slower than FBL's. Both settle as the smoothed
+/// reference enters the band, 0.5-0.9 s after the step; noise moves a single run's entry
+/// by a few 10 ms either way, and FBL, after lagging the reference, passes it and enters
+/// up to a sample earlier, so the comparison is of the mean over noise draws, to within
+/// two 10 ms samples. Every draw must settle every step. (Regression: planning from the
+/// noisy estimate itself, the MPC's thrust wandered out of the ±1 N band, 56 → 52 N did
+/// not settle at all and 52 → 34 N took 3.3 s.)
+#[test]
+fn with_sensor_noise_the_mpc_tracks_better_and_settles_small_steps_no_slower_than_fbl() {
+    let plant = p100();
+    let profile = steps_profile(&plant.params);
+    let seeds = [1, 2, 3, 4];
+    let (mut fbl_settling_s, mut mpc_settling_s) = (vec![0.0; 10], vec![0.0; 10]);
+    // Steps FBL takes without saturating in some draw (52 → 34 N saturates it in some).
+    let mut small_steps = [false; 10];
+    for seed in seeds {
+        let fbl = noisy_run(ControllerKind::Fbl, &plant, &profile, seed);
+        let mpc = noisy_run(ControllerKind::Mpc, &plant, &profile, seed);
+        assert!(mpc.mae_n < 0.7 * fbl.mae_n, "seed {seed}: MAE MPC {:.2} N vs FBL {:.2} N", mpc.mae_n, fbl.mae_n);
+        assert_eq!((fbl.steps.len(), mpc.steps.len()), (10, 10), "seed {seed}");
+        for hold in &mpc.holds[1..] {
+            let e = hold.steady_state_error_pct;
+            assert!(e.abs() < 2.0, "seed {seed}: MPC off by {e:.2} % at {:.1} N", hold.level_n);
+        }
+        for (j, (f, m)) in fbl.steps.iter().zip(&mpc.steps).enumerate() {
+            small_steps[j] |= !f.saturated;
+            let unsettled = |law| format!("seed {seed}: {law} never settles {:.1} -> {:.1} N", f.from_n, f.to_n);
+            fbl_settling_s[j] += f.settling_time_s.unwrap_or_else(|| panic!("{}", unsettled("FBL"))) / 4.0;
+            mpc_settling_s[j] += m.settling_time_s.unwrap_or_else(|| panic!("{}", unsettled("MPC"))) / 4.0;
+        }
+    }
+    let small: Vec<usize> = (0..10).filter(|&j| small_steps[j]).collect();
+    assert!([5, 6, 7].iter().all(|j| small.contains(j)), "steps FBL takes unsaturated: {small:?}");
+    for j in small {
+        let (f, m) = (fbl_settling_s[j], mpc_settling_s[j]);
+        assert!(m <= f + 2.0 * STEP_S, "step {}: MPC settles in {m:.3} s on average, FBL in {f:.3} s", j + 1);
+    }
+}
+
 #[test]
 fn the_diagnosed_delay_improves_every_law() {
     let truth = with_delay(0.12);
@@ -136,7 +216,7 @@ fn a_diverging_model_makes_the_mpc_fall_back_not_stall() {
     params.k_t = 400.0;
     let model = Plant::new(params, Effects::none());
     let truth = p100();
-    let profile = Profile::Steps { levels_n: vec![20.0, 80.0], hold_s: 3.0, smoothing_s: 0.0 };
+    let profile = Profile::from(ProfileSpec::Steps { levels_n: vec![20.0, 80.0], hold_s: 3.0, smoothing_s: 0.0 });
     let mut mpc = Mpc::new(model, MpcSettings::default(), FblGains::default());
     let mut engine = truth.at_equilibrium(25.0);
     let mut fallbacks = 0;
@@ -157,6 +237,10 @@ fn bad_settings_and_inputs_are_errors_not_panics() {
     let profile = Profile::default();
     let bad = MpcSettings { moves: 0, ..MpcSettings::default() };
     assert!(matches!(bad.validate(), Err(ControlError::SettingOutOfRange { name: "moves", .. })));
+    for omega in [0.0, f64::NAN, 50.0] {
+        let bad = MpcSettings { correction_rad_per_s: omega, ..MpcSettings::default() };
+        assert!(matches!(bad.validate(), Err(ControlError::SettingOutOfRange { name: "correction_rad_per_s", .. })));
+    }
     let mut mpc = Mpc::new(plant.clone(), bad, FblGains::default());
     assert!(mpc.step(10.0, 0.0, 0.0, &profile).is_err());
     let mut law = Law::new(ControllerKind::Mpc, &plant, &LawSettings::default());
@@ -172,7 +256,7 @@ fn the_shaper_passes_a_feasible_reference_and_limits_an_infeasible_one() {
     let params = Preset::P100Diesel.params();
     let settings = ShaperSettings::default();
     // A slow sine inside the range passes unchanged once the shaper is on it.
-    let sine = Profile::Sines { offset_n: 40.0, amplitude_n: 10.0, period_s: 8.0 };
+    let sine = Profile::from(ProfileSpec::Sines { offset_n: 40.0, amplitude_n: 10.0, period_s: 8.0 });
     let mut shaper = ReferenceShaper::new(params, settings);
     for k in 0..800 {
         let t = k as f64 * STEP_S;
@@ -184,7 +268,7 @@ fn the_shaper_passes_a_feasible_reference_and_limits_an_infeasible_one() {
     }
     // A raw step beyond full thrust: the shaped reference stays in the steady range and
     // never asks for more acceleration than the model has at full throttle.
-    let step = Profile::Steps { levels_n: vec![20.0, 150.0], hold_s: 2.0, smoothing_s: 0.0 };
+    let step = Profile::from(ProfileSpec::Steps { levels_n: vec![20.0, 150.0], hold_s: 2.0, smoothing_s: 0.0 });
     let max_n = params.stable_equilibrium(100.0).unwrap();
     let mut shaper = ReferenceShaper::new(params, settings);
     shaper.start_at(20.0, 0.0);

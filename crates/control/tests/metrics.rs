@@ -1,7 +1,8 @@
 //! Tracking metrics on synthetic runs with known answers.
 
 use jetbench_control::{
-    tracking_metrics, MetricsError, MetricsOptions, Profile, ThrottleLimit, TrackingMetrics, TrackingSample,
+    tracking_metrics, MetricsError, MetricsOptions, Profile, ProfileSpec, ThrottleLimit, TrackingMetrics,
+    TrackingSample,
 };
 
 const DT_S: f64 = 0.01;
@@ -232,7 +233,7 @@ fn a_step_that_never_settles_has_no_settling_time() {
 #[test]
 fn ramps_between_holds_are_steps_that_settle_at_the_ramp_end() {
     // 20 N for 3 s, a 2 s ramp to 60 N (20 N/s), 3 s there, a ramp back, 3 s at 20 N.
-    let profile = Profile::Ramps { levels_n: vec![20.0, 60.0], ramp_s: 2.0, hold_s: 3.0 };
+    let profile = Profile::from(ProfileSpec::Ramps { levels_n: vec![20.0, 60.0], ramp_s: 2.0, hold_s: 3.0 });
     let m = metrics(&run(13.0, |t_s| on_profile(&profile, t_s, |r| r)));
     assert_eq!(m.steps.len(), 2, "{:?}", m.steps);
     assert_eq!((m.steps[0].from_n, m.steps[0].to_n), (20.0, 60.0));
@@ -243,8 +244,9 @@ fn ramps_between_holds_are_steps_that_settle_at_the_ramp_end() {
 
 #[test]
 fn sines_and_chirps_have_no_holds_but_all_other_figures() {
-    let sines = Profile::Sines { offset_n: 45.0, amplitude_n: 20.0, period_s: 4.0 };
-    let chirp = Profile::Chirp { offset_n: 45.0, amplitude_n: 15.0, f0_hz: 0.1, f1_hz: 2.0, sweep_s: 20.0 };
+    let sines = Profile::from(ProfileSpec::Sines { offset_n: 45.0, amplitude_n: 20.0, period_s: 4.0 });
+    let chirp =
+        Profile::from(ProfileSpec::Chirp { offset_n: 45.0, amplitude_n: 15.0, f0_hz: 0.1, f1_hz: 2.0, sweep_s: 20.0 });
     for profile in [sines, chirp] {
         let m = metrics(&run(20.0, |t_s| on_profile(&profile, t_s, |r| r + 0.5)));
         assert!(m.holds.is_empty(), "{}: {:?}", profile.kind(), m.holds);

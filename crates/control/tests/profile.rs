@@ -1,22 +1,22 @@
 //! Reference profiles: derivatives, smoothing, repetition, frequency, config parsing.
 
-use jetbench_control::{ControlError, Profile, Reference};
+use jetbench_control::{ControlError, Profile, ProfileSpec, Reference};
 use serde::Deserialize;
 
 fn steps() -> Profile {
-    Profile::Steps { levels_n: vec![20.0, 60.0, 35.0], hold_s: 2.0, smoothing_s: 0.2 }
+    Profile::from(ProfileSpec::Steps { levels_n: vec![20.0, 60.0, 35.0], hold_s: 2.0, smoothing_s: 0.2 })
 }
 
 fn ramps() -> Profile {
-    Profile::Ramps { levels_n: vec![20.0, 60.0, 35.0], ramp_s: 1.5, hold_s: 1.0 }
+    Profile::from(ProfileSpec::Ramps { levels_n: vec![20.0, 60.0, 35.0], ramp_s: 1.5, hold_s: 1.0 })
 }
 
 fn sines() -> Profile {
-    Profile::Sines { offset_n: 45.0, amplitude_n: 20.0, period_s: 4.0 }
+    Profile::from(ProfileSpec::Sines { offset_n: 45.0, amplitude_n: 20.0, period_s: 4.0 })
 }
 
 fn chirp() -> Profile {
-    Profile::Chirp { offset_n: 45.0, amplitude_n: 10.0, f0_hz: 0.2, f1_hz: 2.0, sweep_s: 20.0 }
+    Profile::from(ProfileSpec::Chirp { offset_n: 45.0, amplitude_n: 10.0, f0_hz: 0.2, f1_hz: 2.0, sweep_s: 20.0 })
 }
 
 /// Times away from the profile's kinks (jumps, corners, chirp wrap), where `r''` or `r'`
@@ -96,7 +96,7 @@ fn smoothed_steps_follow_the_critically_damped_response() {
 
 #[test]
 fn unsmoothed_steps_are_exact_levels() {
-    let profile = Profile::Steps { levels_n: vec![20.0, 60.0], hold_s: 1.0, smoothing_s: 0.0 };
+    let profile = Profile::from(ProfileSpec::Steps { levels_n: vec![20.0, 60.0], hold_s: 1.0, smoothing_s: 0.0 });
     assert_eq!(profile.at(0.999).thrust_n, 20.0);
     assert_eq!(profile.at(1.0).thrust_n, 60.0);
     assert_eq!(profile.at(1.5).thrust_rate_n_per_s, 0.0);
@@ -189,15 +189,30 @@ fn bad_times_count_as_zero() {
 #[test]
 fn validate_rejects_bad_settings() {
     let cases = [
-        (Profile::Steps { levels_n: vec![], hold_s: 1.0, smoothing_s: 0.1 }, "levels"),
-        (Profile::Steps { levels_n: vec![1.0], hold_s: 0.0, smoothing_s: 0.1 }, "hold_s"),
-        (Profile::Steps { levels_n: vec![f64::NAN], hold_s: 1.0, smoothing_s: 0.1 }, "levels_n"),
-        (Profile::Steps { levels_n: vec![1.0], hold_s: 1.0, smoothing_s: -0.1 }, "smoothing_s"),
-        (Profile::Ramps { levels_n: vec![1.0], ramp_s: 0.0, hold_s: 1.0 }, "ramp_s"),
-        (Profile::Sines { offset_n: 1.0, amplitude_n: 1.0, period_s: -1.0 }, "period_s"),
-        (Profile::Chirp { offset_n: 1.0, amplitude_n: 1.0, f0_hz: -0.1, f1_hz: 1.0, sweep_s: 1.0 }, "f0_hz"),
+        (Profile::from(ProfileSpec::Steps { levels_n: vec![], hold_s: 1.0, smoothing_s: 0.1 }), "levels"),
+        (Profile::from(ProfileSpec::Steps { levels_n: vec![1.0], hold_s: 0.0, smoothing_s: 0.1 }), "hold_s"),
+        (Profile::from(ProfileSpec::Steps { levels_n: vec![f64::NAN], hold_s: 1.0, smoothing_s: 0.1 }), "levels_n"),
+        (Profile::from(ProfileSpec::Steps { levels_n: vec![1.0], hold_s: 1.0, smoothing_s: -0.1 }), "smoothing_s"),
+        (Profile::from(ProfileSpec::Ramps { levels_n: vec![1.0], ramp_s: 0.0, hold_s: 1.0 }), "ramp_s"),
+        (Profile::from(ProfileSpec::Sines { offset_n: 1.0, amplitude_n: 1.0, period_s: -1.0 }), "period_s"),
         (
-            Profile::Chirp { offset_n: 1.0, amplitude_n: f64::INFINITY, f0_hz: 0.1, f1_hz: 1.0, sweep_s: 1.0 },
+            Profile::from(ProfileSpec::Chirp {
+                offset_n: 1.0,
+                amplitude_n: 1.0,
+                f0_hz: -0.1,
+                f1_hz: 1.0,
+                sweep_s: 1.0,
+            }),
+            "f0_hz",
+        ),
+        (
+            Profile::from(ProfileSpec::Chirp {
+                offset_n: 1.0,
+                amplitude_n: f64::INFINITY,
+                f0_hz: 0.1,
+                f1_hz: 1.0,
+                sweep_s: 1.0,
+            }),
             "amplitude_n",
         ),
     ];
@@ -208,9 +223,18 @@ fn validate_rejects_bad_settings() {
         assert_eq!(profile.at(5.0), Reference::default());
     }
     assert!(matches!(
-        Profile::Steps { levels_n: vec![], hold_s: 1.0, smoothing_s: 0.1 }.validate(),
+        Profile::from(ProfileSpec::Steps { levels_n: vec![], hold_s: 1.0, smoothing_s: 0.1 }).validate(),
         Err(ControlError::EmptyLevels { kind: "steps" })
     ));
+    // A config is checked when it is read, once: the verdict travels with the profile.
+    let read = parse("[reference]\nkind = \"steps\"\nlevels_n = [20.0]\nhold_s = 0.0\nsmoothing_s = 0.2\n").unwrap();
+    assert!(matches!(read.validate(), Err(ControlError::InvalidDuration { field: "hold_s", .. })));
+    assert_eq!(read.at(1.0), Reference::default());
+    // A campaign is as good as its worst part.
+    let part = |profile: Profile| jetbench_control::Segment { duration_s: 2.0, profile };
+    let campaign = Profile::from(ProfileSpec::Campaign { segments: vec![part(steps()), part(read)] });
+    assert!(campaign.validate().is_err());
+    assert_eq!(campaign.at(0.5), Reference::default());
 }
 
 #[derive(Debug, Deserialize)]
@@ -234,7 +258,7 @@ fn profiles_parse_from_toml() {
     "#;
     assert_eq!(
         parse(text).unwrap(),
-        Profile::Steps { levels_n: vec![20.0, 50.0, 35.0, 70.0], hold_s: 2.5, smoothing_s: 0.2 }
+        Profile::from(ProfileSpec::Steps { levels_n: vec![20.0, 50.0, 35.0, 70.0], hold_s: 2.5, smoothing_s: 0.2 })
     );
     let chirp_text = "[reference]\nkind = \"chirp\"\noffset_n = 45.0\namplitude_n = 10.0\n\
                       f0_hz = 0.2\nf1_hz = 2.0\nsweep_s = 20.0\n";

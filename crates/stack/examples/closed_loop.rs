@@ -3,7 +3,7 @@
 //!
 //! `cargo run --release -p jetbench-stack --example closed_loop -- mpc p100-diesel p100-diesel steps 27`
 //! (controller, plant, controller model, profile, seconds; `noshape` as a sixth argument
-//! turns reference shaping off).
+//! turns reference shaping off). `JETBENCH_SEED` picks the sensor noise draw (default 3).
 
 use jetbench_control::{tracking_metrics, ControllerKind, MetricsOptions, Profile, ThrottleLimit, TrackingSample};
 use jetbench_msgs::command_flags;
@@ -42,7 +42,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     config.reference = Profile::builtin(&arg(3, "steps"), idle, max).ok_or("unknown profile")?;
     let seconds: f64 = arg(4, "27").parse()?;
 
-    let mut sim = SimBench::new(&config.plant()?, config.plant.noise_var_n2, 3, 25.0)?;
+    // The sensor noise seed: JETBENCH_SEED, so a result can be checked against other draws.
+    let seed: u64 = std::env::var("JETBENCH_SEED").map_or(Ok(3), |s| s.parse())?;
+    let mut sim = SimBench::new(&config.plant()?, config.plant.noise_var_n2, seed, 25.0)?;
     let mut sensing = Sensing::new(&config.sensor)?;
     let mut estimation = Estimation::new(params, config.estimator.observer_config());
     let mut control = Control::with_law(config.control_law()?, config.reference.clone());
@@ -98,6 +100,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         })
         .collect();
     println!("  settling s per step (* saturated): {}", settling.join(" "));
+    let overshoot: Vec<String> = m.steps.iter().map(|s| format!("{:.1}", s.overshoot_pct)).collect();
+    println!("  overshoot % per step: {}", overshoot.join(" "));
     let ss: Vec<String> = m.holds.iter().map(|h| format!("{:+.2}", h.steady_state_error_n)).collect();
     println!("  steady-state error N per hold: {}", ss.join(" "));
     Ok(())
