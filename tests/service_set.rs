@@ -308,7 +308,10 @@ fn killing_control_idles_actuation_and_a_restart_is_clean() {
     // A sample whose ack was late (UNACKED) reports the newest acknowledged value,
     // which may still be the last command's; every acknowledged one is at idle.
     let acked: Vec<_> = after[idle_at..].iter().filter(|a| a.flags & actuation_flags::UNACKED == 0).collect();
-    assert!(!acked.is_empty() && acked.iter().all(|a| a.applied_pct == 25.0), "actuation left idle without a controller");
+    assert!(
+        !acked.is_empty() && acked.iter().all(|a| a.applied_pct == 25.0),
+        "actuation left idle without a controller"
+    );
 
     // A new run right after starts cleanly: no stale shared memory.
     let again = scratch("restart.mcap");

@@ -6,7 +6,13 @@
 //! the simulated bench, sensing, estimation, every control law and actuation,
 //! the CAN codec between sim-bench and sensing, and the throttle board's frame
 //! codec. A heap allocation in a 100 Hz loop is a system call waiting to
-//! happen at the worst moment; this test keeps them out.
+//! happen at the worst moment; this test keeps them out of our code.
+//!
+//! Two libraries allocate inside calls we cannot avoid, and the test pins them
+//! to exactly that: iceoryx2 0.10, one small reference-counted state per loaned
+//! sample (so one per publish), and Clarabel 0.11, one per QP solve (the MPC's
+//! Gauss-Newton passes). Both come from the allocator's thread cache, not the
+//! kernel, once the process runs.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
@@ -241,6 +247,11 @@ const DEVICE_STAGES: [usize; 1] = [1];
 /// one small allocation inside the library; nothing else on the bus allocates.
 const BUS_STAGE: usize = 4;
 const PUBLISHES_PER_CYCLE: u64 = 4;
+/// The control step: Clarabel 0.11 allocates once per QP solve (its solve resets
+/// its timers and re-creates a nested timer map), and the MPC solves one QP per
+/// Gauss-Newton pass; everything of its own reuses its buffers
+/// (crates/control/tests/alloc.rs pins that down for the law alone).
+const CONTROL_STAGE: usize = 6;
 
 fn assert_no_allocations(kind: ControllerKind) {
     let mut l = Loop::new(kind);
@@ -259,10 +270,23 @@ fn assert_no_allocations(kind: ControllerKind) {
         .iter()
         .zip(l.counts)
         .enumerate()
-        .filter(|&(i, (_, c))| c > 0 && i != BUS_STAGE && !DEVICE_STAGES.contains(&i))
+        .filter(|&(i, (_, c))| {
+            c > 0
+                && i != BUS_STAGE
+                && !DEVICE_STAGES.contains(&i)
+                && !(i == CONTROL_STAGE && kind == ControllerKind::Mpc)
+        })
         .map(|(_, (s, c))| format!("{s}: {c}"))
         .collect();
     assert!(ours.is_empty(), "{kind}: heap allocations in {cycles} cycles after start-up: {}", ours.join(", "));
+    if kind == ControllerKind::Mpc {
+        let passes = jetbench_control::LawSettings::default().mpc.iterations as u64;
+        assert!(
+            l.counts[CONTROL_STAGE] <= passes * cycles,
+            "MPC: {} allocations in {cycles} cycles, more than Clarabel's one per solve",
+            l.counts[CONTROL_STAGE]
+        );
+    }
     assert_eq!(
         l.counts[BUS_STAGE],
         PUBLISHES_PER_CYCLE * cycles,
@@ -281,7 +305,7 @@ fn sliding_mode_loop_allocates_nothing() {
 }
 
 #[test]
-fn mpc_loop_allocates_nothing() {
+fn mpc_loop_allocates_only_inside_the_qp_solver() {
     assert_no_allocations(ControllerKind::Mpc);
 }
 
