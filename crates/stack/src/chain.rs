@@ -23,8 +23,9 @@
 //! pipeline's "command frame written"). No stage busy-waits: each blocks in
 //! `poll`, a WaitSet or `clock_nanosleep`, which is what makes SCHED_FIFO on
 //! two cores safe. Stages keep their stamps in memory and send them to the
-//! parent on their own pipe in batches, after forwarding, so reporting never
-//! holds up a hand-over; the parent joins them by cycle.
+//! parent on their own pipe after the last cycle (the source's end marker
+//! comes a period after it), so reporting never holds up a hand-over; the
+//! parent joins them by cycle.
 //!
 //! ```no_run
 //! use jetbench_stack::chain::{run_chain, ChainOptions, Transport};

@@ -26,9 +26,9 @@ const SIGNAL_POLL: Duration = Duration::from_millis(50);
 /// How far behind its schedule the source may fall before it restarts the
 /// schedule instead of catching up (as sim-bench's sensor does).
 const STALL_NS: u64 = 100_000_000;
-/// Records per write on a stage's result pipe: 40 KiB, below the 64 KiB pipe
-/// buffer, so a write never waits for the parent.
-const RESULT_BATCH: usize = 1024;
+/// Records a stage holds before it must write some mid-run: 40 MB, over
+/// 2.5 h at 100 Hz. Shorter runs report once, after their last cycle.
+const MAX_HELD_RECORDS: u64 = 1 << 20;
 /// Added to an eventfd to say "no more cycles"; the remainder counts pings.
 const EVENTFD_END: u64 = 1 << 40;
 
@@ -134,7 +134,7 @@ pub fn run_stage(options: StageOptions) -> Result<(), StageError> {
         stage,
         cycles,
         period_ns: (period.as_nanos() as u64).max(1),
-        results: ResultWriter::new(results),
+        results: ResultWriter::new(results, cycles),
         counts: Counts::default(),
     };
     let say_rt = || {
@@ -213,24 +213,33 @@ fn say(line: &str) {
     let _ = out.flush();
 }
 
-/// Collects records and writes them to the result pipe in batches.
+/// Holds a stage's records in memory and writes them to the result pipe once
+/// the last cycle has gone through, so reporting never competes with a cycle
+/// (on a shared CPU, a higher-priority stage writing to the parent would hold
+/// up the next stage).
 struct ResultWriter {
     pipe: File,
     batch: Vec<u8>,
+    held_bytes: usize,
 }
 
 impl ResultWriter {
-    fn new(fd: OwnedFd) -> Self {
-        ResultWriter { pipe: File::from(fd), batch: Vec::with_capacity(RESULT_BATCH * StageRecord::BYTES) }
+    /// Room for `cycles` records (at most [`MAX_HELD_RECORDS`]), touched now
+    /// so that no page fault lands in a cycle.
+    fn new(fd: OwnedFd, cycles: u64) -> Self {
+        let held_bytes = (cycles.clamp(1, MAX_HELD_RECORDS) as usize + 1) * StageRecord::BYTES;
+        let mut batch = vec![1u8; held_bytes];
+        batch.clear();
+        ResultWriter { pipe: File::from(fd), batch, held_bytes }
     }
 
-    /// Keeps a record; writes the batch once it is full. Called after the
-    /// cycle's output went out.
+    /// Keeps a record (after the cycle's output went out); writes what it
+    /// holds only when full, in a run longer than it can hold.
     fn push(&mut self, record: StageRecord) -> Result<(), StageError> {
-        self.batch.extend_from_slice(&record.to_bytes());
-        if self.batch.len() >= RESULT_BATCH * StageRecord::BYTES {
+        if self.batch.len() + StageRecord::BYTES > self.held_bytes {
             self.flush()?;
         }
+        self.batch.extend_from_slice(&record.to_bytes());
         Ok(())
     }
 
@@ -325,6 +334,11 @@ struct Tick {
 impl Schedule {
     fn start(period_ns: u64, cycles: u64) -> Self {
         Schedule { period_ns, next_ns: monotonic_ns() + period_ns, cycle: 0, cycles }
+    }
+
+    /// Sleeps until the slot after the last cycle; false if a stop came first.
+    fn wait_end(&mut self) -> bool {
+        !stop_requested() && sleep_until_ns(self.next_ns)
     }
 
     /// Sleeps until the next cycle is due; `None` once every cycle ran or a
@@ -493,7 +507,7 @@ impl StageRun {
                 let sent_ns = monotonic_ns();
                 self.source_record(&tick, sent_ns)?;
             }
-            if stop_requested() {
+            if !schedule.wait_end() {
                 return Ok(End::Stopped);
             }
             eventfd_add(output.as_fd(), EVENTFD_END)?;
@@ -579,7 +593,9 @@ impl StageRun {
             // The next frame, off the critical path: the sensor's work, not sensing's.
             reading = next_reading(tick.cycle + 1, sent_ns)?;
         }
-        if stop_requested() || !out.end()? {
+        // The end marker one period on, when the last cycle has gone through:
+        // every stage reports after it, never during a cycle.
+        if !schedule.wait_end() || !out.end()? {
             return Ok(End::Stopped);
         }
         Ok(End::Finished)
