@@ -1,10 +1,11 @@
 //! Typed publish/subscribe over iceoryx2 shared memory.
 //!
-//! Every channel is an iceoryx2 publish-subscribe service paired with an event
-//! service of the same name. A [`Publisher`] stamps each sample with its own
-//! contiguous `seq`, writes it into shared memory and notifies; a
-//! [`Subscriber`] counts `seq` gaps per publisher, and consumers block in a
-//! WaitSet with a deadline ([`Bus::run`]) instead of polling.
+//! Every channel is an iceoryx2 publish-subscribe service paired with a
+//! [doorbell](bell): a futex word in shared memory. A [`Publisher`] stamps
+//! each sample with its own contiguous `seq`, writes it into shared memory
+//! and rings; a [`Subscriber`] counts `seq` gaps per publisher, and consumers
+//! sleep on their inputs' doorbells with a deadline ([`Bus::run`]) instead of
+//! polling. The doorbell module says why it is not iceoryx2's event service.
 //!
 //! ```no_run
 //! use jetbench_bus::{Bus, Flow, Wake};
@@ -39,10 +40,12 @@ use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
 use iceoryx2::node::{NodeState, NodeView};
-use iceoryx2::port::listener::{Listener, ListenerWaitError};
-use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::*;
 use jetbench_msgs::{Channel, Sample};
+
+pub mod bell;
+
+use bell::{Doorbell, Woke};
 
 /// The longest any single wait blocks before the stop flag is checked again.
 const SIGNAL_POLL: Duration = Duration::from_millis(50);
@@ -151,9 +154,13 @@ fn bus_config() -> &'static Config {
     })
 }
 
-/// Removes the shared-memory resources of dead processes' nodes.
-/// Returns how many dead nodes were cleaned.
+/// Removes the shared-memory resources of dead processes' nodes, and the
+/// doorbells no process holds. Returns how many dead nodes were cleaned.
 pub fn cleanup_dead_nodes() -> usize {
+    let bells = bell::remove_unheld();
+    if bells > 0 {
+        tracing::debug!("removed {bells} doorbell file(s) nobody holds");
+    }
     quiet_iceoryx_log();
     let mut cleaned = 0;
     let _ = Node::<ipc::Service>::list(bus_config(), |state| {
@@ -261,26 +268,20 @@ impl Bus {
             .map_err(|e| BusError::ServiceOpen { channel: channel.name.into(), reason: format!("{e:?}") })
     }
 
-    fn event(
-        &self,
-        channel: &str,
-    ) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, BusError> {
-        self.node
-            .service_builder(&Self::service_name(channel)?)
-            .event()
-            .max_notifiers(limits::MAX_PUBLISHERS)
-            .max_listeners(limits::MAX_SUBSCRIBERS)
-            .max_nodes(limits::MAX_NODES)
-            .open_or_create()
-            .map_err(|e| BusError::ServiceOpen { channel: format!("{channel} (event)"), reason: format!("{e:?}") })
+    fn doorbell(&self, channel: &str) -> Result<Doorbell, BusError> {
+        let path = bell::path_of(namespace()?.as_deref(), channel);
+        Doorbell::open(&path).map_err(|e| BusError::PortCreate {
+            channel: channel.into(),
+            reason: format!("doorbell {}: {e} (is /dev/shm writable?)", path.display()),
+        })
     }
 
     /// Creates a publisher on `channel`. Its `seq` starts at 0.
     pub fn publisher<T: Sample>(&self, channel: Channel<T>) -> Result<Publisher<T>, BusError> {
         let port_err = |e: String| BusError::PortCreate { channel: channel.name.into(), reason: e };
         let publisher = self.pubsub(channel)?.publisher_builder().create().map_err(|e| port_err(format!("{e:?}")))?;
-        let notifier = self.event(channel.name)?.notifier_builder().create().map_err(|e| port_err(format!("{e:?}")))?;
-        Ok(Publisher { publisher, notifier, channel, next_seq: 0 })
+        let bell = self.doorbell(channel.name)?;
+        Ok(Publisher { publisher, bell, channel, next_seq: 0 })
     }
 
     /// Creates a subscriber on `channel` that queues up to `depth` samples
@@ -291,7 +292,7 @@ impl Bus {
     }
 
     /// A subscriber for a reader that polls on its own clock (the recorder, the
-    /// launcher's status line): it has no listener, so publishers never wake it
+    /// launcher's status line): it has no doorbell, so publishers never wake it
     /// and it costs the control path no system call. It cannot be an input of
     /// [`Bus::run`]; size `depth` for the samples of one polling period and more.
     pub fn polled_subscriber<T: Sample>(&self, channel: Channel<T>, depth: usize) -> Result<Subscriber<T>, BusError> {
@@ -311,14 +312,10 @@ impl Bus {
             .buffer_size(depth.clamp(1, limits::MAX_BUFFER))
             .create()
             .map_err(|e| port_err(format!("{e:?}")))?;
-        let listener = if woken {
-            Some(self.event(channel.name)?.listener_builder().create().map_err(|e| port_err(format!("{e:?}")))?)
-        } else {
-            None
-        };
+        let bell = if woken { Some(self.doorbell(channel.name)?) } else { None };
         Ok(Subscriber {
             subscriber,
-            listener,
+            bell,
             channel,
             seq_tracks: RefCell::new(Vec::new()),
             received: Cell::new(0),
@@ -326,14 +323,15 @@ impl Bus {
         })
     }
 
-    /// Blocks in a WaitSet on `inputs` until the callback returns
+    /// Sleeps on the doorbells of `inputs` until the callback returns
     /// [`Flow::Stop`] or a stop is requested.
     ///
     /// Each input may carry a deadline: if it sends nothing for that long the
     /// callback gets [`Wake::Missed`], and again after each further deadline.
-    /// `tick`, if given, wakes the loop periodically with [`Wake::Tick`]. The
-    /// input's pending events are consumed before the callback runs; the
-    /// callback receives the samples itself.
+    /// `tick`, if given, wakes the loop periodically with [`Wake::Tick`] (on a
+    /// fixed phase; ticks that could not run in time are skipped, not bunched).
+    /// The input's rings are taken before the callback runs; the callback
+    /// receives the samples itself.
     pub fn run<F>(
         &self,
         inputs: &[(&dyn Trigger, Option<Duration>)],
@@ -344,61 +342,54 @@ impl Bus {
         F: FnMut(Wake) -> Flow,
     {
         let wait_err = |what: &str, e: String| BusError::Wait { reason: format!("{what}: {e}") };
-        let waitset = WaitSetBuilder::new()
-            .signal_handling_mode(SignalHandlingMode::Disabled)
-            .create::<ipc::Service>()
-            .map_err(|e| wait_err("create waitset", format!("{e:?}")))?;
-        let mut guards = Vec::with_capacity(inputs.len());
-        for (trigger, deadline) in inputs {
-            let listener = trigger.listener().ok_or_else(|| {
-                wait_err("attach input", "a polled subscriber has no listener to wake a loop with".into())
-            })?;
-            let guard = match deadline {
-                Some(d) => waitset.attach_deadline(listener, *d),
-                None => waitset.attach_notification(listener),
-            }
-            .map_err(|e| wait_err("attach input", format!("{e:?}")))?;
-            guards.push(guard);
-        }
-        // Bounds the time to notice a stop request, whatever the inputs do.
-        // Held, never matched: it only wakes the wait so the flag is checked.
-        let _signal_guard = waitset.attach_interval(SIGNAL_POLL).map_err(|e| wait_err("attach", format!("{e:?}")))?;
-        let tick_guard = match tick {
-            Some(t) => Some(waitset.attach_interval(t).map_err(|e| wait_err("attach tick", format!("{e:?}")))?),
-            None => None,
-        };
-
-        let mut stopped = false;
+        let bells = inputs
+            .iter()
+            .map(|(trigger, _)| {
+                trigger.bell().ok_or_else(|| {
+                    wait_err("attach input", "a polled subscriber has no doorbell to wake a loop with".into())
+                })
+            })
+            .collect::<Result<Vec<&Doorbell>, BusError>>()?;
+        let start = Instant::now();
+        let mut missed_at: Vec<Option<Instant>> = inputs.iter().map(|(_, d)| d.map(|d| start + d)).collect();
+        let mut next_tick = tick.map(|t| start + t);
         loop {
             if stop_requested() {
                 return Ok(LoopExit::Terminated);
             }
-            let result = waitset.wait_and_process_once(|id| {
-                for (i, guard) in guards.iter().enumerate() {
-                    if id.has_event_from(guard) {
-                        inputs[i].0.consume_events();
-                        if on_wake(Wake::Input(i)) == Flow::Stop {
-                            stopped = true;
-                            return CallbackProgression::Stop;
-                        }
-                    } else if id.has_missed_deadline(guard) && on_wake(Wake::Missed(i)) == Flow::Stop {
-                        stopped = true;
-                        return CallbackProgression::Stop;
+            // Bounds the time to notice a stop request, whatever the inputs do.
+            let wake_at =
+                missed_at.iter().flatten().chain(&next_tick).fold(Instant::now() + SIGNAL_POLL, |a, &b| a.min(b));
+            // Interrupted: any signal (SIGCHLD included); the flag decides.
+            if bell::wait_any(&bells, wake_at).map_err(|e| wait_err("wait", e.to_string()))? == Woke::Interrupted {
+                continue;
+            }
+            let now = Instant::now();
+            for (i, bell) in bells.iter().enumerate() {
+                let deadline = inputs[i].1;
+                let wake = if bell.take() {
+                    Wake::Input(i)
+                } else if missed_at[i].is_some_and(|at| now >= at) {
+                    Wake::Missed(i)
+                } else {
+                    continue;
+                };
+                missed_at[i] = deadline.map(|d| now + d);
+                if on_wake(wake) == Flow::Stop {
+                    return Ok(LoopExit::Stopped);
+                }
+            }
+            if let (Some(at), Some(period)) = (next_tick, tick) {
+                if now >= at {
+                    let mut next = at + period;
+                    while next <= now {
+                        next += period;
+                    }
+                    next_tick = Some(next);
+                    if on_wake(Wake::Tick) == Flow::Stop {
+                        return Ok(LoopExit::Stopped);
                     }
                 }
-                if let Some(tick_guard) = &tick_guard {
-                    if id.has_event_from(tick_guard) && on_wake(Wake::Tick) == Flow::Stop {
-                        stopped = true;
-                        return CallbackProgression::Stop;
-                    }
-                }
-                CallbackProgression::Continue
-            });
-            match result {
-                Ok(_) if stopped => return Ok(LoopExit::Stopped),
-                // Interrupt: any signal (SIGCHLD included); the flag decides.
-                Ok(_) => {}
-                Err(e) => return Err(wait_err("wait", format!("{e:?}"))),
             }
         }
     }
@@ -448,27 +439,21 @@ pub enum LoopExit {
 
 /// Something [`Bus::run`] can wait on.
 pub trait Trigger {
-    /// The listener publishers wake; `None` for a polled subscriber.
-    fn listener(&self) -> Option<&Listener<ipc::Service>>;
-    /// Consumes pending notifications so they do not wake the loop again.
-    fn consume_events(&self) {
-        if let Some(listener) = self.listener() {
-            let _ = listener.try_wait(|_| {});
-        }
-    }
+    /// The doorbell publishers ring; `None` for a polled subscriber.
+    fn bell(&self) -> Option<&Doorbell>;
 }
 
 /// Publishes samples of one type, stamping each with a contiguous `seq`.
 pub struct Publisher<T: Sample> {
     publisher: iceoryx2::port::publisher::Publisher<ipc::Service, T, ()>,
-    notifier: Notifier<ipc::Service>,
+    bell: Doorbell,
     channel: Channel<T>,
     next_seq: u64,
 }
 
 impl<T: Sample> Publisher<T> {
-    /// Writes `sample` into shared memory with the next `seq` and notifies
-    /// the channel's listeners. Returns the `seq` given to the sample.
+    /// Writes `sample` into shared memory with the next `seq` and rings the
+    /// channel's doorbell. Returns the `seq` given to the sample.
     pub fn publish(&mut self, mut sample: T) -> Result<u64, BusError> {
         let seq = self.next_seq;
         sample.set_seq(seq);
@@ -476,7 +461,7 @@ impl<T: Sample> Publisher<T> {
         let slot = self.publisher.loan_uninit().map_err(|e| send_err(format!("{e:?}")))?;
         slot.write_payload(sample).send().map_err(|e| send_err(format!("{e:?}")))?;
         self.next_seq += 1;
-        self.notifier.notify().map_err(|e| send_err(format!("notify: {e:?}")))?;
+        self.bell.ring().map_err(|e| send_err(format!("ring: {e}")))?;
         Ok(seq)
     }
 
@@ -493,7 +478,7 @@ impl<T: Sample> Publisher<T> {
 /// Receives samples of one type and counts lost ones from `seq` gaps.
 pub struct Subscriber<T: Sample> {
     subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, T, ()>,
-    listener: Option<Listener<ipc::Service>>,
+    bell: Option<Doorbell>,
     channel: Channel<T>,
     /// Next expected `seq` per publisher.
     seq_tracks: RefCell<Vec<(iceoryx2::identifiers::UniquePublisherId, u64)>>,
@@ -549,17 +534,18 @@ impl<T: Sample> Subscriber<T> {
             if now >= deadline || stop_requested() {
                 return Ok(None);
             }
-            let Some(listener) = &self.listener else {
+            let Some(bell) = &self.bell else {
                 // Polled: look again shortly.
                 std::thread::sleep((deadline - now).min(Duration::from_millis(1)));
                 continue;
             };
-            match listener.timed_wait(|_| {}, (deadline - now).min(SIGNAL_POLL)) {
-                // A signal cut the wait short; the stop flag decides what it meant.
-                Ok(_) | Err(ListenerWaitError::InterruptSignal) => {}
-                Err(e) => {
-                    return Err(BusError::Receive { channel: self.channel.name.into(), reason: format!("{e:?}") })
-                }
+            // Take first: a sample published from here on rings again.
+            if !bell.take() {
+                // A signal cutting the wait short is fine: the stop flag decides what it meant.
+                bell::wait_any(&[bell], deadline.min(now + SIGNAL_POLL)).map_err(|e| BusError::Receive {
+                    channel: self.channel.name.into(),
+                    reason: format!("wait: {e}"),
+                })?;
             }
         }
     }
@@ -585,8 +571,8 @@ impl<T: Sample> Subscriber<T> {
 }
 
 impl<T: Sample> Trigger for Subscriber<T> {
-    fn listener(&self) -> Option<&Listener<ipc::Service>> {
-        self.listener.as_ref()
+    fn bell(&self) -> Option<&Doorbell> {
+        self.bell.as_ref()
     }
 }
 

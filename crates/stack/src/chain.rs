@@ -13,7 +13,7 @@
 //!   [`Control`](crate::step::Control), [`Actuator`](crate::step::Actuator)) with their
 //!   samples copied through Unix domain sockets (`SOCK_SEQPACKET`).
 //! - [`Transport::Iceoryx`]: the same steps over iceoryx2 shared memory
-//!   (`jetbench_bus`, each consumer in a WaitSet, as the services consume),
+//!   (`jetbench_bus`, each consumer asleep on its input's doorbell, as the services consume),
 //!   on channels private to the run (`latency/<run>/thrust`, `.../state`,
 //!   `.../command`), so a running service set is not disturbed.
 //!
@@ -21,7 +21,7 @@
 //! period; the time it wakes is the cycle's `t0` (the pipeline's "sensor frame
 //! received"). Stage 3 stamps the time the actuator's output was ready (the
 //! pipeline's "command frame written"). No stage busy-waits: each blocks in
-//! `poll`, a WaitSet or `clock_nanosleep`, which is what makes SCHED_FIFO on
+//! `poll`, a futex wait or `clock_nanosleep`, which is what makes SCHED_FIFO on
 //! two cores safe. Stages keep their stamps in memory and send them to the
 //! parent on their own pipe after the last cycle (the source's end marker
 //! comes a period after it), so reporting never holds up a hand-over; the

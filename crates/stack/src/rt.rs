@@ -9,7 +9,7 @@
 //! Threads created after [`apply`] inherit the policy and the affinity
 //! (glibc's default `PTHREAD_INHERIT_SCHED`), so call it before the bus and
 //! the device threads start. No loop of the service set busy-waits: every
-//! one blocks in a WaitSet, a sleep or a read with a timeout, which is what
+//! one blocks in a futex wait, a sleep or a read with a timeout, which is what
 //! makes SCHED_FIFO safe on a two-core machine.
 
 use std::fmt;

@@ -2,7 +2,7 @@
 //!
 //! Each `run_*` function opens the bus, creates its ports, prints `ready`
 //! on stdout (the launcher waits for it), and loops until SIGINT/SIGTERM.
-//! Consumers block in a WaitSet with a deadline; only sim-bench keeps time.
+//! Consumers sleep on their input's doorbell with a deadline; only sim-bench keeps time.
 
 use std::io::Write;
 use std::path::Path;
@@ -277,11 +277,13 @@ where
     }
 }
 
-/// Estimation: `bench/thrust` (+ `bench/actuation`) in, `bench/state` out.
+/// Estimation: `bench/thrust` (and the newest `bench/actuation`, read with it) in, `bench/state` out.
 pub fn run_estimation(config: &BenchConfig) -> Result<(), ServiceError> {
     let bus = Bus::open("estimation")?;
     let thrust_sub = bus.subscriber(channels::THRUST, 16)?;
-    let actuation_sub = bus.subscriber(channels::ACTUATION, 16)?;
+    // Read with each thrust sample, never woken by: an actuation sample
+    // arrives mid-cycle and has nothing to start.
+    let actuation_sub = bus.polled_subscriber(channels::ACTUATION, 16)?;
     let mut state_pub = bus.publisher(channels::STATE)?;
     let mut health = HealthReporter::new(&bus, ServiceId::Estimation)?;
     let mut step = Estimation::new(config.model_params()?, config.estimator.observer_config());
@@ -289,8 +291,7 @@ pub fn run_estimation(config: &BenchConfig) -> Result<(), ServiceError> {
 
     let mut started = false;
     let mut rejected = 0;
-    let inputs: [(&dyn Trigger, Option<Duration>); 2] = [(&thrust_sub, Some(INPUT_DEADLINE)), (&actuation_sub, None)];
-    consume(&bus, &inputs, |wake| {
+    consume(&bus, &[(&thrust_sub, Some(INPUT_DEADLINE))], |wake| {
         let start_ns = monotonic_ns();
         match wake {
             Wake::Input(0) => {
@@ -311,11 +312,6 @@ pub fn run_estimation(config: &BenchConfig) -> Result<(), ServiceError> {
                     }
                     health.set_input_gaps(thrust_sub.gaps());
                     health.cycle(start_ns, monotonic_ns(), false)?;
-                }
-            }
-            Wake::Input(_) => {
-                if let Some(a) = actuation_sub.latest()? {
-                    step.set_applied(a.applied_pct);
                 }
             }
             Wake::Missed(_) if started => health.cycle(start_ns, monotonic_ns(), true)?,

@@ -651,7 +651,7 @@ impl StageRun {
                 let bus = bus.expect("a bus inlet comes with its bus");
                 let mut failure = None;
                 let mut last = false;
-                // As the services consume: a WaitSet with the input deadline.
+                // As the services consume: asleep on the doorbell, with the input deadline.
                 let inputs: [(&dyn jetbench_bus::Trigger, Option<Duration>); 1] =
                     [(&*subscriber, Some(crate::service::INPUT_DEADLINE))];
                 let exit = bus.run(&inputs, None, |wake| {
