@@ -48,6 +48,9 @@ def counts(r):
             f"lost **{r['lost']}** (sensor frames {r['frames_lost']}, bus/recorder seq gaps {gaps}, unfinished cycles {r['unfinished']}); "
             f"reference chains lost {r['chain_lost']}\n"
             f"- deadline misses the services counted themselves: {r['service_deadline_misses']}\n"
+            f"- hypervisor steal while the service set ran: "
+            + (", ".join(f"cpu{i} {ms:.0} ms" for i, ms in enumerate(r['steal_ms'])) if r['steal_ms'] else "not reported")
+            + " (a stolen virtual CPU stalls every process on it, SCHED_FIFO or not)\n"
             f"- real-time settings: {'asked for' if r['rt_requested'] else 'off'}"
             + (f", refused: {'; '.join(r['rt_refused'])}" if r['rt_refused'] else (", all set" if r['rt_requested'] else "")))
 

@@ -159,6 +159,34 @@ pub fn online_cpus() -> usize {
     std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
 }
 
+/// Time the hypervisor took each CPU away ("steal" in `/proc/stat`), in ms
+/// since boot; `None` where the kernel does not report it. On a virtual
+/// machine a stolen CPU stalls every process on it, real-time or not, so a
+/// latency run reports the steal it saw next to its outliers.
+pub fn steal_ms_per_cpu() -> Option<Vec<f64>> {
+    parse_steal_ms(&std::fs::read_to_string("/proc/stat").ok()?, clock_ticks_per_s())
+}
+
+fn clock_ticks_per_s() -> f64 {
+    // SAFETY: a plain query.
+    let ticks = unsafe { libc::sysconf(libc::_SC_CLK_TCK) };
+    if ticks > 0 {
+        ticks as f64
+    } else {
+        100.0
+    }
+}
+
+/// The steal column (the 8th value) of each `cpuN` line, converted to ms.
+fn parse_steal_ms(stat: &str, ticks_per_s: f64) -> Option<Vec<f64>> {
+    let cpus: Vec<f64> = stat
+        .lines()
+        .filter(|l| l.starts_with("cpu") && l.as_bytes().get(3).is_some_and(u8::is_ascii_digit))
+        .map(|l| l.split_whitespace().nth(8).and_then(|v| v.parse::<u64>().ok()).map(|t| t as f64 * 1e3 / ticks_per_s))
+        .collect::<Option<_>>()?;
+    (!cpus.is_empty()).then_some(cpus)
+}
+
 /// The calling thread's scheduling policy and priority, e.g. `("SCHED_FIFO", 80)`.
 pub fn current_policy() -> (&'static str, i32) {
     // SAFETY: plain queries of the calling thread.
@@ -181,6 +209,14 @@ pub fn current_policy() -> (&'static str, i32) {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn steal_is_read_per_cpu_and_a_kernel_without_it_gives_none() {
+        let stat = "cpu  10 0 5 100 1 0 2 30 0 0\ncpu0 5 0 2 50 1 0 1 12 0 0\ncpu1 5 0 3 50 0 0 1 18 0 0\nintr 1 2\n";
+        assert_eq!(super::parse_steal_ms(stat, 100.0), Some(vec![120.0, 180.0]));
+        assert_eq!(super::parse_steal_ms("cpu0 5 0 2 50 1 0 1\n", 100.0), None);
+        assert_eq!(super::parse_steal_ms("intr 1 2\n", 100.0), None);
+    }
+
     use super::*;
 
     #[test]

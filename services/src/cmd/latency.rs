@@ -108,6 +108,9 @@ struct Report {
     uds_us: Percentiles,
     iceoryx2_chain_us: Percentiles,
     chain_lost: std::collections::BTreeMap<String, u64>,
+    /// CPU time the hypervisor took per CPU while the service set ran, ms
+    /// (empty where the kernel does not report steal).
+    steal_ms: Vec<f64>,
     ratios: Ratios,
 }
 
@@ -177,7 +180,12 @@ pub fn run(args: LatencyArgs) -> anyhow::Result<ExitCode> {
     // Let the load reach every core before measuring.
     std::thread::sleep(Duration::from_secs(1));
 
+    let steal_before = jetbench_stack::rt::steal_ms_per_cpu();
     run_pipeline(&args, &exe, &recording)?;
+    let steal_ms: Vec<f64> = match (steal_before, jetbench_stack::rt::steal_ms_per_cpu()) {
+        (Some(a), Some(b)) if a.len() == b.len() => b.iter().zip(&a).map(|(b, a)| (b - a).max(0.0)).collect(),
+        _ => Vec::new(),
+    };
     let mut chains = Vec::new();
     for transport in [Transport::EventFd, Transport::Uds, Transport::Iceoryx] {
         let bar = phase_bar(&format!("reference chain over {transport}"), args.duration);
@@ -206,7 +214,7 @@ pub fn run(args: LatencyArgs) -> anyhow::Result<ExitCode> {
     if pipeline.completed == 0 {
         bail!("the service set's recording {} has no complete cycle to measure", recording.display());
     }
-    let report = build_report(&args, &load_description, rt_refused, &pipeline, &chains);
+    let report = build_report(&args, &load_description, rt_refused, &pipeline, &chains, steal_ms);
     if let Some(plot) = &args.plot {
         let files = write_plot(plot, &pipeline, &chains)?;
         eprintln!("plot: {}", files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>().join(", "));
@@ -284,6 +292,7 @@ fn build_report(
     rt_refused: Vec<String>,
     pipeline: &PipelineAnalysis,
     chains: &[ChainResult],
+    steal_ms: Vec<f64>,
 ) -> Report {
     let chain = |t: Transport| chains.iter().find(|c| c.transport == t);
     let p = |t: Transport| chain(t).map(|c| c.e2e.percentiles()).unwrap_or_default();
@@ -322,6 +331,7 @@ fn build_report(
         uds_us: uds,
         iceoryx2_chain_us: iox,
         chain_lost: chains.iter().map(|c| (c.transport.to_string(), c.run.lost)).collect(),
+        steal_ms,
         ratios: Ratios {
             e2e_p99_over_floor_p99: ratio(e2e.p99, floor.p99),
             e2e_p50_over_floor_p50: ratio(e2e.p50, floor.p50),
@@ -375,6 +385,13 @@ fn print_report(r: &Report, chains: &[ChainResult]) {
         r.seq_gaps.values().sum::<u64>(),
         r.unfinished
     );
+    if r.steal_ms.iter().any(|&ms| ms > 0.0) {
+        let per_cpu: Vec<String> = r.steal_ms.iter().enumerate().map(|(i, ms)| format!("cpu{i} {ms:.0} ms")).collect();
+        println!(
+            "hypervisor steal while the service set ran: {} (a stolen CPU stalls even SCHED_FIFO)",
+            per_cpu.join(", ")
+        );
+    }
     println!(
         "ratios: p99 to the floor {:.2} (p50 {:.2}); to the Unix-socket baseline p50 {:.2}, p99 {:.2}; \
          iceoryx2 against Unix sockets on the same stages p50 {:.2}, p99 {:.2}",
