@@ -50,8 +50,10 @@ impl ServiceArgs {
     /// Loads the config and applies the real-time settings of service `id`
     /// (before any thread starts, so every thread inherits them).
     pub fn start(&self, id: jetbench_msgs::ServiceId) -> anyhow::Result<jetbench_stack::config::BenchConfig> {
-        let config = self.load()?;
-        if let Some(request) = config.rt.request(id, self.rt) {
+        let mut config = self.load()?;
+        // `--rt` is `[rt] enabled = true` for this run: the service's own threads follow it.
+        config.rt.enabled |= self.rt;
+        if let Some(request) = config.rt.request(id, false) {
             jetbench_stack::rt::apply(&request).log(id.name());
         }
         Ok(config)

@@ -129,6 +129,12 @@ impl Doorbell {
         Ok(())
     }
 
+    /// Rings so far (wrapping). A subscriber that read this before finding
+    /// its queue empty knows the queue is still empty while it is unchanged.
+    pub fn rings(&self) -> u32 {
+        self.shared().rings.load(Ordering::Acquire)
+    }
+
     /// True if it rang since [`take`](Self::take) last ran.
     pub fn pending(&self) -> bool {
         self.shared().rings.load(Ordering::Acquire) != self.seen.get()

@@ -51,11 +51,14 @@ use bell::{Doorbell, Woke};
 const SIGNAL_POLL: Duration = Duration::from_millis(50);
 
 /// Capacity limits shared by every process, so that `open_or_create` agrees.
+/// (Publishers per channel come with the channel: [`Channel::max_publishers`].)
+/// Every publish walks all subscriber slots and every receive all publisher
+/// slots, in memory a 10 ms cycle finds cold, so they are kept to what a
+/// channel needs.
 pub mod limits {
-    /// Publishers per channel (`bench/health` has one per service).
-    pub const MAX_PUBLISHERS: usize = 8;
-    /// Subscribers per channel: consumers, recorder, launcher status, `echo`, `hz`.
-    pub const MAX_SUBSCRIBERS: usize = 16;
+    /// Subscribers per channel: its consumer, the recorder, the launcher's
+    /// status line, `echo`, `hz`, and room for tests and tools.
+    pub const MAX_SUBSCRIBERS: usize = 8;
     /// Deepest subscriber queue a channel allows; the recorder asks for this.
     pub const MAX_BUFFER: usize = 512;
     /// Nodes that may open one channel.
@@ -258,7 +261,7 @@ impl Bus {
         self.node
             .service_builder(&Self::service_name(channel.name)?)
             .publish_subscribe::<T>()
-            .max_publishers(limits::MAX_PUBLISHERS)
+            .max_publishers(channel.max_publishers)
             .max_subscribers(limits::MAX_SUBSCRIBERS)
             .subscriber_max_buffer_size(limits::MAX_BUFFER)
             .max_nodes(limits::MAX_NODES)
@@ -292,9 +295,10 @@ impl Bus {
     }
 
     /// A subscriber for a reader that polls on its own clock (the recorder, the
-    /// launcher's status line): it has no doorbell, so publishers never wake it
-    /// and it costs the control path no system call. It cannot be an input of
-    /// [`Bus::run`]; size `depth` for the samples of one polling period and more.
+    /// launcher's status line): it never sleeps on the channel's doorbell, so
+    /// publishers never wake it and it costs the control path no system call.
+    /// It cannot be an input of [`Bus::run`]; size `depth` for the samples of
+    /// one polling period and more.
     pub fn polled_subscriber<T: Sample>(&self, channel: Channel<T>, depth: usize) -> Result<Subscriber<T>, BusError> {
         self.make_subscriber(channel, depth, false)
     }
@@ -312,10 +316,12 @@ impl Bus {
             .buffer_size(depth.clamp(1, limits::MAX_BUFFER))
             .create()
             .map_err(|e| port_err(format!("{e:?}")))?;
-        let bell = if woken { Some(self.doorbell(channel.name)?) } else { None };
+        let bell = self.doorbell(channel.name)?;
         Ok(Subscriber {
             subscriber,
+            accounted: Cell::new(bell.rings()),
             bell,
+            woken,
             channel,
             seq_tracks: RefCell::new(Vec::new()),
             received: Cell::new(0),
@@ -478,7 +484,18 @@ impl<T: Sample> Publisher<T> {
 /// Receives samples of one type and counts lost ones from `seq` gaps.
 pub struct Subscriber<T: Sample> {
     subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, T, ()>,
-    bell: Option<Doorbell>,
+    /// The channel's doorbell. Every subscriber reads its ring count; only a
+    /// woken one (not [`Bus::polled_subscriber`]) sleeps on it.
+    bell: Doorbell,
+    woken: bool,
+    /// Rings accounted for: one per sample taken, and all of those read
+    /// before a receive that found the queue empty. A publisher rings once
+    /// per sample, after the sample is queued, so while the doorbell's count
+    /// equals this no rung sample waits, and [`Subscriber::try_recv`] answers
+    /// without asking iceoryx2 (whose receive locks, checks the publisher list
+    /// and walks every connection slot). It never runs ahead of the count: a
+    /// sample is only taken while the count is ahead of it.
+    accounted: Cell<u32>,
     channel: Channel<T>,
     /// Next expected `seq` per publisher.
     seq_tracks: RefCell<Vec<(iceoryx2::identifiers::UniquePublisherId, u64)>>,
@@ -489,11 +506,21 @@ pub struct Subscriber<T: Sample> {
 impl<T: Sample> Subscriber<T> {
     /// Takes the oldest queued sample, if any.
     pub fn try_recv(&self) -> Result<Option<T>, BusError> {
+        let rings = self.bell.rings();
+        if rings == self.accounted.get() {
+            return Ok(None);
+        }
         let sample = self
             .subscriber
             .receive()
             .map_err(|e| BusError::Receive { channel: self.channel.name.into(), reason: format!("{e:?}") })?;
-        let Some(sample) = sample else { return Ok(None) };
+        let Some(sample) = sample else {
+            // Rings without a sample here: samples published before this
+            // subscriber was connected, or dropped from a full queue.
+            self.accounted.set(rings);
+            return Ok(None);
+        };
+        self.accounted.set(self.accounted.get().wrapping_add(1));
         let value = *sample.payload();
         self.track(sample.header().publisher_id(), value.seq());
         self.received.set(self.received.get() + 1);
@@ -534,11 +561,12 @@ impl<T: Sample> Subscriber<T> {
             if now >= deadline || stop_requested() {
                 return Ok(None);
             }
-            let Some(bell) = &self.bell else {
+            if !self.woken {
                 // Polled: look again shortly.
                 std::thread::sleep((deadline - now).min(Duration::from_millis(1)));
                 continue;
-            };
+            }
+            let bell = &self.bell;
             // Take first: a sample published from here on rings again.
             if !bell.take() {
                 // A signal cutting the wait short is fine: the stop flag decides what it meant.
@@ -572,7 +600,7 @@ impl<T: Sample> Subscriber<T> {
 
 impl<T: Sample> Trigger for Subscriber<T> {
     fn bell(&self) -> Option<&Doorbell> {
-        self.bell.as_ref()
+        self.woken.then_some(&self.bell)
     }
 }
 

@@ -61,6 +61,39 @@ pub fn open_port(path: &Path, baud: u32) -> Result<TTYPort, serialport::Error> {
         .open_native()
 }
 
+/// Sets `O_NONBLOCK` on `fd`.
+fn set_nonblocking(fd: std::os::fd::RawFd) -> std::io::Result<()> {
+    // SAFETY: fcntl on a descriptor the caller holds open.
+    let flags = unsafe { libc::fcntl(fd, libc::F_GETFL) };
+    // SAFETY: as above.
+    if flags < 0 || unsafe { libc::fcntl(fd, libc::F_SETFL, flags | libc::O_NONBLOCK) } < 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    Ok(())
+}
+
+/// Writes a whole frame to a non-blocking port. One `write(2)` takes it
+/// when the kernel has room, as it has but for a stalled line; only then does
+/// the port's own write (which polls for room, up to its timeout) finish it.
+/// (That write polls before every frame: a second system call per command on
+/// the control path.)
+fn write_frame(port: &mut TTYPort, bytes: &[u8]) -> std::io::Result<()> {
+    // SAFETY: writes at most `bytes.len()` bytes from a live buffer.
+    let n = unsafe { libc::write(port.as_raw_fd(), bytes.as_ptr().cast(), bytes.len()) };
+    let done = match usize::try_from(n) {
+        Ok(n) if n == bytes.len() => return Ok(()),
+        Ok(n) => n,
+        Err(_) => {
+            let e = std::io::Error::last_os_error();
+            if !matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::Interrupted) {
+                return Err(e);
+            }
+            0
+        }
+    };
+    port.write_all(&bytes[done..])
+}
+
 /// Waits up to `timeout_ns` for `fd` to have bytes to read (or to report an
 /// error or hang-up, which the following read then returns).
 fn wait_readable(fd: std::os::fd::RawFd, timeout_ns: u64) -> std::io::Result<bool> {
@@ -157,6 +190,10 @@ impl ThrottleBoard {
         let port = open_port(&self.path, self.baud).map_err(|e| self.io_error(e.to_string()))?;
         // Bytes from before this open (a previous session's acks) are not ours.
         let _ = port.clear(serialport::ClearBuffer::All);
+        // Frames are written straight to the descriptor (see `write_frame`),
+        // which must then never block the control loop.
+        set_nonblocking(port.as_raw_fd())
+            .map_err(|e| self.io_error(format!("cannot make the port non-blocking: {e}")))?;
         self.port = Some(port);
         self.opens += 1;
         self.need_arm = true;
@@ -192,7 +229,7 @@ impl ThrottleBoard {
         let Some(port) = self.port.as_mut() else { return false };
         let sent_ns = (self.clock)();
         board::encode_into(frame, &mut self.tx);
-        match port.write_all(&self.tx) {
+        match write_frame(port, &self.tx) {
             Ok(()) => {
                 if let Frame::SetThrottle { seq, .. } | Frame::Arm { seq } | Frame::Disarm { seq } = *frame {
                     self.sent[usize::from(seq) % self.sent.len()] = (seq, sent_ns);
@@ -480,6 +517,12 @@ impl EcuPoller {
     /// The samples polled since the last call, oldest first; never blocks.
     pub fn try_iter(&self) -> impl Iterator<Item = EcuTelemetry> + '_ {
         self.samples.try_iter()
+    }
+
+    /// The poller thread, to give it its own scheduling (it starts with its creator's).
+    pub fn pthread(&self) -> Option<libc::pthread_t> {
+        use std::os::unix::thread::JoinHandleExt;
+        self.thread.as_ref().map(|t| t.as_pthread_t())
     }
 
     /// Counters and link state of the poller thread.

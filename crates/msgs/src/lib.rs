@@ -439,6 +439,9 @@ impl ServiceId {
 pub struct Channel<T> {
     /// Bus service name, e.g. `bench/thrust`; the recorded topic is `/` + name.
     pub name: &'static str,
+    /// Publishers the channel admits at once. Every publish and every receive
+    /// walks this many slots, so it is kept to what the channel needs.
+    pub max_publishers: usize,
     _type: core::marker::PhantomData<fn() -> T>,
 }
 
@@ -450,8 +453,15 @@ impl<T> Clone for Channel<T> {
 impl<T> Copy for Channel<T> {}
 
 impl<T: Sample> Channel<T> {
+    /// A channel with one publisher (and room for a restarted one while the
+    /// bus has not yet cleaned up after the process it replaces).
     pub const fn new(name: &'static str) -> Self {
-        Channel { name, _type: core::marker::PhantomData }
+        Self::with_publishers(name, 2)
+    }
+
+    /// A channel that `max_publishers` processes publish on at once.
+    pub const fn with_publishers(name: &'static str, max_publishers: usize) -> Self {
+        Channel { name, max_publishers, _type: core::marker::PhantomData }
     }
 
     /// The MCAP topic: `/bench/thrust` for `bench/thrust`.
@@ -470,7 +480,8 @@ pub mod channels {
     pub const COMMAND: Channel<Command> = Channel::new("bench/command");
     pub const ACTUATION: Channel<Actuation> = Channel::new("bench/actuation");
     pub const ECU: Channel<EcuTelemetry> = Channel::new("bench/ecu");
-    pub const HEALTH: Channel<Health> = Channel::new("bench/health");
+    /// One publisher per service (see [`ServiceId::ALL`]), and two spare.
+    pub const HEALTH: Channel<Health> = Channel::with_publishers("bench/health", ServiceId::ALL.len() + 2);
     pub const SIM_TRUTH: Channel<SimTruth> = Channel::new("sim/truth");
 }
 

@@ -381,6 +381,9 @@ pub struct RtSection {
     pub lock_memory: bool,
     /// SCHED_FIFO priority of each service, 1–99.
     pub priority: PerService<u8>,
+    /// SCHED_FIFO priority of actuation's ECU polling thread: below the
+    /// control path, so a 9600-baud telemetry poll never delays a command.
+    pub ecu_priority: u8,
     /// CPUs each service may run on; an empty list leaves it to the scheduler.
     pub cpus: PerService<Vec<usize>>,
 }
@@ -390,15 +393,19 @@ impl Default for RtSection {
         RtSection {
             enabled: false,
             lock_memory: true,
-            // The sensor side first: a late sensing cycle delays everything after it.
+            // Along the control path, each stage above the one that feeds it:
+            // a stage that publishes is preempted at once by the stage it woke,
+            // so a cycle runs through to the throttle board before any stage's
+            // bookkeeping (heartbeat, next read). See the README's bench PC section.
             priority: PerService {
                 sim_bench: 90,
-                sensing: 80,
-                estimation: 70,
-                control: 60,
-                actuation: 50,
+                actuation: 80,
+                control: 70,
+                estimation: 60,
+                sensing: 50,
                 recorder: 40,
             },
+            ecu_priority: 45,
             // The control chain on one core, so each hand-over wakes a process on the
             // core it runs on; the simulated devices and the recorder on the other.
             cpus: PerService {
@@ -459,6 +466,9 @@ impl RtSection {
             if let Some(cpu) = self.cpus.get(id).iter().find(|&&c| c >= 1024) {
                 return Err(format!("[rt] cpus.{} names CPU {cpu}: CPUs are numbered from 0", id.name()));
             }
+        }
+        if !(1..=99).contains(&self.ecu_priority) {
+            return Err(format!("[rt] ecu_priority = {} must be within 1..99", self.ecu_priority));
         }
         Ok(())
     }

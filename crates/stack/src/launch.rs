@@ -188,7 +188,9 @@ fn stop_all(services: &mut [Service]) -> Option<(ServiceId, String)> {
     failure
 }
 
-/// Live counts for the status line.
+/// Live counts for the status line. Its subscribers are polled on the
+/// launcher's 20 ms tick, so their queues never fill: a full queue would make
+/// every publish on the control path take back its oldest sample.
 struct Status {
     thrust: Subscriber<jetbench_msgs::Thrust>,
     state: Subscriber<jetbench_msgs::StateEstimate>,
@@ -197,6 +199,8 @@ struct Status {
     actuation: Subscriber<jetbench_msgs::Actuation>,
     health: Subscriber<Health>,
     counts: [u64; 5],
+    /// `counts` when the last line was printed.
+    printed: [u64; 5],
     misses: [u64; 8],
     last_thrust_n: f64,
     last_reference_n: f64,
@@ -204,15 +208,20 @@ struct Status {
 }
 
 impl Status {
+    /// Samples one tick may bring per channel, with room for a late tick
+    /// (six services share `bench/health`).
+    const DEPTH: usize = 64;
+
     fn new(bus: &Bus) -> Result<Self, BusError> {
         Ok(Status {
-            thrust: bus.polled_subscriber(channels::THRUST, 256)?,
-            state: bus.polled_subscriber(channels::STATE, 256)?,
-            reference: bus.polled_subscriber(channels::REFERENCE, 256)?,
-            command: bus.polled_subscriber(channels::COMMAND, 256)?,
-            actuation: bus.polled_subscriber(channels::ACTUATION, 256)?,
-            health: bus.polled_subscriber(channels::HEALTH, 512)?,
+            thrust: bus.polled_subscriber(channels::THRUST, Self::DEPTH)?,
+            state: bus.polled_subscriber(channels::STATE, Self::DEPTH)?,
+            reference: bus.polled_subscriber(channels::REFERENCE, Self::DEPTH)?,
+            command: bus.polled_subscriber(channels::COMMAND, Self::DEPTH)?,
+            actuation: bus.polled_subscriber(channels::ACTUATION, Self::DEPTH)?,
+            health: bus.polled_subscriber(channels::HEALTH, 8 * Self::DEPTH)?,
             counts: [0; 5],
+            printed: [0; 5],
             misses: [0; 8],
             last_thrust_n: f64::NAN,
             last_reference_n: f64::NAN,
@@ -220,7 +229,7 @@ impl Status {
         })
     }
 
-    fn drain<T: Sample>(sub: &Subscriber<T>, count: &mut u64, mut last: impl FnMut(&T)) -> Result<(), BusError> {
+    fn drain_one<T: Sample>(sub: &Subscriber<T>, count: &mut u64, mut last: impl FnMut(&T)) -> Result<(), BusError> {
         while let Some(s) = sub.try_recv()? {
             *count += 1;
             last(&s);
@@ -228,22 +237,27 @@ impl Status {
         Ok(())
     }
 
-    /// Drains everything and returns the line for the last `window`.
-    fn line(&mut self, elapsed: Duration, window: Duration) -> Result<String, BusError> {
-        let before = self.counts;
-        Self::drain(&self.thrust, &mut self.counts[0], |_| {})?;
-        Self::drain(&self.state, &mut self.counts[1], |s| self.last_thrust_n = s.thrust_n)?;
-        Self::drain(&self.reference, &mut self.counts[2], |r| self.last_reference_n = r.thrust_n)?;
-        Self::drain(&self.command, &mut self.counts[3], |_| {})?;
-        Self::drain(&self.actuation, &mut self.counts[4], |a| self.last_throttle_pct = a.applied_pct)?;
+    /// Takes everything queued since the last tick.
+    fn drain(&mut self) -> Result<(), BusError> {
+        Self::drain_one(&self.thrust, &mut self.counts[0], |_| {})?;
+        Self::drain_one(&self.state, &mut self.counts[1], |s| self.last_thrust_n = s.thrust_n)?;
+        Self::drain_one(&self.reference, &mut self.counts[2], |r| self.last_reference_n = r.thrust_n)?;
+        Self::drain_one(&self.command, &mut self.counts[3], |_| {})?;
+        Self::drain_one(&self.actuation, &mut self.counts[4], |a| self.last_throttle_pct = a.applied_pct)?;
         while let Some(h) = self.health.try_recv()? {
             if let Some(slot) = self.misses.get_mut(h.service_id as usize) {
                 *slot = h.deadline_misses;
             }
         }
+        Ok(())
+    }
+
+    /// The line for the `window` since the last one.
+    fn line(&mut self, elapsed: Duration, window: Duration) -> String {
+        let before = std::mem::replace(&mut self.printed, self.counts);
         let secs = window.as_secs_f64().max(1e-3);
         let rate = |i: usize| (self.counts[i] - before[i]) as f64 / secs;
-        Ok(format!(
+        format!(
             "{:>6.1} s | Hz thrust {:>5.1} state {:>5.1} ref {:>5.1} cmd {:>5.1} act {:>5.1} | T {:>6.1} N ref {:>6.1} N u {:>5.1} % | misses {}",
             elapsed.as_secs_f64(),
             rate(0),
@@ -255,7 +269,7 @@ impl Status {
             self.last_reference_n,
             self.last_throttle_pct,
             self.misses.iter().sum::<u64>(),
-        ))
+        )
     }
 }
 
@@ -334,7 +348,8 @@ fn start_and_supervise(
     );
 
     let bus = Bus::open("jetbench-up")?;
-    let mut status = Status::new(&bus)?;
+    // No status line, no subscribers: a quiet run adds nothing to the control path.
+    let mut status = if options.status { Some(Status::new(&bus)?) } else { None };
     let started = Instant::now();
     let tty = std::io::stderr().is_terminal();
     // A terminal gets a line rewritten every second, a log a line every 5 s.
@@ -347,13 +362,14 @@ fn start_and_supervise(
             return Flow::Stop;
         }
         let now = Instant::now();
-        if options.status && now - last_status >= status_every {
-            if let Ok(line) = status.line(now - started, now - last_status) {
+        if let Some(status) = status.as_mut() {
+            if status.drain().is_ok() && now - last_status >= status_every {
+                let line = status.line(now - started, now - last_status);
                 let mut err = std::io::stderr().lock();
                 let _ = if tty { write!(err, "\r{line}") } else { writeln!(err, "{line}") };
                 let _ = err.flush();
+                last_status = now;
             }
-            last_status = now;
         }
         match options.duration {
             Some(d) if now - started >= d => Flow::Stop,

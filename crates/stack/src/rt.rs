@@ -118,6 +118,20 @@ pub fn probe(request: &RtRequest) -> RtOutcome {
     outcome
 }
 
+/// Puts one thread of this process (not the caller) at SCHED_FIFO `priority`.
+pub fn set_thread_fifo(thread: libc::pthread_t, priority: u8) -> std::io::Result<()> {
+    if !(1..=99).contains(&priority) {
+        return Err(std::io::Error::new(std::io::ErrorKind::InvalidInput, "priority must be 1 to 99"));
+    }
+    let param = libc::sched_param { sched_priority: i32::from(priority) };
+    // SAFETY: `thread` is a live thread of this process (the caller holds its
+    // handle); `param` is a valid sched_param.
+    match unsafe { libc::pthread_setschedparam(thread, libc::SCHED_FIFO, &param) } {
+        0 => Ok(()),
+        e => Err(std::io::Error::from_raw_os_error(e)),
+    }
+}
+
 fn set_fifo(priority: u8) -> std::io::Result<()> {
     if !(1..=99).contains(&priority) {
         return Err(std::io::Error::new(std::io::ErrorKind::InvalidInput, "priority must be 1 to 99"));

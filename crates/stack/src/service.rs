@@ -353,8 +353,9 @@ pub fn run_control(config: &BenchConfig) -> Result<(), ServiceError> {
                                 health.error();
                                 log_rejection(step.fallbacks(), "MPC solve", &"fell back to FBL for this cycle");
                             }
-                            publish_now(&mut reference_pub, reference, |r, ns| r.publish_ns = ns)?;
+                            // The command first: it wakes actuation, the reference only the recorder.
                             publish_now(&mut command_pub, command, |c, ns| c.publish_ns = ns)?;
+                            publish_now(&mut reference_pub, reference, |r, ns| r.publish_ns = ns)?;
                         }
                         Err(e) => {
                             rejected += 1;
@@ -385,6 +386,15 @@ pub fn run_actuation(config: &BenchConfig) -> Result<(), ServiceError> {
     tracing::info!("driving the {}", board.describe());
     let ecu = EcuPoller::spawn(config.ecu_port(), config.ecu.baud, config.ecu.poll_hz, monotonic_ns)?;
     tracing::info!("polling the {} at {} Hz", ecu.describe(), config.ecu.poll_hz);
+    if config.rt.enabled {
+        // It inherited actuation's priority, the highest of the control path.
+        let priority = config.rt.ecu_priority;
+        match ecu.pthread().map(|t| crate::rt::set_thread_fifo(t, priority)) {
+            Some(Ok(())) => tracing::info!("ECU poller at SCHED_FIFO {priority}"),
+            Some(Err(e)) => tracing::warn!("cannot set the ECU poller to SCHED_FIFO {priority}: {e}"),
+            None => {}
+        }
+    }
     let mut actuation_pub = bus.publisher(channels::ACTUATION)?;
     let mut ecu_pub = bus.publisher(channels::ECU)?;
     let mut health = HealthReporter::new(&bus, ServiceId::Actuation)?;
