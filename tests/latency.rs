@@ -1,5 +1,6 @@
-//! `jetbench latency` end to end: the service set, the eventfd floor and both
-//! baselines run for real under a CPU load, and the report adds up.
+//! `jetbench latency` end to end: the service set over iceoryx2, the same set
+//! over Unix sockets and the eventfd floor run for real under a CPU load, and
+//! the report adds up.
 //!
 //! These tests assert what the run measured (cycles, completeness, losses,
 //! the JSON contract), never how fast: the latency figures themselves are in
@@ -60,12 +61,14 @@ fn latency_under_cpu_load_with_rt_measures_every_cycle() {
     ]);
     assert!(status.success(), "jetbench latency failed: {stderr}");
     let report: Value = serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("stdout is not JSON ({e}): {stdout}"));
-    for key in ["e2e_us", "floor_us", "uds_us", "iceoryx2_chain_us", "period_jitter_us"] {
+    for key in ["e2e_us", "floor_us", "uds_us", "period_jitter_us"] {
         percentiles_ok(&report, key);
     }
     for hop in ["sensing", "estimation", "control", "actuation"] {
         percentiles_ok(&report["hops_us"], hop);
+        percentiles_ok(&report["uds"]["hops_us"], hop);
     }
+    assert_eq!(report["rounds"].as_u64(), Some(2), "the default splits the run in two rounds");
     // 100 Hz for `seconds` after the warm-up: every cycle is judged, and every
     // judged cycle but those of the last half second reached the board.
     let cycles = report["cycles"].as_u64().expect("cycles");
@@ -76,9 +79,12 @@ fn latency_under_cpu_load_with_rt_measures_every_cycle() {
     assert!(completed + unfinished <= cycles && completed + 60 >= cycles, "{completed} of {cycles} completed");
     // The e2e distribution is exactly the completed cycles.
     assert_eq!(report["e2e_us"]["count"].as_u64(), Some(completed));
-    for (name, lost) in report["chain_lost"].as_object().expect("chain_lost") {
-        assert_eq!(lost.as_u64(), Some(0), "the {name} chain lost cycles: {report}");
-    }
+    // The copying baseline ran the same service set for as long.
+    let uds = &report["uds"];
+    let uds_cycles = uds["cycles"].as_u64().expect("uds.cycles");
+    assert!(uds_cycles.abs_diff(expected) <= expected / 10, "{uds_cycles} baseline cycles, expected about {expected}");
+    assert_eq!(report["uds_us"]["count"].as_u64(), uds["completed"].as_u64());
+    assert_eq!(report["floor_lost"].as_u64(), Some(0), "the floor chain lost cycles: {report}");
     assert!(report["deadline_misses"].as_u64().is_some() && report["lost"].as_u64().is_some());
     assert!(report["load"].as_str().is_some_and(|l| l.contains("cpu")), "{}", report["load"]);
     // With real-time permission (root here) nothing is refused; without it the
@@ -88,6 +94,7 @@ fn latency_under_cpu_load_with_rt_measures_every_cycle() {
     if unsafe { libc::geteuid() } == 0 {
         assert!(refused.is_empty(), "root was refused real-time settings: {refused:?}");
         assert_eq!(report["lost"].as_u64(), Some(0), "samples lost under --rt: {report}");
+        assert_eq!(uds["lost"].as_u64(), Some(0), "samples lost over Unix sockets under --rt: {report}");
     } else {
         assert!(!refused.is_empty(), "a non-root run must say what it could not set");
     }
@@ -105,4 +112,7 @@ fn bad_options_are_refused_with_the_reason() {
     let (status, _, stderr) = run_latency(&["--load", "gpu"]);
     assert!(!status.success());
     assert!(stderr.contains("gpu"), "{stderr}");
+    let (status, _, stderr) = run_latency(&["--duration", "3", "--rounds", "4"]);
+    assert!(!status.success());
+    assert!(stderr.contains("--rounds"), "{stderr}");
 }

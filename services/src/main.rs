@@ -191,6 +191,27 @@ struct UpArgs {
     /// (CSV `time_s,throttle_pct`, e.g. from `jetbench excite`).
     #[arg(long, value_name = "FILE.csv", conflicts_with_all = ["controller", "profile"])]
     open_loop: Option<PathBuf>,
+    /// How samples travel between the services: iceoryx2 shared memory, or
+    /// copied through Unix domain sockets (uds, the baseline `jetbench latency`
+    /// measures against). Default: $JETBENCH_TRANSPORT, else iceoryx2.
+    #[arg(long, value_enum)]
+    transport: Option<TransportArg>,
+}
+
+/// `--transport` values.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum TransportArg {
+    Iceoryx2,
+    Uds,
+}
+
+impl From<TransportArg> for jetbench_bus::Transport {
+    fn from(t: TransportArg) -> Self {
+        match t {
+            TransportArg::Iceoryx2 => jetbench_bus::Transport::Iceoryx2,
+            TransportArg::Uds => jetbench_bus::Transport::UnixSockets,
+        }
+    }
 }
 
 impl UpArgs {
@@ -256,7 +277,7 @@ fn cmd_up(args: UpArgs) -> anyhow::Result<ExitCode> {
     } else {
         args.config.clone()
     };
-    let result = run_up(args.sim, config, args.duration, args.record, args.quiet, args.rt, &checked);
+    let result = run_up(&args, config, &checked);
     if let Some(path) = derived {
         let _ = std::fs::remove_file(path);
     }
@@ -264,14 +285,16 @@ fn cmd_up(args: UpArgs) -> anyhow::Result<ExitCode> {
 }
 
 fn run_up(
-    sim: bool,
+    args: &UpArgs,
     config: Option<PathBuf>,
-    duration: Option<f64>,
-    record: Option<PathBuf>,
-    quiet: bool,
-    rt: bool,
     checked: &jetbench_stack::config::BenchConfig,
 ) -> anyhow::Result<ExitCode> {
+    let UpArgs { sim, duration, quiet, rt, .. } = *args;
+    let record = args.record.clone();
+    let transport = match args.transport {
+        Some(t) => t.into(),
+        None => jetbench_bus::transport()?,
+    };
     if !sim && config.is_none() {
         bail!("no bench config given: use --sim for the simulated bench, or --config FILE");
     }
@@ -301,6 +324,7 @@ fn run_up(
         status: !quiet,
         simulated: checked.bench.devices == jetbench_stack::config::Devices::Sim,
         rt,
+        transport,
     };
     up(&options)?;
     println!("all services stopped cleanly");

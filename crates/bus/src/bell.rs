@@ -34,6 +34,9 @@ struct Shared {
     /// while this is 0. A process killed in its sleep leaves it raised, which
     /// only costs later rings a system call that wakes nobody.
     sleepers: AtomicU32,
+    /// Bumped whenever a socket subscriber comes or goes (the Unix-socket
+    /// transport, [`crate::uds`]): its publishers look for subscribers only then.
+    generation: AtomicU32,
 }
 
 const FILE_SIZE: u64 = 64;
@@ -133,6 +136,16 @@ impl Doorbell {
     /// its queue empty knows the queue is still empty while it is unchanged.
     pub fn rings(&self) -> u32 {
         self.shared().rings.load(Ordering::Acquire)
+    }
+
+    /// The subscriber generation (see [`Shared::generation`]).
+    pub fn generation(&self) -> u32 {
+        self.shared().generation.load(Ordering::Acquire)
+    }
+
+    /// Tells publishers that a subscriber came or went.
+    pub fn bump_generation(&self) {
+        self.shared().generation.fetch_add(1, Ordering::AcqRel);
     }
 
     /// True if it rang since [`take`](Self::take) last ran.

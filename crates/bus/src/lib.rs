@@ -7,6 +7,10 @@
 //! sleep on their inputs' doorbells with a deadline ([`Bus::run`]) instead of
 //! polling. The doorbell module says why it is not iceoryx2's event service.
 //!
+//! The same API runs over a second, copying transport, Unix domain sockets
+//! ([`uds`], chosen with `JETBENCH_TRANSPORT=uds`): the baseline the zero-copy
+//! bus is measured against, with everything else about a service unchanged.
+//!
 //! ```no_run
 //! use jetbench_bus::{Bus, Flow, Wake};
 //! use jetbench_msgs::{channels, Thrust};
@@ -44,6 +48,7 @@ use iceoryx2::prelude::*;
 use jetbench_msgs::{Channel, Sample};
 
 pub mod bell;
+pub mod uds;
 
 use bell::{Doorbell, Woke};
 
@@ -119,6 +124,55 @@ pub fn request_stop() {
 /// (its default level warns about the missing config file on every start).
 fn quiet_iceoryx_log() {
     set_log_level_from_env_or(LogLevel::Error);
+}
+
+/// How samples travel between the processes of a service set.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Transport {
+    /// Shared in iceoryx2 shared memory, never copied (the default).
+    Iceoryx2,
+    /// Copied through Unix domain sockets ([`uds`]): the baseline.
+    UnixSockets,
+}
+
+impl Transport {
+    /// `iceoryx2` or `uds`, as [`TRANSPORT_ENV`] and `--transport` spell it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Transport::Iceoryx2 => "iceoryx2",
+            Transport::UnixSockets => "uds",
+        }
+    }
+}
+
+impl std::fmt::Display for Transport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Transport {
+    type Err = BusError;
+
+    fn from_str(s: &str) -> Result<Self, BusError> {
+        match s {
+            "iceoryx2" | "" => Ok(Transport::Iceoryx2),
+            "uds" => Ok(Transport::UnixSockets),
+            _ => Err(BusError::InvalidName {
+                name: s.into(),
+                reason: format!("{TRANSPORT_ENV} is iceoryx2 (the default) or uds"),
+            }),
+        }
+    }
+}
+
+/// Environment variable that chooses the [`Transport`] of every process of a
+/// service set (`jetbench up --transport` sets it for the services it starts).
+pub const TRANSPORT_ENV: &str = "JETBENCH_TRANSPORT";
+
+/// The transport [`TRANSPORT_ENV`] chooses; iceoryx2 when it is unset.
+pub fn transport() -> Result<Transport, BusError> {
+    std::env::var(TRANSPORT_ENV).unwrap_or_default().parse()
 }
 
 /// Environment variable that names the bus namespace. Service sets in
@@ -216,12 +270,18 @@ pub fn list_channels() -> Vec<String> {
 pub struct Bus {
     node: Node<ipc::Service>,
     name: String,
+    transport: Transport,
 }
 
 impl Bus {
     /// Cleans up dead nodes, creates this process's node and installs the
     /// SIGINT/SIGTERM flag.
     pub fn open(node_name: &str) -> Result<Bus, BusError> {
+        Self::open_with(node_name, transport()?)
+    }
+
+    /// As [`Bus::open`], on a chosen transport rather than [`TRANSPORT_ENV`]'s.
+    pub fn open_with(node_name: &str, transport: Transport) -> Result<Bus, BusError> {
         quiet_iceoryx_log();
         install_signal_flag()?;
         namespace()?;
@@ -238,11 +298,20 @@ impl Bus {
             .signal_handling_mode(SignalHandlingMode::Disabled)
             .create::<ipc::Service>()
             .map_err(|e| BusError::NodeCreate { node: node_name.into(), reason: format!("{e:?}") })?;
-        Ok(Bus { node, name: node_name.to_string() })
+        Ok(Bus { node, name: node_name.to_string(), transport })
     }
 
     pub fn name(&self) -> &str {
         &self.name
+    }
+
+    /// How this process's samples travel.
+    pub fn transport(&self) -> Transport {
+        self.transport
+    }
+
+    fn socket_dir(&self, channel: &str) -> Result<std::path::PathBuf, BusError> {
+        Ok(uds::channel_dir(namespace()?.as_deref(), channel))
     }
 
     /// See [`stop_requested`].
@@ -282,9 +351,18 @@ impl Bus {
     /// Creates a publisher on `channel`. Its `seq` starts at 0.
     pub fn publisher<T: Sample>(&self, channel: Channel<T>) -> Result<Publisher<T>, BusError> {
         let port_err = |e: String| BusError::PortCreate { channel: channel.name.into(), reason: e };
-        let publisher = self.pubsub(channel)?.publisher_builder().create().map_err(|e| port_err(format!("{e:?}")))?;
+        let port = match self.transport {
+            Transport::Iceoryx2 => PublisherPort::Shared(
+                self.pubsub(channel)?.publisher_builder().create().map_err(|e| port_err(format!("{e:?}")))?,
+            ),
+            Transport::UnixSockets => {
+                check_socket_size::<T>(channel)?;
+                let dir = self.socket_dir(channel.name)?;
+                PublisherPort::Socket(uds::Outbox::open(&dir).map_err(|e| port_err(format!("{}: {e}", dir.display())))?)
+            }
+        };
         let bell = self.doorbell(channel.name)?;
-        Ok(Publisher { publisher, bell, channel, next_seq: 0 })
+        Ok(Publisher { port, bell, channel, next_seq: 0 })
     }
 
     /// Creates a subscriber on `channel` that queues up to `depth` samples
@@ -310,15 +388,27 @@ impl Bus {
         woken: bool,
     ) -> Result<Subscriber<T>, BusError> {
         let port_err = |e: String| BusError::PortCreate { channel: channel.name.into(), reason: e };
-        let subscriber = self
-            .pubsub(channel)?
-            .subscriber_builder()
-            .buffer_size(depth.clamp(1, limits::MAX_BUFFER))
-            .create()
-            .map_err(|e| port_err(format!("{e:?}")))?;
+        let depth = depth.clamp(1, limits::MAX_BUFFER);
         let bell = self.doorbell(channel.name)?;
+        let port = match self.transport {
+            Transport::Iceoryx2 => SubscriberPort::Shared(
+                self.pubsub(channel)?
+                    .subscriber_builder()
+                    .buffer_size(depth)
+                    .create()
+                    .map_err(|e| port_err(format!("{e:?}")))?,
+            ),
+            Transport::UnixSockets => {
+                check_socket_size::<T>(channel)?;
+                let dir = self.socket_dir(channel.name)?;
+                SubscriberPort::Socket(
+                    uds::Inbox::open(&dir, depth, woken, &bell)
+                        .map_err(|e| port_err(format!("{}: {e}", dir.display())))?,
+                )
+            }
+        };
         Ok(Subscriber {
-            subscriber,
+            port,
             accounted: Cell::new(bell.rings()),
             bell,
             woken,
@@ -348,14 +438,15 @@ impl Bus {
         F: FnMut(Wake) -> Flow,
     {
         let wait_err = |what: &str, e: String| BusError::Wait { reason: format!("{what}: {e}") };
-        let bells = inputs
+        let wakers = inputs
             .iter()
             .map(|(trigger, _)| {
-                trigger.bell().ok_or_else(|| {
-                    wait_err("attach input", "a polled subscriber has no doorbell to wake a loop with".into())
+                trigger.waker().ok_or_else(|| {
+                    wait_err("attach input", "a polled subscriber cannot wake a loop (use Bus::subscriber)".into())
                 })
             })
-            .collect::<Result<Vec<&Doorbell>, BusError>>()?;
+            .collect::<Result<Vec<Waker>, BusError>>()?;
+        let mut waiting = Waiting::new(&wakers).map_err(|e| wait_err("attach input", e))?;
         let start = Instant::now();
         let mut missed_at: Vec<Option<Instant>> = inputs.iter().map(|(_, d)| d.map(|d| start + d)).collect();
         let mut next_tick = tick.map(|t| start + t);
@@ -367,13 +458,13 @@ impl Bus {
             let wake_at =
                 missed_at.iter().flatten().chain(&next_tick).fold(Instant::now() + SIGNAL_POLL, |a, &b| a.min(b));
             // Interrupted: any signal (SIGCHLD included); the flag decides.
-            if bell::wait_any(&bells, wake_at).map_err(|e| wait_err("wait", e.to_string()))? == Woke::Interrupted {
+            if waiting.wait(wake_at).map_err(|e| wait_err("wait", e.to_string()))? == Woke::Interrupted {
                 continue;
             }
             let now = Instant::now();
-            for (i, bell) in bells.iter().enumerate() {
+            for (i, waker) in wakers.iter().enumerate() {
                 let deadline = inputs[i].1;
-                let wake = if bell.take() {
+                let wake = if waker.take() {
                     Wake::Input(i)
                 } else if missed_at[i].is_some_and(|at| now >= at) {
                     Wake::Missed(i)
@@ -445,13 +536,57 @@ pub enum LoopExit {
 
 /// Something [`Bus::run`] can wait on.
 pub trait Trigger {
-    /// The doorbell publishers ring; `None` for a polled subscriber.
-    fn bell(&self) -> Option<&Doorbell>;
+    /// What wakes it; `None` for a polled subscriber.
+    fn waker(&self) -> Option<Waker<'_>>;
+}
+
+/// What wakes a consumer: its channel's doorbell (iceoryx2) or its sockets.
+#[derive(Clone, Copy)]
+pub enum Waker<'a> {
+    Bell(&'a Doorbell),
+    Socket(&'a uds::Inbox),
+}
+
+impl Waker<'_> {
+    /// True if it woke since the last call.
+    fn take(&self) -> bool {
+        match self {
+            Waker::Bell(bell) => bell.take(),
+            Waker::Socket(inbox) => inbox.take_ready(),
+        }
+    }
+}
+
+/// The inputs of one loop, on one transport.
+enum Waiting<'a> {
+    Bells(Vec<&'a Doorbell>),
+    Sockets(Vec<&'a uds::Inbox>, Vec<libc::pollfd>),
+}
+
+impl<'a> Waiting<'a> {
+    fn new(wakers: &[Waker<'a>]) -> Result<Self, String> {
+        let bells: Vec<&Doorbell> =
+            wakers.iter().filter_map(|w| if let Waker::Bell(b) = w { Some(*b) } else { None }).collect();
+        let inboxes: Vec<&uds::Inbox> =
+            wakers.iter().filter_map(|w| if let Waker::Socket(i) = w { Some(*i) } else { None }).collect();
+        match (bells.is_empty(), inboxes.is_empty()) {
+            (_, true) => Ok(Waiting::Bells(bells)),
+            (true, false) => Ok(Waiting::Sockets(inboxes, Vec::with_capacity(64))),
+            (false, false) => Err("the inputs of one loop must share a transport".into()),
+        }
+    }
+
+    fn wait(&mut self, deadline: Instant) -> std::io::Result<Woke> {
+        match self {
+            Waiting::Bells(bells) => bell::wait_any(bells, deadline),
+            Waiting::Sockets(inboxes, fds) => uds::wait_any(inboxes, deadline, fds),
+        }
+    }
 }
 
 /// Publishes samples of one type, stamping each with a contiguous `seq`.
 pub struct Publisher<T: Sample> {
-    publisher: iceoryx2::port::publisher::Publisher<ipc::Service, T, ()>,
+    port: PublisherPort<T>,
     bell: Doorbell,
     channel: Channel<T>,
     next_seq: u64,
@@ -464,10 +599,18 @@ impl<T: Sample> Publisher<T> {
         let seq = self.next_seq;
         sample.set_seq(seq);
         let send_err = |e: String| BusError::Send { channel: self.channel.name.into(), reason: e };
-        let slot = self.publisher.loan_uninit().map_err(|e| send_err(format!("{e:?}")))?;
-        slot.write_payload(sample).send().map_err(|e| send_err(format!("{e:?}")))?;
-        self.next_seq += 1;
-        self.bell.ring().map_err(|e| send_err(format!("ring: {e}")))?;
+        match &mut self.port {
+            PublisherPort::Shared(publisher) => {
+                let slot = publisher.loan_uninit().map_err(|e| send_err(format!("{e:?}")))?;
+                slot.write_payload(sample).send().map_err(|e| send_err(format!("{e:?}")))?;
+                self.next_seq += 1;
+                self.bell.ring().map_err(|e| send_err(format!("ring: {e}")))?;
+            }
+            PublisherPort::Socket(outbox) => {
+                outbox.send(sample.as_bytes(), &self.bell).map_err(|e| send_err(e.to_string()))?;
+                self.next_seq += 1;
+            }
+        }
         Ok(seq)
     }
 
@@ -481,9 +624,38 @@ impl<T: Sample> Publisher<T> {
     }
 }
 
+/// How a publisher's samples leave.
+enum PublisherPort<T: Sample> {
+    Shared(iceoryx2::port::publisher::Publisher<ipc::Service, T, ()>),
+    Socket(uds::Outbox),
+}
+
+/// Where a subscriber's samples arrive.
+enum SubscriberPort<T: Sample> {
+    Shared(iceoryx2::port::subscriber::Subscriber<ipc::Service, T, ()>),
+    Socket(uds::Inbox),
+}
+
+/// Refuses a sample type too large for the socket transport (none of the
+/// service set's is).
+fn check_socket_size<T: Sample>(channel: Channel<T>) -> Result<(), BusError> {
+    if std::mem::size_of::<T>() > uds::MAX_SAMPLE_BYTES {
+        return Err(BusError::PortCreate {
+            channel: channel.name.into(),
+            reason: format!(
+                "{} is {} bytes; the socket transport carries at most {}",
+                T::NAME,
+                std::mem::size_of::<T>(),
+                uds::MAX_SAMPLE_BYTES
+            ),
+        });
+    }
+    Ok(())
+}
+
 /// Receives samples of one type and counts lost ones from `seq` gaps.
 pub struct Subscriber<T: Sample> {
-    subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, T, ()>,
+    port: SubscriberPort<T>,
     /// The channel's doorbell. Every subscriber reads its ring count; only a
     /// woken one (not [`Bus::polled_subscriber`]) sleeps on it.
     bell: Doorbell,
@@ -498,7 +670,7 @@ pub struct Subscriber<T: Sample> {
     accounted: Cell<u32>,
     channel: Channel<T>,
     /// Next expected `seq` per publisher.
-    seq_tracks: RefCell<Vec<(iceoryx2::identifiers::UniquePublisherId, u64)>>,
+    seq_tracks: RefCell<Vec<(u128, u64)>>,
     received: Cell<u64>,
     gaps: Cell<u64>,
 }
@@ -506,28 +678,45 @@ pub struct Subscriber<T: Sample> {
 impl<T: Sample> Subscriber<T> {
     /// Takes the oldest queued sample, if any.
     pub fn try_recv(&self) -> Result<Option<T>, BusError> {
-        let rings = self.bell.rings();
-        if rings == self.accounted.get() {
-            return Ok(None);
-        }
-        let sample = self
-            .subscriber
-            .receive()
-            .map_err(|e| BusError::Receive { channel: self.channel.name.into(), reason: format!("{e:?}") })?;
-        let Some(sample) = sample else {
-            // Rings without a sample here: samples published before this
-            // subscriber was connected, or dropped from a full queue.
-            self.accounted.set(rings);
-            return Ok(None);
+        let receive_err = |reason: String| BusError::Receive { channel: self.channel.name.into(), reason };
+        let (publisher, value) = match &self.port {
+            SubscriberPort::Shared(subscriber) => {
+                let rings = self.bell.rings();
+                if rings == self.accounted.get() {
+                    return Ok(None);
+                }
+                let Some(sample) = subscriber.receive().map_err(|e| receive_err(format!("{e:?}")))? else {
+                    // Rings without a sample here: samples published before this
+                    // subscriber was connected, or dropped from a full queue.
+                    self.accounted.set(rings);
+                    return Ok(None);
+                };
+                self.accounted.set(self.accounted.get().wrapping_add(1));
+                (sample.header().publisher_id().value(), *sample.payload())
+            }
+            SubscriberPort::Socket(inbox) => {
+                let taken = inbox
+                    .take(|publisher, bytes| (publisher, bytes.len(), T::from_bytes(bytes)))
+                    .map_err(|e| receive_err(e.to_string()))?;
+                match taken {
+                    None => return Ok(None),
+                    Some((publisher, _, Some(value))) => (u128::from(publisher), value),
+                    Some((_, len, None)) => {
+                        return Err(receive_err(format!(
+                            "a message of {len} bytes is no {} sample ({} bytes): a publisher of another build?",
+                            T::NAME,
+                            std::mem::size_of::<T>()
+                        )))
+                    }
+                }
+            }
         };
-        self.accounted.set(self.accounted.get().wrapping_add(1));
-        let value = *sample.payload();
-        self.track(sample.header().publisher_id(), value.seq());
+        self.track(publisher, value.seq());
         self.received.set(self.received.get() + 1);
         Ok(Some(value))
     }
 
-    fn track(&self, publisher: iceoryx2::identifiers::UniquePublisherId, seq: u64) {
+    fn track(&self, publisher: u128, seq: u64) {
         let mut tracks = self.seq_tracks.borrow_mut();
         match tracks.iter_mut().find(|(id, _)| *id == publisher) {
             Some((_, expected)) => {
@@ -561,16 +750,17 @@ impl<T: Sample> Subscriber<T> {
             if now >= deadline || stop_requested() {
                 return Ok(None);
             }
-            if !self.woken {
+            let Some(waker) = self.waker() else {
                 // Polled: look again shortly.
                 std::thread::sleep((deadline - now).min(Duration::from_millis(1)));
                 continue;
-            }
-            let bell = &self.bell;
-            // Take first: a sample published from here on rings again.
-            if !bell.take() {
+            };
+            // Take first: a sample published from here on wakes the wait.
+            if !waker.take() {
+                let mut waiting = Waiting::new(&[waker])
+                    .map_err(|e| BusError::Receive { channel: self.channel.name.into(), reason: e })?;
                 // A signal cutting the wait short is fine: the stop flag decides what it meant.
-                bell::wait_any(&[bell], deadline.min(now + SIGNAL_POLL)).map_err(|e| BusError::Receive {
+                waiting.wait(deadline.min(now + SIGNAL_POLL)).map_err(|e| BusError::Receive {
                     channel: self.channel.name.into(),
                     reason: format!("wait: {e}"),
                 })?;
@@ -599,8 +789,22 @@ impl<T: Sample> Subscriber<T> {
 }
 
 impl<T: Sample> Trigger for Subscriber<T> {
-    fn bell(&self) -> Option<&Doorbell> {
-        self.woken.then_some(&self.bell)
+    fn waker(&self) -> Option<Waker<'_>> {
+        if !self.woken {
+            return None;
+        }
+        Some(match &self.port {
+            SubscriberPort::Shared(_) => Waker::Bell(&self.bell),
+            SubscriberPort::Socket(inbox) => Waker::Socket(inbox),
+        })
+    }
+}
+
+impl<T: Sample> Drop for Subscriber<T> {
+    fn drop(&mut self) {
+        if let SubscriberPort::Socket(inbox) = &self.port {
+            inbox.close(&self.bell);
+        }
     }
 }
 

@@ -1,40 +1,31 @@
-//! Reference chains for `jetbench latency`: the service set's control path
-//! rebuilt with a chosen transport, so the real pipeline's latency can be
-//! read against what the machine and a copying transport would give.
+//! The machine's floor for `jetbench latency`: a bare event ping chained
+//! through as many processes as the control path has.
 //!
 //! The control path is sensing → estimation → control → actuation: four
-//! processes, three hand-overs. A chain runs four `jetbench latency-stage`
-//! processes in that shape, each at the real-time settings of the service it
-//! stands for, and stamps every hand-over with `CLOCK_MONOTONIC`:
-//! - [`Transport::EventFd`], the machine's floor: a bare eventfd ping from
-//!   process to process, no payload and no work. No chain can be faster.
-//! - [`Transport::Uds`], the copying baseline: the real steps
-//!   ([`Sensing`](crate::step::Sensing), [`Estimation`](crate::step::Estimation),
-//!   [`Control`](crate::step::Control), [`Actuator`](crate::step::Actuator)) with their
-//!   samples copied through Unix domain sockets (`SOCK_SEQPACKET`).
-//! - [`Transport::Iceoryx`]: the same steps over iceoryx2 shared memory
-//!   (`jetbench_bus`, each consumer asleep on its input's doorbell, as the services consume),
-//!   on channels private to the run (`latency/<run>/thrust`, `.../state`,
-//!   `.../command`), so a running service set is not disturbed.
+//! processes, three hand-overs. The floor chain runs four `jetbench
+//! latency-stage` processes in that shape, each at the real-time settings of
+//! the service it stands for, passing an eventfd ping on with no payload and
+//! no work: what waking the next process costs on this machine, under the
+//! same load and priorities, below which no pipeline can go.
 //!
 //! Stage 0 is clocked like a sensor: `clock_nanosleep(TIMER_ABSTIME)` at the
 //! period; the time it wakes is the cycle's `t0` (the pipeline's "sensor frame
-//! received"). Stage 3 stamps the time the actuator's output was ready (the
-//! pipeline's "command frame written"). No stage busy-waits: each blocks in
-//! `poll`, a futex wait or `clock_nanosleep`, which is what makes SCHED_FIFO on
-//! two cores safe. Stages keep their stamps in memory and send them to the
-//! parent on their own pipe after the last cycle (the source's end marker
-//! comes a period after it), so reporting never holds up a hand-over; the
-//! parent joins them by cycle.
+//! received"). Each later stage stamps the time it woke with the ping; stage
+//! 3's is the cycle's end. No stage busy-waits: each blocks in `poll` or
+//! `clock_nanosleep`, which is what makes SCHED_FIFO on two cores safe.
+//! Stages keep their stamps in memory and send them to the parent on their
+//! own pipe after the last cycle (the source's end marker comes a period
+//! after it), so reporting never holds up a hand-over; the parent joins them
+//! by cycle.
 //!
 //! ```no_run
-//! use jetbench_stack::chain::{run_chain, ChainOptions, Transport};
+//! use jetbench_stack::chain::{run_chain, ChainOptions};
 //! use jetbench_stack::config::BenchConfig;
 //! use std::time::Duration;
 //!
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! let config = BenchConfig::default_sim()?;
-//! let mut options = ChainOptions::new(Transport::EventFd, std::env::current_exe()?);
+//! let mut options = ChainOptions::new(std::env::current_exe()?);
 //! options.duration = Duration::from_secs(20);
 //! options.rt = jetbench_stack::chain::stage_rt_requests(&config.rt, true);
 //! let run = run_chain(&options)?;
@@ -46,15 +37,12 @@
 //! ```
 
 use std::collections::HashMap;
-use std::fmt;
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd, RawFd};
 use std::os::unix::process::CommandExt;
 use std::path::PathBuf;
 use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
-use std::str::FromStr;
-use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::mpsc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -84,59 +72,6 @@ const READY_TIMEOUT: Duration = Duration::from_secs(20);
 /// How long a stage may take to exit after SIGTERM before SIGKILL.
 const STOP_TIMEOUT: Duration = Duration::from_secs(5);
 
-/// How the stages hand a cycle on.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Transport {
-    /// A bare eventfd ping, no payload, no work: the machine's floor.
-    EventFd,
-    /// The real steps, samples copied over Unix domain sockets.
-    Uds,
-    /// The real steps, samples in iceoryx2 shared memory (as the services run).
-    Iceoryx,
-}
-
-impl Transport {
-    pub const ALL: [Transport; 3] = [Transport::EventFd, Transport::Uds, Transport::Iceoryx];
-
-    /// `eventfd`, `uds` or `iceoryx2`.
-    pub fn name(self) -> &'static str {
-        match self {
-            Transport::EventFd => "eventfd",
-            Transport::Uds => "uds",
-            Transport::Iceoryx => "iceoryx2",
-        }
-    }
-
-    /// True when the stages run the real steps on real samples.
-    pub fn carries_samples(self) -> bool {
-        self != Transport::EventFd
-    }
-}
-
-impl fmt::Display for Transport {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-/// A transport name that is none of `eventfd`, `uds`, `iceoryx2`.
-#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
-#[error("unknown transport {0:?}: use eventfd, uds or iceoryx2")]
-pub struct ParseTransportError(String);
-
-impl FromStr for Transport {
-    type Err = ParseTransportError;
-
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "eventfd" => Ok(Transport::EventFd),
-            "uds" => Ok(Transport::Uds),
-            "iceoryx2" | "iceoryx" => Ok(Transport::Iceoryx),
-            _ => Err(ParseTransportError(s.to_string())),
-        }
-    }
-}
-
 /// The real-time request of each stage: that of the service it stands for
 /// (`None` when `[rt]` is off and not forced, as `jetbench up --rt` forces it).
 pub fn stage_rt_requests(rt: &RtSection, force: bool) -> Option<[RtRequest; STAGES]> {
@@ -147,7 +82,6 @@ pub fn stage_rt_requests(rt: &RtSection, force: bool) -> Option<[RtRequest; STAG
 /// What [`run_chain`] runs.
 #[derive(Clone, Debug)]
 pub struct ChainOptions {
-    pub transport: Transport,
     /// How long the source runs: `duration / period` cycles.
     pub duration: Duration,
     /// The source's period (the control period, 10 ms).
@@ -157,24 +91,16 @@ pub struct ChainOptions {
     pub rt: Option<[RtRequest; STAGES]>,
     /// The `jetbench` binary, whose hidden `latency-stage` command runs a stage.
     pub exe: PathBuf,
-    /// Bench config for the steps' settings (model, estimator, control law,
-    /// calibration); `None` is the built-in simulated bench.
-    pub config: Option<PathBuf>,
-    /// Bus namespace of the stages (`JETBENCH_BUS`); `None` inherits this process's.
-    pub bus_namespace: Option<String>,
 }
 
 impl ChainOptions {
-    /// 10 s at the control period, without real-time settings, on the built-in config.
-    pub fn new(transport: Transport, exe: impl Into<PathBuf>) -> Self {
+    /// 10 s at the control period, without real-time settings.
+    pub fn new(exe: impl Into<PathBuf>) -> Self {
         ChainOptions {
-            transport,
             duration: Duration::from_secs(10),
             period: Duration::from_nanos(PERIOD_NS),
             rt: None,
             exe: exe.into(),
-            config: None,
-            bus_namespace: None,
         }
     }
 
@@ -211,25 +137,19 @@ pub enum ChainError {
     NotFinished { stage: usize, service: &'static str, timeout: Duration },
     #[error("chain stage {stage} ({service}) sent malformed output: {what}")]
     Protocol { stage: usize, service: &'static str, what: String },
-    #[error("the {transport} chain completed no cycle (the source sent {sent})")]
-    NoRecords { transport: Transport, sent: u64 },
+    #[error("the chain completed no cycle (the source sent {sent})")]
+    NoRecords { sent: u64 },
     #[error("the chain run was interrupted")]
     Interrupted,
 }
 
-/// One stage's stamps of one cycle, as a stage reports them.
-///
-/// Stage 0 fills every field. Downstream stages of a sample-carrying chain
-/// give the cycle's `stamp_ns` (its `t0`, which every step copies from its
-/// input) and [`StageRecord::NO_CYCLE`]; eventfd stages, which carry no
-/// payload, count the pings instead (an eventfd cannot lose one) and give
-/// `stamp_ns = 0`.
+/// One stage's stamps of one cycle, as a stage reports them. Stages carry
+/// no payload: downstream stages number the cycles by counting pings (an
+/// eventfd cannot lose one).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct StageRecord {
     pub cycle: u64,
-    /// The cycle's `t0`, ns (`CLOCK_MONOTONIC`); 0 when unknown.
-    pub stamp_ns: u64,
-    /// When the stage woke with its input in hand (stage 0: its clock), ns.
+    /// When the stage woke with its ping (stage 0: its clock), ns.
     pub wake_ns: u64,
     /// When its output was sent (stage 3: the actuator's output ready), ns.
     pub sent_ns: u64,
@@ -238,14 +158,12 @@ pub struct StageRecord {
 }
 
 impl StageRecord {
-    /// The cycle number of a record joined by its `stamp_ns`.
-    pub const NO_CYCLE: u64 = u64::MAX;
     /// Bytes of a record on the result pipe.
-    pub const BYTES: usize = 40;
+    pub const BYTES: usize = 32;
 
     fn to_bytes(self) -> [u8; Self::BYTES] {
         let mut out = [0; Self::BYTES];
-        for (i, v) in [self.cycle, self.stamp_ns, self.wake_ns, self.sent_ns, self.scheduled_ns].iter().enumerate() {
+        for (i, v) in [self.cycle, self.wake_ns, self.sent_ns, self.scheduled_ns].iter().enumerate() {
             out[8 * i..8 * i + 8].copy_from_slice(&v.to_le_bytes());
         }
         out
@@ -256,7 +174,7 @@ impl StageRecord {
             return None;
         }
         let v = |i: usize| u64::from_le_bytes(bytes[8 * i..8 * i + 8].try_into().expect("8 bytes"));
-        Some(StageRecord { cycle: v(0), stamp_ns: v(1), wake_ns: v(2), sent_ns: v(3), scheduled_ns: v(4) })
+        Some(StageRecord { cycle: v(0), wake_ns: v(1), sent_ns: v(2), scheduled_ns: v(3) })
     }
 }
 
@@ -352,7 +270,6 @@ impl StageReport {
 /// The outcome of [`run_chain`].
 #[derive(Clone, Debug)]
 pub struct ChainRun {
-    pub transport: Transport,
     pub period: Duration,
     /// Cycles the source sent.
     pub sent: u64,
@@ -372,7 +289,6 @@ pub struct ChainRun {
 impl ChainRun {
     /// Joins the stages' records (index = stage) by cycle.
     pub fn from_records(
-        transport: Transport,
         period: Duration,
         records: &[Vec<StageRecord>; STAGES],
         stages: Vec<StageReport>,
@@ -381,7 +297,6 @@ impl ChainRun {
         source.sort_by_key(|r| r.cycle);
         source.dedup_by_key(|r| r.cycle);
         let by_cycle: HashMap<u64, usize> = source.iter().enumerate().map(|(i, r)| (r.cycle, i)).collect();
-        let by_stamp: HashMap<u64, usize> = source.iter().enumerate().map(|(i, r)| (r.stamp_ns, i)).collect();
         let mut cycles: Vec<ChainCycle> = source
             .iter()
             .map(|r| ChainCycle {
@@ -394,8 +309,7 @@ impl ChainRun {
         let mut seen = vec![1u8; source.len()];
         for (k, stage) in records.iter().enumerate().skip(1) {
             for r in stage {
-                let slot = if r.stamp_ns != 0 { by_stamp.get(&r.stamp_ns) } else { by_cycle.get(&r.cycle) };
-                if let Some(&i) = slot {
+                if let Some(&i) = by_cycle.get(&r.cycle) {
                     cycles[i].wake_ns[k] = r.wake_ns;
                     cycles[i].sent_ns[k] = r.sent_ns;
                     seen[i] |= 1 << k;
@@ -416,10 +330,9 @@ impl ChainRun {
         let complete: Vec<ChainCycle> =
             cycles.into_iter().zip(seen).filter(|&(_, s)| s == all).map(|(c, _)| c).collect();
         if complete.is_empty() {
-            return Err(ChainError::NoRecords { transport, sent });
+            return Err(ChainError::NoRecords { sent });
         }
         Ok(ChainRun {
-            transport,
             period,
             sent,
             lost: sent - complete.len() as u64,
@@ -462,8 +375,7 @@ pub fn run_chain(options: &ChainOptions) -> Result<ChainRun, ChainError> {
             source: std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
         });
     }
-    let run_id = next_run_id();
-    let links = Links::new(options.transport)?;
+    let links = Links::new()?;
     let (line_tx, line_rx) = mpsc::channel();
     let mut stages = Stages { stages: Vec::with_capacity(STAGES) };
     for k in 0..STAGES {
@@ -471,7 +383,6 @@ pub fn run_chain(options: &ChainOptions) -> Result<ChainRun, ChainError> {
         let spec = SpawnSpec {
             stage: k,
             cycles,
-            run_id: &run_id,
             input: links.input(k),
             output: links.output(k),
             results: result_write.as_raw_fd(),
@@ -503,7 +414,7 @@ pub fn run_chain(options: &ChainOptions) -> Result<ChainRun, ChainError> {
             done: false,
         });
     }
-    // The stages hold their ends; the sockets close when the stages do.
+    // The stages hold their ends.
     drop(links);
     drop(line_tx);
 
@@ -541,64 +452,34 @@ pub fn run_chain(options: &ChainOptions) -> Result<ChainRun, ChainError> {
         records[k] = bytes.chunks_exact(StageRecord::BYTES).filter_map(StageRecord::from_bytes).collect();
     }
     let reports = stages.stages.iter().map(|s| s.report.clone()).collect();
-    ChainRun::from_records(options.transport, options.period, &records, reports)
+    ChainRun::from_records(options.period, &records, reports)
 }
 
-/// A run id unique on this machine while the process lives: channel names
-/// of different runs never meet.
-fn next_run_id() -> String {
-    static RUNS: AtomicU32 = AtomicU32::new(0);
-    format!("{}-{}", std::process::id(), RUNS.fetch_add(1, Ordering::Relaxed))
-}
-
-/// The parent's side of the hand-overs: for hop `h`, the fd stage `h` writes
-/// and the fd stage `h + 1` reads (one eventfd, or the two ends of a socket pair).
+/// The parent's side of the hand-overs: for hop `h`, the eventfd stage `h`
+/// writes and stage `h + 1` reads.
 struct Links {
-    hops: Vec<(OwnedFd, Option<OwnedFd>)>,
+    hops: Vec<OwnedFd>,
 }
 
 impl Links {
-    fn new(transport: Transport) -> Result<Links, ChainError> {
+    fn new() -> Result<Links, ChainError> {
         let mut hops = Vec::new();
         for _ in 0..HOPS {
-            match transport {
-                Transport::EventFd => {
-                    // SAFETY: eventfd has no memory preconditions; the fd is checked and owned at once.
-                    let fd = unsafe { libc::eventfd(0, libc::EFD_CLOEXEC | libc::EFD_NONBLOCK) };
-                    hops.push((owned(fd).map_err(|source| ChainError::Setup { what: "eventfd", source })?, None));
-                }
-                Transport::Uds => {
-                    let mut fds = [-1; 2];
-                    // SAFETY: `fds` has room for the two descriptors socketpair writes.
-                    let rc = unsafe {
-                        libc::socketpair(
-                            libc::AF_UNIX,
-                            libc::SOCK_SEQPACKET | libc::SOCK_CLOEXEC | libc::SOCK_NONBLOCK,
-                            0,
-                            fds.as_mut_ptr(),
-                        )
-                    };
-                    let setup = |source| ChainError::Setup { what: "Unix socket pair", source };
-                    if rc != 0 {
-                        return Err(setup(std::io::Error::last_os_error()));
-                    }
-                    hops.push((owned(fds[0]).map_err(setup)?, Some(owned(fds[1]).map_err(setup)?)));
-                }
-                Transport::Iceoryx => {}
-            }
+            // SAFETY: eventfd has no memory preconditions; the fd is checked and owned at once.
+            let fd = unsafe { libc::eventfd(0, libc::EFD_CLOEXEC | libc::EFD_NONBLOCK) };
+            hops.push(owned(fd).map_err(|source| ChainError::Setup { what: "eventfd", source })?);
         }
         Ok(Links { hops })
     }
 
     /// The fd stage `k` reads its input from.
     fn input(&self, k: usize) -> Option<RawFd> {
-        let (write, read) = self.hops.get(k.checked_sub(1)?)?;
-        Some(read.as_ref().unwrap_or(write).as_raw_fd())
+        self.hops.get(k.checked_sub(1)?).map(|fd| fd.as_raw_fd())
     }
 
     /// The fd stage `k` sends its output on.
     fn output(&self, k: usize) -> Option<RawFd> {
-        self.hops.get(k).map(|(write, _)| write.as_raw_fd())
+        self.hops.get(k).map(|fd| fd.as_raw_fd())
     }
 }
 
@@ -621,10 +502,9 @@ fn pipe() -> std::io::Result<(OwnedFd, OwnedFd)> {
     Ok((owned(fds[0])?, owned(fds[1])?))
 }
 
-struct SpawnSpec<'a> {
+struct SpawnSpec {
     stage: usize,
     cycles: u64,
-    run_id: &'a str,
     input: Option<RawFd>,
     output: Option<RawFd>,
     results: RawFd,
@@ -640,16 +520,12 @@ fn spawn_stage(options: &ChainOptions, spec: &SpawnSpec) -> Result<Child, ChainE
     let k = spec.stage;
     let mut command = Command::new(&options.exe);
     command.arg("latency-stage").args([
-        "--transport",
-        options.transport.name(),
         "--stage",
         &k.to_string(),
         "--cycles",
         &spec.cycles.to_string(),
         "--period-ns",
         &(options.period.as_nanos() as u64).to_string(),
-        "--run-id",
-        spec.run_id,
         "--result-fd",
         &spec.results.to_string(),
     ]);
@@ -658,9 +534,6 @@ fn spawn_stage(options: &ChainOptions, spec: &SpawnSpec) -> Result<Child, ChainE
     }
     if let Some(fd) = spec.output {
         command.arg("--output-fd").arg(fd.to_string());
-    }
-    if let Some(config) = &options.config {
-        command.arg("--config").arg(config);
     }
     if let Some(rt) = &options.rt {
         let rt = &rt[k];
@@ -674,9 +547,6 @@ fn spawn_stage(options: &ChainOptions, spec: &SpawnSpec) -> Result<Child, ChainE
         if rt.lock_memory {
             command.arg("--lock-memory");
         }
-    }
-    if let Some(ns) = &options.bus_namespace {
-        command.env(jetbench_bus::NAMESPACE_ENV, ns);
     }
     // Own process group: a Ctrl-C reaches only the parent, which stops the chain.
     command
@@ -882,39 +752,29 @@ mod tests {
     fn source(c: u64, late_ns: u64) -> StageRecord {
         let scheduled_ns = 1_000 * MS + c * 10 * MS;
         let t0 = scheduled_ns + late_ns;
-        StageRecord { cycle: c, stamp_ns: t0, wake_ns: t0, sent_ns: t0 + 1_000, scheduled_ns }
+        StageRecord { cycle: c, wake_ns: t0, sent_ns: t0 + 1_000, scheduled_ns }
     }
 
-    fn downstream(src: &StageRecord, k: u64, by_stamp: bool) -> StageRecord {
+    fn downstream(src: &StageRecord, k: u64) -> StageRecord {
         let wake_ns = src.wake_ns + k * 20_000;
-        StageRecord {
-            cycle: if by_stamp { StageRecord::NO_CYCLE } else { src.cycle },
-            stamp_ns: if by_stamp { src.stamp_ns } else { 0 },
-            wake_ns,
-            sent_ns: wake_ns + 3_000,
-            scheduled_ns: 0,
-        }
+        StageRecord { cycle: src.cycle, wake_ns, sent_ns: wake_ns + 3_000, scheduled_ns: 0 }
     }
 
     /// The records of a chain that passed `src`, except where `keep(stage, record)` says no.
-    fn chain_records(
-        src: &[StageRecord],
-        by_stamp: bool,
-        keep: impl Fn(usize, &StageRecord) -> bool,
-    ) -> [Vec<StageRecord>; STAGES] {
+    fn chain_records(src: &[StageRecord], keep: impl Fn(usize, &StageRecord) -> bool) -> [Vec<StageRecord>; STAGES] {
         std::array::from_fn(|k| match k {
             0 => src.to_vec(),
             // Downstream stages report in any order.
-            _ => src.iter().rev().filter(|r| keep(k, r)).map(|r| downstream(r, k as u64, by_stamp)).collect(),
+            _ => src.iter().rev().filter(|r| keep(k, r)).map(|r| downstream(r, k as u64)).collect(),
         })
     }
 
     #[test]
-    fn records_join_by_stamp_and_a_cycle_missing_downstream_is_lost() {
+    fn records_join_by_cycle_and_a_cycle_missing_downstream_is_lost() {
         let src: Vec<_> = (0..5).map(|c| source(c, 50_000)).collect();
-        // Cycle 2 is dropped on hop 1 (stage 1 to stage 2).
-        let records = chain_records(&src, true, |k, r| k < 2 || r.cycle != 2);
-        let run = ChainRun::from_records(Transport::Iceoryx, PERIOD, &records, Vec::new()).unwrap();
+        // Cycle 2 never reaches stage 2.
+        let records = chain_records(&src, |k, r| k < 2 || r.cycle != 2);
+        let run = ChainRun::from_records(PERIOD, &records, Vec::new()).unwrap();
         assert_eq!((run.sent, run.lost, run.late), (5, 1, 0));
         assert_eq!(run.cycles.iter().map(|c| c.cycle).collect::<Vec<_>>(), [0, 1, 3, 4]);
         for c in &run.cycles {
@@ -924,16 +784,7 @@ mod tests {
             assert_eq!(c.work_ns(), [1_000, 3_000, 3_000, 3_000]);
         }
         assert_eq!(run.period_jitter_ns, [0; 4]);
-    }
-
-    #[test]
-    fn eventfd_records_join_by_cycle_count() {
-        let src: Vec<_> = (0..3).map(|c| source(c, 0)).collect();
-        let records = chain_records(&src, false, |_, _| true);
-        let run = ChainRun::from_records(Transport::EventFd, PERIOD, &records, Vec::new()).unwrap();
-        assert_eq!((run.sent, run.lost), (3, 0));
-        assert_eq!(run.e2e_ns(), [63_000; 3]);
-        assert_eq!(run.hop_ns(2), [20_000; 3]);
+        assert_eq!(run.hop_ns(2), [20_000; 4]);
     }
 
     #[test]
@@ -941,10 +792,10 @@ mod tests {
         // Cycle 1 wakes 12 ms late (a late cycle), cycle 2 still 3 ms late;
         // cycle 3 takes 11 ms end to end (a late cycle).
         let src: Vec<_> = [0, 12 * MS, 3 * MS, 0].iter().enumerate().map(|(c, &l)| source(c as u64, l)).collect();
-        let mut records = chain_records(&src, true, |_, _| true);
+        let mut records = chain_records(&src, |_, _| true);
         // Reported in reverse order: cycle 3 is the first record of stage 3.
         records[3][0].sent_ns = src[3].wake_ns + 11 * MS;
-        let run = ChainRun::from_records(Transport::Uds, PERIOD, &records, Vec::new()).unwrap();
+        let run = ChainRun::from_records(PERIOD, &records, Vec::new()).unwrap();
         assert_eq!(run.late, 2);
         assert_eq!(run.period_jitter_ns, [12 * MS, 9 * MS, 3 * MS]);
         assert!(run.cycles[3].late(PERIOD) && !run.cycles[2].late(PERIOD));
@@ -954,24 +805,15 @@ mod tests {
     fn no_complete_cycle_is_an_error() {
         let mut records: [Vec<StageRecord>; STAGES] = Default::default();
         records[0] = vec![source(0, 0)];
-        let e = ChainRun::from_records(Transport::Uds, PERIOD, &records, Vec::new()).unwrap_err();
-        assert!(matches!(e, ChainError::NoRecords { sent: 1, .. }), "{e}");
+        let e = ChainRun::from_records(PERIOD, &records, Vec::new()).unwrap_err();
+        assert!(matches!(e, ChainError::NoRecords { sent: 1 }), "{e}");
     }
 
     #[test]
     fn records_survive_the_pipe_format() {
-        let r = StageRecord { cycle: 7, stamp_ns: 1, wake_ns: 2, sent_ns: u64::MAX - 1, scheduled_ns: 4 };
+        let r = StageRecord { cycle: 7, wake_ns: 2, sent_ns: u64::MAX - 1, scheduled_ns: 4 };
         assert_eq!(StageRecord::from_bytes(&r.to_bytes()), Some(r));
-        assert_eq!(StageRecord::from_bytes(&[0; 39]), None);
-    }
-
-    #[test]
-    fn transports_read_and_print_their_names() {
-        for t in Transport::ALL {
-            assert_eq!(t.to_string().parse::<Transport>(), Ok(t));
-        }
-        assert_eq!("iceoryx2".parse(), Ok(Transport::Iceoryx));
-        assert!("tcp".parse::<Transport>().unwrap_err().to_string().contains("eventfd, uds or iceoryx2"));
+        assert_eq!(StageRecord::from_bytes(&[0; 31]), None);
     }
 
     #[test]
@@ -980,13 +822,14 @@ mod tests {
         assert_eq!(stage_rt_requests(&rt, false), None);
         let requests = stage_rt_requests(&rt, true).expect("forced");
         let priorities: Vec<_> = requests.iter().map(|r| r.priority).collect();
-        assert_eq!(priorities, [Some(80), Some(70), Some(60), Some(50)]);
+        // Sensing, estimation, control, actuation: each above the one feeding it.
+        assert_eq!(priorities, [Some(50), Some(60), Some(70), Some(80)]);
         assert_eq!(requests[0].cpus, rt.cpus.sensing);
     }
 
     #[test]
     fn a_run_shorter_than_a_period_is_refused() {
-        let mut options = ChainOptions::new(Transport::EventFd, "/nonexistent");
+        let mut options = ChainOptions::new("/nonexistent");
         assert_eq!(options.cycles().unwrap(), 1000);
         options.duration = Duration::from_millis(5);
         assert!(matches!(options.cycles(), Err(ChainError::Options(_))));

@@ -74,6 +74,12 @@ impl LatencyHistogram {
         self.histogram.saturating_record(ns.clamp(1, Self::MAX_NS));
     }
 
+    /// Adds every value of `other` (another round of the same measurement).
+    pub fn add(&mut self, other: &LatencyHistogram) {
+        // Both have the same bounds, so adding cannot fail.
+        let _ = self.histogram.add(&other.histogram);
+    }
+
     pub fn len(&self) -> u64 {
         self.histogram.len()
     }
@@ -132,7 +138,12 @@ pub struct PipelineAnalysis {
     /// Sensor cycles that came more than one period behind the 100 Hz schedule
     /// (more than 20 ms after the previous one).
     pub late_periods: u64,
-    /// Cycles that never reached the board (the run's last 0.5 s excepted).
+    /// Cycles whose command never reached the board because actuation, late,
+    /// found a newer one waiting and wrote that instead (it always applies the
+    /// newest). No sample was lost, but the cycle missed its deadline.
+    pub superseded: u64,
+    /// Cycles that stopped short of a command: a stage produced nothing for
+    /// them (the run's last 0.5 s excepted).
     pub unfinished: u64,
     /// Sensor frames lost before sensing (jumps of the sensor's frame counter).
     pub frames_lost: u64,
@@ -143,13 +154,36 @@ pub struct PipelineAnalysis {
 }
 
 impl PipelineAnalysis {
-    /// Deadline misses: late cycles plus late sensor periods.
-    pub fn deadline_misses(&self) -> u64 {
-        self.late_e2e + self.late_periods
+    /// Adds another run of the same pipeline (a later round of one measurement).
+    pub fn merge(&mut self, other: &PipelineAnalysis) {
+        self.cycles += other.cycles;
+        self.completed += other.completed;
+        self.e2e.add(&other.e2e);
+        for (mine, theirs) in self.hops.iter_mut().zip(&other.hops) {
+            mine.add(theirs);
+        }
+        self.period_jitter.add(&other.period_jitter);
+        self.late_e2e += other.late_e2e;
+        self.late_periods += other.late_periods;
+        self.superseded += other.superseded;
+        self.unfinished += other.unfinished;
+        self.frames_lost += other.frames_lost;
+        for (channel, gaps) in &other.seq_gaps {
+            *self.seq_gaps.entry(channel.clone()).or_default() += gaps;
+        }
+        for (service, misses) in &other.service_deadline_misses {
+            *self.service_deadline_misses.entry(service.clone()).or_default() += misses;
+        }
     }
 
-    /// Samples lost anywhere: sensor frames, bus or recorder gaps, cycles that
-    /// never reached the board.
+    /// Deadline misses: late cycles, late sensor periods, and cycles whose
+    /// command was superseded before it could be written.
+    pub fn deadline_misses(&self) -> u64 {
+        self.late_e2e + self.late_periods + self.superseded
+    }
+
+    /// Samples lost anywhere: sensor frames, bus or recorder gaps, cycles a
+    /// stage produced nothing for.
     pub fn lost(&self) -> u64 {
         self.frames_lost + self.seq_gaps.values().sum::<u64>() + self.unfinished
     }
@@ -176,6 +210,7 @@ pub fn analyse_pipeline(recording: &Recording, warmup_s: f64) -> PipelineAnalysi
             written_by_command.entry(a.command_seq).or_insert(a.written_ns);
         }
     }
+    let newest_written = written_by_command.keys().copied().max();
 
     let Some(first) = thrust.first() else { return analysis };
     let last_stamp = thrust.last().map_or(0, |t| t.stamp_ns);
@@ -203,18 +238,25 @@ pub fn analyse_pipeline(recording: &Recording, warmup_s: f64) -> PipelineAnalysi
             continue;
         }
         analysis.cycles += 1;
-        let path =
-            state_by_source.get(&t.seq).zip(state_seq_by_source.get(&t.seq)).and_then(|(&state_ns, state_seq)| {
-                let &(command_seq, command_ns) = command_by_source.get(state_seq)?;
-                let &written_ns = written_by_command.get(&command_seq)?;
-                Some([t.stamp_ns, t.publish_ns, state_ns, command_ns, written_ns])
-            });
-        let Some(stamps) = path else {
+        let command = state_by_source
+            .get(&t.seq)
+            .zip(state_seq_by_source.get(&t.seq))
+            .and_then(|(&state_ns, state_seq)| command_by_source.get(state_seq).map(|&c| (state_ns, c)));
+        let Some((state_ns, (command_seq, command_ns))) = command else {
             if t.stamp_ns < tail_ns {
                 analysis.unfinished += 1;
             }
             continue;
         };
+        let Some(&written_ns) = written_by_command.get(&command_seq) else {
+            if newest_written.is_some_and(|newest| newest > command_seq) {
+                analysis.superseded += 1;
+            } else if t.stamp_ns < tail_ns {
+                analysis.unfinished += 1;
+            }
+            continue;
+        };
+        let stamps = [t.stamp_ns, t.publish_ns, state_ns, command_ns, written_ns];
         analysis.completed += 1;
         let e2e = stamps[4].saturating_sub(stamps[0]);
         analysis.e2e.record(e2e);
@@ -267,6 +309,26 @@ mod tests {
         assert_eq!(bins.len(), 10);
         assert_eq!(bins.iter().map(|b| b.1).sum::<u64>(), 1000);
         assert!(bins.iter().all(|b| (99..=101).contains(&b.1)), "{bins:?}");
+    }
+
+    #[test]
+    fn rounds_merge_into_one_distribution() {
+        let (mut a, mut b) = (PipelineAnalysis::default(), PipelineAnalysis::default());
+        for us in 1..=500u64 {
+            a.e2e.record(us * 1000);
+            b.e2e.record((us + 500) * 1000);
+        }
+        (a.cycles, a.completed, a.late_e2e) = (500, 500, 1);
+        (b.cycles, b.completed, b.frames_lost) = (510, 500, 2);
+        a.seq_gaps.insert("bench/state".into(), 1);
+        b.seq_gaps.insert("bench/state".into(), 2);
+        b.service_deadline_misses.insert("control".into(), 3);
+        a.merge(&b);
+        assert_eq!((a.cycles, a.completed, a.deadline_misses(), a.lost()), (1010, 1000, 1, 5));
+        let p = a.e2e.percentiles();
+        assert_eq!(p.count, 1000);
+        assert!((p.p50 - 500.0).abs() < 1.0 && (p.max - 1000.0).abs() < 1.0, "{p:?}");
+        assert_eq!(a.service_deadline_misses["control"], 3);
     }
 
     #[test]

@@ -51,6 +51,8 @@ pub struct UpOptions {
     pub simulated: bool,
     /// Ask every service for its `[rt]` settings (`--rt`), whatever `[rt] enabled` says.
     pub rt: bool,
+    /// How samples travel between the services (set for each as `JETBENCH_TRANSPORT`).
+    pub transport: jetbench_bus::Transport,
 }
 
 /// A started service process.
@@ -114,6 +116,7 @@ fn spawn(options: &UpOptions, id: ServiceId, ready_tx: &mpsc::Sender<ServiceId>)
     if options.rt {
         command.arg("--rt");
     }
+    command.env(jetbench_bus::TRANSPORT_ENV, options.transport.name());
     if id == ServiceId::Recorder {
         if let Some(out) = &options.record {
             command.arg("--out").arg(out);
@@ -347,7 +350,7 @@ fn start_and_supervise(
         }
     );
 
-    let bus = Bus::open("jetbench-up")?;
+    let bus = Bus::open_with("jetbench-up", options.transport)?;
     // No status line, no subscribers: a quiet run adds nothing to the control path.
     let mut status = if options.status { Some(Status::new(&bus)?) } else { None };
     let started = Instant::now();

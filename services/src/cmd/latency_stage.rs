@@ -1,19 +1,15 @@
-//! `jetbench latency-stage`: one process of a reference chain of `jetbench
+//! `jetbench latency-stage`: one process of the floor chain of `jetbench
 //! latency` (hidden: only `jetbench_stack::chain::run_chain` starts it, with
 //! the descriptors it passes).
 
-use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use jetbench_stack::chain::{inherited_fd, run_stage, StageOptions, Transport};
+use jetbench_stack::chain::{inherited_fd, run_stage, StageOptions};
 use jetbench_stack::rt::RtRequest;
 
 #[derive(clap::Args)]
 pub struct LatencyStageArgs {
-    /// eventfd, uds or iceoryx2.
-    #[arg(long)]
-    transport: Transport,
     /// 0 = sensing (the clocked source), 1 = estimation, 2 = control, 3 = actuation.
     #[arg(long)]
     stage: usize,
@@ -22,19 +18,13 @@ pub struct LatencyStageArgs {
     cycles: u64,
     #[arg(long)]
     period_ns: u64,
-    /// Names the run's private channels.
-    #[arg(long)]
-    run_id: String,
-    /// Inherited descriptors: the input link, the output link, the result pipe.
+    /// Inherited descriptors: the input eventfd, the output eventfd, the result pipe.
     #[arg(long)]
     input_fd: Option<i32>,
     #[arg(long)]
     output_fd: Option<i32>,
     #[arg(long)]
     result_fd: i32,
-    /// Bench config for the steps' settings.
-    #[arg(long, value_name = "FILE")]
-    config: Option<PathBuf>,
     /// Real-time request: SCHED_FIFO priority, CPUs, locked memory.
     #[arg(long)]
     priority: Option<u8>,
@@ -54,15 +44,12 @@ pub fn run(args: LatencyStageArgs) -> anyhow::Result<ExitCode> {
     // process; each is claimed once, here, before anything else could own it.
     let claim = |fd: i32| unsafe { inherited_fd(fd) };
     let options = StageOptions {
-        transport: args.transport,
         stage: args.stage,
         cycles: args.cycles,
         period: Duration::from_nanos(args.period_ns),
-        run_id: args.run_id,
         input: args.input_fd.map(claim).transpose()?,
         output: args.output_fd.map(claim).transpose()?,
         results: claim(args.result_fd)?,
-        config: args.config,
         rt,
     };
     run_stage(options)?;

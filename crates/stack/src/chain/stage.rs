@@ -1,25 +1,20 @@
-//! A stage of a reference chain: the `jetbench latency-stage` process.
+//! A stage of the floor chain: the `jetbench latency-stage` process.
 //!
 //! It applies its real-time request first, reports the outcome and `ready`
-//! on stdout, runs its part of the chain until the last cycle went through
-//! (then reports `done` and stays until SIGTERM) or until SIGTERM. Every
-//! blocking call lasts at most [`SIGNAL_POLL`], so a stop is noticed.
+//! on stdout, passes pings on until the last cycle went through (then
+//! reports `done` and stays until SIGTERM) or until SIGTERM. Every blocking
+//! call lasts at most [`SIGNAL_POLL`], so a stop is noticed.
 
-use std::fmt;
 use std::fs::File;
 use std::io::Write;
 use std::os::fd::{AsFd, AsRawFd, BorrowedFd, FromRawFd, OwnedFd, RawFd};
-use std::path::PathBuf;
 use std::time::Duration;
 
-use jetbench_bus::{stop_requested, Bus, BusError, Flow, LoopExit, Wake};
-use jetbench_msgs::{Actuation, Channel, Command as CommandSample, Sample, StateEstimate, Thrust};
+use jetbench_bus::{stop_requested, BusError};
 
-use super::{StageRecord, Transport, DONE, GO, RT, STAGES, STAGE_SERVICES};
+use super::{StageRecord, DONE, GO, RT, STAGES};
 use crate::clock::monotonic_ns;
-use crate::config::{BenchConfig, ConfigError};
 use crate::rt::RtRequest;
-use crate::step::{Actuator, Control, Estimation, Sensing, SimBench};
 
 /// The longest any blocking call of a stage lasts before the stop flag is checked.
 const SIGNAL_POLL: Duration = Duration::from_millis(50);
@@ -35,21 +30,17 @@ const EVENTFD_END: u64 = 1 << 40;
 /// What one stage process runs (parsed by `jetbench latency-stage`).
 #[derive(Debug)]
 pub struct StageOptions {
-    pub transport: Transport,
-    /// 0 = sensing (the clocked source) … 3 = actuation (the sink).
+    /// 0 = the clocked source (standing for sensing) … 3 = the sink (actuation).
     pub stage: usize,
     /// Cycles the source sends.
     pub cycles: u64,
     pub period: Duration,
-    /// Names the run's private channels (iceoryx2).
-    pub run_id: String,
-    /// Where the input comes from (stages 1–3 of eventfd and uds chains).
+    /// The eventfd the ping comes in on (stages 1–3).
     pub input: Option<OwnedFd>,
-    /// Where the output goes (stages 0–2 of eventfd and uds chains).
+    /// The eventfd the ping goes out on (stages 0–2).
     pub output: Option<OwnedFd>,
     /// The pipe the stage's records go to.
     pub results: OwnedFd,
-    pub config: Option<PathBuf>,
     /// Real-time settings to apply first.
     pub rt: Option<RtRequest>,
 }
@@ -59,25 +50,17 @@ pub struct StageOptions {
 pub enum StageError {
     #[error("stage {0} does not exist: stages are numbered 0 to 3")]
     NoSuchStage(usize),
-    #[error("stage {stage} of a {transport} chain needs {what}, which was not passed")]
-    MissingFd { stage: usize, transport: Transport, what: &'static str },
+    #[error("stage {stage} needs {what}, which was not passed")]
+    MissingFd { stage: usize, what: &'static str },
     #[error("fd {fd} is not open in this process: {source} (latency-stage runs only under `jetbench latency`)")]
     BadFd { fd: RawFd, source: std::io::Error },
     #[error(transparent)]
-    Config(#[from] ConfigError),
-    #[error(transparent)]
     Bus(#[from] BusError),
-    #[error("cannot set up the {what}: {reason}")]
-    Setup { what: &'static str, reason: String },
     #[error("{what}: {source}")]
     Io { what: &'static str, source: std::io::Error },
-    #[error("the input link sent a message of {len} bytes, not one {expected} sample")]
-    Malformed { len: usize, expected: &'static str },
-    #[error("the previous stage closed the link before the last cycle (did it die?)")]
-    UpstreamClosed,
 }
 
-/// Takes ownership of an fd this process inherited from [`run_chain`].
+/// Takes ownership of an fd this process inherited from [`run_chain`](super::run_chain).
 ///
 /// # Safety
 /// `fd` must be a descriptor nothing else in this process owns or will close:
@@ -104,102 +87,48 @@ enum End {
     Stopped,
 }
 
-/// Counts of one stage.
-#[derive(Default)]
-struct Counts {
-    handled: u64,
-    errors: u64,
-}
-
 /// Runs one stage: applies its real-time request, reports the outcome and
-/// `ready` on stdout, runs its part of the chain until the last cycle went
-/// through (then reports `done` and waits for SIGTERM) or until SIGTERM.
+/// `ready` on stdout, passes the pings on until the last cycle went through
+/// (then reports `done` and waits for SIGTERM) or until SIGTERM.
 pub fn run_stage(options: StageOptions) -> Result<(), StageError> {
-    let StageOptions { transport, stage, cycles, period, run_id, input, output, results, config, rt } = options;
+    let StageOptions { stage, cycles, period, input, output, results, rt } = options;
     if stage >= STAGES {
         return Err(StageError::NoSuchStage(stage));
     }
     jetbench_bus::install_signal_flag()?;
     let outcome = rt.as_ref().map(crate::rt::apply).unwrap_or_default();
-    let config = BenchConfig::load_or_default(config.as_deref())?;
     let needs = |fd: Option<OwnedFd>, needed: bool, what| match (fd, needed) {
         (Some(fd), true) => Ok(Some(fd)),
-        (None, true) => Err(StageError::MissingFd { stage, transport, what }),
+        (None, true) => Err(StageError::MissingFd { stage, what }),
         (_, false) => Ok(None),
     };
-    let fds = transport != Transport::Iceoryx;
-    let input = needs(input, fds && stage > 0, "--input-fd")?;
-    let output = needs(output, fds && stage < STAGES - 1, "--output-fd")?;
+    let input = needs(input, stage > 0, "--input-fd")?;
+    let output = needs(output, stage < STAGES - 1, "--output-fd")?;
     let mut stage_run = StageRun {
         stage,
         cycles,
         period_ns: (period.as_nanos() as u64).max(1),
         results: ResultWriter::new(results, cycles),
-        counts: Counts::default(),
+        handled: 0,
     };
-    let say_rt = || {
-        for applied in &outcome.applied {
-            say(&format!("{RT} applied {applied}"));
-        }
-        for refused in &outcome.refused {
-            say(&format!("{RT} refused {refused}"));
-        }
-        let (policy, priority) = crate::rt::current_policy();
-        say(&format!("{RT} policy {policy} {priority}"));
-    };
-    let end = match transport {
-        Transport::EventFd => {
-            say_rt();
-            stage_run.eventfd(input, output)?
-        }
-        Transport::Uds | Transport::Iceoryx => {
-            let bus = match transport {
-                Transport::Iceoryx => Some(Bus::open(&format!("latency-{}", STAGE_SERVICES[stage].name()))?),
-                _ => None,
-            };
-            let mut links = Hop { run_id: &run_id, bus: bus.as_ref(), input, output };
-            say_rt();
-            match stage {
-                0 => stage_run.source(&config, links.outlet(0)?)?,
-                1 => {
-                    let mut step = Estimation::new(
-                        config.model_params().map_err(|e| setup("estimator", e))?,
-                        config.estimator.observer_config(),
-                    );
-                    stage_run.relay(links.inlet(0)?, Some(links.outlet(1)?), bus.as_ref(), |t: &Thrust| {
-                        step.step(t).map_err(|e| e.to_string())
-                    })?
-                }
-                2 => {
-                    let law = config.control_law().map_err(|e| setup("control law", e))?;
-                    let mut step = Control::with_law(law, config.reference.clone());
-                    stage_run.relay(links.inlet(1)?, Some(links.outlet(2)?), bus.as_ref(), |s: &StateEstimate| {
-                        step.step(s).map(|(_, command)| command).map_err(|e| e.to_string())
-                    })?
-                }
-                _ => {
-                    let mut step = Actuator::new(config.actuation.idle_after_missed_cycles);
-                    stage_run.relay(links.inlet(2)?, None::<Outlet<Actuation>>, bus.as_ref(), |c: &CommandSample| {
-                        Ok(step.on_command(c))
-                    })?
-                }
-            }
-        }
-    };
+    for applied in &outcome.applied {
+        say(&format!("{RT} applied {applied}"));
+    }
+    for refused in &outcome.refused {
+        say(&format!("{RT} refused {refused}"));
+    }
+    let (policy, priority) = crate::rt::current_policy();
+    say(&format!("{RT} policy {policy} {priority}"));
+    let end = stage_run.eventfd(input, output)?;
     stage_run.results.flush()?;
     if let End::Finished = end {
-        say(&format!("{DONE} {} {}", stage_run.counts.handled, stage_run.counts.errors));
-        // Stay until stopped: with iceoryx2, the next stage may not have taken
-        // the last sample yet, and a departing publisher takes its samples along.
+        say(&format!("{DONE} {} 0", stage_run.handled));
+        // Stay until stopped, as every stage does: the parent stops them together.
         while !stop_requested() {
             std::thread::sleep(SIGNAL_POLL);
         }
     }
     Ok(())
-}
-
-fn setup(what: &'static str, reason: impl fmt::Display) -> StageError {
-    StageError::Setup { what, reason: reason.to_string() }
 }
 
 fn io_error(what: &'static str) -> impl FnOnce(std::io::Error) -> StageError {
@@ -294,28 +223,6 @@ fn eventfd_take(fd: BorrowedFd) -> Result<Option<u64>, StageError> {
     }
 }
 
-/// Sends one message on a socket, waiting (in [`SIGNAL_POLL`] steps) while
-/// the receiver's queue is full. False if a stop came first.
-fn send_message(fd: BorrowedFd, bytes: &[u8]) -> Result<bool, StageError> {
-    loop {
-        // SAFETY: sends from a live buffer of `bytes.len()` bytes.
-        let n = unsafe {
-            libc::send(fd.as_raw_fd(), bytes.as_ptr().cast(), bytes.len(), libc::MSG_DONTWAIT | libc::MSG_NOSIGNAL)
-        };
-        if n == bytes.len() as isize {
-            return Ok(true);
-        }
-        let e = std::io::Error::last_os_error();
-        if !would_block(&e) {
-            return Err(StageError::Io { what: "cannot send to the next stage", source: e });
-        }
-        if stop_requested() {
-            return Ok(false);
-        }
-        wait_fd(fd, libc::POLLOUT).map_err(io_error("cannot wait for the next stage"))?;
-    }
-}
-
 /// The source's clock: `clock_nanosleep(TIMER_ABSTIME)` at the period.
 struct Schedule {
     period_ns: u64,
@@ -404,91 +311,13 @@ fn wait_for_go() -> Result<bool, StageError> {
     }
 }
 
-/// A payload stage's links: the run's private channels, or its sockets.
-struct Hop<'a> {
-    run_id: &'a str,
-    bus: Option<&'a Bus>,
-    input: Option<OwnedFd>,
-    output: Option<OwnedFd>,
-}
-
-/// The name of hop `h`'s private channel.
-fn hop_channel<T: Sample>(run_id: &str, hop: usize) -> Channel<T> {
-    let name = ["thrust", "state", "command"][hop];
-    // Leaked once per stage process: channel names are `&'static str`.
-    Channel::new(Box::leak(format!("latency/{run_id}/{name}").into_boxed_str()))
-}
-
-impl Hop<'_> {
-    fn outlet<T: Sample>(&mut self, hop: usize) -> Result<Outlet<T>, StageError> {
-        match (self.bus, self.output.take()) {
-            (Some(bus), _) => Ok(Outlet::Bus(Box::new(bus.publisher(hop_channel(self.run_id, hop))?))),
-            (None, Some(fd)) => Ok(Outlet::Socket { fd, seq: 0 }),
-            (None, None) => unreachable!("checked by run_stage"),
-        }
-    }
-
-    fn inlet<T: Sample>(&mut self, hop: usize) -> Result<Inlet<T>, StageError> {
-        match (self.bus, self.input.take()) {
-            // As deep as the services' subscribers.
-            (Some(bus), _) => Ok(Inlet::Bus(Box::new(bus.subscriber(hop_channel(self.run_id, hop), 16)?))),
-            (None, Some(fd)) => Ok(Inlet::Socket(fd)),
-            (None, None) => unreachable!("checked by run_stage"),
-        }
-    }
-}
-
-/// Where a payload stage sends its samples.
-enum Outlet<T: Sample> {
-    /// Copied through a Unix socket, with a contiguous `seq` as a publisher would give.
-    Socket {
-        fd: OwnedFd,
-        seq: u64,
-    },
-    Bus(Box<jetbench_bus::Publisher<T>>),
-}
-
-impl<T: Sample> Outlet<T> {
-    /// False if a stop came before the sample could go.
-    fn send(&mut self, mut sample: T) -> Result<bool, StageError> {
-        match self {
-            Outlet::Socket { fd, seq } => {
-                sample.set_seq(*seq);
-                *seq += 1;
-                send_message(fd.as_fd(), sample.as_bytes())
-            }
-            Outlet::Bus(publisher) => {
-                publisher.publish(sample)?;
-                Ok(true)
-            }
-        }
-    }
-
-    /// The end marker: a sample with `stamp_ns = 0` (no cycle has that `t0`).
-    fn end(&mut self) -> Result<bool, StageError> {
-        self.send(T::default())
-    }
-}
-
-/// Where a payload stage takes its samples from.
-enum Inlet<T: Sample> {
-    Socket(OwnedFd),
-    Bus(Box<jetbench_bus::Subscriber<T>>),
-}
-
-/// What became of one input.
-enum Handled {
-    Next,
-    /// The end marker went through.
-    Last,
-}
-
 struct StageRun {
     stage: usize,
     cycles: u64,
     period_ns: u64,
     results: ResultWriter,
-    counts: Counts,
+    /// Cycles passed on.
+    handled: u64,
 }
 
 impl StageRun {
@@ -530,9 +359,9 @@ impl StageRun {
                     eventfd_add(output.as_fd(), 1)?;
                 }
                 let sent_ns = monotonic_ns();
-                let cycle = self.counts.handled;
-                self.counts.handled += 1;
-                self.results.push(StageRecord { cycle, stamp_ns: 0, wake_ns, sent_ns, scheduled_ns: 0 })?;
+                let cycle = self.handled;
+                self.handled += 1;
+                self.results.push(StageRecord { cycle, wake_ns, sent_ns, scheduled_ns: 0 })?;
             }
             if count >= EVENTFD_END {
                 if let Some(output) = &output {
@@ -544,180 +373,12 @@ impl StageRun {
     }
 
     fn source_record(&mut self, tick: &Tick, sent_ns: u64) -> Result<(), StageError> {
-        self.counts.handled += 1;
+        self.handled += 1;
         self.results.push(StageRecord {
             cycle: tick.cycle,
-            stamp_ns: tick.t0_ns,
             wake_ns: tick.t0_ns,
             sent_ns,
             scheduled_ns: tick.scheduled_ns,
         })
-    }
-
-    /// The sample-carrying source: a simulated engine's force reading per
-    /// cycle, calibrated by the real sensing step at `t0` and sent on.
-    fn source(&mut self, config: &BenchConfig, mut out: Outlet<Thrust>) -> Result<End, StageError> {
-        let plant = config.plant().map_err(|e| setup("simulated engine", e))?;
-        let p = &config.plant;
-        let mut sim = SimBench::new(&plant, p.noise_var_n2, p.seed, p.initial_throttle_pct)
-            .map_err(|e| setup("simulated engine", e))?;
-        let mut sensing = Sensing::new(&config.sensor).map_err(|e| setup("sensor calibration", e))?;
-        // A slow throttle sine, so the estimator and the law see a moving engine.
-        let period_s = self.period_ns as f64 * 1e-9;
-        let throttle_pct = |cycle: u64| 50.0 + 25.0 * (std::f64::consts::TAU * cycle as f64 * period_s / 8.0).sin();
-        let mut next_reading = |cycle: u64, now_ns: u64| {
-            sim.step_driven(now_ns, throttle_pct(cycle))
-                .map(|(reading, _)| reading)
-                .map_err(|e| setup("simulated engine", e))
-        };
-        crate::service::announce_ready();
-        if !wait_for_go()? {
-            return Ok(End::Stopped);
-        }
-        let mut reading = next_reading(0, monotonic_ns())?;
-        let mut schedule = Schedule::start(self.period_ns, self.cycles);
-        while let Some(tick) = schedule.wait() {
-            match sensing.step(&reading, tick.t0_ns) {
-                Ok(thrust) => {
-                    if !out.send(thrust)? {
-                        return Ok(End::Stopped);
-                    }
-                }
-                Err(e) => {
-                    self.counts.errors += 1;
-                    tracing::warn!("cycle {}: force reading rejected: {e}", tick.cycle);
-                }
-            }
-            let sent_ns = monotonic_ns();
-            self.source_record(&tick, sent_ns)?;
-            // The next frame, off the critical path: the sensor's work, not sensing's.
-            reading = next_reading(tick.cycle + 1, sent_ns)?;
-        }
-        // The end marker one period on, when the last cycle has gone through:
-        // every stage reports after it, never during a cycle.
-        if !schedule.wait_end() || !out.end()? {
-            return Ok(End::Stopped);
-        }
-        Ok(End::Finished)
-    }
-
-    /// A sample-carrying stage after the source: takes each input, runs the
-    /// real step, sends the result on (the last stage sends nothing: its
-    /// "sent" is the actuator's output ready).
-    fn relay<I: Sample, O: Sample>(
-        &mut self,
-        inlet: Inlet<I>,
-        mut outlet: Option<Outlet<O>>,
-        bus: Option<&Bus>,
-        mut step: impl FnMut(&I) -> Result<O, String>,
-    ) -> Result<End, StageError> {
-        crate::service::announce_ready();
-        let mut handle = |input: I, wake_ns: u64| -> Result<Handled, StageError> {
-            if input.stamp_ns() == 0 {
-                if let Some(out) = outlet.as_mut() {
-                    out.end()?;
-                }
-                return Ok(Handled::Last);
-            }
-            match step(&input) {
-                Ok(output) => {
-                    if let Some(out) = outlet.as_mut() {
-                        if !out.send(output)? {
-                            return Ok(Handled::Last);
-                        }
-                    }
-                }
-                Err(e) => {
-                    self.counts.errors += 1;
-                    if self.counts.errors <= 5 {
-                        tracing::warn!("input rejected: {e}");
-                    }
-                }
-            }
-            let sent_ns = monotonic_ns();
-            self.counts.handled += 1;
-            self.results.push(StageRecord {
-                cycle: StageRecord::NO_CYCLE,
-                stamp_ns: input.stamp_ns(),
-                wake_ns,
-                sent_ns,
-                scheduled_ns: 0,
-            })?;
-            Ok(Handled::Next)
-        };
-        let last = match inlet {
-            Inlet::Socket(fd) => consume_socket(fd.as_fd(), &mut handle)?,
-            Inlet::Bus(subscriber) => {
-                let bus = bus.expect("a bus inlet comes with its bus");
-                let mut failure = None;
-                let mut last = false;
-                // As the services consume: asleep on the doorbell, with the input deadline.
-                let inputs: [(&dyn jetbench_bus::Trigger, Option<Duration>); 1] =
-                    [(&*subscriber, Some(crate::service::INPUT_DEADLINE))];
-                let exit = bus.run(&inputs, None, |wake| {
-                    if !matches!(wake, Wake::Input(_)) {
-                        return Flow::Continue;
-                    }
-                    loop {
-                        let result = subscriber.try_recv().map_err(StageError::from).and_then(|sample| match sample {
-                            Some(sample) => handle(sample, monotonic_ns()).map(Some),
-                            None => Ok(None),
-                        });
-                        match result {
-                            Ok(Some(Handled::Next)) => {}
-                            Ok(None) => return Flow::Continue,
-                            Ok(Some(Handled::Last)) => {
-                                last = true;
-                                return Flow::Stop;
-                            }
-                            Err(e) => {
-                                failure = Some(e);
-                                return Flow::Stop;
-                            }
-                        }
-                    }
-                })?;
-                if let Some(e) = failure {
-                    return Err(e);
-                }
-                last && exit == LoopExit::Stopped
-            }
-        };
-        Ok(if last && !stop_requested() { End::Finished } else { End::Stopped })
-    }
-}
-
-/// Takes samples from a socket until the end marker (true) or a stop (false).
-fn consume_socket<I: Sample>(
-    fd: BorrowedFd,
-    handle: &mut dyn FnMut(I, u64) -> Result<Handled, StageError>,
-) -> Result<bool, StageError> {
-    // Room for any sample type, so an oversized message shows as one.
-    let mut buf = [0u8; 512];
-    loop {
-        if !wait_fd(fd, libc::POLLIN).map_err(io_error("cannot wait for the previous stage"))? {
-            if stop_requested() {
-                return Ok(false);
-            }
-            continue;
-        }
-        // SAFETY: receives at most `buf.len()` bytes into a live buffer.
-        let n = unsafe { libc::recv(fd.as_raw_fd(), buf.as_mut_ptr().cast(), buf.len(), libc::MSG_DONTWAIT) };
-        let wake_ns = monotonic_ns();
-        if n == 0 {
-            return Err(StageError::UpstreamClosed);
-        }
-        if n < 0 {
-            let e = std::io::Error::last_os_error();
-            if would_block(&e) {
-                continue;
-            }
-            return Err(StageError::Io { what: "cannot receive from the previous stage", source: e });
-        }
-        let n = n as usize;
-        let sample = I::from_bytes(&buf[..n]).ok_or(StageError::Malformed { len: n, expected: I::NAME })?;
-        if let Handled::Last = handle(sample, wake_ns)? {
-            return Ok(true);
-        }
     }
 }
