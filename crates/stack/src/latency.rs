@@ -19,7 +19,7 @@
 use std::collections::{BTreeMap, HashMap};
 
 use hdrhistogram::Histogram;
-use jetbench_msgs::{actuation_flags, channels, Health, Sample, ServiceId};
+use jetbench_msgs::{actuation_flags, channels, Sample, ServiceId};
 use jetbench_record::{seq_gaps, Recording};
 use serde::Serialize;
 
@@ -149,7 +149,10 @@ pub struct PipelineAnalysis {
     pub frames_lost: u64,
     /// `seq` gaps per recorded channel: samples lost between publisher and recorder.
     pub seq_gaps: BTreeMap<String, u64>,
-    /// Deadline misses each service counted itself (its last heartbeat).
+    /// When each deadline miss happened: the sensor frame stamp of the late,
+    /// superseded or late-period cycle, ns.
+    pub miss_stamps_ns: Vec<u64>,
+    /// Deadline misses each service counted itself over the judged cycles.
     pub service_deadline_misses: BTreeMap<String, u64>,
 }
 
@@ -167,6 +170,7 @@ impl PipelineAnalysis {
         self.late_periods += other.late_periods;
         self.superseded += other.superseded;
         self.unfinished += other.unfinished;
+        self.miss_stamps_ns.extend_from_slice(&other.miss_stamps_ns);
         self.frames_lost += other.frames_lost;
         for (channel, gaps) in &other.seq_gaps {
             *self.seq_gaps.entry(channel.clone()).or_default() += gaps;
@@ -230,6 +234,7 @@ pub fn analyse_pipeline(recording: &Recording, warmup_s: f64) -> PipelineAnalysi
                 analysis.period_jitter.record(period.abs_diff(PERIOD_NS));
                 if period > 2 * PERIOD_NS {
                     analysis.late_periods += 1;
+                    analysis.miss_stamps_ns.push(t.stamp_ns);
                 }
             }
         }
@@ -251,6 +256,7 @@ pub fn analyse_pipeline(recording: &Recording, warmup_s: f64) -> PipelineAnalysi
         let Some(&written_ns) = written_by_command.get(&command_seq) else {
             if newest_written.is_some_and(|newest| newest > command_seq) {
                 analysis.superseded += 1;
+                analysis.miss_stamps_ns.push(t.stamp_ns);
             } else if t.stamp_ns < tail_ns {
                 analysis.unfinished += 1;
             }
@@ -262,6 +268,7 @@ pub fn analyse_pipeline(recording: &Recording, warmup_s: f64) -> PipelineAnalysi
         analysis.e2e.record(e2e);
         if e2e > PERIOD_NS {
             analysis.late_e2e += 1;
+            analysis.miss_stamps_ns.push(t.stamp_ns);
         }
         for (hop, pair) in analysis.hops.iter_mut().zip(stamps.windows(2)) {
             hop.record(pair[1].saturating_sub(pair[0]));
@@ -278,14 +285,23 @@ pub fn analyse_pipeline(recording: &Recording, warmup_s: f64) -> PipelineAnalysi
         }
     }
     jetbench_msgs::visit_channels(&mut Gaps(recording, &mut analysis.seq_gaps));
-    let health = recording.samples(channels::HEALTH);
-    let mut last: BTreeMap<u32, Health> = BTreeMap::new();
-    for h in health {
-        last.insert(h.service_id, h);
+    // Each service's own count over the judged cycles: its heartbeat counter at
+    // the last sensor frame less the count before the first judged one (the
+    // start-up, and the stop, when sim-bench goes first and every input falls
+    // silent, are not the run's).
+    let mut before: BTreeMap<u32, u64> = BTreeMap::new();
+    let mut at_end: BTreeMap<u32, u64> = BTreeMap::new();
+    for h in recording.samples(channels::HEALTH) {
+        if h.stamp_ns < start_ns {
+            before.insert(h.service_id, h.deadline_misses);
+        } else if h.stamp_ns <= last_stamp {
+            at_end.insert(h.service_id, h.deadline_misses);
+        }
     }
-    for (id, h) in last {
+    for (id, misses) in at_end {
         let name = ServiceId::from_u32(id).map_or("unknown", ServiceId::name);
-        analysis.service_deadline_misses.insert(name.to_string(), h.deadline_misses);
+        let since = misses.saturating_sub(before.get(&id).copied().unwrap_or(0));
+        analysis.service_deadline_misses.insert(name.to_string(), since);
     }
     analysis
 }

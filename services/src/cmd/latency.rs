@@ -171,6 +171,9 @@ struct Report {
     /// CPU time the hypervisor took per CPU while measuring, ms
     /// (empty where the kernel does not report steal).
     steal_ms: Vec<f64>,
+    /// Deadline misses of the iceoryx2 runs that came within 40 ms before to
+    /// 20 ms after the hypervisor took a CPU (a bench PC has no hypervisor).
+    misses_during_steal: u64,
     ratios: Ratios,
 }
 
@@ -246,6 +249,7 @@ pub fn run(args: LatencyArgs) -> anyhow::Result<ExitCode> {
 
     let segment_s = args.duration / f64::from(args.rounds);
     let steal_before = jetbench_stack::rt::steal_ms_per_cpu();
+    let steal_sampler = jetbench_stack::rt::StealSampler::start();
     let (mut iceoryx2, mut uds, mut floor) =
         (PipelineAnalysis::default(), PipelineAnalysis::default(), FloorResult::default());
     for round in 0..args.rounds {
@@ -275,6 +279,12 @@ pub fn run(args: LatencyArgs) -> anyhow::Result<ExitCode> {
         (Some(a), Some(b)) if a.len() == b.len() => b.iter().zip(&a).map(|(b, a)| (b - a).max(0.0)).collect(),
         _ => Vec::new(),
     };
+    let steal = steal_sampler.map(|s| s.finish()).unwrap_or_default();
+    let misses_during_steal = iceoryx2
+        .miss_stamps_ns
+        .iter()
+        .filter(|&&t| steal.stolen_ms(t.saturating_sub(40_000_000), t + 20_000_000) > 0.0)
+        .count() as u64;
     if !load.running() {
         eprintln!("warning: the load `{}` ended before the measurements did", load.description);
     }
@@ -287,7 +297,8 @@ pub fn run(args: LatencyArgs) -> anyhow::Result<ExitCode> {
             rt_refused.push(r.clone());
         }
     }
-    let report = build_report(&args, &load_description, rt_refused, &iceoryx2, &uds, &floor, steal_ms);
+    let report =
+        build_report(&args, &load_description, rt_refused, &iceoryx2, &uds, &floor, (steal_ms, misses_during_steal));
     if let Some(plot) = &args.plot {
         let files = write_plot(plot, &iceoryx2, &uds, &floor)?;
         eprintln!("plot: {}", files.iter().map(|f| f.display().to_string()).collect::<Vec<_>>().join(", "));
@@ -411,7 +422,7 @@ fn build_report(
     pipeline: &PipelineAnalysis,
     uds: &PipelineAnalysis,
     floor: &FloorResult,
-    steal_ms: Vec<f64>,
+    (steal_ms, misses_during_steal): (Vec<f64>, u64),
 ) -> Report {
     let (e2e, uds_e2e, floor_e2e) = (pipeline.e2e.percentiles(), uds.e2e.percentiles(), floor.e2e.percentiles());
     Report {
@@ -447,6 +458,7 @@ fn build_report(
             period_jitter_us: uds.period_jitter.percentiles(),
         },
         steal_ms,
+        misses_during_steal,
         ratios: Ratios {
             e2e_p99_over_floor_p99: ratio(e2e.p99, floor_e2e.p99),
             e2e_p50_over_floor_p50: ratio(e2e.p50, floor_e2e.p50),
@@ -503,7 +515,12 @@ fn print_report(r: &Report) {
     );
     if r.steal_ms.iter().any(|&ms| ms > 0.0) {
         let per_cpu: Vec<String> = r.steal_ms.iter().enumerate().map(|(i, ms)| format!("cpu{i} {ms:.0} ms")).collect();
-        println!("hypervisor steal while measuring: {} (a stolen CPU stalls even SCHED_FIFO)", per_cpu.join(", "));
+        println!(
+            "hypervisor steal while measuring: {} (a stolen CPU stalls even SCHED_FIFO); \
+             of the iceoryx2 deadline misses, {} came while the hypervisor took a CPU",
+            per_cpu.join(", "),
+            r.misses_during_steal
+        );
     }
     println!(
         "ratios: iceoryx2 to the floor p99 {:.2} (p50 {:.2}); iceoryx2 to Unix sockets p50 {:.2}, p99 {:.2}",
