@@ -8,7 +8,8 @@
 
 mod common;
 
-use std::process::Stdio;
+use std::process::{Command, Stdio};
+use std::sync::Mutex;
 use std::time::Duration;
 
 use common::{jetbench, scratch, wait_with_watchdog};
@@ -16,10 +17,27 @@ use serde_json::Value;
 
 const SUITE: &str = "latency";
 
-fn run_latency(args: &[&str]) -> (std::process::ExitStatus, String, String) {
-    let mut child = jetbench(SUITE)
-        .arg("latency")
-        .args(args)
+/// One measurement at a time: they measure the machine, and two service sets
+/// would share it.
+static MACHINE: Mutex<()> = Mutex::new(());
+
+/// `jetbench` in a bus namespace of the test's own (`tag`), so that no two
+/// runs meet even if they overlap.
+fn jetbench_in(tag: &str) -> Command {
+    let mut command = jetbench(SUITE);
+    command.env(jetbench_bus::NAMESPACE_ENV, format!("{SUITE}{}{tag}", std::process::id()));
+    command
+}
+
+fn run_latency(tag: &str, args: &[&str]) -> (std::process::ExitStatus, String, String) {
+    let mut command = jetbench_in(tag);
+    command.arg("latency").args(args);
+    run(command)
+}
+
+fn run(mut command: Command) -> (std::process::ExitStatus, String, String) {
+    let _machine = MACHINE.lock().unwrap_or_else(|e| e.into_inner());
+    let mut child = command
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -47,18 +65,21 @@ fn percentiles_ok(report: &Value, key: &str) {
 fn latency_under_cpu_load_with_rt_measures_every_cycle() {
     let plot = scratch(SUITE, "latency.png");
     let seconds = 4.0;
-    let (status, stdout, stderr) = run_latency(&[
-        "--duration",
-        &seconds.to_string(),
-        "--warmup",
-        "1",
-        "--load",
-        "cpu",
-        "--rt",
-        "--json",
-        "--plot",
-        plot.to_str().expect("utf-8 path"),
-    ]);
+    let (status, stdout, stderr) = run_latency(
+        "load",
+        &[
+            "--duration",
+            &seconds.to_string(),
+            "--warmup",
+            "1",
+            "--load",
+            "cpu",
+            "--rt",
+            "--json",
+            "--plot",
+            plot.to_str().expect("utf-8 path"),
+        ],
+    );
     assert!(status.success(), "jetbench latency failed: {stderr}");
     let report: Value = serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("stdout is not JSON ({e}): {stdout}"));
     for key in ["e2e_us", "floor_us", "uds_us", "period_jitter_us"] {
@@ -106,13 +127,48 @@ fn latency_under_cpu_load_with_rt_measures_every_cycle() {
 
 #[test]
 fn bad_options_are_refused_with_the_reason() {
-    let (status, _, stderr) = run_latency(&["--duration", "0"]);
+    let (status, _, stderr) = run_latency("bad", &["--duration", "0"]);
     assert!(!status.success());
     assert!(stderr.contains("--duration"), "{stderr}");
-    let (status, _, stderr) = run_latency(&["--load", "gpu"]);
+    let (status, _, stderr) = run_latency("bad", &["--load", "gpu"]);
     assert!(!status.success());
     assert!(stderr.contains("gpu"), "{stderr}");
-    let (status, _, stderr) = run_latency(&["--duration", "3", "--rounds", "4"]);
+    let (status, _, stderr) = run_latency("bad", &["--duration", "3", "--rounds", "4"]);
     assert!(!status.success());
     assert!(stderr.contains("--rounds"), "{stderr}");
+}
+
+/// Without real-time permission `--rt` runs on and names what the kernel
+/// refused. As root the permission is taken away for real: `setpriv` drops
+/// CAP_SYS_NICE and CAP_IPC_LOCK from jetbench and everything it starts, which
+/// leaves them the rtprio and memlock limits of an ordinary user.
+#[test]
+fn without_real_time_permission_the_run_goes_on_and_names_the_refusals() {
+    let reference = jetbench_in("nort");
+    let exe = reference.get_program().to_owned();
+    // SAFETY: geteuid has no preconditions.
+    let mut command = if unsafe { libc::geteuid() } == 0 {
+        let mut c = Command::new("setpriv");
+        c.args(["--bounding-set", "-sys_nice,-ipc_lock", "--inh-caps", "-sys_nice,-ipc_lock", "--"]).arg(&exe);
+        c
+    } else {
+        Command::new(&exe)
+    };
+    for (key, value) in reference.get_envs() {
+        if let Some(value) = value {
+            command.env(key, value);
+        }
+    }
+    command.args(["latency", "--duration", "2", "--rounds", "1", "--warmup", "1", "--load", "none", "--rt", "--json"]);
+    let (status, stdout, stderr) = run(command);
+    assert!(status.success(), "without real-time permission the run must go on: {stderr}");
+    let report: Value = serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("stdout is not JSON ({e}): {stdout}"));
+    let refused: Vec<&str> =
+        report["rt_refused"].as_array().expect("rt_refused").iter().filter_map(Value::as_str).collect();
+    assert!(refused.iter().any(|r| r.contains("SCHED_FIFO")), "the priority refusal is named: {refused:?}");
+    assert!(refused.iter().any(|r| r.contains("lock memory")), "the memory-lock refusal is named: {refused:?}");
+    assert!(stderr.contains("warning:") && stderr.contains("SCHED_FIFO"), "and said while running: {stderr}");
+    assert!(report["completed"].as_u64().is_some_and(|n| n > 0), "the service set still ran: {report}");
+    assert!(report["uds"]["completed"].as_u64().is_some_and(|n| n > 0), "the baseline still ran: {report}");
+    assert!(report["floor_us"]["count"].as_u64().is_some_and(|n| n > 0), "the floor still ran: {report}");
 }

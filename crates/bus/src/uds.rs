@@ -33,7 +33,7 @@ use crate::bell::{Doorbell, Woke};
 pub const MAX_SAMPLE_BYTES: usize = 512;
 /// Messages one fill of an inbox takes at most.
 const BATCH: usize = 32;
-/// How often a polled inbox (never woken, so never told) looks for new publishers.
+/// How often an inbox looks for new publishers when nothing told it of one.
 const ACCEPT_EVERY: Duration = Duration::from_millis(100);
 /// Room a subscriber's queue gets per sample it asked to hold: a small
 /// message costs the kernel about this much (its buffer plus bookkeeping).
@@ -338,7 +338,10 @@ impl Inbox {
 
     /// Reads every connection into the (empty) buffer.
     fn fill(&self) -> io::Result<()> {
-        if !self.woken && self.accepted_at.get().is_none_or(|t| t.elapsed() >= ACCEPT_EVERY) {
+        // A woken inbox accepts when its poll sees the listener ready; until it
+        // has a publisher it also looks here, in case it is read without waiting.
+        let look = !self.woken || self.inlets.borrow().is_empty();
+        if look && self.accepted_at.get().is_none_or(|t| t.elapsed() >= ACCEPT_EVERY) {
             self.accept_all();
         }
         debug_assert_eq!(self.len.get(), 0, "filled only when empty");
