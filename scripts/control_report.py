@@ -92,6 +92,32 @@ if fbl and mpc:
         f"FBL {fmt(f_settle)} s, MPC {fmt(m_settle)} s.",
         "",
     ]
+    seeds = [(1, fbl, mpc)] + [(n, load(f"fbl-steps-seed{n}"), load(f"mpc-steps-seed{n}")) for n in (2, 3)]
+    seeds = [(n, f, m) for n, f, m in seeds if f and m]
+    if len(seeds) > 1:
+        lines += ["### Over three sensor-noise seeds", "",
+                  "| seed | FBL MAE N | MPC MAE N | MPC lower by | FBL worst SS % | MPC worst SS % | steps FBL does not saturate | FBL settling s | MPC settling s |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        all_f, all_m = [], []
+        for n, f, m in seeds:
+            fm_, mm_ = f["metrics"], m["metrics"]
+            q = [i for i, s in enumerate(fm_["steps"]) if not s["saturated"] and i < len(mm_["steps"])]
+            ft = [fm_["steps"][i]["settling_time_s"] for i in q]
+            mt = [mm_["steps"][i]["settling_time_s"] for i in q]
+            if None not in ft and None not in mt:
+                all_f += ft
+                all_m += mt
+            lines.append(
+                f"| {n} | {fm_['mae_n']:.2f} | {mm_['mae_n']:.2f} | {100 * (1 - mm_['mae_n'] / fm_['mae_n']):.0f} % | "
+                f"{fmt(worst_ss(fm_))} | {fmt(worst_ss(mm_))} | {len(q)} | {' '.join(fmt(t) for t in ft)} | {' '.join(fmt(t) for t in mt)} |")
+        if all_f:
+            lines += ["",
+                      f"- Mean settling over the {len(all_f)} steps FBL does not saturate, all seeds: FBL "
+                      f"{sum(all_f) / len(all_f):.3f} s, MPC {sum(all_m) / len(all_m):.3f} s. On those steps both laws track the"
+                      " same reference, the profile's steps through its critically damped prefilter (τ 0.2 s), and both"
+                      " follow it exactly but for noise, so both settle when the reference does: MPC's lead is in the steps"
+                      " that saturate. FBL's settling moves by a few cycles from run to run with the observer's noise, which"
+                      " it passes to the throttle; MPC's hardly moves.", ""]
 
 lines += ["## Steady state, chattering", ""]
 for key, label in LAWS:
