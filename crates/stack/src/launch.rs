@@ -16,6 +16,12 @@ use jetbench_msgs::{channels, Health, Sample, ServiceId};
 const READY_TIMEOUT: Duration = Duration::from_secs(20);
 /// How long a service may take to stop after SIGTERM before SIGKILL.
 const STOP_TIMEOUT: Duration = Duration::from_secs(5);
+/// How long the survivors run on after a service died, before they are
+/// stopped: long enough for the fail-safe to act and be recorded (actuation
+/// idles after `[actuation] idle_after_missed_cycles`, 3 by default, and the
+/// board acknowledges; the board's own watchdog idles after 100 ms). Stopping
+/// at once would take the simulated board away first, mid fail-safe.
+const FAILSAFE_GRACE: Duration = Duration::from_millis(150);
 
 /// Why `jetbench up` failed.
 #[derive(Debug, thiserror::Error)]
@@ -306,6 +312,9 @@ pub fn up(options: &UpOptions) -> Result<(), LaunchError> {
     let (ready_tx, ready_rx) = mpsc::channel();
     let mut services: Vec<Service> = Vec::new();
     let result = start_and_supervise(options, &order, &ready_tx, &ready_rx, &mut services);
+    if matches!(result, Err(LaunchError::ServiceDied { .. })) {
+        std::thread::sleep(FAILSAFE_GRACE);
+    }
     let stop_failure = stop_all(&mut services);
     match (result, stop_failure) {
         (Err(e), _) => Err(e),
