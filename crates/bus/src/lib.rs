@@ -75,6 +75,8 @@ pub mod limits {
 pub enum BusError {
     #[error("invalid bus name {name:?}: {reason}")]
     InvalidName { name: String, reason: String },
+    #[error("unknown transport {0:?}: {TRANSPORT_ENV} is iceoryx2 (the default) or uds")]
+    InvalidTransport(String),
     #[error("cannot create the bus node {node:?}: {reason} (is /dev/shm writable?)")]
     NodeCreate { node: String, reason: String },
     #[error(
@@ -158,10 +160,7 @@ impl std::str::FromStr for Transport {
         match s {
             "iceoryx2" | "" => Ok(Transport::Iceoryx2),
             "uds" => Ok(Transport::UnixSockets),
-            _ => Err(BusError::InvalidName {
-                name: s.into(),
-                reason: format!("{TRANSPORT_ENV} is iceoryx2 (the default) or uds"),
-            }),
+            _ => Err(BusError::InvalidTransport(s.into())),
         }
     }
 }
@@ -303,11 +302,6 @@ impl Bus {
 
     pub fn name(&self) -> &str {
         &self.name
-    }
-
-    /// How this process's samples travel.
-    pub fn transport(&self) -> Transport {
-        self.transport
     }
 
     fn socket_dir(&self, channel: &str) -> Result<std::path::PathBuf, BusError> {

@@ -118,14 +118,12 @@ pub struct Outbox {
     dir: PathBuf,
     generation_seen: Option<u32>,
     outlets: Vec<Outlet>,
-    /// Samples a full subscriber queue could not take.
-    pub dropped: u64,
 }
 
 impl Outbox {
     pub fn open(dir: &Path) -> io::Result<Outbox> {
         std::fs::create_dir_all(dir)?;
-        Ok(Outbox { dir: dir.to_path_buf(), generation_seen: None, outlets: Vec::new(), dropped: 0 })
+        Ok(Outbox { dir: dir.to_path_buf(), generation_seen: None, outlets: Vec::new() })
     }
 
     /// Sends `bytes` to every subscriber; rescans first if subscribers came or went.
@@ -151,7 +149,9 @@ impl Outbox {
             }
             let e = io::Error::last_os_error();
             match e.raw_os_error() {
-                Some(libc::EAGAIN) => self.dropped += 1,
+                // The subscriber's queue is full: the sample is dropped, and the
+                // subscriber counts it as a `seq` gap.
+                Some(libc::EAGAIN) => {}
                 Some(libc::EPIPE | libc::ECONNRESET | libc::ENOTCONN) => {
                     outlet.woken = false;
                     outlet.path.clear();
@@ -434,11 +434,6 @@ impl Inbox {
                 self.drained.set(false);
             }
         }
-    }
-
-    /// Connections to publishers now.
-    pub fn publishers(&self) -> usize {
-        self.inlets.borrow().len()
     }
 }
 
