@@ -6,7 +6,8 @@ pub mod excite;
 pub mod identify;
 pub mod ls;
 pub mod plot;
-pub mod series;
+/// Recordings as identification data; the loader lives with the recorder (`jetbench_record::series`).
+pub use jetbench_record::series;
 pub mod sindy;
 pub mod synth;
 pub mod validate;

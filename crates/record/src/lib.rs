@@ -22,6 +22,7 @@
 //! # }
 //! ```
 
+pub mod series;
 mod thread;
 
 pub use thread::{spawn_writer, MetadataRecords, RawRecord, WriterHandle, WriterStats, MAX_SAMPLE_BYTES};

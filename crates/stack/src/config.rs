@@ -31,7 +31,7 @@ pub enum ControlSetupError {
     #[error("controller model: {0}")]
     Model(#[from] jetbench_model::ModelError),
     #[error("throttle profile: {0}")]
-    Profile(#[from] jetbench_ident::series::DataError),
+    Profile(#[from] jetbench_record::series::DataError),
 }
 
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
@@ -607,9 +607,9 @@ impl BenchConfig {
     }
 
     /// The open-loop throttle profile, one value per 10 ms (empty when none is set).
-    pub fn throttle_profile(&self) -> Result<Vec<f64>, jetbench_ident::series::DataError> {
+    pub fn throttle_profile(&self) -> Result<Vec<f64>, jetbench_record::series::DataError> {
         match &self.control.throttle_profile {
-            Some(path) => Ok(jetbench_ident::series::Series::load(Path::new(path), false)?.u_pct),
+            Some(path) => Ok(jetbench_record::series::Series::load(Path::new(path), false)?.u_pct),
             None => Ok(Vec::new()),
         }
     }

@@ -49,7 +49,7 @@ pub enum ServiceError {
     #[error(transparent)]
     Record(#[from] RecordError),
     #[error("throttle profile: {0}")]
-    Profile(#[from] jetbench_ident::series::DataError),
+    Profile(#[from] jetbench_record::series::DataError),
     #[error(transparent)]
     ControlSetup(#[from] crate::config::ControlSetupError),
     #[error("{0}")]

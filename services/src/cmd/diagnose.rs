@@ -9,8 +9,8 @@ use anyhow::{bail, Context};
 use indicatif::{ProgressBar, ProgressStyle};
 use jetbench_ident::diagnose::{self, Diagnosis, Options};
 use jetbench_ident::plot::{write_fit_plot, write_line_plot, FitPlot, LinePlot};
-use jetbench_ident::series::Series;
 use jetbench_model::{resolve_model, EffectKind};
+use jetbench_record::series::Series;
 use serde_json::json;
 
 /// Arguments of `jetbench diagnose`.

@@ -9,8 +9,8 @@ use clap::ValueEnum;
 use indicatif::{ProgressBar, ProgressStyle};
 use jetbench_ident::identify::{self, Fitted, Method, MethodResult, Report};
 use jetbench_ident::plot::{write_fit_plot, FitPlot};
-use jetbench_ident::series::Series;
 use jetbench_model::{ModelFile, Params};
+use jetbench_record::series::Series;
 use serde_json::{json, Map, Value};
 
 /// Which methods to run.

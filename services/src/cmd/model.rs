@@ -7,10 +7,10 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context};
 use jetbench_ident::excite::{self, MIN_SAMPLES};
-use jetbench_ident::series::Series;
 use jetbench_ident::synth;
 use jetbench_ident::validate;
 use jetbench_model::{resolve_model, resolve_params, Effect, EffectKind, State};
+use jetbench_record::series::Series;
 
 /// Arguments of `jetbench simulate`.
 #[derive(clap::Args)]

@@ -18,9 +18,9 @@ use std::io::{Read, Write};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
+use crate::Recording;
 use jetbench_model::STEP_S;
 use jetbench_msgs::channels;
-use jetbench_record::Recording;
 
 /// Largest relative deviation of a step from [`STEP_S`] before the series is split.
 const GAP_FACTOR: f64 = 1.5;
@@ -35,7 +35,7 @@ pub enum DataError {
     #[error("{path}: {message}")]
     Invalid { path: String, message: String },
     #[error(transparent)]
-    Mcap(#[from] jetbench_record::RecordError),
+    Mcap(#[from] crate::RecordError),
 }
 
 /// Time, throttle and thrust, one row per 10 ms sample.
