@@ -10,7 +10,7 @@ use std::path::PathBuf;
 use std::sync::{mpsc, Mutex};
 use std::time::Duration;
 
-use jetbench_stack::chain::{run_chain, stage_rt_requests, ChainError, ChainOptions, ChainRun, STAGES};
+use jetbench_latency::chain::{run_chain, stage_rt_requests, ChainError, ChainOptions, ChainRun, STAGES};
 use jetbench_stack::config::BenchConfig;
 
 static MACHINE: Mutex<()> = Mutex::new(());

@@ -1,6 +1,9 @@
-//! Shared entry point of the jetbench binaries: logging and error reporting.
+//! Shared entry point of the jetbench binaries: logging, error reporting, and
+//! the `main` of every service process.
 
 use std::process::ExitCode;
+
+use jetbench_stack::service::{run, RunOptions, Service};
 
 /// Sets up logging to stderr (`RUST_LOG` overrides the `info` default).
 pub fn init_logging() {
@@ -14,24 +17,9 @@ pub fn init_logging() {
         .try_init();
 }
 
-/// Runs a service body inside a span named after the service, and turns an
-/// error into a message naming the service and a failing exit code.
-pub fn run_service(name: &'static str, body: impl FnOnce() -> anyhow::Result<()>) -> ExitCode {
-    init_logging();
-    let span = tracing::info_span!("service", name);
-    let _entered = span.enter();
-    match body() {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            tracing::error!("{e:#}");
-            eprintln!("jetbench-{name}: error: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
-}
-
 /// Arguments every service takes.
-#[derive(Debug, clap::Args)]
+#[derive(Debug, clap::Parser)]
+#[command(version)]
 pub struct ServiceArgs {
     /// Bench config (TOML); the built-in simulated bench if omitted.
     #[arg(long, value_name = "FILE")]
@@ -40,22 +28,31 @@ pub struct ServiceArgs {
     /// as if `[rt] enabled = true` (what the kernel refuses is logged, not fatal).
     #[arg(long)]
     pub rt: bool,
+    /// The MCAP file to write (the recorder only).
+    #[arg(long, value_name = "FILE.mcap")]
+    pub out: Option<std::path::PathBuf>,
 }
 
-impl ServiceArgs {
-    pub fn load(&self) -> anyhow::Result<jetbench_stack::config::BenchConfig> {
-        Ok(jetbench_stack::config::BenchConfig::load_or_default(self.config.as_deref())?)
-    }
-
-    /// Loads the config and applies the real-time settings of service `id`
-    /// (before any thread starts, so every thread inherits them).
-    pub fn start(&self, id: jetbench_msgs::ServiceId) -> anyhow::Result<jetbench_stack::config::BenchConfig> {
-        let mut config = self.load()?;
-        // `--rt` is `[rt] enabled = true` for this run: the service's own threads follow it.
-        config.rt.enabled |= self.rt;
-        if let Some(request) = config.rt.request(id, false) {
-            jetbench_stack::rt::apply(&request).log(id.name());
+/// The `main` of service `S`: parses [`ServiceArgs`] (`about` is the binary's
+/// `--help` line), runs the service inside a span named after it, and turns an
+/// error into a message naming the service and a failing exit code.
+pub fn service_main<S: Service>(about: &'static str) -> ExitCode {
+    use clap::{CommandFactory, FromArgMatches};
+    let name = S::ID.name();
+    let matches = ServiceArgs::command().bin_name(format!("jetbench-{name}")).about(about).get_matches();
+    let args = match ServiceArgs::from_arg_matches(&matches) {
+        Ok(args) => args,
+        Err(e) => e.exit(),
+    };
+    init_logging();
+    let span = tracing::info_span!("service", name);
+    let _entered = span.enter();
+    match run::<S>(&RunOptions { config: args.config, rt: args.rt, output: args.out }) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            tracing::error!("{e:#}");
+            eprintln!("jetbench-{name}: error: {e:#}");
+            ExitCode::FAILURE
         }
-        Ok(config)
     }
 }

@@ -92,7 +92,7 @@ enum Cmd {
     Latency(cmd::latency::LatencyArgs),
     /// The built-in background load of `jetbench latency` (used where stress-ng is not installed).
     #[command(hide = true)]
-    LatencyLoad(cmd::load::LoadArgs),
+    LatencyLoad(cmd::latency::LoadArgs),
 }
 
 fn main() -> ExitCode {
@@ -136,7 +136,7 @@ fn run() -> anyhow::Result<ExitCode> {
         Cmd::Tare(args) => cmd::tare::run(args),
         Cmd::LatencyStage(args) => cmd::latency_stage::run(args),
         Cmd::Latency(args) => cmd::latency::run(args),
-        Cmd::LatencyLoad(args) => cmd::load::run(args).map(|()| ExitCode::SUCCESS),
+        Cmd::LatencyLoad(args) => cmd::latency::run_load(args),
     }
 }
 

@@ -37,8 +37,12 @@ pub use file::{resolve_model, resolve_params, ModelFile};
 pub use params::{AccelPartials, Equilibrium, Params};
 pub use preset::Preset;
 
-/// Control period, s (100 Hz, as on the original bench).
-pub const STEP_S: f64 = 0.01;
+/// The period of everything on the bench, ns: the model's discretisation step, the
+/// control loop's cycle and every channel's sample interval (100 Hz, as on the original
+/// bench). Every other period and deadline is derived from it.
+pub const PERIOD_NS: u64 = 10_000_000;
+/// [`PERIOD_NS`] in seconds (exactly the `f64` nearest 0.01).
+pub const STEP_S: f64 = PERIOD_NS as f64 / 1e9;
 /// RK4 substeps per [`STEP_S`] (integration at 1 kHz).
 pub const SUBSTEPS: usize = 10;
 /// Lowest throttle the ECU accepts, %.

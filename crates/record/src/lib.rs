@@ -22,6 +22,7 @@
 //! # }
 //! ```
 
+pub mod meta;
 pub mod series;
 mod thread;
 
@@ -196,6 +197,23 @@ pub struct RecordedMessage {
     pub publish_time_ns: u64,
     /// The CDR message (header plus body).
     pub data: Vec<u8>,
+}
+
+impl RecordedMessage {
+    /// `sample` as the recorder logs it on `channel`: the CDR header plus its
+    /// bytes, logged at `log_time_ns`, published at its `stamp_ns`.
+    pub fn of_sample<T: Sample>(channel: Channel<T>, log_time_ns: u64, sample: &T) -> RecordedMessage {
+        let mut data = Vec::with_capacity(CDR_HEADER.len() + std::mem::size_of::<T>());
+        data.extend_from_slice(&CDR_HEADER);
+        data.extend_from_slice(sample.as_bytes());
+        RecordedMessage {
+            topic: channel.topic(),
+            schema_name: T::schema_name(),
+            log_time_ns,
+            publish_time_ns: sample.stamp_ns(),
+            data,
+        }
+    }
 }
 
 /// A recording read into memory.

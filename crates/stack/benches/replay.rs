@@ -13,7 +13,8 @@ use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use jetbench_stack::config::BenchConfig;
-use jetbench_stack::replay::{replay, synthetic_recording, EstimatorSource, InputRule};
+use jetbench_stack::replay::{replay, EstimatorSource, InputRule};
+use jetbench_stack::synthetic::synthetic_recording;
 
 const CYCLES: usize = 30_000;
 

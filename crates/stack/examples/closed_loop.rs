@@ -44,7 +44,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     // The sensor noise seed: JETBENCH_SEED, so a result can be checked against other draws.
     let seed: u64 = std::env::var("JETBENCH_SEED").map_or(Ok(3), |s| s.parse())?;
-    let mut sim = SimBench::new(&config.plant()?, config.plant.noise_var_n2, seed, 25.0)?;
+    let mut sim = SimBench::new(
+        &config.plant()?,
+        SimForceSensor::new(config.plant.noise_var_n2, config.plant.sensor_zero, seed)?,
+        25.0,
+    );
     let mut sensing = Sensing::new(&config.sensor)?;
     let mut estimation = Estimation::new(params, config.estimator.observer_config());
     let mut control = Control::with_law(config.control_law()?, config.reference.clone());

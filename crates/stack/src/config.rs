@@ -11,9 +11,6 @@ use serde::{Deserialize, Serialize};
 /// The configuration `jetbench up --sim` uses when no file is given.
 pub const DEFAULT_SIM_CONFIG: &str = include_str!("../../../config/sim.toml");
 
-/// The only rate the model and estimator are discretised for.
-pub const RATE_HZ: f64 = 100.0;
-
 /// Why a configuration is unusable.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
@@ -61,14 +58,14 @@ pub struct BenchConfig {
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct BenchSection {
-    /// `sim` is the only device set available so far.
+    /// The simulated devices or the real bench.
     pub devices: Devices,
-    #[serde(default = "default_rate")]
-    pub rate_hz: f64,
-}
-
-fn default_rate() -> f64 {
-    RATE_HZ
+    /// No longer a setting: the bench runs at the model's period
+    /// ([`jetbench_model::PERIOD_NS`]). Read only so that the configs recorded with
+    /// older runs still load for replay; a config given to a run that has it is
+    /// refused with a message saying so.
+    #[serde(default, skip_serializing)]
+    pub rate_hz: Option<f64>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
@@ -98,6 +95,13 @@ pub struct PlantSection {
     /// N and N·m: the offset `jetbench tare` finds and `[sensor] tare` removes.
     #[serde(default)]
     pub sensor_zero: [f64; 6],
+}
+
+impl PlantSection {
+    /// The simulated force sensor of this plant: its noise, its zero offset, its seed.
+    pub fn sensor(&self) -> Result<crate::step::SimForceSensor, crate::step::SimError> {
+        crate::step::SimForceSensor::new(self.noise_var_n2, self.sensor_zero, self.seed)
+    }
 }
 
 fn default_noise() -> f64 {
@@ -516,10 +520,10 @@ impl BenchConfig {
 
     fn validate(&self, origin: &str) -> Result<(), ConfigError> {
         let invalid = |message: String| ConfigError::Invalid { origin: origin.into(), message };
-        if (self.bench.rate_hz - RATE_HZ).abs() > 1e-9 {
+        if let Some(rate_hz) = self.bench.rate_hz {
             return Err(invalid(format!(
-                "[bench] rate_hz = {}: the model and the estimator are discretised at 10 ms, so only 100 Hz is supported",
-                self.bench.rate_hz
+                "[bench] rate_hz = {rate_hz} is no longer a setting: the bench runs at 100 Hz, the model's and the \
+                 estimator's 10 ms step; delete the line"
             )));
         }
         if !(self.plant.noise_var_n2.is_finite() && self.plant.noise_var_n2 >= 0.0) {
@@ -738,10 +742,12 @@ mod tests {
     }
 
     #[test]
-    fn unsupported_rate_is_explained() {
-        let text = DEFAULT_SIM_CONFIG.replace("rate_hz = 100.0", "rate_hz = 200.0");
-        let e = BenchConfig::from_toml_str(&text, "t.toml", None).unwrap_err().to_string();
-        assert!(e.contains("only 100 Hz"), "{e}");
+    fn an_old_rate_key_is_explained() {
+        for rate in ["100.0", "200.0"] {
+            let text = DEFAULT_SIM_CONFIG.replace("devices = \"sim\"", &format!("devices = \"sim\"\nrate_hz = {rate}"));
+            let e = BenchConfig::from_toml_str(&text, "t.toml", None).unwrap_err().to_string();
+            assert!(e.contains("rate_hz") && e.contains("no longer a setting") && e.contains("delete"), "{e}");
+        }
     }
 
     #[test]

@@ -1,16 +1,17 @@
 //! The launcher behind `jetbench up`: starts the service processes in
-//! dependency order, waits until each is ready, shows a live status line,
-//! and stops them all in order at the end, on Ctrl-C/SIGTERM, or when one dies.
+//! dependency order ([`crate::supervise`]), waits until each is ready, shows a
+//! live status line, and stops them all in order at the end, on Ctrl-C/SIGTERM,
+//! or when one dies.
 
-use std::io::{BufRead, BufReader, IsTerminal, Write};
-use std::os::unix::process::{CommandExt, ExitStatusExt};
+use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
-use std::sync::mpsc;
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use jetbench_bus::{Bus, BusError, Flow, Subscriber};
 use jetbench_msgs::{channels, Health, Sample, ServiceId};
+
+use crate::supervise::{describe_exit, SpawnOptions, StopOrder, Supervisor};
 
 /// How long a service may take to create its ports.
 const READY_TIMEOUT: Duration = Duration::from_secs(20);
@@ -61,33 +62,6 @@ pub struct UpOptions {
     pub transport: jetbench_bus::Transport,
 }
 
-/// A started service process.
-struct Service {
-    id: ServiceId,
-    child: Child,
-    exited: Option<ExitStatus>,
-}
-
-/// Describes how a process ended, e.g. `was killed by signal 9 (SIGKILL)`.
-pub fn describe_exit(status: ExitStatus) -> String {
-    match (status.code(), status.signal()) {
-        (Some(0), _) => "exited normally".into(),
-        (Some(code), _) => format!("exited with status {code}"),
-        (None, Some(sig)) => {
-            let name = match sig {
-                libc::SIGKILL => " (SIGKILL)",
-                libc::SIGTERM => " (SIGTERM)",
-                libc::SIGSEGV => " (SIGSEGV)",
-                libc::SIGABRT => " (SIGABRT)",
-                libc::SIGINT => " (SIGINT)",
-                _ => "",
-            };
-            format!("was killed by signal {sig}{name}")
-        }
-        (None, None) => "ended for an unknown reason".into(),
-    }
-}
-
 /// Start order: the recorder first so it sees every sample, then consumers
 /// before producers, and the simulated bench (when `simulated`), which clocks the loop, last.
 pub fn start_order(record: bool, simulated: bool) -> Vec<ServiceId> {
@@ -114,87 +88,71 @@ fn binary(bin_dir: &Path, id: ServiceId) -> Result<PathBuf, LaunchError> {
     }
 }
 
-fn spawn(options: &UpOptions, id: ServiceId, ready_tx: &mpsc::Sender<ServiceId>) -> Result<Service, LaunchError> {
-    let mut command = Command::new(binary(&options.bin_dir, id)?);
-    if let Some(config) = &options.config {
-        command.arg("--config").arg(config);
-    }
-    if options.rt {
-        command.arg("--rt");
-    }
-    command.env(jetbench_bus::TRANSPORT_ENV, options.transport.name());
-    if id == ServiceId::Recorder {
-        if let Some(out) = &options.record {
-            command.arg("--out").arg(out);
-        }
-    }
-    // Own process group: Ctrl-C reaches only the launcher, which then stops
-    // the services in order (so the recorder sees the last samples).
-    command.process_group(0).stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::inherit());
-    let mut child = command.spawn().map_err(|source| LaunchError::Spawn { service: id.name(), source })?;
-    if let Some(stdout) = child.stdout.take() {
-        let tx = ready_tx.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                if line.trim() == "ready" {
-                    let _ = tx.send(id);
-                } else {
-                    println!("{}: {line}", id.name());
-                }
-            }
-        });
-    }
-    println!("started {} (pid {})", id.name(), child.id());
-    Ok(Service { id, child, exited: None })
+/// The service processes of a run (index = position in `ids`, the start order).
+#[derive(Default)]
+struct Services {
+    ids: Vec<ServiceId>,
+    children: Supervisor,
 }
 
-/// Checks every service; returns the first that has ended.
-fn first_exited(services: &mut [Service]) -> Option<(ServiceId, ExitStatus)> {
-    for s in services.iter_mut() {
-        if s.exited.is_none() {
-            if let Ok(Some(status)) = s.child.try_wait() {
-                s.exited = Some(status);
-                return Some((s.id, status));
+impl Services {
+    fn spawn(&mut self, options: &UpOptions, id: ServiceId) -> Result<(), LaunchError> {
+        let mut command = Command::new(binary(&options.bin_dir, id)?);
+        if let Some(config) = &options.config {
+            command.arg("--config").arg(config);
+        }
+        if options.rt {
+            command.arg("--rt");
+        }
+        command.env(jetbench_bus::TRANSPORT_ENV, options.transport.name());
+        if id == ServiceId::Recorder {
+            if let Some(out) = &options.record {
+                command.arg("--out").arg(out);
             }
         }
+        // In its own process group (as the supervisor starts every child): Ctrl-C
+        // reaches only the launcher, which then stops the services in order (so the
+        // recorder sees the last samples).
+        let index = self
+            .children
+            .spawn(id.name(), &mut command, SpawnOptions::default())
+            .map_err(|e| LaunchError::Spawn { service: id.name(), source: e.source })?;
+        self.ids.push(id);
+        println!("started {} (pid {})", id.name(), self.children.pid(index));
+        Ok(())
     }
-    None
-}
 
-/// Stops services in start order (producers after consumers would lose the
-/// last samples, so the clocking sim-bench goes first and the recorder last).
-/// Returns the first service that did not stop cleanly.
-fn stop_all(services: &mut [Service]) -> Option<(ServiceId, String)> {
-    let mut failure = None;
-    for s in services.iter_mut().rev() {
-        if s.exited.is_none() {
-            // SAFETY: kill(2) on our own child's pid; no memory is involved.
-            unsafe { libc::kill(s.child.id() as libc::pid_t, libc::SIGTERM) };
-            let deadline = Instant::now() + STOP_TIMEOUT;
-            loop {
-                match s.child.try_wait() {
-                    Ok(Some(status)) => {
-                        s.exited = Some(status);
-                        break;
-                    }
-                    Ok(None) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(5)),
-                    _ => {
-                        let _ = s.child.kill();
-                        s.exited = s.child.wait().ok();
-                        failure =
-                            failure.or(Some((s.id, format!("did not stop within {STOP_TIMEOUT:?} and was killed"))));
-                        break;
-                    }
-                }
+    /// Prints what the services printed on stdout, attributed, waiting up to
+    /// `wait` for the first line; returns the services that said `ready`.
+    fn pump_lines(&mut self, wait: Duration) -> Vec<ServiceId> {
+        let mut ready = Vec::new();
+        let mut next = self.children.next_line(wait);
+        while let Some((i, line)) = next {
+            if line.trim() == "ready" {
+                ready.push(self.ids[i]);
+            } else {
+                println!("{}: {line}", self.ids[i].name());
             }
-            if let Some(status) = s.exited {
-                if !status.success() {
-                    failure = failure.or(Some((s.id, describe_exit(status))));
-                }
-            }
+            next = self.children.try_line();
         }
+        ready
     }
-    failure
+
+    /// The first service that has ended, as the error naming it.
+    fn died(&mut self) -> Option<LaunchError> {
+        let (i, status) = self.children.reap()?;
+        Some(LaunchError::ServiceDied { service: self.ids[i].name(), how: describe_exit(status) })
+    }
+
+    /// Stops the services in reverse start order: the clocking sim-bench first
+    /// and the recorder last, so no sample is lost in between. Returns the
+    /// first that did not stop cleanly.
+    fn stop_all(&mut self) -> Option<(ServiceId, String)> {
+        let order = (0..self.ids.len()).rev().collect();
+        let failure = self.children.stop(StopOrder::InTurn(order), STOP_TIMEOUT);
+        self.pump_lines(Duration::ZERO);
+        failure.map(|(i, how)| (self.ids[i], how))
+    }
 }
 
 /// Live counts for the status line. Its subscribers are polled on the
@@ -309,13 +267,12 @@ pub fn up(options: &UpOptions) -> Result<(), LaunchError> {
         binary(&options.bin_dir, *id)?;
     }
 
-    let (ready_tx, ready_rx) = mpsc::channel();
-    let mut services: Vec<Service> = Vec::new();
-    let result = start_and_supervise(options, &order, &ready_tx, &ready_rx, &mut services);
+    let mut services = Services::default();
+    let result = start_and_supervise(options, &order, &mut services);
     if matches!(result, Err(LaunchError::ServiceDied { .. })) {
         std::thread::sleep(FAILSAFE_GRACE);
     }
-    let stop_failure = stop_all(&mut services);
+    let stop_failure = services.stop_all();
     match (result, stop_failure) {
         (Err(e), _) => Err(e),
         (Ok(()), Some((id, how))) => Err(LaunchError::StopFailed { service: id.name(), how }),
@@ -323,36 +280,28 @@ pub fn up(options: &UpOptions) -> Result<(), LaunchError> {
     }
 }
 
-fn start_and_supervise(
-    options: &UpOptions,
-    order: &[ServiceId],
-    ready_tx: &mpsc::Sender<ServiceId>,
-    ready_rx: &mpsc::Receiver<ServiceId>,
-    services: &mut Vec<Service>,
-) -> Result<(), LaunchError> {
-    for id in order {
-        services.push(spawn(options, *id, ready_tx)?);
+fn start_and_supervise(options: &UpOptions, order: &[ServiceId], services: &mut Services) -> Result<(), LaunchError> {
+    for &id in order {
+        services.spawn(options, id)?;
         let deadline = Instant::now() + READY_TIMEOUT;
         loop {
             if jetbench_bus::stop_requested() {
                 return Ok(());
             }
-            if let Some((dead, status)) = first_exited(services) {
-                return Err(LaunchError::ServiceDied { service: dead.name(), how: describe_exit(status) });
+            if let Some(died) = services.died() {
+                return Err(died);
             }
-            match ready_rx.recv_timeout(Duration::from_millis(20)) {
-                Ok(r) if r == *id => break,
-                Ok(_) => {}
-                Err(_) if Instant::now() >= deadline => {
-                    return Err(LaunchError::NotReady { service: id.name(), timeout: READY_TIMEOUT })
-                }
-                Err(_) => {}
+            if services.pump_lines(Duration::from_millis(20)).contains(&id) {
+                break;
+            }
+            if Instant::now() >= deadline {
+                return Err(LaunchError::NotReady { service: id.name(), timeout: READY_TIMEOUT });
             }
         }
     }
     println!(
         "all {} services ready{}",
-        services.len(),
+        services.ids.len(),
         match options.duration {
             Some(d) => format!("; running for {:.1} s", d.as_secs_f64()),
             None => "; Ctrl-C stops".into(),
@@ -369,8 +318,9 @@ fn start_and_supervise(
     let mut last_status = started;
     let mut failure = None;
     bus.run(&[], Some(Duration::from_millis(20)), |_| {
-        if let Some((dead, exit)) = first_exited(services) {
-            failure = Some(LaunchError::ServiceDied { service: dead.name(), how: describe_exit(exit) });
+        services.pump_lines(Duration::ZERO);
+        if let Some(died) = services.died() {
+            failure = Some(died);
             return Flow::Stop;
         }
         let now = Instant::now();

@@ -1,5 +1,6 @@
-//! The service set: the bench config, the step logic of every service, the
-//! runtime that wires each step to the bus, and the launcher.
+//! The runtime of the service set: the bench config, the step logic of every
+//! service, the service lifecycle and the one runner every service process
+//! runs under, the launcher and its supervisor, and real-time settings.
 //!
 //! ```
 //! use jetbench_stack::config::BenchConfig;
@@ -8,13 +9,13 @@
 //! assert_eq!(config.actuation.idle_after_missed_cycles, 3);
 //! ```
 
-pub mod chain;
 pub mod clock;
 pub mod config;
 pub mod health;
-pub mod latency;
 pub mod launch;
 pub mod replay;
 pub mod rt;
 pub mod service;
 pub mod step;
+pub mod supervise;
+pub mod synthetic;

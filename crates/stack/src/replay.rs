@@ -6,7 +6,8 @@
 //!
 //! ```
 //! use jetbench_stack::config::BenchConfig;
-//! use jetbench_stack::replay::{replay, synthetic_recording, EstimatorSource, InputRule};
+//! use jetbench_stack::replay::{replay, EstimatorSource, InputRule};
+//! use jetbench_stack::synthetic::synthetic_recording;
 //!
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! // Two seconds of the simulated closed loop, laid out as the recorder writes it.
@@ -53,20 +54,12 @@ use std::path::Path;
 
 use jetbench_estim::{EstimError, ObserverConfig};
 use jetbench_model::{ModelError, ModelFile, Params};
-use jetbench_msgs::{channels, state_flags, Actuation, Channel, Sample, StateEstimate, Thrust, CDR_HEADER};
+use jetbench_msgs::{channels, state_flags, Actuation, Sample, StateEstimate, Thrust, CDR_HEADER};
+use jetbench_record::meta::{RunMetadata, KEY_CONFIG, KEY_MODEL_TOML, REPLAY, RUN};
 use jetbench_record::{McapWriter, RecordError, RecordedMessage, Recording};
 
 use crate::config::BenchConfig;
-use crate::step::{Actuator, Control, Estimation, Sensing, SimBench, SimError};
-
-/// Name of the recorder's metadata record about the run.
-pub const METADATA_NAME: &str = "jetbench";
-/// Key of the whole bench config (TOML) in [`METADATA_NAME`].
-pub const KEY_CONFIG: &str = "config";
-/// Key of the estimator's resolved model parameters (a model file's TOML) in [`METADATA_NAME`].
-pub const KEY_MODEL_TOML: &str = "model_toml";
-/// Name of the metadata record a replayed recording gets (see [`ReplayReport::metadata`]).
-pub const REPLAY_METADATA_NAME: &str = "replay";
+use crate::step::Estimation;
 
 /// Why a recording cannot be replayed.
 #[derive(Debug, thiserror::Error)]
@@ -74,13 +67,13 @@ pub enum ReplayError {
     /// No `jetbench` metadata with the bench config: an older recorder, or a
     /// file cut off before its metadata.
     #[error(
-        "the recording has no `{METADATA_NAME}` metadata with the run's bench config, so the estimator's model \
+        "the recording has no `{RUN}` metadata with the run's bench config, so the estimator's model \
          is unknown; pass the bench config the run used (jetbench replay --config FILE)"
     )]
     NoMetadata,
     /// The recorded configuration does not parse.
     #[error(
-        "the recording's `{METADATA_NAME}` metadata `{key}` does not parse: {message}; \
+        "the recording's `{RUN}` metadata `{key}` does not parse: {message}; \
          pass the bench config the run used (jetbench replay --config FILE)"
     )]
     BadMetadata { key: &'static str, message: String },
@@ -121,7 +114,7 @@ impl EstimatorSetup {
     /// config, the model from `model_toml` when present, else the config's
     /// `[model] model` resolved now (older recordings).
     pub fn from_recording(recording: &Recording) -> Result<(Self, EstimatorOrigin), ReplayError> {
-        let meta = recording.metadata.get(METADATA_NAME).ok_or(ReplayError::NoMetadata)?;
+        let meta = recording.metadata.get(RUN).ok_or(ReplayError::NoMetadata)?;
         let text = meta.get(KEY_CONFIG).filter(|t| !t.trim().is_empty()).ok_or(ReplayError::NoMetadata)?;
         // Parsed without `BenchConfig::validate`: that resolves the model
         // files, which may be gone, and the plant, which replay does not need.
@@ -148,11 +141,14 @@ pub fn model_toml(config: &BenchConfig) -> Result<String, ModelError> {
     Ok(ModelFile::new(config.model_params()?).to_toml_string())
 }
 
-/// The recorder's estimator entries of the [`METADATA_NAME`] record:
-/// [`KEY_CONFIG`] and [`KEY_MODEL_TOML`].
-pub fn estimator_metadata(config: &BenchConfig) -> Result<Vec<(String, String)>, ModelError> {
-    let config_text = toml::to_string(config).unwrap_or_default();
-    Ok(vec![(KEY_CONFIG.into(), config_text), (KEY_MODEL_TOML.into(), model_toml(config)?)])
+/// What the recorder says about a run of `config` ([`jetbench_record::meta`]):
+/// the config and the estimator's resolved model; the recorder adds the clocks.
+pub fn run_metadata(config: &BenchConfig) -> Result<RunMetadata, ModelError> {
+    Ok(RunMetadata {
+        config_toml: toml::to_string(config).unwrap_or_default(),
+        model_toml: Some(model_toml(config)?),
+        ..RunMetadata::default()
+    })
 }
 
 /// Where [`replay`] takes the estimator from.
@@ -280,7 +276,7 @@ impl ReplayReport {
         self.compared == self.identical
     }
 
-    /// The entries of the [`REPLAY_METADATA_NAME`] record of a replayed recording.
+    /// The entries of the [`REPLAY`] record of a replayed recording.
     pub fn metadata(&self, source: &Path) -> BTreeMap<String, String> {
         let mut m = BTreeMap::new();
         let mut put = |k: &str, v: String| {
@@ -567,10 +563,10 @@ pub fn write_replayed(
     replay_metadata: BTreeMap<String, String>,
 ) -> Result<WriteReport, RecordError> {
     let mut writer = McapWriter::create(path)?;
-    for (name, entries) in recording.metadata.iter().filter(|(name, _)| *name != REPLAY_METADATA_NAME) {
+    for (name, entries) in recording.metadata.iter().filter(|(name, _)| *name != REPLAY) {
         writer.write_metadata(name, entries.clone())?;
     }
-    writer.write_metadata(REPLAY_METADATA_NAME, replay_metadata)?;
+    writer.write_metadata(REPLAY, replay_metadata)?;
     let state_topic = channels::STATE.topic();
     let mut not_copied = 0;
     let mut replayed = outcome.estimates.iter().peekable();
@@ -599,102 +595,11 @@ pub fn write_replayed(
     Ok(WriteReport { written, not_copied })
 }
 
-/// A sample as the recorder logs it: CDR header plus bytes, publish time = `stamp_ns`.
-fn recorded<T: Sample>(channel: Channel<T>, log_time_ns: u64, sample: &T) -> RecordedMessage {
-    let mut data = Vec::with_capacity(CDR_HEADER.len() + size_of::<T>());
-    data.extend_from_slice(&CDR_HEADER);
-    data.extend_from_slice(sample.as_bytes());
-    RecordedMessage {
-        topic: channel.topic(),
-        schema_name: T::schema_name(),
-        log_time_ns,
-        publish_time_ns: sample.stamp_ns(),
-        data,
-    }
-}
-
-/// Why [`synthetic_recording`] failed.
-#[derive(Debug, thiserror::Error)]
-pub enum SyntheticError {
-    #[error(transparent)]
-    Model(#[from] ModelError),
-    #[error(transparent)]
-    Sim(#[from] SimError),
-    #[error(transparent)]
-    ControlSetup(#[from] crate::config::ControlSetupError),
-    #[error("cycle {cycle}: {service} rejected its input: {message}")]
-    Step { cycle: usize, service: &'static str, message: String },
-}
-
-/// A recording of `cycles` cycles of the closed loop, simulated with the live
-/// step structs ([`SimBench`], [`Sensing`], [`Estimation`], [`Control`],
-/// [`Actuator`]) on a synthetic 100 Hz clock and laid out as the recorder
-/// writes it: `bench/thrust`, `bench/state`, `bench/reference`,
-/// `bench/command` and `bench/actuation`, plus the `jetbench` metadata.
-/// For tests, benchmarks and examples; a replay of it is bit-exact.
-///
-/// Timing per cycle `k` (`t = 1 s + k·10 ms`): the thrust sample is stamped
-/// `t`, the actuation of its command is published at `t + 600 µs`, so the
-/// estimator predicts cycle `k + 1` with the actuation of cycle `k` (and the
-/// first cycle with none: `INPUT_ASSUMED`), as a live run does.
-pub fn synthetic_recording(config: &BenchConfig, cycles: usize) -> Result<Recording, SyntheticError> {
-    const T0_NS: u64 = 1_000_000_000;
-    const PERIOD_NS: u64 = 10_000_000;
-    let model = config.model_params()?;
-    let mut sim = SimBench::new(
-        &config.plant()?,
-        config.plant.noise_var_n2,
-        config.plant.seed,
-        config.plant.initial_throttle_pct,
-    )?;
-    let mut sensing = Sensing::new(&config.sensor).map_err(|e| SyntheticError::Step {
-        cycle: 0,
-        service: "sensing",
-        message: e.to_string(),
-    })?;
-    let mut estimation = Estimation::new(model, config.estimator.observer_config());
-    let mut control = Control::with_law(config.control_law()?, config.reference.clone());
-    let mut actuator = Actuator::new(config.actuation.idle_after_missed_cycles);
-
-    let step_error = |cycle: usize, service: &'static str, e: &dyn std::fmt::Display| SyntheticError::Step {
-        cycle,
-        service,
-        message: e.to_string(),
-    };
-    let mut messages = Vec::with_capacity(5 * cycles);
-    let mut throttle_frame = None;
-    for k in 0..cycles {
-        let t = T0_NS + k as u64 * PERIOD_NS;
-        let seq = k as u64;
-        let (reading, _truth) = sim.step(t, throttle_frame)?;
-        let mut thrust = sensing.step(&reading, t).map_err(|e| step_error(k, "sensing", &e))?;
-        (thrust.seq, thrust.publish_ns) = (seq, t + 1_000);
-        messages.push(recorded(channels::THRUST, t + 30_000, &thrust));
-
-        let mut state = estimation.step(&thrust).map_err(|e| step_error(k, "estimation", &e))?;
-        (state.seq, state.publish_ns) = (seq, t + 40_000);
-        messages.push(recorded(channels::STATE, t + 70_000, &state));
-
-        let (mut reference, mut command) = control.step(&state).map_err(|e| step_error(k, "control", &e))?;
-        (reference.seq, reference.publish_ns) = (seq, t + 80_000);
-        (command.seq, command.publish_ns) = (seq, t + 80_000);
-        messages.push(recorded(channels::REFERENCE, t + 110_000, &reference));
-        messages.push(recorded(channels::COMMAND, t + 110_000, &command));
-
-        let mut applied = actuator.on_command(&command);
-        (applied.seq, applied.publish_ns) = (seq, t + 600_000);
-        messages.push(recorded(channels::ACTUATION, t + 630_000, &applied));
-        estimation.set_applied(applied.applied_pct);
-        throttle_frame = Some(applied.applied_pct);
-    }
-    let mut run_info: BTreeMap<String, String> = estimator_metadata(config)?.into_iter().collect();
-    run_info.insert("clock".into(), "synthetic: jetbench_stack::replay::synthetic_recording".into());
-    Ok(Recording { messages, truncated: false, metadata: [(METADATA_NAME.to_string(), run_info)].into() })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::step::{SimBench, SimForceSensor};
+    use crate::synthetic::synthetic_recording;
     use jetbench_model::THROTTLE_MIN_PCT;
 
     fn config() -> BenchConfig {
@@ -712,8 +617,11 @@ mod tests {
     fn raced_recording(cycles: u64) -> Recording {
         let config = config();
         let params = config.model_params().unwrap();
-        let mut sim =
-            SimBench::new(&jetbench_model::Plant::new(params, jetbench_model::Effects::none()), 7.0, 11, 25.0).unwrap();
+        let mut sim = SimBench::new(
+            &jetbench_model::Plant::new(params, jetbench_model::Effects::none()),
+            SimForceSensor::new(7.0, [0.0; 6], 11).unwrap(),
+            25.0,
+        );
         let mut sensing = Sensing::new(&config.sensor).unwrap();
         let mut estimation = Estimation::new(params, config.estimator.observer_config());
         let mut messages = Vec::new();
@@ -725,18 +633,18 @@ mod tests {
             let (reading, _) = sim.step(t, frame).unwrap();
             let mut thrust = sensing.step(&reading, t).unwrap();
             (thrust.seq, thrust.publish_ns) = (k, t + 1_000);
-            messages.push(recorded(channels::THRUST, t + 20_000, &thrust));
+            messages.push(RecordedMessage::of_sample(channels::THRUST, t + 20_000, &thrust));
             // The late actuation of the previous cycle, published after this
             // thrust's stamp but seen by the estimator all the same.
             if let Some(a) = pending.take() {
-                messages.push(recorded(channels::ACTUATION, a.publish_ns + 10_000, &a));
+                messages.push(RecordedMessage::of_sample(channels::ACTUATION, a.publish_ns + 10_000, &a));
                 estimation.set_applied(a.applied_pct);
             }
             if k != 37 {
                 let mut s = estimation.step(&thrust).unwrap();
                 (s.seq, s.publish_ns) = (state_seq, t + 50_000);
                 state_seq += 1;
-                messages.push(recorded(channels::STATE, t + 60_000, &s));
+                messages.push(RecordedMessage::of_sample(channels::STATE, t + 60_000, &s));
             }
             if k >= 3 {
                 let throttle_pct = 25.0 + ((k / 20) % 4) as f64 * 20.0 + (k % 3) as f64;
@@ -752,13 +660,12 @@ mod tests {
                     pending = Some(Actuation { publish_ns: t + 10_000_000 + 5_000, ..a });
                 } else {
                     let a = Actuation { publish_ns: t + 600_000, ..a };
-                    messages.push(recorded(channels::ACTUATION, t + 620_000, &a));
+                    messages.push(RecordedMessage::of_sample(channels::ACTUATION, t + 620_000, &a));
                     estimation.set_applied(a.applied_pct);
                 }
             }
         }
-        let run_info = estimator_metadata(&config).unwrap().into_iter().collect();
-        Recording { messages, truncated: false, metadata: [(METADATA_NAME.to_string(), run_info)].into() }
+        Recording { messages, truncated: false, metadata: [run_metadata(&config).unwrap().record()].into() }
     }
 
     #[test]
@@ -825,7 +732,8 @@ mod tests {
         let mut s = StateEstimate::from_cdr(&recording.messages[target].data).unwrap();
         assert_eq!(s.source_seq, 250);
         s.thrust_n += 1e-9;
-        recording.messages[target] = recorded(channels::STATE, recording.messages[target].log_time_ns, &s);
+        recording.messages[target] =
+            RecordedMessage::of_sample(channels::STATE, recording.messages[target].log_time_ns, &s);
         let r = replay(&recording, EstimatorSource::Recorded, InputRule::Auto).unwrap().report;
         assert_eq!((r.compared, r.identical), (400, 399));
         assert!(!r.is_identical());
@@ -838,7 +746,7 @@ mod tests {
         let at = recording.messages.iter().rposition(|m| m.topic == "/bench/state").unwrap();
         let mut s = StateEstimate::from_cdr(&recording.messages[at].data).unwrap();
         s.flags |= state_flags::MODEL_FALLBACK;
-        recording.messages[at] = recorded(channels::STATE, 0, &s);
+        recording.messages[at] = RecordedMessage::of_sample(channels::STATE, 0, &s);
         let r = replay(&recording, EstimatorSource::Recorded, InputRule::Auto).unwrap().report;
         assert_eq!(r.first_difference.map(|d| d.field), Some("flags"));
     }
@@ -874,19 +782,19 @@ mod tests {
         assert!(err.to_string().contains("--config FILE"), "{err}");
 
         // An older recording: no model_toml, and the model file is gone.
-        let mut meta = with_meta[METADATA_NAME].clone();
+        let mut meta = with_meta[RUN].clone();
         meta.remove(KEY_MODEL_TOML);
         let mut old: BenchConfig = toml::from_str(&meta[KEY_CONFIG]).unwrap();
         old.model.model = "/gone/model.toml".into();
         meta.insert(KEY_CONFIG.into(), toml::to_string(&old).unwrap());
-        recording.metadata.insert(METADATA_NAME.into(), meta.clone());
+        recording.metadata.insert(RUN.into(), meta.clone());
         let err = replay(&recording, EstimatorSource::Recorded, InputRule::Auto).unwrap_err();
         assert!(matches!(err, ReplayError::ModelUnavailable { .. }), "{err}");
         assert!(err.to_string().contains("/gone/model.toml") && err.to_string().contains("--config"), "{err}");
 
         // With model_toml the missing file does not matter.
         meta.insert(KEY_MODEL_TOML.into(), model_toml(&config()).unwrap());
-        recording.metadata.insert(METADATA_NAME.into(), meta);
+        recording.metadata.insert(RUN.into(), meta);
         let r = replay(&recording, EstimatorSource::Recorded, InputRule::Auto).unwrap().report;
         assert!(r.is_identical() && r.compared == 20);
 
@@ -903,10 +811,10 @@ mod tests {
     fn the_recorded_config_and_model_parse_back_exactly() {
         let mut config = config();
         config.estimator.accel_noise_n_per_s2 = 0.1 + 0.2; // not a short decimal
-        let entries: BTreeMap<String, String> = estimator_metadata(&config).unwrap().into_iter().collect();
+        let entries = run_metadata(&config).unwrap().record().1;
         let back: BenchConfig = toml::from_str(&entries[KEY_CONFIG]).unwrap();
         assert_eq!(back, config);
-        let recording = Recording { metadata: [(METADATA_NAME.to_string(), entries)].into(), ..Recording::default() };
+        let recording = Recording { metadata: [(RUN.to_string(), entries)].into(), ..Recording::default() };
         let (setup, origin) = EstimatorSetup::from_recording(&recording).unwrap();
         assert_eq!(origin, EstimatorOrigin::RecordedModel);
         assert_eq!(setup, EstimatorSetup::from_config(&config).unwrap());
@@ -971,9 +879,9 @@ mod tests {
         assert_eq!(back.samples(channels::STATE), recorded_states(&recording));
         assert_eq!(back.samples(channels::THRUST), recording.samples(channels::THRUST));
         assert_eq!(back.samples(channels::ACTUATION), recording.samples(channels::ACTUATION));
-        assert_eq!(back.metadata[METADATA_NAME], recording.metadata[METADATA_NAME]);
-        assert_eq!(back.metadata[REPLAY_METADATA_NAME]["identical"], "300");
-        assert_eq!(back.metadata[REPLAY_METADATA_NAME]["source"], "run.mcap");
+        assert_eq!(back.metadata[RUN], recording.metadata[RUN]);
+        assert_eq!(back.metadata[REPLAY]["identical"], "300");
+        assert_eq!(back.metadata[REPLAY]["source"], "run.mcap");
         // Each state right after its thrust sample, at its log time.
         let thrust_at = back.messages.iter().position(|m| m.topic == "/bench/thrust").unwrap();
         assert_eq!(back.messages[thrust_at + 1].topic, "/bench/state");

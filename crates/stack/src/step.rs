@@ -405,38 +405,81 @@ impl Default for BoardEmulator {
     }
 }
 
+/// The simulated force/torque sensor: the thrust on the x axis with Gaussian
+/// noise, noise on the other axes, the sensor's offset at zero load, and its
+/// frame counter. The one sensor of the simulated bench, of `jetbench tare`'s
+/// sensor at rest, and of the synthetic recordings.
+#[derive(Debug, Clone)]
+pub struct SimForceSensor {
+    rng: ChaCha8Rng,
+    noise: Normal<f64>,
+    cross_noise: Normal<f64>,
+    /// Reading at zero load `[Fx, Fy, Fz, Tx, Ty, Tz]`, N and N·m.
+    zero: [f64; 6],
+    counter: u32,
+}
+
+/// Noise on the force axes that do not carry thrust, N (std-dev); the torques
+/// get a hundredth of it in N·m.
+const CROSS_AXIS_NOISE_N: f64 = 0.3;
+
+impl SimForceSensor {
+    /// Noise of variance `noise_var_n2` (N²) on the thrust axis, from `seed`;
+    /// `zero` is the reading at zero load. Fails if the variance is negative or
+    /// not finite.
+    pub fn new(noise_var_n2: f64, zero: [f64; 6], seed: u64) -> Result<Self, SimError> {
+        let bad_noise = |_| SimError::Noise(noise_var_n2);
+        Ok(SimForceSensor {
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            noise: Normal::new(0.0, noise_var_n2.sqrt()).map_err(bad_noise)?,
+            cross_noise: Normal::new(0.0, CROSS_AXIS_NOISE_N).map_err(bad_noise)?,
+            zero,
+            counter: 0,
+        })
+    }
+
+    /// One reading with `thrust_n` on the thrust axis; the frame counter advances.
+    pub fn read(&mut self, thrust_n: f64) -> ForceReading {
+        self.counter = self.counter.wrapping_add(1) & 0xff;
+        let mut reading = ForceReading {
+            force_n: [
+                thrust_n + self.noise.sample(&mut self.rng),
+                self.cross_noise.sample(&mut self.rng),
+                self.cross_noise.sample(&mut self.rng),
+            ],
+            torque_nm: [
+                0.01 * self.cross_noise.sample(&mut self.rng),
+                0.01 * self.cross_noise.sample(&mut self.rng),
+                0.01 * self.cross_noise.sample(&mut self.rng),
+            ],
+            counter: self.counter,
+            status: 0,
+        };
+        for i in 0..3 {
+            reading.force_n[i] += self.zero[i];
+            reading.torque_nm[i] += self.zero[3 + i];
+        }
+        reading
+    }
+}
+
 /// The simulated engine (with the plant's effects), throttle board and force sensor.
 #[derive(Debug, Clone)]
 pub struct SimBench {
     engine: PlantEngine,
     board: BoardEmulator,
-    rng: ChaCha8Rng,
-    noise: Normal<f64>,
-    cross_noise: Normal<f64>,
-    counter: u32,
+    sensor: SimForceSensor,
 }
 
-/// Noise on the force axes that do not carry thrust, N (std-dev).
-const CROSS_AXIS_NOISE_N: f64 = 0.3;
-
 impl SimBench {
-    /// `plant` starts at rest at `initial_throttle_pct` (effects settled there). Fails
-    /// if the noise variance is negative or not finite.
-    pub fn new(plant: &Plant, noise_var_n2: f64, seed: u64, initial_throttle_pct: f64) -> Result<Self, SimError> {
-        let bad_noise = |_| SimError::Noise(noise_var_n2);
-        Ok(SimBench {
-            engine: plant.at_equilibrium(initial_throttle_pct),
-            board: BoardEmulator::new(),
-            rng: ChaCha8Rng::seed_from_u64(seed),
-            noise: Normal::new(0.0, noise_var_n2.sqrt()).map_err(bad_noise)?,
-            cross_noise: Normal::new(0.0, CROSS_AXIS_NOISE_N).map_err(bad_noise)?,
-            counter: 0,
-        })
+    /// `plant` starts at rest at `initial_throttle_pct` (effects settled there),
+    /// measured by `sensor`.
+    pub fn new(plant: &Plant, sensor: SimForceSensor, initial_throttle_pct: f64) -> Self {
+        SimBench { engine: plant.at_equilibrium(initial_throttle_pct), board: BoardEmulator::new(), sensor }
     }
 
     /// One 10 ms step at `now_ns`: apply the newest throttle frame (if any),
-    /// advance the engine, and sample the sensor (its reading, effects included)
-    /// with noise on the thrust axis.
+    /// advance the engine, and sample the sensor (its reading, effects included).
     pub fn step(&mut self, now_ns: u64, throttle_frame: Option<f64>) -> Result<(ForceReading, SimTruth), ModelError> {
         if let Some(t) = throttle_frame {
             self.board.receive(t, now_ns);
@@ -451,21 +494,7 @@ impl SimBench {
         let throttle_pct = if throttle_pct.is_finite() { throttle_pct.max(THROTTLE_MIN_PCT) } else { THROTTLE_MIN_PCT };
         let PlantSample { state: State { thrust_n, thrust_rate_n_per_s }, measured_n, engine_throttle_pct } =
             self.engine.step(throttle_pct)?;
-        self.counter = self.counter.wrapping_add(1) & 0xff;
-        let reading = ForceReading {
-            force_n: [
-                measured_n + self.noise.sample(&mut self.rng),
-                self.cross_noise.sample(&mut self.rng),
-                self.cross_noise.sample(&mut self.rng),
-            ],
-            torque_nm: [
-                0.01 * self.cross_noise.sample(&mut self.rng),
-                0.01 * self.cross_noise.sample(&mut self.rng),
-                0.01 * self.cross_noise.sample(&mut self.rng),
-            ],
-            counter: self.counter,
-            status: 0,
-        };
+        let reading = self.sensor.read(measured_n);
         let truth = SimTruth {
             seq: 0,
             stamp_ns: now_ns,
@@ -602,7 +631,7 @@ mod tests {
         let params = Preset::P100Diesel.params();
         let plant = Plant::new(params, Effects::none());
         let config = crate::config::BenchConfig::default_sim().unwrap();
-        let mut sim = SimBench::new(&plant, 7.0, 3, 25.0).unwrap();
+        let mut sim = SimBench::new(&plant, SimForceSensor::new(7.0, [0.0; 6], 3).unwrap(), 25.0);
         let mut sensing = Sensing::new(&config.sensor).unwrap();
         let mut estimation = Estimation::new(params, config.estimator.observer_config());
         let law = Law::new(kind, &plant, &LawSettings::default());
@@ -634,7 +663,7 @@ mod tests {
     /// The time the true thrust takes to rise 5 N after a throttle step from idle
     /// to 80 % commanded at 1 s, as the board applies it.
     fn rise_time_s(plant: &Plant) -> (f64, f64) {
-        let mut sim = SimBench::new(plant, 0.0, 1, 25.0).unwrap();
+        let mut sim = SimBench::new(plant, SimForceSensor::new(0.0, [0.0; 6], 1).unwrap(), 25.0);
         let (_, rest) = sim.step(0, Some(25.0)).unwrap();
         let (mut rise_s, mut followed_s) = (f64::NAN, f64::NAN);
         for k in 1..300u64 {

@@ -27,7 +27,7 @@ use jetbench_io::serial::ThrottleBoard;
 use jetbench_io::{ForceSink, ForceSource, ThrottleOutput};
 use jetbench_msgs::{Actuation, Channel, Command, StateEstimate, Thrust};
 use jetbench_stack::config::BenchConfig;
-use jetbench_stack::step::{Actuator, Control, Estimation, Sensing, SimBench};
+use jetbench_stack::step::{Actuator, Control, Estimation, Sensing, SimBench, SimForceSensor};
 
 struct Counting;
 
@@ -169,7 +169,11 @@ impl Loop {
             _bus: bus,
         };
         Loop {
-            sim: SimBench::new(&config.plant().expect("plant"), config.plant.noise_var_n2, 5, 25.0).expect("sim"),
+            sim: SimBench::new(
+                &config.plant().expect("plant"),
+                SimForceSensor::new(config.plant.noise_var_n2, config.plant.sensor_zero, 5).expect("sensor"),
+                25.0,
+            ),
             sensor,
             source,
             sensing: Sensing::new(&config.sensor).expect("sensing"),

@@ -1,11 +1,11 @@
 //! `jetbench latency-stage`: one process of the floor chain of `jetbench
-//! latency` (hidden: only `jetbench_stack::chain::run_chain` starts it, with
+//! latency` (hidden: only `jetbench_latency::chain::run_chain` starts it, with
 //! the descriptors it passes).
 
 use std::process::ExitCode;
 use std::time::Duration;
 
-use jetbench_stack::chain::{inherited_fd, run_stage, StageOptions};
+use jetbench_latency::chain::{inherited_fd, run_stage, StageOptions};
 use jetbench_stack::rt::RtRequest;
 
 #[derive(clap::Args)]

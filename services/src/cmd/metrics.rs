@@ -364,7 +364,7 @@ fn read_commands(recording: &Recording) -> (Vec<Command>, usize) {
 /// The controller code named by the recorded config's `[control] controller` (FBL, the
 /// default, when the recording has no config).
 fn recorded_controller(recording: &Recording) -> u32 {
-    use jetbench_stack::replay::{KEY_CONFIG, METADATA_NAME};
+    use jetbench_record::meta::{KEY_CONFIG, RUN as METADATA_NAME};
     let name = recording
         .metadata
         .get(METADATA_NAME)

@@ -5,7 +5,6 @@ pub mod diagnose;
 pub mod identify;
 pub mod latency;
 pub mod latency_stage;
-pub mod load;
 pub mod metrics;
 pub mod model;
 pub mod replay;

@@ -13,9 +13,7 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use jetbench_record::Recording;
 use jetbench_stack::config::BenchConfig;
-use jetbench_stack::replay::{
-    replay, write_replayed, EstimatorSetup, EstimatorSource, InputRule, ReplayReport, METADATA_NAME,
-};
+use jetbench_stack::replay::{replay, write_replayed, EstimatorSetup, EstimatorSource, InputRule, ReplayReport};
 
 /// Exit status when the replay differs from the recording.
 const EXIT_DIFFERS: u8 = 1;
@@ -115,7 +113,7 @@ fn replay_file(args: &ReplayArgs) -> anyhow::Result<bool> {
         None => EstimatorSource::Recorded,
     };
     let mut recording = Recording::open(&args.file)?;
-    if recording.truncated && !recording.metadata.contains_key(METADATA_NAME) {
+    if recording.truncated && !recording.metadata.contains_key(jetbench_record::meta::RUN) {
         // A cut-off file has no summary, so its metadata index is gone; the
         // record itself sits at the start of the file.
         recording.metadata = metadata_before_the_cut(&args.file);

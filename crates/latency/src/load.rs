@@ -12,10 +12,8 @@ use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
-use anyhow::Context;
-
 /// What `--load` asks for.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum LoadKind {
     /// No load: the idle machine.
@@ -24,6 +22,40 @@ pub enum LoadKind {
     Cpu,
     /// Computation, memory traffic and file I/O at once.
     All,
+}
+
+impl LoadKind {
+    /// Every kind with its name and what it does, for `--help`.
+    pub const ALL: [(LoadKind, &'static str, &'static str); 3] = [
+        (LoadKind::None, "none", "no load: the idle machine"),
+        (LoadKind::Cpu, "cpu", "every core busy with computation"),
+        (LoadKind::All, "all", "computation, memory traffic and file I/O at once"),
+    ];
+
+    pub fn name(self) -> &'static str {
+        Self::ALL.iter().find(|(k, ..)| *k == self).map_or("none", |(_, name, _)| name)
+    }
+}
+
+impl std::str::FromStr for LoadKind {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::ALL
+            .iter()
+            .find(|(_, name, _)| *name == s)
+            .map(|(k, ..)| *k)
+            .ok_or_else(|| format!("unknown load {s:?}: none, cpu or all"))
+    }
+}
+
+/// Why a load could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum LoadError {
+    #[error("cannot start the load `{description}`: {source}")]
+    Start { description: String, source: std::io::Error },
+    #[error("the built-in load cannot create {path}: {source}")]
+    TempFile { path: std::path::PathBuf, source: std::io::Error },
 }
 
 /// A running load; stopped when dropped.
@@ -43,9 +75,9 @@ fn stress_ng_installed() -> bool {
 }
 
 impl Load {
-    /// Starts `kind` on every core; `exe` is the jetbench binary (for the
-    /// built-in generator).
-    pub fn start(kind: LoadKind, exe: &Path) -> anyhow::Result<Load> {
+    /// Starts `kind` on every core; `exe` is the jetbench binary, whose
+    /// hidden `latency-load` command runs [`run_builtin`].
+    pub fn start(kind: LoadKind, exe: &Path) -> Result<Load, LoadError> {
         let cpus = jetbench_stack::rt::online_cpus().to_string();
         let (program, args): (String, Vec<String>) = match kind {
             LoadKind::None => return Ok(Load { child: None, description: "none".into() }),
@@ -81,7 +113,7 @@ impl Load {
             .stdout(Stdio::null())
             .stderr(Stdio::null())
             .spawn()
-            .with_context(|| format!("cannot start the load `{description}`"))?;
+            .map_err(|source| LoadError::Start { description: description.clone(), source })?;
         Ok(Load { child: Some(child), description })
     }
 
@@ -112,26 +144,22 @@ impl Drop for Load {
     }
 }
 
-/// Options of the built-in generator.
-#[derive(Debug, clap::Args)]
-pub struct LoadArgs {
+/// What the built-in generator runs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BuiltinLoad {
     /// Threads that compute without pause.
-    #[arg(long, default_value_t = 2)]
     pub cpu: usize,
     /// Threads that stream through 128 MiB of memory each.
-    #[arg(long, default_value_t = 0)]
     pub vm: usize,
     /// Threads that write and sync a 64 MiB file each.
-    #[arg(long, default_value_t = 0)]
     pub io: usize,
 }
 
-/// Runs the built-in load until SIGINT/SIGTERM.
-pub fn run(args: LoadArgs) -> anyhow::Result<()> {
-    jetbench_bus::install_signal_flag()?;
-    let stop = jetbench_bus::stop_requested;
+/// Runs the built-in load until `stop()` says so (SIGINT/SIGTERM in `jetbench latency-load`).
+pub fn run_builtin(load: BuiltinLoad, stop: fn() -> bool) -> Result<(), LoadError> {
+    let BuiltinLoad { cpu, vm, io } = load;
     let mut threads = Vec::new();
-    for _ in 0..args.cpu {
+    for _ in 0..cpu {
         threads.push(std::thread::spawn(move || {
             let mut x = 1.000_000_1_f64;
             while !stop() {
@@ -142,7 +170,7 @@ pub fn run(args: LoadArgs) -> anyhow::Result<()> {
             black_box(x);
         }));
     }
-    for _ in 0..args.vm {
+    for _ in 0..vm {
         threads.push(std::thread::spawn(move || {
             let mut a = vec![1u8; 64 << 20];
             let mut b = vec![0u8; 64 << 20];
@@ -153,9 +181,10 @@ pub fn run(args: LoadArgs) -> anyhow::Result<()> {
             }
         }));
     }
-    for i in 0..args.io {
+    for i in 0..io {
         let path = std::env::temp_dir().join(format!("jetbench-load-{}-{i}", std::process::id()));
-        let mut file = std::fs::File::create(&path).with_context(|| format!("cannot create {}", path.display()))?;
+        let mut file =
+            std::fs::File::create(&path).map_err(|source| LoadError::TempFile { path: path.clone(), source })?;
         threads.push(std::thread::spawn(move || {
             let block = vec![0x5au8; 1 << 20];
             let mut written = 0usize;

@@ -12,15 +12,13 @@ use std::time::Duration;
 
 use jetbench_bus::{stop_requested, BusError};
 
-use super::{StageRecord, DONE, GO, RT, STAGES};
-use crate::clock::monotonic_ns;
-use crate::rt::RtRequest;
+use jetbench_stack::clock::{monotonic_ns, STALL};
+use jetbench_stack::rt::RtRequest;
+
+use super::{StageRecord, DONE, GO, READY, RT, STAGES};
 
 /// The longest any blocking call of a stage lasts before the stop flag is checked.
 const SIGNAL_POLL: Duration = Duration::from_millis(50);
-/// How far behind its schedule the source may fall before it restarts the
-/// schedule instead of catching up (as sim-bench's sensor does).
-const STALL_NS: u64 = 100_000_000;
 /// Records a stage holds before it must write some mid-run: 40 MB, over
 /// 2.5 h at 100 Hz. Shorter runs report once, after their last cycle.
 const MAX_HELD_RECORDS: u64 = 1 << 20;
@@ -96,7 +94,7 @@ pub fn run_stage(options: StageOptions) -> Result<(), StageError> {
         return Err(StageError::NoSuchStage(stage));
     }
     jetbench_bus::install_signal_flag()?;
-    let outcome = rt.as_ref().map(crate::rt::apply).unwrap_or_default();
+    let outcome = rt.as_ref().map(jetbench_stack::rt::apply).unwrap_or_default();
     let needs = |fd: Option<OwnedFd>, needed: bool, what| match (fd, needed) {
         (Some(fd), true) => Ok(Some(fd)),
         (None, true) => Err(StageError::MissingFd { stage, what }),
@@ -117,7 +115,7 @@ pub fn run_stage(options: StageOptions) -> Result<(), StageError> {
     for refused in &outcome.refused {
         say(&format!("{RT} refused {refused}"));
     }
-    let (policy, priority) = crate::rt::current_policy();
+    let (policy, priority) = jetbench_stack::rt::current_policy();
     say(&format!("{RT} policy {policy} {priority}"));
     let end = stage_run.eventfd(input, output)?;
     stage_run.results.flush()?;
@@ -258,8 +256,11 @@ impl Schedule {
         let t0_ns = monotonic_ns();
         let tick = Tick { cycle: self.cycle, scheduled_ns: self.next_ns, t0_ns };
         self.cycle += 1;
-        self.next_ns =
-            if t0_ns > self.next_ns + STALL_NS { t0_ns + self.period_ns } else { self.next_ns + self.period_ns };
+        self.next_ns = if t0_ns > self.next_ns + STALL.as_nanos() as u64 {
+            t0_ns + self.period_ns
+        } else {
+            self.next_ns + self.period_ns
+        };
         Some(tick)
     }
 }
@@ -324,7 +325,7 @@ impl StageRun {
     /// The eventfd chain: the source pings at the period, every other stage
     /// wakes on its eventfd and pings the next; no payload, no work.
     fn eventfd(&mut self, input: Option<OwnedFd>, output: Option<OwnedFd>) -> Result<End, StageError> {
-        crate::service::announce_ready();
+        say(READY);
         if self.stage == 0 {
             let output = output.expect("checked by run_stage");
             if !wait_for_go()? {

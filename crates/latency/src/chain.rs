@@ -19,7 +19,7 @@
 //! by cycle.
 //!
 //! ```no_run
-//! use jetbench_stack::chain::{run_chain, ChainOptions};
+//! use jetbench_latency::chain::{run_chain, ChainOptions};
 //! use jetbench_stack::config::BenchConfig;
 //! use std::time::Duration;
 //!
@@ -27,7 +27,7 @@
 //! let config = BenchConfig::default_sim()?;
 //! let mut options = ChainOptions::new(std::env::current_exe()?);
 //! options.duration = Duration::from_secs(20);
-//! options.rt = jetbench_stack::chain::stage_rt_requests(&config.rt, true);
+//! options.rt = jetbench_latency::chain::stage_rt_requests(&config.rt, true);
 //! let run = run_chain(&options)?;
 //! let mut e2e_ns = run.e2e_ns();
 //! e2e_ns.sort_unstable();
@@ -38,22 +38,20 @@
 
 use std::collections::HashMap;
 use std::fs::File;
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{Read, Write};
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd, RawFd};
 use std::os::unix::process::CommandExt;
 use std::path::PathBuf;
-use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
-use std::sync::mpsc;
+use std::process::Command;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use jetbench_bus::stop_requested;
 use jetbench_msgs::ServiceId;
-
-use crate::clock::PERIOD_NS;
-use crate::config::RtSection;
-use crate::launch::describe_exit;
-use crate::rt::{RtOutcome, RtRequest};
+use jetbench_stack::clock::PERIOD;
+use jetbench_stack::config::RtSection;
+use jetbench_stack::rt::{RtOutcome, RtRequest};
+use jetbench_stack::supervise::{describe_exit, SpawnOptions, StopOrder, Supervisor};
 
 mod stage;
 
@@ -96,12 +94,7 @@ pub struct ChainOptions {
 impl ChainOptions {
     /// 10 s at the control period, without real-time settings.
     pub fn new(exe: impl Into<PathBuf>) -> Self {
-        ChainOptions {
-            duration: Duration::from_secs(10),
-            period: Duration::from_nanos(PERIOD_NS),
-            rt: None,
-            exe: exe.into(),
-        }
+        ChainOptions { duration: Duration::from_secs(10), period: PERIOD, rt: None, exe: exe.into() }
     }
 
     /// The number of cycles the source sends.
@@ -376,8 +369,7 @@ pub fn run_chain(options: &ChainOptions) -> Result<ChainRun, ChainError> {
         });
     }
     let links = Links::new()?;
-    let (line_tx, line_rx) = mpsc::channel();
-    let mut stages = Stages { stages: Vec::with_capacity(STAGES) };
+    let mut stages = Stages { children: Supervisor::new(), stages: Vec::with_capacity(STAGES) };
     for k in 0..STAGES {
         let (result_read, result_write) = pipe().map_err(|source| ChainError::Setup { what: "result pipe", source })?;
         let spec = SpawnSpec {
@@ -387,28 +379,15 @@ pub fn run_chain(options: &ChainOptions) -> Result<ChainRun, ChainError> {
             output: links.output(k),
             results: result_write.as_raw_fd(),
         };
-        let mut child = spawn_stage(options, &spec)?;
+        spawn_stage(options, &spec, &mut stages.children)?;
         // The child has its own copy; ours must go so the pipe ends when the child does.
         drop(result_write);
-        let stdout = child.stdout.take().expect("stdout is piped");
-        let tx = line_tx.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                if tx.send((k, line)).is_err() {
-                    break;
-                }
-            }
-        });
         let results = std::thread::spawn(move || {
             let mut bytes = Vec::new();
             File::from(result_read).read_to_end(&mut bytes).map(|_| bytes)
         });
-        let stdin = child.stdin.take();
-        stages.stages.push(StageProcess {
-            child,
-            stdin,
+        stages.stages.push(StageState {
             results: Some(results),
-            exited: None,
             report: StageReport::new(k, options.rt.as_ref().map(|r| r[k].clone())),
             ready: false,
             done: false,
@@ -416,20 +395,17 @@ pub fn run_chain(options: &ChainOptions) -> Result<ChainRun, ChainError> {
     }
     // The stages hold their ends.
     drop(links);
-    drop(line_tx);
 
     stages.pump(
-        &line_rx,
         READY_TIMEOUT,
         |s| s.ready,
         |s, timeout| ChainError::NotReady { stage: s.report.stage, service: s.report.service.name(), timeout },
     )?;
-    if let Some(mut stdin) = stages.stages[0].stdin.take() {
+    if let Some(stdin) = stages.children.stdin(0) {
         writeln!(stdin, "{GO}").map_err(|_| stages.died(0))?;
     }
     let finish = options.duration + Duration::from_secs(10) + options.duration / 4;
     stages.pump(
-        &line_rx,
         finish,
         |s| s.done,
         |s, timeout| ChainError::NotFinished { stage: s.report.stage, service: s.report.service.name(), timeout },
@@ -516,7 +492,7 @@ const GO: &str = "go";
 const DONE: &str = "done";
 const RT: &str = "rt";
 
-fn spawn_stage(options: &ChainOptions, spec: &SpawnSpec) -> Result<Child, ChainError> {
+fn spawn_stage(options: &ChainOptions, spec: &SpawnSpec, children: &mut Supervisor) -> Result<(), ChainError> {
     let k = spec.stage;
     let mut command = Command::new(&options.exe);
     command.arg("latency-stage").args([
@@ -548,15 +524,9 @@ fn spawn_stage(options: &ChainOptions, spec: &SpawnSpec) -> Result<Child, ChainE
             command.arg("--lock-memory");
         }
     }
-    // Own process group: a Ctrl-C reaches only the parent, which stops the chain.
-    command
-        .process_group(0)
-        .stdin(if k == 0 { Stdio::piped() } else { Stdio::null() })
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit());
     let inherit = [spec.input.unwrap_or(-1), spec.output.unwrap_or(-1), spec.results];
-    // SAFETY: runs between fork and exec and calls only async-signal-safe
-    // functions (fcntl, prctl) on plain integers; it allocates nothing.
+    // SAFETY: runs between fork and exec and calls only fcntl, which is
+    // async-signal-safe, on plain integers; it allocates nothing.
     unsafe {
         command.pre_exec(move || {
             for fd in inherit {
@@ -564,34 +534,29 @@ fn spawn_stage(options: &ChainOptions, spec: &SpawnSpec) -> Result<Child, ChainE
                     return Err(std::io::Error::last_os_error());
                 }
             }
-            // A stage must not outlive its parent: it would hold the chain's CPU at its priority.
-            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM as libc::c_ulong) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
             Ok(())
         });
     }
-    command.spawn().map_err(|source| ChainError::Spawn {
-        stage: k,
-        service: STAGE_SERVICES[k].name(),
-        exe: options.exe.clone(),
-        source,
-    })
+    // A stage must not outlive its parent: it would hold the chain's CPU at its priority.
+    let spawn = SpawnOptions { stdin: k == 0, parent_death_signal: Some(libc::SIGTERM) };
+    children.spawn(format!("latency stage {k} ({})", STAGE_SERVICES[k].name()), &mut command, spawn).map_err(|e| {
+        ChainError::Spawn { stage: k, service: STAGE_SERVICES[k].name(), exe: options.exe.clone(), source: e.source }
+    })?;
+    Ok(())
 }
 
-struct StageProcess {
-    child: Child,
-    stdin: Option<ChildStdin>,
+/// What the parent knows of one stage.
+struct StageState {
     results: Option<JoinHandle<std::io::Result<Vec<u8>>>>,
-    exited: Option<ExitStatus>,
     report: StageReport,
     ready: bool,
     done: bool,
 }
 
-/// The running stages; dropping them stops whatever still runs.
+/// The running stages (index = stage); dropping them stops whatever still runs.
 struct Stages {
-    stages: Vec<StageProcess>,
+    children: Supervisor,
+    stages: Vec<StageState>,
 }
 
 impl Stages {
@@ -599,27 +564,26 @@ impl Stages {
     /// when a stage ends, `timeout` passes, or a stop is requested.
     fn pump(
         &mut self,
-        lines: &mpsc::Receiver<(usize, String)>,
         timeout: Duration,
-        reached: impl Fn(&StageProcess) -> bool,
-        overdue: impl Fn(&StageProcess, Duration) -> ChainError,
+        reached: impl Fn(&StageState) -> bool,
+        overdue: impl Fn(&StageState, Duration) -> ChainError,
     ) -> Result<(), ChainError> {
         let deadline = Instant::now() + timeout;
         loop {
-            while let Ok((k, line)) = lines.try_recv() {
+            while let Some((k, line)) = self.children.try_line() {
                 self.handle_line(k, &line)?;
             }
             if self.stages.iter().all(&reached) {
                 return Ok(());
             }
-            if self.reap() {
+            if self.children.reap().is_some() {
                 // The last lines of a stage that ended may still be on their way.
                 std::thread::sleep(Duration::from_millis(20));
-                while let Ok((k, line)) = lines.try_recv() {
+                while let Some((k, line)) = self.children.try_line() {
                     self.handle_line(k, &line)?;
                 }
             }
-            if let Some(k) = self.stages.iter().position(|s| s.exited.is_some() && !reached(s)) {
+            if let Some(k) = (0..STAGES).find(|&k| self.children.exited(k).is_some() && !reached(&self.stages[k])) {
                 return Err(self.died(k));
             }
             if stop_requested() {
@@ -629,9 +593,8 @@ impl Stages {
                 let late = self.stages.iter().find(|s| !reached(s)).expect("one has not reached it");
                 return Err(overdue(late, timeout));
             }
-            match lines.recv_timeout(Duration::from_millis(100)) {
-                Ok((k, line)) => self.handle_line(k, &line)?,
-                Err(mpsc::RecvTimeoutError::Timeout | mpsc::RecvTimeoutError::Disconnected) => {}
+            if let Some((k, line)) = self.children.next_line(Duration::from_millis(100)) {
+                self.handle_line(k, &line)?;
             }
         }
     }
@@ -666,27 +629,13 @@ impl Stages {
                 }
             }
             // Not protocol: pass it on, attributed.
-            _ => eprintln!("latency stage {k} ({}): {line}", STAGE_SERVICES[k].name()),
+            _ => eprintln!("{}: {line}", self.children.name(k)),
         }
         Ok(())
     }
 
-    /// Notes the stages that ended since the last look; true if any did.
-    fn reap(&mut self) -> bool {
-        let mut any = false;
-        for s in self.stages.iter_mut().filter(|s| s.exited.is_none()) {
-            if let Ok(Some(status)) = s.child.try_wait() {
-                s.exited = Some(status);
-                any = true;
-            }
-        }
-        any
-    }
-
     fn died(&mut self, k: usize) -> ChainError {
-        let s = &mut self.stages[k];
-        let status = s.exited.or_else(|| s.child.try_wait().ok().flatten());
-        let how = match status {
+        let how = match self.children.exited(k) {
             Some(status) => format!("{} before the run ended", describe_exit(status)),
             None => "stopped listening to its parent".into(),
         };
@@ -696,47 +645,9 @@ impl Stages {
     /// SIGTERM to every stage, then reaps them; SIGKILL for one that does not
     /// exit in time. The first that did not end cleanly is the error.
     fn stop(&mut self) -> Result<(), ChainError> {
-        for s in &self.stages {
-            if s.exited.is_none() {
-                // SAFETY: kill(2) on our own child's pid; no memory is involved.
-                unsafe { libc::kill(s.child.id() as libc::pid_t, libc::SIGTERM) };
-            }
-        }
-        let mut failure = None;
-        for (k, s) in self.stages.iter_mut().enumerate() {
-            s.stdin = None;
-            let deadline = Instant::now() + STOP_TIMEOUT;
-            while s.exited.is_none() {
-                match s.child.try_wait() {
-                    Ok(Some(status)) => s.exited = Some(status),
-                    Ok(None) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(5)),
-                    _ => {
-                        let _ = s.child.kill();
-                        s.exited = s.child.wait().ok();
-                        failure = failure.or(Some(ChainError::StageDied {
-                            stage: k,
-                            service: STAGE_SERVICES[k].name(),
-                            how: format!("did not stop within {STOP_TIMEOUT:?} and was killed"),
-                        }));
-                    }
-                }
-            }
-            if let Some(status) = s.exited.filter(|status| !status.success()) {
-                failure = failure.or(Some(ChainError::StageDied {
-                    stage: k,
-                    service: STAGE_SERVICES[k].name(),
-                    how: format!("{} while stopping", describe_exit(status)),
-                }));
-            }
-        }
-        failure.map_or(Ok(()), Err)
-    }
-}
-
-impl Drop for Stages {
-    fn drop(&mut self) {
-        if self.stages.iter().any(|s| s.exited.is_none()) {
-            let _ = self.stop();
+        match self.children.stop(StopOrder::Together, STOP_TIMEOUT) {
+            None => Ok(()),
+            Some((k, how)) => Err(ChainError::StageDied { stage: k, service: STAGE_SERVICES[k].name(), how }),
         }
     }
 }

@@ -1,0 +1,614 @@
+//! One `jetbench latency` run: does the 100 Hz loop hold under load?
+//!
+//! Under one background load and one set of real-time settings it measures
+//! three things:
+//! 1. the service set on the simulated bench over iceoryx2 (real processes,
+//!    the real bus, recorded), cycle by cycle from the samples' own stamps
+//!    ([`crate::pipeline`]);
+//! 2. the same service set with every sample copied through Unix domain
+//!    sockets instead (`jetbench up --transport uds`): the copying baseline,
+//!    measured the same way;
+//! 3. the machine's floor: a bare eventfd ping chained through as many
+//!    processes as the control path has, at the same priorities and CPUs
+//!    ([`crate::chain`]).
+//!
+//! A virtual machine's speed drifts with its host's load, so measurements
+//! taken one after the other would mix the transport with the time of day:
+//! the duration is split into rounds, each measuring all three in turn (in
+//! alternating order), and the rounds' histograms are merged. The report
+//! states the pipeline's figures as ratios to the floor and to the baseline.
+
+use std::collections::BTreeMap;
+use std::fmt;
+use std::os::fd::AsFd;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use jetbench_bus::Transport;
+use jetbench_record::Recording;
+use jetbench_stack::config::{BenchConfig, ConfigError, Devices};
+use jetbench_stack::rt::RtOutcome;
+use jetbench_stack::supervise::describe_exit;
+use serde::Serialize;
+
+use crate::chain::{run_chain, stage_rt_requests, ChainError, ChainOptions, ChainRun, HOPS as FLOOR_HOPS};
+use crate::load::{Load, LoadError, LoadKind};
+use crate::pipeline::{analyse_pipeline, LatencyHistogram, Percentiles, PipelineAnalysis, HOPS};
+use crate::steal::{steal_ms_per_cpu, StealSampler};
+
+/// What one run measures.
+#[derive(Clone, Debug)]
+pub struct CampaignOptions {
+    /// Seconds to measure each of the three, spread over the rounds.
+    pub duration_s: f64,
+    /// Rounds the duration is split into; each measures all three in turn.
+    pub rounds: u32,
+    /// Seconds at the start of each service-set run left out (start-up).
+    pub warmup_s: f64,
+    /// Background load on every core while measuring.
+    pub load: LoadKind,
+    /// The config's `[rt]` settings for the services and the floor chain.
+    pub rt: bool,
+    /// Bench config of the simulated bench (`None`: the built-in one).
+    pub config: Option<PathBuf>,
+    /// Keep the service sets' recordings here (`<transport>-<round>.mcap`).
+    pub keep: Option<PathBuf>,
+    /// The `jetbench` binary: it runs the service sets (`up`), the floor's
+    /// stages (`latency-stage`) and the built-in load (`latency-load`).
+    pub exe: PathBuf,
+}
+
+/// Why a run could not be measured.
+#[derive(Debug, thiserror::Error)]
+pub enum CampaignError {
+    #[error("{0}")]
+    Options(String),
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error(transparent)]
+    Load(#[from] LoadError),
+    #[error("cannot {what} {path}: {source}")]
+    Io { what: &'static str, path: PathBuf, source: std::io::Error },
+    #[error("cannot start `jetbench up` from {exe}: {source}")]
+    Launch { exe: PathBuf, source: std::io::Error },
+    #[error("the service set over {transport} failed ({how}); its log is above{}",
+        log.as_ref().map(|l| format!(" and in {}", l.display())).unwrap_or_default())]
+    Pipeline { transport: Transport, how: String, log: Option<PathBuf> },
+    #[error("cannot read back the {transport} run's recording {path}: {source}")]
+    Recording { transport: Transport, path: PathBuf, source: jetbench_record::RecordError },
+    #[error("the {transport} run's recording {} has no complete cycle", path.display())]
+    NoCycle { transport: Transport, path: PathBuf },
+    #[error(transparent)]
+    Chain(#[from] ChainError),
+    #[error("the floor chain's thread panicked")]
+    ChainPanicked,
+}
+
+/// How a run shows its progress: one phase of known length after another.
+pub trait Progress {
+    /// A phase of `seconds` begins.
+    fn start(&mut self, what: &str, seconds: f64);
+    /// `elapsed_s` of the current phase have passed.
+    fn advance(&mut self, elapsed_s: f64);
+    /// The current phase is over.
+    fn finish(&mut self);
+    /// True when progress is drawn live on a terminal: the service sets'
+    /// output then goes to a log file beside each recording, not to stderr.
+    fn is_live(&self) -> bool;
+    /// Something the user should know (the load, a refused setting).
+    fn note(&mut self, line: &str);
+}
+
+/// One of the three measurements.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Measurement {
+    Pipeline(Transport),
+    Floor,
+}
+
+impl Measurement {
+    /// Round `r` measures in this order; odd rounds reverse it, so drift
+    /// over the run favours none of them.
+    fn order(round: u32) -> [Measurement; 3] {
+        let forward = [
+            Measurement::Pipeline(Transport::Iceoryx2),
+            Measurement::Pipeline(Transport::UnixSockets),
+            Measurement::Floor,
+        ];
+        if round.is_multiple_of(2) {
+            forward
+        } else {
+            [forward[2], forward[1], forward[0]]
+        }
+    }
+
+    fn describe(self) -> &'static str {
+        match self {
+            Measurement::Pipeline(Transport::Iceoryx2) => "service set over iceoryx2",
+            Measurement::Pipeline(Transport::UnixSockets) => "service set over Unix sockets",
+            Measurement::Floor => "floor: eventfd ping chain",
+        }
+    }
+}
+
+/// The floor chain's results, over every round.
+#[derive(Default)]
+pub struct FloorResult {
+    pub e2e: LatencyHistogram,
+    pub hops: [LatencyHistogram; FLOOR_HOPS],
+    pub lost: u64,
+    pub refused: Vec<String>,
+}
+
+impl FloorResult {
+    fn add(&mut self, run: &ChainRun) {
+        for cycle in &run.cycles {
+            self.e2e.record(cycle.e2e_ns());
+            for (h, ns) in self.hops.iter_mut().zip(cycle.hop_ns()) {
+                h.record(ns);
+            }
+        }
+        self.lost += run.lost;
+        for r in run.stages.iter().flat_map(|s| &s.rt.refused) {
+            add_once(&mut self.refused, r);
+        }
+    }
+}
+
+fn add_once(list: &mut Vec<String>, item: &str) {
+    if !list.iter().any(|r| r == item) {
+        list.push(item.to_string());
+    }
+}
+
+/// What the copying baseline measured, beside its end-to-end latency.
+#[derive(Serialize)]
+pub struct BaselineReport {
+    pub cycles: u64,
+    pub completed: u64,
+    pub deadline_misses: u64,
+    pub lost: u64,
+    pub hops_us: BTreeMap<&'static str, Percentiles>,
+    pub period_jitter_us: Percentiles,
+}
+
+/// Everything one run measured, as `--json` prints it; [`fmt::Display`] is the text report.
+#[derive(Serialize)]
+pub struct Report {
+    pub duration_s: f64,
+    pub rounds: u32,
+    pub load: String,
+    pub rt_requested: bool,
+    pub rt_refused: Vec<String>,
+    pub cycles: u64,
+    pub completed: u64,
+    pub deadline_misses: u64,
+    pub late_e2e: u64,
+    pub late_periods: u64,
+    pub superseded: u64,
+    pub lost: u64,
+    pub frames_lost: u64,
+    pub unfinished: u64,
+    pub seq_gaps: BTreeMap<String, u64>,
+    pub service_deadline_misses: BTreeMap<String, u64>,
+    pub e2e_us: Percentiles,
+    pub hops_us: BTreeMap<&'static str, Percentiles>,
+    pub period_jitter_us: Percentiles,
+    pub floor_us: Percentiles,
+    pub floor_hops_us: Vec<Percentiles>,
+    pub floor_lost: u64,
+    /// The same service set over Unix domain sockets: its end-to-end latency.
+    pub uds_us: Percentiles,
+    pub uds: BaselineReport,
+    /// CPU time the hypervisor took per CPU while measuring, ms
+    /// (empty where the kernel does not report steal).
+    pub steal_ms: Vec<f64>,
+    /// Deadline misses of the iceoryx2 runs that came within 40 ms before to
+    /// 20 ms after the hypervisor took a CPU (a bench PC has no hypervisor).
+    pub misses_during_steal: u64,
+    pub ratios: Ratios,
+}
+
+#[derive(Serialize)]
+pub struct Ratios {
+    /// Pipeline p99 / floor p99.
+    pub e2e_p99_over_floor_p99: f64,
+    pub e2e_p50_over_floor_p50: f64,
+    /// iceoryx2 / Unix sockets, the same service set.
+    pub e2e_p50_over_uds_p50: f64,
+    pub e2e_p99_over_uds_p99: f64,
+}
+
+/// A whole run: the report and the distributions behind it.
+pub struct Campaign {
+    pub report: Report,
+    pub iceoryx2: PipelineAnalysis,
+    pub uds: PipelineAnalysis,
+    pub floor: FloorResult,
+}
+
+impl Campaign {
+    /// The three end-to-end distributions, named as a plot labels them.
+    pub fn distributions(&self) -> [(&'static str, &LatencyHistogram); 3] {
+        [
+            ("service set over iceoryx2", &self.iceoryx2.e2e),
+            ("service set over Unix sockets", &self.uds.e2e),
+            ("floor: eventfd ping chain", &self.floor.e2e),
+        ]
+    }
+}
+
+impl CampaignOptions {
+    fn check(&self) -> Result<(), CampaignError> {
+        let bad = |m: String| Err(CampaignError::Options(m));
+        if !(self.duration_s.is_finite() && self.duration_s >= 1.0) {
+            return bad(format!("--duration {} must be at least 1 second", self.duration_s));
+        }
+        if !(self.warmup_s.is_finite() && self.warmup_s >= 0.0) {
+            return bad(format!("--warmup {} must be a number of seconds >= 0", self.warmup_s));
+        }
+        if self.rounds == 0 || self.duration_s / f64::from(self.rounds) < 1.0 {
+            return bad(format!(
+                "--rounds {} must be at least 1 and leave each round 1 s of --duration {}",
+                self.rounds, self.duration_s
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Measures the three in rounds under the load; blocks for about three times
+/// the duration plus start-ups.
+pub fn run_campaign(options: &CampaignOptions, progress: &mut dyn Progress) -> Result<Campaign, CampaignError> {
+    options.check()?;
+    let config = BenchConfig::load_or_default(options.config.as_deref())?;
+    if config.bench.devices != Devices::Sim {
+        return Err(CampaignError::Options(
+            "`jetbench latency` runs the simulated bench: the config must have [bench] devices = \"sim\"".into(),
+        ));
+    }
+    let (work, temporary) = match &options.keep {
+        Some(dir) => (dir.clone(), false),
+        None => (std::env::temp_dir().join(format!("jetbench-latency-{}", std::process::id())), true),
+    };
+    std::fs::create_dir_all(&work).map_err(|source| CampaignError::Io {
+        what: "create",
+        path: work.clone(),
+        source,
+    })?;
+
+    let mut rt_refused = if options.rt { probe_rt(&config) } else { Vec::new() };
+    for refusal in &rt_refused {
+        progress.note(&format!("warning: {refusal}; measuring without it"));
+    }
+    let mut load = Load::start(options.load, &options.exe)?;
+    progress.note(&format!("load: {}", load.description));
+    // Let the load reach every core before measuring.
+    std::thread::sleep(Duration::from_secs(1));
+
+    let segment_s = options.duration_s / f64::from(options.rounds);
+    let steal_before = steal_ms_per_cpu();
+    let steal_sampler = StealSampler::start();
+    let (mut iceoryx2, mut uds, mut floor) =
+        (PipelineAnalysis::default(), PipelineAnalysis::default(), FloorResult::default());
+    for round in 0..options.rounds {
+        for measurement in Measurement::order(round) {
+            let what = format!("round {}/{}: {}", round + 1, options.rounds, measurement.describe());
+            match measurement {
+                Measurement::Pipeline(transport) => {
+                    let path = work.join(format!("{transport}-{}.mcap", round + 1));
+                    run_pipeline(options, &path, transport, segment_s, &what, progress)?;
+                    let recording = Recording::open(&path).map_err(|source| CampaignError::Recording {
+                        transport,
+                        path: path.clone(),
+                        source,
+                    })?;
+                    let analysis = analyse_pipeline(&recording, options.warmup_s);
+                    if analysis.completed == 0 {
+                        return Err(CampaignError::NoCycle { transport, path });
+                    }
+                    let total = if transport == Transport::Iceoryx2 { &mut iceoryx2 } else { &mut uds };
+                    total.merge(&analysis);
+                    if options.keep.is_none() {
+                        let _ = std::fs::remove_file(&path);
+                    }
+                }
+                Measurement::Floor => floor.add(&run_floor(options, &config, segment_s, &what, progress)?),
+            }
+        }
+    }
+    let steal_ms: Vec<f64> = match (steal_before, steal_ms_per_cpu()) {
+        (Some(a), Some(b)) if a.len() == b.len() => b.iter().zip(&a).map(|(b, a)| (b - a).max(0.0)).collect(),
+        _ => Vec::new(),
+    };
+    let steal = steal_sampler.map(StealSampler::finish).unwrap_or_default();
+    let misses_during_steal = iceoryx2
+        .miss_stamps_ns
+        .iter()
+        .filter(|&&t| steal.stolen_ms(t.saturating_sub(40_000_000), t + 20_000_000) > 0.0)
+        .count() as u64;
+    if !load.running() {
+        progress.note(&format!("warning: the load `{}` ended before the measurements did", load.description));
+    }
+    let load_description = load.description.clone();
+    drop(load);
+    if temporary {
+        let _ = std::fs::remove_dir_all(&work);
+    }
+    for r in &floor.refused {
+        add_once(&mut rt_refused, r);
+    }
+    let report =
+        build_report(options, load_description, rt_refused, &iceoryx2, &uds, &floor, steal_ms, misses_during_steal);
+    Ok(Campaign { report, iceoryx2, uds, floor })
+}
+
+/// Waits for `finished` while a phase of `seconds` shows its progress.
+fn follow<T>(progress: &mut dyn Progress, what: &str, seconds: f64, mut finished: impl FnMut() -> Option<T>) -> T {
+    progress.start(what, seconds);
+    let started = Instant::now();
+    let result = loop {
+        if let Some(result) = finished() {
+            break result;
+        }
+        progress.advance(started.elapsed().as_secs_f64());
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    progress.finish();
+    result
+}
+
+/// Runs the floor chain for `seconds` at the services' real-time settings.
+fn run_floor(
+    options: &CampaignOptions,
+    config: &BenchConfig,
+    seconds: f64,
+    what: &str,
+    progress: &mut dyn Progress,
+) -> Result<ChainRun, CampaignError> {
+    let mut chain = ChainOptions::new(&options.exe);
+    chain.duration = Duration::from_secs_f64(seconds);
+    chain.rt = stage_rt_requests(&config.rt, options.rt);
+    let handle = std::thread::spawn(move || run_chain(&chain));
+    follow(progress, what, seconds, || handle.is_finished().then_some(()));
+    Ok(handle.join().map_err(|_| CampaignError::ChainPanicked)??)
+}
+
+/// What the kernel would refuse of each service's `[rt]` request.
+fn probe_rt(config: &BenchConfig) -> Vec<String> {
+    let mut refused: Vec<String> = Vec::new();
+    for id in jetbench_msgs::ServiceId::ALL {
+        let Some(request) = config.rt.request(id, true) else { continue };
+        let outcome: RtOutcome = jetbench_stack::rt::probe(&request);
+        for r in &outcome.refused {
+            add_once(&mut refused, r);
+        }
+    }
+    refused
+}
+
+/// Runs `jetbench up --sim` over `transport` for warm-up + `seconds`, recording every channel.
+fn run_pipeline(
+    options: &CampaignOptions,
+    recording: &Path,
+    transport: Transport,
+    seconds: f64,
+    what: &str,
+    progress: &mut dyn Progress,
+) -> Result<(), CampaignError> {
+    let seconds = options.warmup_s + seconds;
+    let mut command = Command::new(&options.exe);
+    command
+        .args(["up", "--sim", "--quiet", "--transport", transport.name(), "--duration", &seconds.to_string()])
+        .arg("--record")
+        .arg(recording);
+    if let Some(config) = &options.config {
+        command.arg("--config").arg(config);
+    }
+    if options.rt {
+        command.arg("--rt");
+    }
+    // Under a live progress bar the launcher's output goes to a log beside the
+    // recording; otherwise to stderr, so that stdout keeps only the results.
+    let log = progress.is_live().then(|| recording.with_extension("log"));
+    let io_error = |what, path: &Path| {
+        let path = path.to_path_buf();
+        move |source| CampaignError::Io { what, path, source }
+    };
+    let (out, err) = match &log {
+        None => {
+            let stderr =
+                std::io::stderr().as_fd().try_clone_to_owned().map_err(io_error("pass on", Path::new("stderr")))?;
+            (Stdio::from(stderr), Stdio::inherit())
+        }
+        Some(log) => {
+            let file = std::fs::File::create(log).map_err(io_error("create", log))?;
+            (Stdio::from(file.try_clone().map_err(io_error("reopen", log))?), Stdio::from(file))
+        }
+    };
+    let mut child = command
+        .stdin(Stdio::null())
+        .stdout(out)
+        .stderr(err)
+        .spawn()
+        .map_err(|source| CampaignError::Launch { exe: options.exe.clone(), source })?;
+    let status = follow(progress, what, seconds, || child.try_wait().ok().flatten());
+    if !status.success() {
+        if let Some(text) = log.as_ref().and_then(|l| std::fs::read_to_string(l).ok()) {
+            let lines: Vec<&str> = text.lines().collect();
+            progress.note(&lines[lines.len().saturating_sub(30)..].join("\n"));
+        }
+        return Err(CampaignError::Pipeline { transport, how: describe_exit(status), log });
+    }
+    if let Some(log) = log {
+        let _ = std::fs::remove_file(log);
+    }
+    Ok(())
+}
+
+fn ratio(a: f64, b: f64) -> f64 {
+    if b > 0.0 {
+        a / b
+    } else {
+        f64::NAN
+    }
+}
+
+fn hops_of(pipeline: &PipelineAnalysis) -> BTreeMap<&'static str, Percentiles> {
+    HOPS.iter().copied().zip(pipeline.hops.iter().map(LatencyHistogram::percentiles)).collect()
+}
+
+#[allow(clippy::too_many_arguments)]
+fn build_report(
+    options: &CampaignOptions,
+    load: String,
+    rt_refused: Vec<String>,
+    pipeline: &PipelineAnalysis,
+    uds: &PipelineAnalysis,
+    floor: &FloorResult,
+    steal_ms: Vec<f64>,
+    misses_during_steal: u64,
+) -> Report {
+    let (e2e, uds_e2e, floor_e2e) = (pipeline.e2e.percentiles(), uds.e2e.percentiles(), floor.e2e.percentiles());
+    Report {
+        duration_s: options.duration_s,
+        rounds: options.rounds,
+        load,
+        rt_requested: options.rt,
+        rt_refused,
+        cycles: pipeline.cycles,
+        completed: pipeline.completed,
+        deadline_misses: pipeline.deadline_misses(),
+        late_e2e: pipeline.late_e2e,
+        late_periods: pipeline.late_periods,
+        superseded: pipeline.superseded,
+        lost: pipeline.lost(),
+        frames_lost: pipeline.frames_lost,
+        unfinished: pipeline.unfinished,
+        seq_gaps: pipeline.seq_gaps.clone(),
+        service_deadline_misses: pipeline.service_deadline_misses.clone(),
+        e2e_us: e2e,
+        hops_us: hops_of(pipeline),
+        period_jitter_us: pipeline.period_jitter.percentiles(),
+        floor_us: floor_e2e,
+        floor_hops_us: floor.hops.iter().map(LatencyHistogram::percentiles).collect(),
+        floor_lost: floor.lost,
+        uds_us: uds_e2e,
+        uds: BaselineReport {
+            cycles: uds.cycles,
+            completed: uds.completed,
+            deadline_misses: uds.deadline_misses(),
+            lost: uds.lost(),
+            hops_us: hops_of(uds),
+            period_jitter_us: uds.period_jitter.percentiles(),
+        },
+        steal_ms,
+        misses_during_steal,
+        ratios: Ratios {
+            e2e_p99_over_floor_p99: ratio(e2e.p99, floor_e2e.p99),
+            e2e_p50_over_floor_p50: ratio(e2e.p50, floor_e2e.p50),
+            e2e_p50_over_uds_p50: ratio(e2e.p50, uds_e2e.p50),
+            e2e_p99_over_uds_p99: ratio(e2e.p99, uds_e2e.p99),
+        },
+    }
+}
+
+impl fmt::Display for Report {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let r = self;
+        let rt = if !r.rt_requested {
+            "off".to_string()
+        } else if r.rt_refused.is_empty() {
+            "on".to_string()
+        } else {
+            format!("asked for, partly refused ({})", r.rt_refused.join("; "))
+        };
+        writeln!(
+            f,
+            "jetbench latency: {:.0} s per measurement in {} rounds, load {}, real-time settings {rt}",
+            r.duration_s, r.rounds, r.load
+        )?;
+        writeln!(f)?;
+        writeln!(f, "latency, µs                                   p50      p90      p99    p99.9       max")?;
+        writeln!(f, "service set over iceoryx2, frame → board {}", r.e2e_us.row())?;
+        for (name, p) in &r.hops_us {
+            writeln!(f, "  hop {name:<37}{}", p.row())?;
+        }
+        writeln!(f, "  sensing period jitter                  {}", r.period_jitter_us.row())?;
+        writeln!(f, "same service set over Unix sockets      {}", r.uds_us.row())?;
+        for (name, p) in &r.uds.hops_us {
+            writeln!(f, "  hop {name:<37}{}", p.row())?;
+        }
+        writeln!(f, "floor: eventfd ping, {FLOOR_HOPS} hops               {}", r.floor_us.row())?;
+        writeln!(f)?;
+        writeln!(
+            f,
+            "iceoryx2: cycles {} (completed {}), deadline misses {} (late cycles {}, late sensor periods {}, \
+             commands superseded {}), lost {} (sensor frames {}, bus/recorder gaps {}, unfinished cycles {})",
+            r.cycles,
+            r.completed,
+            r.deadline_misses,
+            r.late_e2e,
+            r.late_periods,
+            r.superseded,
+            r.lost,
+            r.frames_lost,
+            r.seq_gaps.values().sum::<u64>(),
+            r.unfinished
+        )?;
+        writeln!(
+            f,
+            "Unix sockets: cycles {} (completed {}), deadline misses {}, lost {}; floor chain lost {}",
+            r.uds.cycles, r.uds.completed, r.uds.deadline_misses, r.uds.lost, r.floor_lost
+        )?;
+        if r.steal_ms.iter().any(|&ms| ms > 0.0) {
+            let per_cpu: Vec<String> =
+                r.steal_ms.iter().enumerate().map(|(i, ms)| format!("cpu{i} {ms:.0} ms")).collect();
+            writeln!(
+                f,
+                "hypervisor steal while measuring: {} (a stolen CPU stalls even SCHED_FIFO); \
+                 of the iceoryx2 deadline misses, {} came while the hypervisor took a CPU",
+                per_cpu.join(", "),
+                r.misses_during_steal
+            )?;
+        }
+        writeln!(
+            f,
+            "ratios: iceoryx2 to the floor p99 {:.2} (p50 {:.2}); iceoryx2 to Unix sockets p50 {:.2}, p99 {:.2}",
+            r.ratios.e2e_p99_over_floor_p99,
+            r.ratios.e2e_p50_over_floor_p50,
+            r.ratios.e2e_p50_over_uds_p50,
+            r.ratios.e2e_p99_over_uds_p99,
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rounds_alternate_the_order_of_the_three() {
+        assert_eq!(Measurement::order(0)[0], Measurement::Pipeline(Transport::Iceoryx2));
+        assert_eq!(Measurement::order(1)[0], Measurement::Floor);
+        assert_eq!(Measurement::order(1)[2], Measurement::Pipeline(Transport::Iceoryx2));
+    }
+
+    #[test]
+    fn options_that_leave_no_time_are_refused() {
+        let options = CampaignOptions {
+            duration_s: 3.0,
+            rounds: 4,
+            warmup_s: 2.0,
+            load: LoadKind::None,
+            rt: false,
+            config: None,
+            keep: None,
+            exe: PathBuf::from("/nonexistent"),
+        };
+        assert!(matches!(options.check(), Err(CampaignError::Options(m)) if m.contains("--rounds 4")));
+        assert!(CampaignOptions { rounds: 2, ..options.clone() }.check().is_ok());
+        assert!(CampaignOptions { warmup_s: f64::NAN, rounds: 1, ..options }.check().is_err());
+    }
+}

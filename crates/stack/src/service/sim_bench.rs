@@ -1,0 +1,154 @@
+//! The simulated bench: engine, force sensor, throttle board and ECU in real time.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use jetbench_bus::{Publisher, Wake};
+use jetbench_io::can::source::CanForceSink;
+use jetbench_io::emulate::{EcuModel, PtyBoard, PtyEcu};
+use jetbench_io::ForceSink;
+use jetbench_msgs::{channels, ServiceId, SimTruth};
+
+use super::{Context, Schedule, Service, ServiceError, Setup};
+use crate::clock::{monotonic_ns, PERIOD, STALL};
+use crate::config::{sim_port_link, Devices};
+use crate::step;
+
+/// File that, while it exists, unplugs sim-bench's force sensor (it stops
+/// sending frames): `touch` it to test the silent-sensor path, remove it and
+/// the frames come back. In the run's sim folder (`config::sim_port_link`).
+pub const SENSOR_UNPLUGGED_FILE: &str = "sensor-unplugged";
+
+/// Sim-bench: the engine ([`step::SimBench`]) stepped on its own clock, its
+/// force sensor sending real CAN frames, the throttle board and the ECU each
+/// on its own pty pair, published where actuation opens them.
+pub struct SimBench {
+    sim: step::SimBench,
+    sensor: CanForceSink,
+    unplugged: Unplugged,
+    board: PtyBoard,
+    ecu_model: EcuModel,
+    ecu: PtyEcu,
+    truth: Publisher<SimTruth>,
+    next: Instant,
+}
+
+impl Service for SimBench {
+    const ID: ServiceId = ServiceId::SimBench;
+    type Inputs = ();
+
+    fn new(setup: &Setup<'_>) -> Result<(Self, ()), ServiceError> {
+        let config = setup.config;
+        if config.bench.devices != Devices::Sim {
+            return Err(ServiceError::Setup("sim-bench runs only with [bench] devices = \"sim\"".into()));
+        }
+        let sim = step::SimBench::new(&config.plant()?, config.plant.sensor()?, config.plant.initial_throttle_pct);
+        // The force sensor: real CAN frames on the configured interface (the
+        // userspace bus here, vcan or can0 where the kernel has CAN).
+        let interface =
+            config.sensor.interface(config.bench.devices).map_err(|e| ServiceError::Setup(e.to_string()))?;
+        let codec = config.sensor.codec().map_err(|e| ServiceError::Setup(e.to_string()))?;
+        tracing::info!("force sensor sends CAN frames (base {:#x}) on {interface}", codec.base_id());
+        let sensor = CanForceSink::open(&interface, codec)?;
+        // The throttle board and the ECU, each on its own pty pair, published
+        // where actuation opens them (see `config::sim_port_link`).
+        let board = PtyBoard::spawn(&config.board_port(), monotonic_ns)?;
+        let ecu_model = EcuModel::settled(0.0, config.plant.initial_throttle_pct);
+        let ecu = PtyEcu::spawn(&config.ecu_port(), ecu_model.reading())?;
+        tracing::info!("throttle board on {}, ECU on {}", board.link().display(), ecu.link().display());
+        let bench = SimBench {
+            sim,
+            sensor,
+            unplugged: Unplugged::new(sim_port_link(SENSOR_UNPLUGGED_FILE)),
+            board,
+            ecu_model,
+            ecu,
+            truth: setup.bus.publisher(channels::SIM_TRUTH)?,
+            next: Instant::now(),
+        };
+        Ok((bench, ()))
+    }
+
+    fn schedule(&self) -> Schedule {
+        Schedule::SelfPaced
+    }
+
+    fn start(&mut self, _ctx: &mut Context<'_>) -> Result<(), ServiceError> {
+        self.next = Instant::now() + PERIOD;
+        Ok(())
+    }
+
+    fn process(&mut self, _wake: Wake, _inputs: &(), ctx: &mut Context<'_>) -> Result<(), ServiceError> {
+        if !ctx.bus().sleep_until(self.next) {
+            return Ok(());
+        }
+        let start_ns = ctx.woke();
+        // A sensor keeps its own clock: after a scheduling hiccup the missed
+        // ticks are caught up, so the frame rate holds. Only a real stall
+        // (the machine frozen for longer than STALL) restarts the schedule.
+        let now = Instant::now();
+        let late = now > self.next + PERIOD;
+        self.next = if now > self.next + STALL { now + PERIOD } else { self.next + PERIOD };
+        // Idle while the board idles (disarmed, or its watchdog tripped).
+        let throttle_pct = self.board.output_pct(start_ns).unwrap_or(jetbench_model::THROTTLE_MIN_PCT);
+        let (reading, truth) = self.sim.step_driven(start_ns, throttle_pct).map_err(|e| {
+            tracing::error!("the simulated engine failed: {e}");
+            e
+        })?;
+        self.ecu_model.step(truth.thrust_n, truth.engine_throttle_pct, jetbench_model::STEP_S);
+        self.ecu.set_reading(self.ecu_model.reading());
+        if self.unplugged.check() {
+            self.sensor.emit(&reading, start_ns)?;
+        }
+        self.truth.publish(truth)?;
+        ctx.cycle(late)?;
+        Ok(())
+    }
+
+    fn stop(&mut self, _inputs: &(), _ctx: &mut Context<'_>) -> Result<(), ServiceError> {
+        let fw = self.board.firmware();
+        let c = fw.counters();
+        tracing::info!(
+            "throttle board emulator: {} valid frames, {} commands applied; rejected: crc={} truncated={} \
+             bad_length={} unknown_type={} out_of_range={} garbage_bytes={}; ECU emulator answered {} polls",
+            c.frames,
+            self.board.applied_count(),
+            c.crc_errors,
+            c.truncated,
+            c.bad_length,
+            c.unknown_type,
+            c.out_of_range,
+            c.garbage_bytes,
+            self.ecu.polls()
+        );
+        Ok(())
+    }
+}
+
+/// The unplug marker file: watched every cycle, each change logged once.
+struct Unplugged {
+    file: PathBuf,
+    unplugged: bool,
+}
+
+impl Unplugged {
+    fn new(file: PathBuf) -> Self {
+        // A marker left by an earlier run must not start this one unplugged.
+        let _ = std::fs::remove_file(&file);
+        Unplugged { file, unplugged: false }
+    }
+
+    /// True while the sensor is plugged in.
+    fn check(&mut self) -> bool {
+        let unplugged = self.file.exists();
+        if unplugged != self.unplugged {
+            self.unplugged = unplugged;
+            if unplugged {
+                tracing::warn!("force sensor unplugged ({} exists): no frames", self.file.display());
+            } else {
+                tracing::info!("force sensor plugged back in");
+            }
+        }
+        !unplugged
+    }
+}

@@ -1,0 +1,293 @@
+//! Child processes of a run: started, watched, and stopped in order.
+//!
+//! Both the launcher behind `jetbench up` (the service processes) and the
+//! latency experiment's floor chain start their processes here. Each child
+//! gets its own process group, so a Ctrl-C at the terminal reaches only the
+//! parent, which then stops the children in the order it chooses; its stdout
+//! is read line by line on a thread of its own and handed to the parent
+//! ([`Supervisor::next_line`]), which speaks its protocol over it (`ready`, ...).
+//!
+//! ```no_run
+//! use jetbench_stack::supervise::{Supervisor, StopOrder};
+//! use std::process::Command;
+//! use std::time::Duration;
+//!
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let mut children = Supervisor::new();
+//! let sleeper = children.spawn("sleeper", Command::new("sleep").arg("30"), Default::default())?;
+//! if let Some((child, line)) = children.next_line(Duration::from_millis(100)) {
+//!     println!("{}: {line}", children.name(child));
+//! }
+//! assert!(children.reap().is_none(), "still running");
+//! let failure = children.stop(StopOrder::Together, Duration::from_secs(5));
+//! assert!(failure.is_some_and(|(i, _)| i == sleeper), "SIGTERM ended it: not a clean exit");
+//! # Ok(())
+//! # }
+//! ```
+
+use std::io::{BufRead, BufReader};
+use std::os::unix::process::{CommandExt, ExitStatusExt};
+use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+/// How a child is started.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SpawnOptions {
+    /// Give the parent a pipe to the child's stdin ([`Supervisor::stdin`]).
+    pub stdin: bool,
+    /// Signal the child receives when the parent dies (`PR_SET_PDEATHSIG`), so
+    /// it cannot outlive the run; `None` leaves it running.
+    pub parent_death_signal: Option<i32>,
+}
+
+/// Why a child could not be started.
+#[derive(Debug, thiserror::Error)]
+#[error("cannot start {name}: {source}")]
+pub struct SpawnError {
+    pub name: String,
+    #[source]
+    pub source: std::io::Error,
+}
+
+/// In which order [`Supervisor::stop`] stops the children still running.
+#[derive(Clone, Debug)]
+pub enum StopOrder {
+    /// One after the other in this order (indices), each given the whole
+    /// timeout to exit before the next gets SIGTERM.
+    InTurn(Vec<usize>),
+    /// SIGTERM to all at once, then each reaped.
+    Together,
+}
+
+struct Supervised {
+    name: String,
+    child: Child,
+    stdin: Option<ChildStdin>,
+    exited: Option<ExitStatus>,
+}
+
+/// The children of one run. Dropping it stops those still running.
+pub struct Supervisor {
+    children: Vec<Supervised>,
+    lines_tx: mpsc::Sender<(usize, String)>,
+    lines_rx: mpsc::Receiver<(usize, String)>,
+}
+
+impl Default for Supervisor {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Supervisor {
+    pub fn new() -> Self {
+        let (lines_tx, lines_rx) = mpsc::channel();
+        Supervisor { children: Vec::new(), lines_tx, lines_rx }
+    }
+
+    /// Starts `command` as child `name` in its own process group, its stdout
+    /// read line by line (stderr is inherited). Returns the child's index.
+    pub fn spawn(
+        &mut self,
+        name: impl Into<String>,
+        command: &mut Command,
+        options: SpawnOptions,
+    ) -> Result<usize, SpawnError> {
+        let name = name.into();
+        command.process_group(0).stdout(Stdio::piped()).stderr(Stdio::inherit());
+        command.stdin(if options.stdin { Stdio::piped() } else { Stdio::null() });
+        if let Some(signal) = options.parent_death_signal {
+            // SAFETY: runs between fork and exec and calls only prctl, which is
+            // async-signal-safe, on plain integers; it allocates nothing.
+            unsafe {
+                command.pre_exec(move || {
+                    if libc::prctl(libc::PR_SET_PDEATHSIG, signal as libc::c_ulong) != 0 {
+                        return Err(std::io::Error::last_os_error());
+                    }
+                    Ok(())
+                });
+            }
+        }
+        let mut child = command.spawn().map_err(|source| SpawnError { name: name.clone(), source })?;
+        let index = self.children.len();
+        if let Some(stdout) = child.stdout.take() {
+            let tx = self.lines_tx.clone();
+            std::thread::spawn(move || {
+                for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                    if tx.send((index, line)).is_err() {
+                        break;
+                    }
+                }
+            });
+        }
+        let stdin = child.stdin.take();
+        self.children.push(Supervised { name, child, stdin, exited: None });
+        Ok(index)
+    }
+
+    /// The next line a child printed, waiting at most `timeout`.
+    pub fn next_line(&self, timeout: Duration) -> Option<(usize, String)> {
+        self.lines_rx.recv_timeout(timeout).ok()
+    }
+
+    /// A line a child printed, if one is waiting.
+    pub fn try_line(&self) -> Option<(usize, String)> {
+        self.lines_rx.try_recv().ok()
+    }
+
+    pub fn len(&self) -> usize {
+        self.children.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.children.is_empty()
+    }
+
+    pub fn name(&self, index: usize) -> &str {
+        &self.children[index].name
+    }
+
+    pub fn pid(&self, index: usize) -> u32 {
+        self.children[index].child.id()
+    }
+
+    /// The pipe to a child's stdin (when spawned with [`SpawnOptions::stdin`]).
+    pub fn stdin(&mut self, index: usize) -> Option<&mut ChildStdin> {
+        self.children[index].stdin.as_mut()
+    }
+
+    /// How the child ended, if it has (as far as the last [`Supervisor::reap`] saw).
+    pub fn exited(&self, index: usize) -> Option<ExitStatus> {
+        self.children[index].exited
+    }
+
+    /// Looks at every running child; returns the first that has ended since
+    /// the last look, with its exit status.
+    pub fn reap(&mut self) -> Option<(usize, ExitStatus)> {
+        for (i, s) in self.children.iter_mut().enumerate() {
+            if s.exited.is_none() {
+                if let Ok(Some(status)) = s.child.try_wait() {
+                    s.exited = Some(status);
+                    return Some((i, status));
+                }
+            }
+        }
+        None
+    }
+
+    /// Stops every child still running: SIGTERM, and SIGKILL for one that
+    /// has not exited within `timeout`. Returns the first child that did not
+    /// end cleanly, with how it ended.
+    pub fn stop(&mut self, order: StopOrder, timeout: Duration) -> Option<(usize, String)> {
+        let (order, in_turn) = match order {
+            StopOrder::InTurn(order) => (order, true),
+            StopOrder::Together => {
+                for s in self.children.iter().filter(|s| s.exited.is_none()) {
+                    signal(&s.child, libc::SIGTERM);
+                }
+                ((0..self.children.len()).collect(), false)
+            }
+        };
+        let mut failure = None;
+        for i in order {
+            let Some(s) = self.children.get_mut(i) else { continue };
+            s.stdin = None;
+            if s.exited.is_some() {
+                continue;
+            }
+            if in_turn {
+                signal(&s.child, libc::SIGTERM);
+            }
+            let deadline = Instant::now() + timeout;
+            let how = loop {
+                match s.child.try_wait() {
+                    Ok(Some(status)) => {
+                        s.exited = Some(status);
+                        break (!status.success()).then(|| describe_exit(status));
+                    }
+                    Ok(None) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(5)),
+                    _ => {
+                        let _ = s.child.kill();
+                        s.exited = s.child.wait().ok();
+                        break Some(format!("did not stop within {timeout:?} and was killed"));
+                    }
+                }
+            };
+            if let Some(how) = how {
+                failure = failure.or(Some((i, how)));
+            }
+        }
+        failure
+    }
+}
+
+impl Drop for Supervisor {
+    fn drop(&mut self) {
+        if self.children.iter().any(|s| s.exited.is_none()) {
+            let _ = self.stop(StopOrder::Together, Duration::from_secs(5));
+        }
+    }
+}
+
+fn signal(child: &Child, signal: i32) {
+    // SAFETY: kill(2) on our own child's pid; no memory is involved.
+    unsafe { libc::kill(child.id() as libc::pid_t, signal) };
+}
+
+/// Describes how a process ended, e.g. `was killed by signal 9 (SIGKILL)`.
+pub fn describe_exit(status: ExitStatus) -> String {
+    match (status.code(), status.signal()) {
+        (Some(0), _) => "exited normally".into(),
+        (Some(code), _) => format!("exited with status {code}"),
+        (None, Some(sig)) => {
+            let name = match sig {
+                libc::SIGKILL => " (SIGKILL)",
+                libc::SIGTERM => " (SIGTERM)",
+                libc::SIGSEGV => " (SIGSEGV)",
+                libc::SIGABRT => " (SIGABRT)",
+                libc::SIGINT => " (SIGINT)",
+                _ => "",
+            };
+            format!("was killed by signal {sig}{name}")
+        }
+        (None, None) => "ended for an unknown reason".into(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lines_are_attributed_and_exits_described() {
+        let mut children = Supervisor::new();
+        let a = children
+            .spawn("a", Command::new("sh").args(["-c", "echo ready; exit 3"]), SpawnOptions::default())
+            .unwrap();
+        let (i, line) = children.next_line(Duration::from_secs(10)).expect("a line");
+        assert_eq!((i, line.as_str(), children.name(i)), (a, "ready", "a"));
+        let deadline = Instant::now() + Duration::from_secs(10);
+        let (i, status) = loop {
+            if let Some(exit) = children.reap() {
+                break exit;
+            }
+            assert!(Instant::now() < deadline, "the child never exited");
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        assert_eq!((i, describe_exit(status)), (a, "exited with status 3".to_string()));
+        assert!(children.stop(StopOrder::Together, Duration::from_secs(1)).is_none(), "nothing left to stop");
+    }
+
+    #[test]
+    fn stopping_terminates_in_turn_and_reports_the_first_unclean_end() {
+        let mut children = Supervisor::new();
+        let options = SpawnOptions::default();
+        // `exec` so that SIGTERM reaches sleep itself.
+        let first = children.spawn("first", Command::new("sh").args(["-c", "exec sleep 30"]), options).unwrap();
+        let second = children.spawn("second", Command::new("sh").args(["-c", "exec sleep 30"]), options).unwrap();
+        let failure = children.stop(StopOrder::InTurn(vec![second, first]), Duration::from_secs(5));
+        assert_eq!(failure, Some((second, "was killed by signal 15 (SIGTERM)".to_string())));
+        assert!(children.exited(first).is_some() && children.exited(second).is_some());
+    }
+}
