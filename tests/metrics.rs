@@ -5,7 +5,8 @@ use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::time::Duration;
 
-use jetbench_msgs::{channels, command_flags, controller_kind, Command, Reference, SimTruth, StateEstimate, Thrust};
+use jetbench_control::Controller;
+use jetbench_msgs::{channels, command_flags, Command, Reference, SimTruth, StateEstimate, Thrust};
 use jetbench_record::McapWriter;
 use serde_json::Value;
 
@@ -105,7 +106,7 @@ fn write_two_controller_recording(path: &Path) {
     let mut writer = McapWriter::create(path).expect("create MCAP");
     for k in 0..1200u64 {
         let stamp_ns = 1_000_000_000 + k * 10_000_000;
-        let (controller, run_k) = if k < 600 { (controller_kind::FBL, k) } else { (controller_kind::MPC, k - 600) };
+        let (controller, run_k) = if k < 600 { (Controller::Fbl.code(), k) } else { (Controller::Mpc.code(), k - 600) };
         let reference_n = if run_k < 300 { 30.0 } else { 60.0 };
         let truth =
             SimTruth { seq: k, stamp_ns: stamp_ns - 300_000, thrust_n: reference_n - 0.5, ..SimTruth::default() };
@@ -120,7 +121,7 @@ fn write_two_controller_recording(path: &Path) {
             thrust_n: reference_n,
             ..Reference::default()
         };
-        let mpc = controller == controller_kind::MPC;
+        let mpc = controller == Controller::Mpc.code();
         let command = Command {
             seq: k,
             stamp_ns,

@@ -4,6 +4,9 @@
 /// bad settings can report the reason on every step.
 #[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
 pub enum ControlError {
+    /// Open loop was asked of [`crate::Law`], which runs the feedback laws only.
+    #[error("open loop is no feedback law: it plays a throttle profile (`[control] throttle_profile`)")]
+    NotAFeedbackLaw,
     /// A step or ramp profile has no levels.
     #[error("{kind} profile has no levels; give at least one value in levels_n")]
     EmptyLevels {

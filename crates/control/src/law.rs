@@ -13,46 +13,75 @@ use crate::{
     SmcGains,
 };
 
-/// Which controller tracks the reference.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ControllerKind {
+/// The law that computes the throttle: the one enum of the bench config
+/// (`[control] controller`), the command line (`--controller`) and the wire
+/// (`Command::controller` carries [`Controller::code`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+#[repr(u32)]
+pub enum Controller {
+    /// A recorded throttle profile played open loop (identification campaigns).
+    OpenLoop = 0,
     /// Feedback linearisation (the study).
-    Fbl,
+    #[default]
+    Fbl = 1,
     /// Sliding mode (the study).
-    Smc,
+    Smc = 2,
     /// Model predictive control with the throttle limits and the model's effects.
-    Mpc,
+    Mpc = 3,
 }
 
-impl ControllerKind {
-    /// Every kind, in the order reports list them.
-    pub const ALL: [ControllerKind; 3] = [ControllerKind::Fbl, ControllerKind::Smc, ControllerKind::Mpc];
+impl Controller {
+    /// Every controller, by code.
+    pub const ALL: [Controller; 4] = [Controller::OpenLoop, Controller::Fbl, Controller::Smc, Controller::Mpc];
+    /// The feedback laws ([`Law`]), in the order reports list them.
+    pub const LAWS: [Controller; 3] = [Controller::Fbl, Controller::Smc, Controller::Mpc];
 
     /// The name used in configs and on the command line.
     pub fn name(self) -> &'static str {
         match self {
-            ControllerKind::Fbl => "fbl",
-            ControllerKind::Smc => "smc",
-            ControllerKind::Mpc => "mpc",
+            Controller::OpenLoop => "open-loop",
+            Controller::Fbl => "fbl",
+            Controller::Smc => "smc",
+            Controller::Mpc => "mpc",
         }
+    }
+
+    /// Its code on the wire (`Command::controller`).
+    pub const fn code(self) -> u32 {
+        self as u32
+    }
+
+    /// The controller of a wire code; `None` for a code this build does not know.
+    pub fn from_code(code: u32) -> Option<Controller> {
+        Self::ALL.into_iter().find(|c| c.code() == code)
+    }
+
+    /// The name of a wire code, `"unknown"` for codes this build does not know.
+    pub fn name_of_code(code: u32) -> &'static str {
+        Self::from_code(code).map_or("unknown", Controller::name)
+    }
+
+    /// True for the feedback laws, false for open loop.
+    pub fn is_feedback(self) -> bool {
+        self != Controller::OpenLoop
     }
 }
 
-impl fmt::Display for ControllerKind {
+impl fmt::Display for Controller {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.name())
     }
 }
 
-impl FromStr for ControllerKind {
+impl FromStr for Controller {
     type Err = String;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         Self::ALL
             .into_iter()
             .find(|k| k.name() == s)
-            .ok_or_else(|| format!("unknown controller '{s}'; choose fbl, smc or mpc"))
+            .ok_or_else(|| format!("unknown controller '{s}'; choose fbl, smc, mpc or open-loop"))
     }
 }
 
@@ -99,12 +128,12 @@ enum Inner {
 /// time. The MPC predicts through every input-side effect itself.
 ///
 /// ```
-/// use jetbench_control::{ControllerKind, Law, LawSettings, Profile};
+/// use jetbench_control::{Controller, Law, LawSettings, Profile};
 /// use jetbench_model::{Effects, Plant, Preset, STEP_S};
 ///
 /// let plant = Plant::new(Preset::P100Diesel.params(), Effects::none());
 /// let profile = Profile::default();
-/// let mut law = Law::new(ControllerKind::Mpc, &plant, &LawSettings::default());
+/// let mut law = Law::new(Controller::Mpc, &plant, &LawSettings::default())?;
 /// let mut engine = plant.at_equilibrium(25.0);
 /// for k in 0..400 {
 ///     let s = engine.state();
@@ -115,7 +144,7 @@ enum Inner {
 /// # Ok::<(), Box<dyn std::error::Error>>(())
 /// ```
 pub struct Law {
-    kind: ControllerKind,
+    kind: Controller,
     shaper: ReferenceShaper,
     inner: Inner,
     predictor: Option<DelayPredictor>,
@@ -129,23 +158,31 @@ impl fmt::Debug for Law {
 }
 
 impl Law {
-    /// The law `kind` for the controller model `plant`. FBL and SMC use its ten
-    /// parameters; the MPC uses its effects too.
-    pub fn new(kind: ControllerKind, plant: &Plant, settings: &LawSettings) -> Self {
+    /// The feedback law `kind` for the controller model `plant`. FBL and SMC use its
+    /// ten parameters; the MPC uses its effects too. Open loop is no feedback law:
+    /// [`ControlError::NotAFeedbackLaw`].
+    pub fn new(kind: Controller, plant: &Plant, settings: &LawSettings) -> Result<Self, ControlError> {
         let inner = match kind {
-            ControllerKind::Fbl => Inner::Fbl(Fbl::new(plant.params, settings.fbl)),
-            ControllerKind::Smc => Inner::Smc(Smc::new(plant.params, settings.smc)),
-            ControllerKind::Mpc => Inner::Mpc(Box::new(Mpc::new(plant.clone(), settings.mpc, settings.fbl))),
+            Controller::Fbl => Inner::Fbl(Fbl::new(plant.params, settings.fbl)),
+            Controller::Smc => Inner::Smc(Smc::new(plant.params, settings.smc)),
+            Controller::Mpc => Inner::Mpc(Box::new(Mpc::new(plant.clone(), settings.mpc, settings.fbl))),
+            Controller::OpenLoop => return Err(ControlError::NotAFeedbackLaw),
         };
         let predictor = match kind {
-            ControllerKind::Mpc => None,
-            ControllerKind::Fbl | ControllerKind::Smc => DelayPredictor::new(plant),
+            Controller::Fbl | Controller::Smc => DelayPredictor::new(plant),
+            Controller::Mpc | Controller::OpenLoop => None,
         };
-        Self { kind, shaper: ReferenceShaper::new(plant.params, settings.shaping), inner, predictor, started: false }
+        Ok(Self {
+            kind,
+            shaper: ReferenceShaper::new(plant.params, settings.shaping),
+            inner,
+            predictor,
+            started: false,
+        })
     }
 
     /// Which law this is.
-    pub fn kind(&self) -> ControllerKind {
+    pub fn kind(&self) -> Controller {
         self.kind
     }
 

@@ -33,13 +33,14 @@ mod law;
 mod metrics;
 mod mpc;
 mod profile;
+pub mod recorded;
 mod shaper;
 mod smc;
 mod throttle;
 
 pub use error::ControlError;
 pub use fbl::{Fbl, FblGains, MIN_INPUT_GAIN};
-pub use law::{ControllerKind, Law, LawOutput, LawSettings};
+pub use law::{Controller, Law, LawOutput, LawSettings};
 pub use metrics::{
     tracking_metrics, HoldMetrics, MetricsError, MetricsOptions, SolveTimeUs, StepMetrics, ThrottleLimit,
     TrackingMetrics, TrackingSample, TRACKING_BAND_PCT,

@@ -4,7 +4,7 @@
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 
-use jetbench_control::{ControllerKind, Law, LawSettings, Profile};
+use jetbench_control::{Controller, Law, LawSettings, Profile};
 use jetbench_model::{Effects, Plant, Preset, STEP_S};
 
 /// Counts the allocations the current thread makes while counting is on.
@@ -45,12 +45,12 @@ static ALLOCATOR: Counting = Counting;
 
 /// Allocations in cycles 100..1100 of `kind` tracking the built-in steps on `plant`, per
 /// cycle; the first 100 cycles are start-up (the MPC builds its model copies and solver).
-fn allocations_per_cycle(kind: ControllerKind, plant: &Plant) -> f64 {
+fn allocations_per_cycle(kind: Controller, plant: &Plant) -> f64 {
     let params = plant.params;
     let profile =
         Profile::builtin("steps", params.stable_equilibrium(25.0).unwrap(), params.stable_equilibrium(100.0).unwrap())
             .unwrap();
-    let mut law = Law::new(kind, plant, &LawSettings::default());
+    let mut law = Law::new(kind, plant, &LawSettings::default()).expect("a feedback law");
     let mut engine = plant.at_equilibrium(25.0);
     for k in 0..1100 {
         let state = engine.state();
@@ -75,7 +75,7 @@ fn a_control_cycle_allocates_nothing_but_inside_the_qp_solver() {
         .unwrap(),
     );
     for plant in [&nominal, &delayed] {
-        for kind in [ControllerKind::Fbl, ControllerKind::Smc] {
+        for kind in [Controller::Fbl, Controller::Smc] {
             assert_eq!(allocations_per_cycle(kind, plant), 0.0, "{kind} with effects {}", plant.effects);
         }
         // Clarabel 0.11 allocates once per solve: `DefaultSolver::solve` resets its timers,
@@ -83,7 +83,7 @@ fn a_control_cycle_allocates_nothing_but_inside_the_qp_solver() {
         // sub-timer. The MPC solves one QP per Gauss-Newton pass; everything else it does
         // in a cycle (model copies, rollouts, sensitivities, QP data) reuses its buffers.
         let passes = LawSettings::default().mpc.iterations as f64;
-        let mpc = allocations_per_cycle(ControllerKind::Mpc, plant);
+        let mpc = allocations_per_cycle(Controller::Mpc, plant);
         assert!(mpc <= passes, "MPC: {mpc} allocations per cycle with effects {}", plant.effects);
     }
 }

@@ -1,8 +1,8 @@
 //! FBL, SMC and MPC on the model itself: limits, steady state, saturation, delay, failure.
 
 use jetbench_control::{
-    tracking_metrics, ControlError, ControllerKind, FblGains, Law, LawSettings, MetricsOptions, Mpc, MpcSettings,
-    Profile, ProfileSpec, Reference, ReferenceShaper, ShaperSettings, Smc, SmcGains, ThrottleLimit, TrackingMetrics,
+    tracking_metrics, ControlError, Controller, FblGains, Law, LawSettings, MetricsOptions, Mpc, MpcSettings, Profile,
+    ProfileSpec, Reference, ReferenceShaper, ShaperSettings, Smc, SmcGains, ThrottleLimit, TrackingMetrics,
     TrackingSample,
 };
 use jetbench_estim::{ObserverConfig, ThrustObserver};
@@ -18,8 +18,8 @@ struct Run {
     fallbacks: usize,
 }
 
-fn run(kind: ControllerKind, truth: &Plant, model: &Plant, settings: &LawSettings, profile: &Profile, s: f64) -> Run {
-    let mut law = Law::new(kind, model, settings);
+fn run(kind: Controller, truth: &Plant, model: &Plant, settings: &LawSettings, profile: &Profile, s: f64) -> Run {
+    let mut law = Law::new(kind, model, settings).expect("a feedback law");
     let mut engine = truth.at_equilibrium(25.0);
     let mut out = Run { reference_n: vec![], thrust_n: vec![], throttle_pct: vec![], fallbacks: 0 };
     for k in 0..(s / STEP_S) as usize {
@@ -70,7 +70,7 @@ fn total_variation_pct(run: &Run) -> f64 {
 fn every_law_holds_the_steps_within_two_percent_and_the_throttle_in_range() {
     let plant = p100();
     let profile = steps_profile(&plant.params);
-    for kind in ControllerKind::ALL {
+    for kind in Controller::LAWS {
         let r = run(kind, &plant, &plant, &LawSettings::default(), &profile, 55.0);
         assert!(r.throttle_pct.iter().all(|u| (25.0..=100.0).contains(u)), "{kind}");
         assert_eq!(r.fallbacks, 0, "{kind}");
@@ -86,16 +86,16 @@ fn mpc_tracks_saturating_steps_much_better_than_fbl() {
     let plant = p100();
     let profile = steps_profile(&plant.params);
     let settings = LawSettings::default();
-    let fbl = mae_n(&run(ControllerKind::Fbl, &plant, &plant, &settings, &profile, 55.0));
-    let mpc = mae_n(&run(ControllerKind::Mpc, &plant, &plant, &settings, &profile, 55.0));
+    let fbl = mae_n(&run(Controller::Fbl, &plant, &plant, &settings, &profile, 55.0));
+    let mpc = mae_n(&run(Controller::Mpc, &plant, &plant, &settings, &profile, 55.0));
     assert!(mpc < 0.7 * fbl, "MPC MAE {mpc:.2} N vs FBL {fbl:.2} N");
 }
 
 /// One closed-loop run as on the simulated bench: the force sensor's noise (7 N²), the
 /// bench's EKF observer (`[estimator]` of config/sim.toml) between sensor and law, the
 /// throttle applied reaching the observer a cycle later; scored on the true thrust.
-fn noisy_run(kind: ControllerKind, plant: &Plant, profile: &Profile, seed: u64) -> TrackingMetrics {
-    let mut law = Law::new(kind, plant, &LawSettings::default());
+fn noisy_run(kind: Controller, plant: &Plant, profile: &Profile, seed: u64) -> TrackingMetrics {
+    let mut law = Law::new(kind, plant, &LawSettings::default()).expect("a feedback law");
     let config = ObserverConfig { measurement_var_n2: 7.0, accel_noise_n_per_s2: 150.0, ..ObserverConfig::default() };
     let mut observer = ThrustObserver::new(plant.params, config);
     let mut engine = plant.at_equilibrium(25.0);
@@ -144,8 +144,8 @@ fn with_sensor_noise_the_mpc_tracks_better_and_settles_small_steps_no_slower_tha
     // Steps FBL takes without saturating in some draw (52 → 34 N saturates it in some).
     let mut small_steps = [false; 10];
     for seed in seeds {
-        let fbl = noisy_run(ControllerKind::Fbl, &plant, &profile, seed);
-        let mpc = noisy_run(ControllerKind::Mpc, &plant, &profile, seed);
+        let fbl = noisy_run(Controller::Fbl, &plant, &profile, seed);
+        let mpc = noisy_run(Controller::Mpc, &plant, &profile, seed);
         assert!(mpc.mae_n < 0.7 * fbl.mae_n, "seed {seed}: MAE MPC {:.2} N vs FBL {:.2} N", mpc.mae_n, fbl.mae_n);
         assert_eq!((fbl.steps.len(), mpc.steps.len()), (10, 10), "seed {seed}");
         for hold in &mpc.holds[1..] {
@@ -173,7 +173,7 @@ fn the_diagnosed_delay_improves_every_law() {
     let nominal = p100();
     let profile = steps_profile(&nominal.params);
     let settings = LawSettings::default();
-    for kind in ControllerKind::ALL {
+    for kind in Controller::LAWS {
         let blind = mae_n(&run(kind, &truth, &nominal, &settings, &profile, 55.0));
         let aware = mae_n(&run(kind, &truth, &truth, &settings, &profile, 55.0));
         assert!(aware < 0.9 * blind, "{kind}: MAE {aware:.2} N with the delay vs {blind:.2} N without");
@@ -201,7 +201,7 @@ fn smc_is_the_study_law_and_its_boundary_layer_trades_chattering() {
     let profile = steps_profile(&params);
     let tv = |k: f64| {
         let settings = LawSettings { smc: SmcGains { k, ..SmcGains::default() }, ..LawSettings::default() };
-        total_variation_pct(&run(ControllerKind::Smc, &plant, &plant, &settings, &profile, 20.0))
+        total_variation_pct(&run(Controller::Smc, &plant, &plant, &settings, &profile, 20.0))
     };
     let (sharp, wide) = (tv(0.15), tv(0.005));
     assert!(wide < 0.5 * sharp, "total variation {wide:.0} % with k = 0.005 vs {sharp:.0} % with k = 0.15");
@@ -243,7 +243,7 @@ fn bad_settings_and_inputs_are_errors_not_panics() {
     }
     let mut mpc = Mpc::new(plant.clone(), bad, FblGains::default());
     assert!(mpc.step(10.0, 0.0, 0.0, &profile).is_err());
-    let mut law = Law::new(ControllerKind::Mpc, &plant, &LawSettings::default());
+    let mut law = Law::new(Controller::Mpc, &plant, &LawSettings::default()).expect("a feedback law");
     assert!(matches!(law.step(f64::NAN, 0.0, 0.0, &profile), Err(ControlError::NonFiniteInput { .. })));
     let mut smc = Smc::new(plant.params, SmcGains { beta: f64::INFINITY, ..SmcGains::default() });
     assert!(matches!(smc.step(10.0, 0.0, &Reference::default()), Err(ControlError::InvalidSetting { .. })));

@@ -466,6 +466,152 @@ pub fn plausibility(p: &Params) -> Plausibility {
     out
 }
 
+impl MethodResult {
+    /// The validation MAE, or where the free run diverged.
+    pub fn score_text(&self) -> String {
+        self.validation_score.map_or_else(|| self.diverged_text(), |s| format!("{:.2} N", s.mae_n))
+    }
+
+    fn diverged_text(&self) -> String {
+        self.validation.diverged.as_ref().map_or("n/a".into(), |(_, t)| format!("div@{t:.1}s"))
+    }
+}
+
+impl Report {
+    /// The JSON contract of `jetbench identify --json`: `{"methods": {"ls": {"params":
+    /// {..}, "mae_n", "fit_pct", ..}}, "best", "noise_floor_n", ...}`.
+    pub fn to_json(&self) -> Value {
+        let mut methods = Map::new();
+        for r in &self.results {
+            let v = r.validation_score;
+            let (diverged_file, diverged_at) =
+                r.validation.diverged.clone().map_or((None, None), |(f, t)| (Some(f), Some(t)));
+            methods.insert(
+                r.method.name().into(),
+                serde_json::json!({
+                    "params": r.params,
+                    "mae_n": v.map(|s| s.mae_n),
+                    "fit_pct": v.map(|s| s.fit_pct),
+                    "rmse_n": v.map(|s| s.rmse_n),
+                    "calibration_mae_n": r.calibration_score.map(|s| s.mae_n),
+                    "diverged_file": diverged_file,
+                    "diverged_at_s": diverged_at,
+                    "fit_seconds": r.fit_seconds,
+                    "plausibility": r.plausibility,
+                    "notes": r.notes,
+                }),
+            );
+        }
+        for (method, error) in &self.failures {
+            methods.insert(method.name().into(), serde_json::json!({ "error": error, "mae_n": null, "fit_pct": null }));
+        }
+        serde_json::json!({
+            "methods": methods,
+            "best": self.best.map(|m| m.name()),
+            "noise_floor_n": self.noise.mae_n,
+            "noise_sigma_n": self.noise.sigma_n,
+            "calibration_samples": self.calibration_samples,
+            "validation_samples": self.validation_samples,
+            "verdict": self.verdict,
+        })
+    }
+
+    /// The ten-parameter model with the lowest validation MAE, if any stayed bounded.
+    pub fn best_params(&self) -> Option<(&MethodResult, Params)> {
+        self.results
+            .iter()
+            .filter_map(|r| match (&r.model, r.validation_score) {
+                (Fitted::Params(p), Some(s)) => Some((r, *p, s.mae_n)),
+                _ => None,
+            })
+            .min_by(|a, b| a.2.total_cmp(&b.2))
+            .map(|(r, p, _)| (r, p))
+    }
+
+    /// The text report: the data, the noise floor, every method's parameters and
+    /// scores, its warnings, and the verdict.
+    pub fn text(&self, calibration: &[Series], validation: &[Series]) -> String {
+        use std::fmt::Write;
+        let mut out = String::new();
+        let names = |s: &[Series]| s.iter().map(|x| x.name.clone()).collect::<Vec<_>>().join(", ");
+        let _ = writeln!(
+            out,
+            "calibration: {} samples ({})\nvalidation:  {} samples ({})",
+            self.calibration_samples,
+            names(calibration),
+            self.validation_samples,
+            names(validation)
+        );
+        let _ = writeln!(
+            out,
+            "noise floor: σ = {:.3} N, MAE {:.3} N (estimated from the data)\n",
+            self.noise.sigma_n, self.noise.mae_n
+        );
+        let params: Vec<(&MethodResult, Params)> = self
+            .results
+            .iter()
+            .filter_map(|r| if let Fitted::Params(p) = r.model { Some((r, p)) } else { None })
+            .collect();
+        if !params.is_empty() {
+            let _ = write!(out, "{:<6}", "param");
+            for (r, _) in &params {
+                let _ = write!(out, "{:>14}", r.method.name());
+            }
+            out.push('\n');
+            for (i, name) in Params::NAMES.iter().enumerate() {
+                let _ = write!(out, "{name:<6}");
+                for (_, p) in &params {
+                    let _ = write!(out, "{:>14.6}", p.to_array()[i]);
+                }
+                out.push('\n');
+            }
+            out.push('\n');
+        }
+        for r in &self.results {
+            if let Fitted::Sindy(m) = &r.model {
+                let _ = writeln!(out, "sindy: T'' = {}\n", m.equation());
+            }
+        }
+        let _ = writeln!(
+            out,
+            "{:<6} {:>12} {:>10} {:>12} {:>9}  notes",
+            "method", "val MAE N", "fit %", "cal MAE N", "time s"
+        );
+        for r in &self.results {
+            let v = r.validation_score;
+            let _ = writeln!(
+                out,
+                "{:<6} {:>12} {:>10} {:>12} {:>9.3}  {}",
+                r.method.name(),
+                v.map_or_else(|| r.diverged_text(), |s| format!("{:.3}", s.mae_n)),
+                v.map_or("-".into(), |s| format!("{:.1}", s.fit_pct)),
+                r.calibration_score.map_or("-".into(), |s| format!("{:.3}", s.mae_n)),
+                r.fit_seconds,
+                r.notes.join("; ")
+            );
+            for w in &r.plausibility.warnings {
+                let _ = writeln!(out, "       warning: {w}");
+            }
+        }
+        for (method, error) in &self.failures {
+            let _ = writeln!(out, "{:<6} failed: {error}", method.name());
+        }
+        let _ = writeln!(out, "\n{}", self.verdict);
+        out
+    }
+}
+
+/// A model file of an identified model, with where it came from in a comment.
+pub fn model_file_text(result: &MethodResult, params: Params) -> String {
+    let mut text = format!(
+        "# Identified by `jetbench identify` ({}), validation MAE {} N\n",
+        result.method.name(),
+        result.validation_score.map_or("n/a".into(), |s| format!("{:.3}", s.mae_n))
+    );
+    text.push_str(&jetbench_model::ModelFile::new(params).to_toml_string());
+    text
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -214,7 +214,8 @@ sample! {
         pub virtual_input: f64,
         /// Command flags (see [`command_flags`]).
         pub flags: u64,
-        /// Which law computed it (see [`controller_kind`]).
+        /// Which law computed it: 0 open loop, 1 FBL, 2 SMC, 3 MPC (the code of
+        /// `jetbench_control::Controller`).
         pub controller: u32,
         /// Time the law took to compute it, µs (the MPC solve; 0 for closed-form laws).
         pub solve_us: u32,
@@ -338,29 +339,6 @@ pub mod command_flags {
     /// The configured law failed this cycle (an MPC solve that did not converge in
     /// time); feedback linearisation computed the command instead.
     pub const FALLBACK: u64 = 1 << 2;
-}
-
-/// Codes of [`Command::controller`](crate::Command).
-pub mod controller_kind {
-    /// A recorded throttle profile played open loop.
-    pub const OPEN_LOOP: u32 = 0;
-    /// Feedback linearisation.
-    pub const FBL: u32 = 1;
-    /// Sliding mode.
-    pub const SMC: u32 = 2;
-    /// Model predictive control.
-    pub const MPC: u32 = 3;
-
-    /// The config name of a code, `"unknown"` for codes this build does not know.
-    pub fn name(code: u32) -> &'static str {
-        match code {
-            OPEN_LOOP => "open-loop",
-            FBL => "fbl",
-            SMC => "smc",
-            MPC => "mpc",
-            _ => "unknown",
-        }
-    }
 }
 
 /// Flags of [`Actuation`](crate::Actuation).

@@ -293,3 +293,55 @@ impl Recording {
 pub fn seq_gaps<T: Sample>(samples: &[T]) -> u64 {
     samples.windows(2).map(|w| w[1].seq().saturating_sub(w[0].seq() + 1)).sum()
 }
+
+/// One channel of a recording at a glance (`jetbench info`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ChannelSummary {
+    pub topic: String,
+    pub messages: usize,
+    /// Messages per second of log time.
+    pub rate_hz: f64,
+    /// Samples lost between publisher and recorder (per publisher: `bench/health` has one per service).
+    pub seq_gaps: u64,
+}
+
+impl Recording {
+    /// Every channel with samples, in registry order: messages, rate and `seq` gaps.
+    pub fn summary(&self) -> Vec<ChannelSummary> {
+        struct Summary<'a> {
+            recording: &'a Recording,
+            channels: Vec<ChannelSummary>,
+        }
+        impl ChannelVisitor for Summary<'_> {
+            fn visit<T: Sample>(&mut self, channel: Channel<T>) {
+                let samples = self.recording.samples(channel);
+                if samples.is_empty() {
+                    return;
+                }
+                // Rate on the recorder's receive time: every sample has one.
+                let topic = channel.topic();
+                let times: Vec<u64> =
+                    self.recording.messages.iter().filter(|m| m.topic == topic).map(|m| m.log_time_ns).collect();
+                let span_s = times.last().zip(times.first()).map_or(0, |(l, f)| l.saturating_sub(*f)) as f64 * 1e-9;
+                let rate_hz = if span_s > 0.0 { (times.len() - 1) as f64 / span_s } else { 0.0 };
+                // bench/health has one publisher per service: gaps are per publisher.
+                let seq_gaps = if channel.name == jetbench_msgs::channels::HEALTH.name {
+                    let health = self.recording.samples(jetbench_msgs::channels::HEALTH);
+                    jetbench_msgs::ServiceId::ALL
+                        .iter()
+                        .map(|id| {
+                            let mine: Vec<_> = health.iter().copied().filter(|h| h.service_id == *id as u32).collect();
+                            seq_gaps(&mine)
+                        })
+                        .sum()
+                } else {
+                    seq_gaps(&samples)
+                };
+                self.channels.push(ChannelSummary { topic, messages: samples.len(), rate_hz, seq_gaps });
+            }
+        }
+        let mut summary = Summary { recording: self, channels: Vec::new() };
+        visit_channels(&mut summary);
+        summary.channels
+    }
+}

@@ -5,7 +5,7 @@
 //! (controller, plant, controller model, profile, seconds; `noshape` as a sixth argument
 //! turns reference shaping off). `JETBENCH_SEED` picks the sensor noise draw (default 3).
 
-use jetbench_control::{tracking_metrics, ControllerKind, MetricsOptions, Profile, ThrottleLimit, TrackingSample};
+use jetbench_control::{tracking_metrics, Controller, MetricsOptions, Profile, ThrottleLimit, TrackingSample};
 use jetbench_msgs::command_flags;
 use jetbench_stack::config::BenchConfig;
 use jetbench_stack::step::{Actuator, Control, Estimation, Sensing, SimBench};
@@ -13,11 +13,11 @@ use jetbench_stack::step::{Actuator, Control, Estimation, Sensing, SimBench};
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let arg = |i: usize, default: &str| args.get(i).cloned().unwrap_or_else(|| default.to_string());
-    let kind: ControllerKind = arg(0, "fbl").parse()?;
+    let kind: Controller = arg(0, "fbl").parse()?;
     let mut config = BenchConfig::default_sim()?;
     config.plant.model = arg(1, "p100-diesel");
     config.model.model = arg(2, "p100-diesel");
-    config.control.controller = kind.into();
+    config.control.controller = kind;
     config.control.shaping.enabled = arg(5, "shape") != "noshape";
     // Gains to try without editing a file: JETBENCH_SMC="a1,beta,k", JETBENCH_MPC_MOVE_WEIGHT.
     if let Ok(smc) = std::env::var("JETBENCH_SMC") {

@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use jetbench_control::{ControllerKind, FblGains, Law, LawSettings, MpcSettings, Profile, ShaperSettings, SmcGains};
+use jetbench_control::{Controller, FblGains, Law, LawSettings, MpcSettings, Profile, ShaperSettings, SmcGains};
 use jetbench_io::can::source::{CanInterface, InterfaceError};
 use jetbench_model::{ModelFile, Params, Plant};
 use jetbench_msgs::ServiceId;
@@ -29,6 +29,8 @@ pub enum ControlSetupError {
     Model(#[from] jetbench_model::ModelError),
     #[error("throttle profile: {0}")]
     Profile(#[from] jetbench_record::series::DataError),
+    #[error("controller: {0}")]
+    Law(#[from] jetbench_control::ControlError),
 }
 
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
@@ -245,43 +247,6 @@ impl EstimatorSection {
             measurement_var_n2: self.measurement_var_n2,
             accel_noise_n_per_s2: self.accel_noise_n_per_s2,
             ..jetbench_estim::ObserverConfig::default()
-        }
-    }
-}
-
-/// The control law of the control service.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Deserialize, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Controller {
-    /// Feedback linearisation tracking `[reference]` (the study).
-    #[default]
-    Fbl,
-    /// Sliding mode tracking `[reference]` (the study).
-    Smc,
-    /// Model predictive control with the throttle limits and the model's effects.
-    Mpc,
-    /// `throttle_profile` played open loop (identification campaigns).
-    OpenLoop,
-}
-
-impl Controller {
-    /// The closed-loop law, `None` for open loop.
-    pub fn kind(self) -> Option<ControllerKind> {
-        match self {
-            Controller::Fbl => Some(ControllerKind::Fbl),
-            Controller::Smc => Some(ControllerKind::Smc),
-            Controller::Mpc => Some(ControllerKind::Mpc),
-            Controller::OpenLoop => None,
-        }
-    }
-}
-
-impl From<ControllerKind> for Controller {
-    fn from(kind: ControllerKind) -> Self {
-        match kind {
-            ControllerKind::Fbl => Controller::Fbl,
-            ControllerKind::Smc => Controller::Smc,
-            ControllerKind::Mpc => Controller::Mpc,
         }
     }
 }
@@ -604,7 +569,7 @@ impl BenchConfig {
                  ten parameters (the mpc controller uses the effects too)",
                 self.model.model,
                 model.effects,
-                self.control.controller.kind().map_or("open-loop", ControllerKind::name)
+                self.control.controller
             );
         }
         Ok(())
@@ -650,16 +615,16 @@ impl BenchConfig {
 
     /// The control law `[control]` chooses, on the controller's model.
     pub fn control_law(&self) -> Result<crate::step::ControlLaw, ControlSetupError> {
-        Ok(match self.control.controller.kind() {
-            Some(kind) => crate::step::ControlLaw::Closed(Box::new(Law::new(
-                kind,
-                &self.control_plant()?,
-                &self.control.law_settings(),
-            ))),
-            None => crate::step::ControlLaw::OpenLoop {
+        Ok(match self.control.controller {
+            Controller::OpenLoop => crate::step::ControlLaw::OpenLoop {
                 throttle_pct: self.throttle_profile()?,
                 model: self.model_params()?,
             },
+            kind => crate::step::ControlLaw::Closed(Box::new(Law::new(
+                kind,
+                &self.control_plant()?,
+                &self.control.law_settings(),
+            )?)),
         })
     }
 

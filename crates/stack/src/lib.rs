@@ -19,3 +19,4 @@ pub mod service;
 pub mod step;
 pub mod supervise;
 pub mod synthetic;
+pub mod tare;

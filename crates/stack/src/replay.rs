@@ -598,7 +598,7 @@ pub fn write_replayed(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::step::{SimBench, SimForceSensor};
+    use crate::step::{Sensing, SimBench, SimForceSensor};
     use crate::synthetic::synthetic_recording;
     use jetbench_model::THROTTLE_MIN_PCT;
 

@@ -3,15 +3,15 @@
 //! The same code runs live (wired to the bus by [`crate::service`]), in
 //! replay and in tests. Time comes in as arguments, never from a clock.
 
-use jetbench_control::{ControllerKind, Law, Profile};
+use jetbench_control::{Controller, Law, Profile};
 use jetbench_estim::{EstimError, ObserverConfig, ThrustObserver};
 use jetbench_io::{Acknowledgement, ForceReading};
 use jetbench_model::{
     ModelError, Params, Plant, PlantEngine, PlantSample, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT,
 };
 use jetbench_msgs::{
-    actuation_flags, command_flags, controller_kind, sensor_status, state_flags, thrust_flags, Actuation, Command,
-    Reference, SimTruth, StateEstimate, Thrust,
+    actuation_flags, command_flags, sensor_status, state_flags, thrust_flags, Actuation, Command, Reference, SimTruth,
+    StateEstimate, Thrust,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -208,11 +208,7 @@ impl Control {
         let (r, c, controller, fallback, solve_s) = match &mut self.law {
             ControlLaw::Closed(law) => {
                 let out = law.step(state.thrust_n, state.thrust_rate_n_per_s, profile_time_s, &self.profile)?;
-                let code = match law.kind() {
-                    ControllerKind::Fbl => controller_kind::FBL,
-                    ControllerKind::Smc => controller_kind::SMC,
-                    ControllerKind::Mpc => controller_kind::MPC,
-                };
+                let code = law.kind().code();
                 (out.reference, out.command, code, out.fallback, out.solve_s)
             }
             ControlLaw::OpenLoop { throttle_pct, model } => {
@@ -231,7 +227,7 @@ impl Control {
                     virtual_input: model.v(applied),
                     saturated: applied != u,
                 };
-                (r, command, controller_kind::OPEN_LOOP, false, 0.0)
+                (r, command, Controller::OpenLoop.code(), false, 0.0)
             }
         };
         let mut flags = 0;
@@ -622,19 +618,19 @@ mod tests {
     /// sim-bench -> sensing -> estimation -> control -> actuation -> sim-bench.
     #[test]
     fn closed_loop_tracks_the_reference_with_every_law() {
-        for kind in ControllerKind::ALL {
+        for kind in Controller::LAWS {
             closed_loop_tracks_the_reference(kind);
         }
     }
 
-    fn closed_loop_tracks_the_reference(kind: ControllerKind) {
+    fn closed_loop_tracks_the_reference(kind: Controller) {
         let params = Preset::P100Diesel.params();
         let plant = Plant::new(params, Effects::none());
         let config = crate::config::BenchConfig::default_sim().unwrap();
         let mut sim = SimBench::new(&plant, SimForceSensor::new(7.0, [0.0; 6], 3).unwrap(), 25.0);
         let mut sensing = Sensing::new(&config.sensor).unwrap();
         let mut estimation = Estimation::new(params, config.estimator.observer_config());
-        let law = Law::new(kind, &plant, &LawSettings::default());
+        let law = Law::new(kind, &plant, &LawSettings::default()).unwrap();
         let mut control = Control::new(law, config.reference.clone());
         let mut actuator = Actuator::new(3);
         let mut throttle = None;

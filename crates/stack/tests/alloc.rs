@@ -20,7 +20,7 @@ use std::cell::Cell;
 use std::time::Duration;
 
 use jetbench_bus::{Bus, Publisher, Subscriber};
-use jetbench_control::{ControllerKind, Profile};
+use jetbench_control::{Controller, Profile};
 use jetbench_io::can::source::{CanForceSink, CanForceSource, CanInterface};
 use jetbench_io::emulate::PtyBoard;
 use jetbench_io::serial::ThrottleBoard;
@@ -128,14 +128,14 @@ fn clock() -> u64 {
 }
 
 impl Loop {
-    fn new(kind: ControllerKind) -> Loop {
+    fn new(kind: Controller) -> Loop {
         static NAMESPACE: std::sync::Once = std::sync::Once::new();
         NAMESPACE.call_once(|| {
             // SAFETY: set once, before any thread of this test binary reads it.
             unsafe { std::env::set_var(jetbench_bus::NAMESPACE_ENV, format!("alloc{}", std::process::id())) };
         });
         let mut config = BenchConfig::default_sim().expect("built-in config");
-        config.control.controller = kind.into();
+        config.control.controller = kind;
         let params = config.model_params().expect("model");
         let idle = params.stable_equilibrium(25.0).expect("idle");
         let max = params.stable_equilibrium(100.0).expect("max");
@@ -224,10 +224,10 @@ impl Loop {
     }
 }
 
-fn kind_index(kind: ControllerKind) -> usize {
+fn kind_index(kind: Controller) -> usize {
     match kind {
-        ControllerKind::Fbl => 0,
-        ControllerKind::Smc => 1,
+        Controller::Fbl => 0,
+        Controller::Smc => 1,
         _ => 2,
     }
 }
@@ -257,7 +257,7 @@ const PUBLISHES_PER_CYCLE: u64 = 4;
 /// (crates/control/tests/alloc.rs pins that down for the law alone).
 const CONTROL_STAGE: usize = 6;
 
-fn assert_no_allocations(kind: ControllerKind) {
+fn assert_no_allocations(kind: Controller) {
     let mut l = Loop::new(kind);
     // Start-up: buffers grow to their working size, the MPC's solver is set up.
     for _ in 0..300 {
@@ -275,15 +275,12 @@ fn assert_no_allocations(kind: ControllerKind) {
         .zip(l.counts)
         .enumerate()
         .filter(|&(i, (_, c))| {
-            c > 0
-                && i != BUS_STAGE
-                && !DEVICE_STAGES.contains(&i)
-                && !(i == CONTROL_STAGE && kind == ControllerKind::Mpc)
+            c > 0 && i != BUS_STAGE && !DEVICE_STAGES.contains(&i) && !(i == CONTROL_STAGE && kind == Controller::Mpc)
         })
         .map(|(_, (s, c))| format!("{s}: {c}"))
         .collect();
     assert!(ours.is_empty(), "{kind}: heap allocations in {cycles} cycles after start-up: {}", ours.join(", "));
-    if kind == ControllerKind::Mpc {
+    if kind == Controller::Mpc {
         let passes = jetbench_control::LawSettings::default().mpc.iterations as u64;
         assert!(
             l.counts[CONTROL_STAGE] <= passes * cycles,
@@ -300,17 +297,17 @@ fn assert_no_allocations(kind: ControllerKind) {
 
 #[test]
 fn feedback_linearisation_loop_allocates_nothing() {
-    assert_no_allocations(ControllerKind::Fbl);
+    assert_no_allocations(Controller::Fbl);
 }
 
 #[test]
 fn sliding_mode_loop_allocates_nothing() {
-    assert_no_allocations(ControllerKind::Smc);
+    assert_no_allocations(Controller::Smc);
 }
 
 #[test]
 fn mpc_loop_allocates_only_inside_the_qp_solver() {
-    assert_no_allocations(ControllerKind::Mpc);
+    assert_no_allocations(Controller::Mpc);
 }
 
 #[test]

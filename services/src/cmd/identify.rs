@@ -7,11 +7,9 @@ use std::time::Duration;
 use anyhow::{bail, Context};
 use clap::ValueEnum;
 use indicatif::{ProgressBar, ProgressStyle};
-use jetbench_ident::identify::{self, Fitted, Method, MethodResult, Report};
+use jetbench_ident::identify::{self, Method, Report};
 use jetbench_ident::plot::{write_fit_plot, FitPlot};
-use jetbench_model::{ModelFile, Params};
 use jetbench_record::series::Series;
-use serde_json::{json, Map, Value};
 
 /// Which methods to run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -131,138 +129,23 @@ pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
     })?;
     bar.finish_and_clear();
 
-    print_report(&report, &calibration, &validation);
+    eprint!("{}", report.text(&calibration, &validation));
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&to_json(&report))?);
+        println!("{}", serde_json::to_string_pretty(&report.to_json())?);
     }
     if let Some(dir) = &args.plot {
         let written = plot(&report, &calibration, &validation, dir, args.validate.is_empty())?;
         eprintln!("plots: {} files in {}", written, dir.display());
     }
     if let Some(path) = &args.out {
-        let best_params = report
-            .results
-            .iter()
-            .filter(|r| matches!(r.model, Fitted::Params(_)))
-            .filter_map(|r| r.validation_score.map(|s| (r, s.mae_n)))
-            .min_by(|a, b| a.1.total_cmp(&b.1));
-        let Some((result, _)) = best_params else {
+        let Some((result, params)) = report.best_params() else {
             bail!("no ten-parameter model stayed bounded on the validation data; nothing written to {}", path.display())
         };
-        let Fitted::Params(params) = result.model else { unreachable!("filtered to ten-parameter models") };
-        save_model(path, &params, result)?;
+        let text = identify::model_file_text(result, params);
+        std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))?;
         eprintln!("wrote the {} model to {}", result.method.name(), path.display());
     }
     Ok(ExitCode::SUCCESS)
-}
-
-fn save_model(path: &Path, params: &Params, result: &MethodResult) -> anyhow::Result<()> {
-    let mut text = format!(
-        "# Identified by `jetbench identify` ({}), validation MAE {} N\n",
-        result.method.name(),
-        result.validation_score.map_or("n/a".into(), |s| format!("{:.3}", s.mae_n))
-    );
-    text.push_str(&ModelFile::new(*params).to_toml_string());
-    std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
-}
-
-/// The JSON contract: `{"methods": {"ls": {"params": {..}, "mae_n", "fit_pct", ..}}, "best", "noise_floor_n"}`.
-pub fn to_json(report: &Report) -> Value {
-    let mut methods = Map::new();
-    for r in &report.results {
-        let v = r.validation_score;
-        let (diverged_file, diverged_at) =
-            r.validation.diverged.clone().map_or((None, None), |(f, t)| (Some(f), Some(t)));
-        methods.insert(
-            r.method.name().into(),
-            json!({
-                "params": r.params,
-                "mae_n": v.map(|s| s.mae_n),
-                "fit_pct": v.map(|s| s.fit_pct),
-                "rmse_n": v.map(|s| s.rmse_n),
-                "calibration_mae_n": r.calibration_score.map(|s| s.mae_n),
-                "diverged_file": diverged_file,
-                "diverged_at_s": diverged_at,
-                "fit_seconds": r.fit_seconds,
-                "plausibility": r.plausibility,
-                "notes": r.notes,
-            }),
-        );
-    }
-    for (method, error) in &report.failures {
-        methods.insert(method.name().into(), json!({ "error": error, "mae_n": null, "fit_pct": null }));
-    }
-    json!({
-        "methods": methods,
-        "best": report.best.map(|m| m.name()),
-        "noise_floor_n": report.noise.mae_n,
-        "noise_sigma_n": report.noise.sigma_n,
-        "calibration_samples": report.calibration_samples,
-        "validation_samples": report.validation_samples,
-        "verdict": report.verdict,
-    })
-}
-
-fn print_report(report: &Report, calibration: &[Series], validation: &[Series]) {
-    let names = |s: &[Series]| s.iter().map(|x| x.name.clone()).collect::<Vec<_>>().join(", ");
-    eprintln!(
-        "calibration: {} samples ({})\nvalidation:  {} samples ({})",
-        report.calibration_samples,
-        names(calibration),
-        report.validation_samples,
-        names(validation)
-    );
-    eprintln!(
-        "noise floor: σ = {:.3} N, MAE {:.3} N (estimated from the data)\n",
-        report.noise.sigma_n, report.noise.mae_n
-    );
-    let params: Vec<&MethodResult> = report.results.iter().filter(|r| matches!(r.model, Fitted::Params(_))).collect();
-    if !params.is_empty() {
-        eprint!("{:<6}", "param");
-        for r in &params {
-            eprint!("{:>14}", r.method.name());
-        }
-        eprintln!();
-        for (i, name) in Params::NAMES.iter().enumerate() {
-            eprint!("{name:<6}");
-            for r in &params {
-                if let Fitted::Params(p) = r.model {
-                    eprint!("{:>14.6}", p.to_array()[i]);
-                }
-            }
-            eprintln!();
-        }
-        eprintln!();
-    }
-    for r in &report.results {
-        if let Fitted::Sindy(m) = &r.model {
-            eprintln!("sindy: T'' = {}\n", m.equation());
-        }
-    }
-    eprintln!("{:<6} {:>12} {:>10} {:>12} {:>9}  notes", "method", "val MAE N", "fit %", "cal MAE N", "time s");
-    for r in &report.results {
-        let v = r.validation_score;
-        eprintln!(
-            "{:<6} {:>12} {:>10} {:>12} {:>9.3}  {}",
-            r.method.name(),
-            v.map_or_else(|| diverged(r), |s| format!("{:.3}", s.mae_n)),
-            v.map_or("-".into(), |s| format!("{:.1}", s.fit_pct)),
-            r.calibration_score.map_or("-".into(), |s| format!("{:.3}", s.mae_n)),
-            r.fit_seconds,
-            r.notes.join("; ")
-        );
-        for w in &r.plausibility.warnings {
-            eprintln!("       warning: {w}");
-        }
-    }
-    for (method, error) in &report.failures {
-        eprintln!("{:<6} failed: {error}", method.name());
-    }
-    eprintln!("\n{}", report.verdict);
-}
-
-fn diverged(r: &MethodResult) -> String {
-    r.validation.diverged.as_ref().map_or("n/a".into(), |(_, t)| format!("div@{t:.1}s"))
 }
 
 /// Per method: measured vs simulated with the residual, over calibration and
@@ -293,7 +176,7 @@ fn plot(
                 };
                 let sim: Vec<f64> =
                     r.calibration.thrust_n[i].iter().chain(&r.validation.thrust_n[i]).copied().collect();
-                let title = format!("{name}: {} (validation MAE {})", cal.name, score_text(r));
+                let title = format!("{name}: {} (validation MAE {})", cal.name, r.score_text());
                 figure(format!("{name}-{i}"), title, &joined, &[(name, &sim)], val.t_s.first().copied())?;
             }
         } else {
@@ -313,8 +196,4 @@ fn plot(
         figure(format!("validation-all-{i}"), format!("validation, every method: {}", s.name), s, &models, None)?;
     }
     Ok(written)
-}
-
-fn score_text(r: &MethodResult) -> String {
-    r.validation_score.map_or_else(|| diverged(r), |s| format!("{:.2} N", s.mae_n))
 }

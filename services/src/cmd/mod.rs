@@ -1,11 +1,15 @@
-//! Offline commands of the `jetbench` CLI, one module each.
+//! The commands of the `jetbench` CLI, one module each: each parses its
+//! arguments, calls a library and prints.
 
+pub mod bus;
 pub mod can_decode;
 pub mod diagnose;
 pub mod identify;
+pub mod info;
 pub mod latency;
 pub mod latency_stage;
 pub mod metrics;
 pub mod model;
 pub mod replay;
 pub mod tare;
+pub mod up;
