@@ -46,6 +46,28 @@ pub fn channel_dir(namespace: Option<&str>, channel: &str) -> PathBuf {
     std::env::temp_dir().join("jetbench-uds").join(namespace.unwrap_or("default")).join(flat)
 }
 
+/// The channels of bus namespace `namespace` with at least one socket
+/// subscriber: a jetbench channel by its name, any other by its folder's name.
+pub fn live_channels(namespace: Option<&str>) -> Vec<String> {
+    let root = channel_dir(namespace, "x").parent().map(Path::to_path_buf).unwrap_or_default();
+    let Ok(entries) = std::fs::read_dir(&root) else { return Vec::new() };
+    let mut names = Vec::new();
+    for entry in entries.flatten() {
+        let live = std::fs::read_dir(entry.path())
+            .map(|files| files.flatten().any(|f| f.file_name().to_str().and_then(parse_inbox_name).is_some()))
+            .unwrap_or(false);
+        if !live {
+            continue;
+        }
+        let flat = entry.file_name();
+        let known = jetbench_msgs::channel_names()
+            .into_iter()
+            .find(|name| channel_dir(namespace, name).file_name() == Some(flat.as_os_str()));
+        names.push(known.map_or_else(|| flat.to_string_lossy().into_owned(), str::to_string));
+    }
+    names
+}
+
 fn sockaddr(path: &Path) -> io::Result<(libc::sockaddr_un, libc::socklen_t)> {
     // SAFETY: sockaddr_un is plain data; all zeros is a valid value.
     let mut addr: libc::sockaddr_un = unsafe { std::mem::zeroed() };

@@ -51,8 +51,6 @@ pub enum DeviceError {
     Io { device: String, reason: String },
     #[error("device {device} rejected a value: {reason}")]
     InvalidValue { device: String, reason: String },
-    #[error(transparent)]
-    Bus(#[from] jetbench_bus::BusError),
 }
 
 /// The force/torque sensor, read by the sensing service.

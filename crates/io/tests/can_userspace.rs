@@ -13,7 +13,7 @@ use jetbench_io::can::{CanFrame, Codec};
 use jetbench_io::{ForceReading, ForceSink, ForceSource};
 
 fn bus(tag: &str) -> CanInterface {
-    CanInterface::Userspace(format!("t{}{tag}", std::process::id()))
+    CanInterface::userspace(&format!("t{}{tag}", std::process::id()), "iotest")
 }
 
 fn reading(k: u32) -> ForceReading {
@@ -68,7 +68,7 @@ fn garbage_on_the_bus_is_counted_by_kind() {
     // Datagrams that are not frames, sent straight to the listener's socket.
     let raw = UnixDatagram::unbound().unwrap();
     let dir = match &interface {
-        CanInterface::Userspace(name) => bus_dir(name).unwrap(),
+        CanInterface::Userspace { name, namespace } => bus_dir(namespace, name).unwrap(),
         CanInterface::Kernel(_) => unreachable!(),
     };
     let listener = std::fs::read_dir(&dir).unwrap().flatten().map(|e| e.path()).next().expect("listener socket");
@@ -110,8 +110,8 @@ fn a_vanished_socket_is_bound_again() {
     let (mut source, mut sink) = pair(&interface);
     assert!(deliver(&mut source, &mut sink, 0, 100).is_some());
     // Someone cleans the temp folder under the running stack.
-    let CanInterface::Userspace(name) = &interface else { unreachable!() };
-    std::fs::remove_dir_all(bus_dir(name).unwrap()).unwrap();
+    let CanInterface::Userspace { name, namespace } = &interface else { unreachable!() };
+    std::fs::remove_dir_all(bus_dir(namespace, name).unwrap()).unwrap();
     // The listener notices on its next quiet read and binds again; the
     // sender re-lists the bus and reaches it.
     let mut back = None;

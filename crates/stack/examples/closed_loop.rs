@@ -8,7 +8,7 @@
 use jetbench_control::{tracking_metrics, Controller, MetricsOptions, Profile, ThrottleLimit, TrackingSample};
 use jetbench_msgs::command_flags;
 use jetbench_stack::config::BenchConfig;
-use jetbench_stack::step::{Actuator, Control, Estimation, Sensing, SimBench};
+use jetbench_stack::step::{Actuator, Control, Estimation, Sensing, SimBench, SimForceSensor};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();

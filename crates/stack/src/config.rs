@@ -202,14 +202,15 @@ impl SensorSection {
         jetbench_io::calib::Calibration::new(&self.calibration, self.tare_offsets())
     }
 
-    /// The configured interface, else the default for `devices`.
+    /// The configured interface, else the default for `devices`; a userspace
+    /// bus in this process's bus namespace.
     pub fn interface(&self, devices: Devices) -> Result<CanInterface, InterfaceError> {
-        match (&self.can_interface, devices) {
-            (Some(name), _) => name.parse(),
-            (None, Devices::Sim) => SIM_CAN_INTERFACE.parse(),
-            #[allow(unreachable_patterns)]
-            (None, _) => "can0".parse(),
-        }
+        let interface: CanInterface = match (&self.can_interface, devices) {
+            (Some(name), _) => name.parse()?,
+            (None, Devices::Sim) => SIM_CAN_INTERFACE.parse()?,
+            (None, Devices::Bench) => "can0".parse()?,
+        };
+        Ok(interface.in_namespace(&bus_namespace()))
     }
 
     pub fn codec(&self) -> Result<jetbench_io::can::Codec, jetbench_io::can::CodecError> {
@@ -323,8 +324,13 @@ pub const SIM_ECU_LINK: &str = "ecu";
 /// the same path without being told, and parallel runs in other namespaces
 /// do not meet.
 pub fn sim_port_link(name: &str) -> PathBuf {
-    let ns = jetbench_bus::namespace().ok().flatten().unwrap_or_else(|| "default".into());
-    std::env::temp_dir().join(format!("jetbench-sim-{ns}")).join(name)
+    std::env::temp_dir().join(format!("jetbench-sim-{}", bus_namespace())).join(name)
+}
+
+/// This process's bus namespace ([`jetbench_bus::NAMESPACE_ENV`]), `default`
+/// when unset (an invalid one is refused when the bus opens).
+pub fn bus_namespace() -> String {
+    jetbench_bus::namespace_name().unwrap_or_else(|_| "default".into())
 }
 
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]

@@ -29,7 +29,7 @@ use jetbench_io::can::RejectCounts;
 use jetbench_io::{DeviceError, ForceSink, ForceSource};
 
 use crate::clock::PERIOD;
-use crate::config::{BenchConfig, ConfigError, Devices};
+use crate::config::{bus_namespace, BenchConfig, ConfigError, Devices};
 use crate::step::SimError;
 
 /// Why a tare failed.
@@ -84,7 +84,7 @@ impl TareResult {
 /// with a simulated sensor at rest (`simulated`).
 pub fn source_of(config: &BenchConfig) -> Result<(CanInterface, bool), TareError> {
     match config.bench.devices {
-        Devices::Sim => Ok((CanInterface::Userspace(format!("tare{}", std::process::id())), true)),
+        Devices::Sim => Ok((CanInterface::userspace(&format!("tare{}", std::process::id()), &bus_namespace()), true)),
         Devices::Bench => {
             Ok((config.sensor.interface(config.bench.devices).map_err(|e| TareError::Setup(e.to_string()))?, false))
         }
@@ -123,13 +123,13 @@ pub fn measure(config: &BenchConfig, seconds: f64) -> Result<TareResult, TareErr
     drop(source);
     drop(sender);
     if simulated {
-        if let CanInterface::Userspace(name) = &interface {
-            let _ = jetbench_io::can::userspace::bus_dir(name).map(std::fs::remove_dir);
+        if let CanInterface::Userspace { name, namespace } = &interface {
+            let _ = jetbench_io::can::userspace::bus_dir(namespace, name).map(std::fs::remove_dir);
         }
     }
     result?;
     let offsets = tare.offsets().map_err(|e| TareError::NoReadings(e.to_string()))?;
-    Ok(TareResult { offsets, std_dev: tare.std_dev(), readings: tare.samples() as u64, rejected })
+    Ok(TareResult { offsets, std_dev: tare.std_dev(), readings: tare.samples(), rejected })
 }
 
 /// The simulated sensor at rest: zero thrust on the bench's sensor

@@ -143,7 +143,10 @@ impl Loop {
         // the laws (and the MPC's active constraints) runs during the count.
         let profile = Profile::builtin("steps", idle, max).expect("profile");
         let codec = config.sensor.codec().expect("codec");
-        let can = CanInterface::Userspace(format!("alloc{}{kind}", std::process::id()));
+        let can = CanInterface::userspace(
+            &format!("alloc{}{kind}", std::process::id()),
+            &format!("alloc{}", std::process::id()),
+        );
         let source = CanForceSource::open(&can, codec).expect("CAN listener");
         let sensor = CanForceSink::open(&can, codec).expect("CAN sender");
         let link = std::env::temp_dir().join(format!("jetbench-alloc-{}-{kind}", std::process::id()));

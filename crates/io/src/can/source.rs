@@ -45,8 +45,9 @@ pub trait CanTransport: Send {
 pub enum CanInterface {
     /// A kernel interface, e.g. `can0`, `vcan0`.
     Kernel(String),
-    /// A userspace bus, written `user:NAME`.
-    Userspace(String),
+    /// A userspace bus, written `user:NAME`, in a bus namespace: service sets
+    /// in different namespaces never hear each other.
+    Userspace { name: String, namespace: String },
 }
 
 /// Why an interface name is unusable.
@@ -63,8 +64,9 @@ impl FromStr for CanInterface {
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let bad = |reason| InterfaceError { name: s.into(), reason };
         if let Some(name) = s.strip_prefix("user:") {
-            userspace::bus_dir(name).map_err(|_| bad("a userspace bus name has 1 to 32 letters, digits, _ or -"))?;
-            return Ok(CanInterface::Userspace(name.into()));
+            userspace::bus_dir(userspace::DEFAULT_NAMESPACE, name)
+                .map_err(|_| bad("a userspace bus name has 1 to 32 letters, digits, _ or -"))?;
+            return Ok(CanInterface::userspace(name, userspace::DEFAULT_NAMESPACE));
         }
         // Linux interface names: 1..=15 bytes, no '/', no whitespace.
         if s.is_empty()
@@ -84,18 +86,32 @@ impl fmt::Display for CanInterface {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             CanInterface::Kernel(name) => f.write_str(name),
-            CanInterface::Userspace(name) => write!(f, "user:{name}"),
+            CanInterface::Userspace { name, .. } => write!(f, "user:{name}"),
         }
     }
 }
 
 impl CanInterface {
+    /// Userspace bus `name` in bus namespace `namespace`.
+    pub fn userspace(name: &str, namespace: &str) -> Self {
+        CanInterface::Userspace { name: name.into(), namespace: namespace.into() }
+    }
+
+    /// The same interface, a userspace bus moved to bus namespace `namespace`
+    /// (a kernel interface belongs to no namespace).
+    pub fn in_namespace(self, namespace: &str) -> Self {
+        match self {
+            CanInterface::Userspace { name, .. } => CanInterface::userspace(&name, namespace),
+            kernel => kernel,
+        }
+    }
+
     /// Opens the transport; `listen` to receive (a userspace sender need not).
     pub fn open(&self, listen: bool) -> Result<Box<dyn CanTransport>, DeviceError> {
         Ok(match self {
             CanInterface::Kernel(name) => Box::new(SocketCan::open(name)?),
-            CanInterface::Userspace(name) if listen => Box::new(UserspaceCan::listen(name)?),
-            CanInterface::Userspace(name) => Box::new(UserspaceCan::sender(name)?),
+            CanInterface::Userspace { name, namespace } if listen => Box::new(UserspaceCan::listen(namespace, name)?),
+            CanInterface::Userspace { name, namespace } => Box::new(UserspaceCan::sender(namespace, name)?),
         })
     }
 }
@@ -218,10 +234,10 @@ mod tests {
     #[test]
     fn interface_names() {
         assert_eq!("can0".parse(), Ok(CanInterface::Kernel("can0".into())));
-        assert_eq!("user:simcan0".parse(), Ok(CanInterface::Userspace("simcan0".into())));
+        assert_eq!("user:simcan0".parse(), Ok(CanInterface::userspace("simcan0", "default")));
         for bad in ["", "user:", "user:a/b", "a/b", "sixteen-chars-xx", "can 0"] {
             assert!(bad.parse::<CanInterface>().is_err(), "{bad:?}");
         }
-        assert_eq!(CanInterface::Userspace("x".into()).to_string(), "user:x");
+        assert_eq!(CanInterface::userspace("x", "ns").to_string(), "user:x");
     }
 }

@@ -38,16 +38,18 @@ use crate::DeviceError;
 /// How often a sender re-lists the bus's listeners.
 const RESCAN: Duration = Duration::from_millis(20);
 
-/// The folder of userspace bus `name` in this process's bus namespace.
-pub fn bus_dir(name: &str) -> Result<PathBuf, DeviceError> {
+/// The bus namespace of a userspace bus given as `user:NAME` alone.
+pub const DEFAULT_NAMESPACE: &str = "default";
+
+/// The folder of userspace bus `name` in bus namespace `namespace`.
+pub fn bus_dir(namespace: &str, name: &str) -> Result<PathBuf, DeviceError> {
     if name.is_empty() || name.len() > 32 || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-') {
         return Err(DeviceError::InvalidValue {
             device: format!("user:{name}"),
             reason: "a userspace CAN bus name has 1 to 32 letters, digits, _ or -".into(),
         });
     }
-    let ns = jetbench_bus::namespace()?.unwrap_or_else(|| "default".into());
-    Ok(std::env::temp_dir().join("jetbench-can").join(ns).join(name))
+    Ok(std::env::temp_dir().join("jetbench-can").join(namespace).join(name))
 }
 
 struct Listener {
@@ -82,16 +84,16 @@ fn io_error(name: &str, what: &str, e: std::io::Error) -> DeviceError {
 }
 
 impl UserspaceCan {
-    /// Joins bus `name` as a listener (and may also send).
-    pub fn listen(name: &str) -> Result<Self, DeviceError> {
-        let mut bus = Self::sender(name)?;
+    /// Joins bus `name` of bus namespace `namespace` as a listener (and may also send).
+    pub fn listen(namespace: &str, name: &str) -> Result<Self, DeviceError> {
+        let mut bus = Self::sender(namespace, name)?;
         bus.bind()?;
         Ok(bus)
     }
 
-    /// Joins bus `name` to send only.
-    pub fn sender(name: &str) -> Result<Self, DeviceError> {
-        let dir = bus_dir(name)?;
+    /// Joins bus `name` of bus namespace `namespace` to send only.
+    pub fn sender(namespace: &str, name: &str) -> Result<Self, DeviceError> {
+        let dir = bus_dir(namespace, name)?;
         std::fs::create_dir_all(&dir).map_err(|e| io_error(name, &format!("cannot create {}", dir.display()), e))?;
         let sender = UnixDatagram::unbound().map_err(|e| io_error(name, "cannot create a socket", e))?;
         sender.set_nonblocking(true).map_err(|e| io_error(name, "cannot make the socket non-blocking", e))?;

@@ -10,7 +10,7 @@ use std::io::Write;
 use std::os::fd::{AsFd, AsRawFd, BorrowedFd, FromRawFd, OwnedFd, RawFd};
 use std::time::Duration;
 
-use jetbench_bus::{stop_requested, BusError};
+use jetbench_bus::{stop_requested, OpenError};
 
 use jetbench_stack::clock::{monotonic_ns, STALL};
 use jetbench_stack::rt::RtRequest;
@@ -53,7 +53,7 @@ pub enum StageError {
     #[error("fd {fd} is not open in this process: {source} (latency-stage runs only under `jetbench latency`)")]
     BadFd { fd: RawFd, source: std::io::Error },
     #[error(transparent)]
-    Bus(#[from] BusError),
+    Bus(#[from] OpenError),
     #[error("{what}: {source}")]
     Io { what: &'static str, source: std::io::Error },
 }

@@ -53,7 +53,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use jetbench_bus::{Bus, BusError, Flow, LoopExit, Publisher, Subscriber, Trigger, Wake};
+use jetbench_bus::{Bus, BusError, Flow, LoopExit, Publisher, ReceiveError, SendError, Subscriber, Trigger, Wake};
 use jetbench_io::DeviceError;
 use jetbench_msgs::{Sample, ServiceId};
 use jetbench_record::RecordError;
@@ -82,6 +82,16 @@ pub use sim_bench::{SimBench, SENSOR_UNPLUGGED_FILE};
 pub enum ServiceError {
     #[error(transparent)]
     Bus(#[from] BusError),
+    #[error(transparent)]
+    Open(#[from] jetbench_bus::OpenError),
+    #[error(transparent)]
+    Port(#[from] jetbench_bus::PortError),
+    #[error(transparent)]
+    Send(#[from] jetbench_bus::SendError),
+    #[error(transparent)]
+    Receive(#[from] jetbench_bus::ReceiveError),
+    #[error(transparent)]
+    Wait(#[from] jetbench_bus::WaitError),
     #[error(transparent)]
     Config(#[from] ConfigError),
     #[error(transparent)]
@@ -185,7 +195,7 @@ impl<T: Sample> Input<T> {
     }
 
     /// Takes the newest queued sample (the rest are older), marking the input started.
-    pub fn latest(&self) -> Result<Option<T>, BusError> {
+    pub fn latest(&self) -> Result<Option<T>, ReceiveError> {
         let latest = self.subscriber.latest()?;
         if latest.is_some() {
             self.started.set(true);
@@ -309,7 +319,7 @@ pub fn publish_now<T: Sample>(
     publisher: &mut Publisher<T>,
     mut sample: T,
     set: fn(&mut T, u64),
-) -> Result<u64, BusError> {
+) -> Result<u64, SendError> {
     set(&mut sample, monotonic_ns());
     publisher.publish(sample)
 }

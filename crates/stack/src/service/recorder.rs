@@ -1,6 +1,6 @@
 //! The recorder: every channel into one MCAP file.
 
-use jetbench_bus::{AnySubscriber, Bus, BusError, Wake};
+use jetbench_bus::{AnySubscriber, Bus, PortError, Wake};
 use jetbench_msgs::{visit_channels, Channel, ChannelVisitor, Sample, ServiceId};
 use jetbench_record::{spawn_writer, RawRecord, RecordError, WriterHandle};
 
@@ -16,11 +16,11 @@ pub struct Recorder {
 }
 
 /// Polled subscribers of every channel, as deep as a channel allows.
-fn subscribe_all(bus: &Bus) -> Result<Vec<Box<dyn AnySubscriber>>, BusError> {
+fn subscribe_all(bus: &Bus) -> Result<Vec<Box<dyn AnySubscriber>>, PortError> {
     struct Subscribe<'a> {
         bus: &'a Bus,
         subs: Vec<Box<dyn AnySubscriber>>,
-        error: Option<BusError>,
+        error: Option<PortError>,
     }
     impl ChannelVisitor for Subscribe<'_> {
         fn visit<T: Sample>(&mut self, channel: Channel<T>) {
