@@ -11,11 +11,7 @@
 # 2. A plant with an input delay the nominal model lacks: `jetbench diagnose` finds it in
 #    an open-loop recording, and each law runs once with the nominal model and once with
 #    the diagnosed one.
-set -euo pipefail
-root=$(cd "$(dirname "$0")/.." && pwd)
-cd "$root"
-cargo build --release --quiet --bins
-jb="$root/target/release/jetbench"
+source "$(dirname "$0")/common.sh"
 out="$root/docs/control"
 work="$root/target/control-report"
 rm -rf "$work" && mkdir -p "$work" "$out/plots"

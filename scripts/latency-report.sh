@@ -8,11 +8,7 @@
 #
 #   scripts/latency-report.sh              # the acceptance run and both contrasts
 #   JETBENCH_LATENCY_SECONDS=10 JETBENCH_LATENCY_CONTRAST_SECONDS=6 scripts/latency-report.sh   # a quick try
-set -euo pipefail
-root=$(cd "$(dirname "$0")/.." && pwd)
-cd "$root"
-cargo build --release --quiet --bins
-jb="$root/target/release/jetbench"
+source "$(dirname "$0")/common.sh"
 out="$root/docs/latency"
 seconds=${JETBENCH_LATENCY_SECONDS:-60}
 contrast=${JETBENCH_LATENCY_CONTRAST_SECONDS:-30}

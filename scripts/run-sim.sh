@@ -3,9 +3,6 @@
 # (simulated engine, sensing, estimation, control, actuation, recorder) for
 # 30 s, and record every channel to recordings/sim-run.mcap.
 # Extra arguments go to `jetbench up`, e.g. scripts/run-sim.sh --duration 60.
-set -euo pipefail
-root=$(cd "$(dirname "$0")/.." && pwd)
-cd "$root"
-cargo build --release --quiet --bins
+source "$(dirname "$0")/common.sh"
 mkdir -p recordings
-exec target/release/jetbench up --sim --duration 30 --record recordings/sim-run.mcap "$@"
+exec "$jb" up --sim --duration 30 --record recordings/sim-run.mcap "$@"

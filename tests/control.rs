@@ -17,9 +17,7 @@ fn p(path: &Path) -> &str {
 
 /// Runs `jetbench ARGS` under the watchdog: exit code, stdout, stderr.
 fn jetbench(args: &[&str], limit_s: u64) -> (i32, String, String) {
-    let what = format!("jetbench {args:?}");
-    let (status, out, err) = common::run(common::jetbench(SUITE).args(args), Duration::from_secs(limit_s), &what);
-    (status.code().unwrap_or(-1), out, err)
+    common::run_jetbench(SUITE, args, Duration::from_secs(limit_s))
 }
 
 /// `jetbench up --sim --quiet --record FILE ARGS`, which must succeed; the recording.

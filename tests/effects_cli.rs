@@ -17,9 +17,7 @@ fn scratch(name: &str) -> PathBuf {
 
 /// Runs `jetbench ARGS` to completion under the watchdog: exit code, stdout, stderr.
 fn run(args: &[&str]) -> (i32, String, String) {
-    let limit = Duration::from_secs(120);
-    let (status, out, err) = common::run(common::jetbench(SUITE).args(args), limit, &format!("jetbench {args:?}"));
-    (status.code().unwrap_or(-1), out, err)
+    common::run_jetbench(SUITE, args, Duration::from_secs(120))
 }
 
 fn run_ok(args: &[&str]) -> String {

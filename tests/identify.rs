@@ -21,8 +21,7 @@ fn scratch(name: &str) -> PathBuf {
 
 /// Runs `jetbench ARGS` to completion under the watchdog: exit code, stdout, stderr.
 fn run(args: &[&str], limit: Duration) -> (i32, String, String) {
-    let (status, out, err) = common::run(common::jetbench("ident").args(args), limit, &format!("jetbench {args:?}"));
-    (status.code().unwrap_or(-1), out, err)
+    common::run_jetbench("ident", args, limit)
 }
 
 fn identify_json(file: &Path) -> Value {

@@ -20,9 +20,7 @@ fn scratch(name: &str) -> PathBuf {
 
 /// Runs `jetbench ARGS` under the watchdog: exit code, stdout, stderr.
 fn jetbench(args: &[&str]) -> (i32, String, String) {
-    let limit = Duration::from_secs(60);
-    let (status, out, err) = common::run(common::jetbench(SUITE).args(args), limit, &format!("jetbench {args:?}"));
-    (status.code().unwrap_or(-1), out, err)
+    common::run_jetbench(SUITE, args, Duration::from_secs(60))
 }
 
 /// `jetbench metrics ARGS --json`, which must succeed: its runs.

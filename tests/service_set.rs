@@ -7,7 +7,7 @@
 //! Hangs are caught by a watchdog; no test asserts a runtime.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, ExitStatus, Stdio};
+use std::process::{Command, ExitStatus};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
@@ -17,7 +17,7 @@ use serde_json::Value;
 
 mod common;
 
-use common::{lines_of, python, repo_root, run, wait_with_watchdog};
+use common::{python, repo_root, run, wait_with_watchdog};
 
 static BUS: Mutex<()> = Mutex::new(());
 
@@ -30,17 +30,10 @@ fn scratch(name: &str) -> PathBuf {
 }
 
 /// Runs `jetbench up --sim` for `duration_s` seconds, recording to `out`.
-fn run_up(duration_s: f64, out: &Path) -> (ExitStatus, String) {
-    let mut child = jetbench()
-        .args(["up", "--sim", "--quiet", "--duration", &duration_s.to_string(), "--record"])
-        .arg(out)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("start jetbench up");
-    let stdout = lines_of(child.stdout.take().expect("stdout"));
-    let stderr = lines_of(child.stderr.take().expect("stderr"));
-    let status = wait_with_watchdog(&mut child, Duration::from_secs_f64(duration_s + 90.0), "jetbench up");
+fn run_up(duration_s: u32, out: &Path) -> (ExitStatus, String) {
+    let (mut child, stdout, stderr) = common::spawn_up(jetbench(), duration_s, out);
+    let limit = Duration::from_secs(u64::from(duration_s) + 90);
+    let status = wait_with_watchdog(&mut child, limit, "jetbench up");
     let mut log: Vec<String> = stdout.try_iter().collect();
     log.extend(stderr.try_iter());
     (status, log.join("\n"))
@@ -148,7 +141,7 @@ fn health_of(recording: &Recording, id: ServiceId) -> Vec<jetbench_msgs::Health>
 fn up_records_a_complete_closed_loop_run() {
     let _bus = BUS.lock().unwrap_or_else(|e| e.into_inner());
     let out = scratch("run.mcap");
-    let (status, log) = run_up(10.0, &out);
+    let (status, log) = run_up(10, &out);
     assert!(status.success(), "jetbench up failed: {status}\n{log}");
 
     let recording = Recording::open(&out).expect("read the recording");
@@ -318,7 +311,7 @@ fn killing_control_idles_actuation_and_a_restart_is_clean() {
 
     // A new run right after starts cleanly: no stale shared memory.
     let again = scratch("restart.mcap");
-    let (status, log) = run_up(2.0, &again);
+    let (status, log) = run_up(2, &again);
     assert!(status.success(), "restart failed: {status}\n{log}");
     let thrust = Recording::open(&again).expect("read restart recording").samples(channels::THRUST);
     assert!(thrust.len() >= 150, "restart recorded {} thrust samples in 2 s", thrust.len());

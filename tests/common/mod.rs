@@ -86,6 +86,13 @@ pub fn run(command: &mut Command, limit: Duration, what: &str) -> (ExitStatus, S
     (status, text(stdout), text(stderr))
 }
 
+/// Runs `jetbench ARGS` in the suite's namespace to completion under the
+/// watchdog: exit code (-1 if killed by a signal), stdout, stderr.
+pub fn run_jetbench(suite: &str, args: &[&str], limit: Duration) -> (i32, String, String) {
+    let (status, out, err) = run(jetbench(suite).args(args), limit, &format!("jetbench {args:?}"));
+    (status.code().unwrap_or(-1), out, err)
+}
+
 /// The path of the venv python with the reference MCAP reader.
 pub fn python() -> PathBuf {
     let out = Command::new(repo_root().join("scripts/pyenv.sh")).output().expect("run scripts/pyenv.sh");

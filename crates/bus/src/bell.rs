@@ -6,9 +6,8 @@
 //! One ring costs an atomic add and, only while someone sleeps, one
 //! `futex(FUTEX_WAKE)`; one wake costs the return from `futex(FUTEX_WAIT)`.
 //! That is the same work as the bare eventfd ping `jetbench latency` measures
-//! as the machine's floor, and it replaced iceoryx2's event services here,
-//! whose notification is a Unix datagram plus an epoll wait per hop (about
-//! 3x the floor per hop on the bench PC, see docs/latency/REPORT.md).
+//! as the machine's floor; why it replaced iceoryx2's event services, with the
+//! figures, is in the crate's README.
 //!
 //! Several doorbells are waited on at once with `futex_waitv(2)` (Linux 5.16).
 //!

@@ -170,3 +170,34 @@ pub enum BusError {
     #[error(transparent)]
     Wait(#[from] WaitError),
 }
+
+/// Lets `?` turn every bus operation's error into `$target` through
+/// [`BusError`], for an error enum that has a `#[from] BusError` variant:
+///
+/// ```
+/// #[derive(Debug, thiserror::Error)]
+/// enum AppError {
+///     #[error(transparent)]
+///     Bus(#[from] jetbench_bus::BusError),
+/// }
+/// jetbench_bus::from_bus_errors!(AppError);
+///
+/// fn open() -> Result<jetbench_bus::Bus, AppError> {
+///     Ok(jetbench_bus::Bus::open("example")?) // an OpenError, converted
+/// }
+/// ```
+#[macro_export]
+macro_rules! from_bus_errors {
+    ($target:ty) => {
+        $crate::from_bus_errors!(@each $target: EnvError OpenError PortError SendError ReceiveError WaitError);
+    };
+    (@each $target:ty: $($error:ident)*) => {
+        $(
+            impl From<$crate::$error> for $target {
+                fn from(e: $crate::$error) -> Self {
+                    <$target>::from($crate::BusError::from(e))
+                }
+            }
+        )*
+    };
+}

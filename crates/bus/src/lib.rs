@@ -49,7 +49,6 @@ mod transport;
 pub mod uds;
 mod wait;
 
-use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
@@ -64,7 +63,7 @@ pub use transport::Waker;
 pub use wait::{Flow, LoopExit, Trigger, Wake};
 
 use bell::Doorbell;
-use transport::{Inlet, Outlet};
+use transport::{Inlet, Outlet, Site};
 
 /// Capacity limits shared by every process, so that `open_or_create` agrees.
 /// (Publishers per channel come with the channel: [`Channel::max_publishers`].)
@@ -127,13 +126,17 @@ impl Bus {
         Doorbell::open(&path).map_err(|source| PortError::Doorbell { channel: channel.into(), path, source })
     }
 
-    fn socket_dir(&self, channel: &str) -> PathBuf {
-        uds::channel_dir(self.namespace.as_deref(), channel)
+    fn site(&self, channel: &str) -> Site<'_> {
+        Site {
+            transport: self.transport,
+            node: &self.node,
+            socket_dir: uds::channel_dir(self.namespace.as_deref(), channel),
+        }
     }
 
     /// Creates a publisher on `channel`. Its `seq` starts at 0.
     pub fn publisher<T: Sample>(&self, channel: Channel<T>) -> Result<Publisher<T>, PortError> {
-        let outlet = Outlet::open(self.transport, &self.node, &self.socket_dir(channel.name), channel)?;
+        let outlet = Outlet::open(&self.site(channel.name), channel)?;
         Ok(Publisher { outlet, bell: self.doorbell(channel.name)?, channel, next_seq: 0 })
     }
 
@@ -161,8 +164,7 @@ impl Bus {
     ) -> Result<Subscriber<T>, PortError> {
         let depth = depth.clamp(1, limits::MAX_BUFFER);
         let bell = self.doorbell(channel.name)?;
-        let dir = self.socket_dir(channel.name);
-        let inlet = Inlet::open(self.transport, &self.node, &dir, channel, depth, woken, &bell)?;
+        let inlet = Inlet::open(&self.site(channel.name), channel, depth, woken, &bell)?;
         Ok(Subscriber::new(inlet, bell, woken, channel))
     }
 

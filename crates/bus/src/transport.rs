@@ -3,7 +3,7 @@
 //! sockets ([`crate::uds`]) through the enums of this module.
 
 use std::cell::Cell;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use iceoryx2::prelude::*;
@@ -15,6 +15,14 @@ use crate::error::{PortError, ReceiveError, SendError, WaitError};
 use crate::iceoryx::{self, SharedPublisher, SharedSubscriber};
 use crate::uds;
 
+/// Where a channel's ports are made: the transport, this process's node
+/// (iceoryx2) and the channel's socket folder (Unix sockets).
+pub(crate) struct Site<'a> {
+    pub(crate) transport: Transport,
+    pub(crate) node: &'a Node<ipc::Service>,
+    pub(crate) socket_dir: PathBuf,
+}
+
 /// Where a publisher's samples go.
 pub(crate) enum Outlet<T: Sample> {
     Shared(SharedPublisher<T>),
@@ -22,19 +30,13 @@ pub(crate) enum Outlet<T: Sample> {
 }
 
 impl<T: Sample> Outlet<T> {
-    pub(crate) fn open(
-        transport: Transport,
-        node: &Node<ipc::Service>,
-        socket_dir: &Path,
-        channel: Channel<T>,
-    ) -> Result<Self, PortError> {
-        Ok(match transport {
-            Transport::Iceoryx2 => Outlet::Shared(iceoryx::publisher(node, channel)?),
+    pub(crate) fn open(site: &Site<'_>, channel: Channel<T>) -> Result<Self, PortError> {
+        Ok(match site.transport {
+            Transport::Iceoryx2 => Outlet::Shared(iceoryx::publisher(site.node, channel)?),
             Transport::UnixSockets => {
                 check_socket_size::<T>()?;
-                let outbox =
-                    uds::Outbox::open(socket_dir).map_err(|source| socket_error(channel.name, socket_dir, source))?;
-                Outlet::Socket(outbox)
+                let dir = &site.socket_dir;
+                Outlet::Socket(uds::Outbox::open(dir).map_err(|source| socket_error(channel.name, dir, source))?)
             }
         })
     }
@@ -60,21 +62,21 @@ pub(crate) enum Inlet<T: Sample> {
 }
 
 impl<T: Sample> Inlet<T> {
+    /// A subscriber queueing `depth` samples; `woken` if publishes wake it.
     pub(crate) fn open(
-        transport: Transport,
-        node: &Node<ipc::Service>,
-        socket_dir: &Path,
+        site: &Site<'_>,
         channel: Channel<T>,
         depth: usize,
         woken: bool,
         bell: &Doorbell,
     ) -> Result<Self, PortError> {
-        Ok(match transport {
-            Transport::Iceoryx2 => Inlet::Shared(iceoryx::subscriber(node, channel, depth)?),
+        Ok(match site.transport {
+            Transport::Iceoryx2 => Inlet::Shared(iceoryx::subscriber(site.node, channel, depth)?),
             Transport::UnixSockets => {
                 check_socket_size::<T>()?;
-                let inbox = uds::Inbox::open(socket_dir, depth, woken, bell)
-                    .map_err(|source| socket_error(channel.name, socket_dir, source))?;
+                let dir = &site.socket_dir;
+                let inbox = uds::Inbox::open(dir, depth, woken, bell)
+                    .map_err(|source| socket_error(channel.name, dir, source))?;
                 Inlet::Socket(inbox)
             }
         })

@@ -11,7 +11,7 @@
 use std::time::Instant;
 
 use jetbench_control::{FblGains, Mpc, MpcSettings, Profile};
-use jetbench_model::{Effects, Plant, Preset, STEP_S};
+use jetbench_model::{Effects, Plant, Preset, State, STEP_S};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
@@ -35,8 +35,10 @@ fn main() {
             let started = Instant::now();
             let out = mpc
                 .step(
-                    s.thrust_n + thrust_noise.sample(&mut rng),
-                    s.thrust_rate_n_per_s + rate_noise.sample(&mut rng),
+                    State::new(
+                        s.thrust_n + thrust_noise.sample(&mut rng),
+                        s.thrust_rate_n_per_s + rate_noise.sample(&mut rng),
+                    ),
                     k as f64 * STEP_S,
                     &profile,
                 )

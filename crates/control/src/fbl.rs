@@ -1,6 +1,6 @@
 //! Feedback-linearising thrust controller (plant.md).
 
-use jetbench_model::{Params, STEP_S, THROTTLE_MAX_PCT};
+use jetbench_model::{Params, State, STEP_S, THROTTLE_MAX_PCT};
 use serde::{Deserialize, Serialize};
 
 use crate::throttle::throttle_for_accel;
@@ -71,16 +71,9 @@ impl Fbl {
 
     /// Throttle for the current state estimate and reference. Non-finite inputs return
     /// [`ControlError::NonFiniteInput`].
-    pub fn step(
-        &mut self,
-        thrust_n: f64,
-        thrust_rate_n_per_s: f64,
-        reference: &Reference,
-    ) -> Result<Command, ControlError> {
-        if let Some(e) = self.invalid {
-            return Err(e);
-        }
-        crate::check_inputs(thrust_n, thrust_rate_n_per_s, reference)?;
+    pub fn step(&mut self, state: State, reference: &Reference) -> Result<Command, ControlError> {
+        crate::check_step(self.invalid, state, reference)?;
+        let State { thrust_n, thrust_rate_n_per_s } = state;
         let error_n = reference.thrust_n - thrust_n;
         let integral_ns = self.integral_ns + error_n * STEP_S;
         let accel_wanted = reference.thrust_accel_n_per_s2

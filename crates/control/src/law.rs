@@ -136,8 +136,7 @@ enum Inner {
 /// let mut law = Law::new(Controller::Mpc, &plant, &LawSettings::default())?;
 /// let mut engine = plant.at_equilibrium(25.0);
 /// for k in 0..400 {
-///     let s = engine.state();
-///     let out = law.step(s.thrust_n, s.thrust_rate_n_per_s, k as f64 * STEP_S, &profile)?;
+///     let out = law.step(engine.state(), k as f64 * STEP_S, &profile)?;
 ///     engine.step(out.command.throttle_pct)?;
 /// }
 /// assert!((engine.state().thrust_n - 50.0).abs() < 1.0);
@@ -188,34 +187,27 @@ impl Law {
 
     /// Throttle for the state estimate at `t_s` seconds into `profile`. Each call is one
     /// 10 ms cycle.
-    pub fn step(
-        &mut self,
-        thrust_n: f64,
-        thrust_rate_n_per_s: f64,
-        t_s: f64,
-        profile: &Profile,
-    ) -> Result<LawOutput, ControlError> {
+    pub fn step(&mut self, state: State, t_s: f64, profile: &Profile) -> Result<LawOutput, ControlError> {
         let reference = profile.at(t_s);
-        if !self.started && thrust_n.is_finite() && thrust_rate_n_per_s.is_finite() {
+        if !self.started && state.thrust_n.is_finite() && state.thrust_rate_n_per_s.is_finite() {
             // At rest: an observer's first rate estimates are still settling.
-            self.shaper.start_at(thrust_n, 0.0);
+            self.shaper.start_at(state.thrust_n, 0.0);
             self.started = true;
         }
         let (command, fallback, solve_s) = match &mut self.inner {
             Inner::Mpc(mpc) => {
-                let out = mpc.step(thrust_n, thrust_rate_n_per_s, t_s, profile)?;
+                let out = mpc.step(state, t_s, profile)?;
                 (out.command, out.fallback, out.solve_s)
             }
             inner => {
-                let now = State { thrust_n, thrust_rate_n_per_s };
                 let (at, lead_s) = match self.predictor.as_mut() {
-                    Some(p) => (p.predict(now, t_s), p.lead_s()),
-                    None => (now, 0.0),
+                    Some(p) => (p.predict(state, t_s), p.lead_s()),
+                    None => (state, 0.0),
                 };
                 let shaped = self.shaper.step(&profile.at(t_s + lead_s));
                 let command = match inner {
-                    Inner::Fbl(fbl) => fbl.step(at.thrust_n, at.thrust_rate_n_per_s, &shaped)?,
-                    Inner::Smc(smc) => smc.step(at.thrust_n, at.thrust_rate_n_per_s, &shaped)?,
+                    Inner::Fbl(fbl) => fbl.step(at, &shaped)?,
+                    Inner::Smc(smc) => smc.step(at, &shaped)?,
                     Inner::Mpc(_) => unreachable!("handled above"),
                 };
                 if let Some(p) = self.predictor.as_mut() {

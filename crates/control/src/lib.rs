@@ -13,8 +13,7 @@
 //! let mut fbl = Fbl::new(params, FblGains::default());
 //! for k in 0..480 {
 //!     let reference = profile.at(k as f64 * STEP_S);
-//!     let state = engine.state();
-//!     let command = fbl.step(state.thrust_n, state.thrust_rate_n_per_s, &reference)?;
+//!     let command = fbl.step(engine.state(), &reference)?;
 //!     assert!((25.0..=100.0).contains(&command.throttle_pct));
 //!     engine.step(command.throttle_pct)?;
 //! }
@@ -26,6 +25,8 @@
 //! gets a consistent `[T_d, Ṫ_d, T̈_d]`, a replay reproduces them exactly, and the MPC can
 //! look ahead. Every controller is a plain `step` function; [`Law`] picks one from the
 //! bench config; wiring it to sensors and the ECU is the service's job.
+
+use jetbench_model::State;
 
 mod error;
 mod fbl;
@@ -65,11 +66,19 @@ pub(crate) fn non_finite_setting(
         .map(|(name, value)| ControlError::InvalidSetting { name, value })
 }
 
-/// Rejects a NaN or infinite state estimate or reference before any law uses it.
-pub(crate) fn check_inputs(thrust_n: f64, thrust_rate_n_per_s: f64, reference: &Reference) -> Result<(), ControlError> {
+/// Rejects a step of a law built with bad settings (`invalid`), or with a NaN or
+/// infinite state estimate or reference, before the law uses them.
+pub(crate) fn check_step(
+    invalid: Option<ControlError>,
+    state: State,
+    reference: &Reference,
+) -> Result<(), ControlError> {
+    if let Some(e) = invalid {
+        return Err(e);
+    }
     let inputs = [
-        ("thrust", thrust_n),
-        ("thrust rate", thrust_rate_n_per_s),
+        ("thrust", state.thrust_n),
+        ("thrust rate", state.thrust_rate_n_per_s),
         ("reference thrust", reference.thrust_n),
         ("reference thrust rate", reference.thrust_rate_n_per_s),
         ("reference thrust acceleration", reference.thrust_accel_n_per_s2),

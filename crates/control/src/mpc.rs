@@ -241,20 +241,10 @@ impl Mpc {
     }
 
     /// Throttle for the state estimate at `t_s` seconds into `profile`.
-    pub fn step(
-        &mut self,
-        thrust_n: f64,
-        thrust_rate_n_per_s: f64,
-        t_s: f64,
-        profile: &Profile,
-    ) -> Result<MpcOutput, ControlError> {
-        if let Some(e) = self.invalid {
-            return Err(e);
-        }
+    pub fn step(&mut self, state: State, t_s: f64, profile: &Profile) -> Result<MpcOutput, ControlError> {
         let now = profile.at(t_s);
-        crate::check_inputs(thrust_n, thrust_rate_n_per_s, &now)?;
+        crate::check_step(self.invalid, state, &now)?;
         let started = Instant::now();
-        let state = State { thrust_n, thrust_rate_n_per_s };
         let planned = self.plan(state, t_s, profile, started);
         let solve_s = started.elapsed().as_secs_f64();
         let (command, fallback) = match planned {
@@ -271,7 +261,7 @@ impl Mpc {
             }
             None => {
                 self.fallbacks += 1;
-                (self.fallback_law.step(thrust_n, thrust_rate_n_per_s, &now)?, true)
+                (self.fallback_law.step(state, &now)?, true)
             }
         };
         self.last_pct = command.throttle_pct;

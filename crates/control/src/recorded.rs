@@ -8,7 +8,7 @@
 //! use jetbench_record::Recording;
 //!
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
-//! let report = recording_metrics(&Recording::open("run.mcap")?, None, &MetricsOptions::default())?;
+//! let report = recording_metrics(&Recording::open("run.mcap".as_ref())?, None, &MetricsOptions::default())?;
 //! for run in &report.runs {
 //!     println!("{}: MAE {:.2} N", run.controller, run.metrics.mae_n);
 //! }

@@ -1,6 +1,6 @@
 //! Sliding-mode thrust controller (plant.md).
 
-use jetbench_model::Params;
+use jetbench_model::{Params, State};
 use serde::{Deserialize, Serialize};
 
 use crate::throttle::{at_limit, throttle_for_virtual};
@@ -61,16 +61,9 @@ impl Smc {
     }
 
     /// Throttle for the current state estimate and reference.
-    pub fn step(
-        &mut self,
-        thrust_n: f64,
-        thrust_rate_n_per_s: f64,
-        reference: &Reference,
-    ) -> Result<Command, ControlError> {
-        if let Some(e) = self.invalid {
-            return Err(e);
-        }
-        crate::check_inputs(thrust_n, thrust_rate_n_per_s, reference)?;
+    pub fn step(&mut self, state: State, reference: &Reference) -> Result<Command, ControlError> {
+        crate::check_step(self.invalid, state, reference)?;
+        let State { thrust_n, thrust_rate_n_per_s } = state;
         let rate_error = thrust_rate_n_per_s - reference.thrust_rate_n_per_s;
         let s = self.gains.a1 * (thrust_n - reference.thrust_n) + rate_error;
         let f = self.params.f(thrust_n, thrust_rate_n_per_s);

@@ -55,7 +55,7 @@ fn allocations_per_cycle(kind: Controller, plant: &Plant) -> f64 {
     for k in 0..1100 {
         let state = engine.state();
         COUNTING.with(|c| c.set(k >= 100));
-        let out = law.step(state.thrust_n, state.thrust_rate_n_per_s, k as f64 * STEP_S, &profile).unwrap();
+        let out = law.step(state, k as f64 * STEP_S, &profile).unwrap();
         COUNTING.with(|c| c.set(false));
         assert!(!out.fallback, "{kind} fell back at cycle {k}");
         engine.step(out.command.throttle_pct).unwrap();

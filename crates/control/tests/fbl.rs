@@ -16,7 +16,7 @@ fn closed_loop(profile: &Profile, initial: State, duration_s: f64) -> Vec<(f64, 
         let t_s = k as f64 * STEP_S;
         let reference = profile.at(t_s);
         let state = engine.state();
-        let command = fbl.step(state.thrust_n, state.thrust_rate_n_per_s, &reference).unwrap();
+        let command = fbl.step(state, &reference).unwrap();
         trace.push((t_s, state.thrust_n, reference.thrust_n, command.saturated));
         engine.step(command.throttle_pct).unwrap();
     }
@@ -96,7 +96,7 @@ fn command_is_always_in_range_for_random_and_extreme_inputs() {
                 thrust_rate_n_per_s: pick(&mut rng),
                 thrust_accel_n_per_s2: pick(&mut rng),
             };
-            let c = fbl.step(thrust_n, rate, &reference).unwrap();
+            let c = fbl.step(State::new(thrust_n, rate), &reference).unwrap();
             assert!(
                 (THROTTLE_MIN_PCT..=THROTTLE_MAX_PCT).contains(&c.throttle_pct),
                 "{preset}: {c:?} for T {thrust_n}, Tdot {rate}, {reference:?}"
@@ -115,7 +115,7 @@ fn inverts_the_model_exactly_when_not_saturated() {
     let mut fbl = Fbl::new(params, FblGains::default());
     let (thrust_n, rate) = (40.0, 5.0);
     let reference = Reference { thrust_n: 42.0, thrust_rate_n_per_s: 8.0, thrust_accel_n_per_s2: 3.0 };
-    let c = fbl.step(thrust_n, rate, &reference).unwrap();
+    let c = fbl.step(State::new(thrust_n, rate), &reference).unwrap();
     assert!(!c.saturated);
     let gains = FblGains::default();
     let wanted = 3.0 + gains.kp * 2.0 + gains.kd * 3.0;
@@ -126,10 +126,10 @@ fn inverts_the_model_exactly_when_not_saturated() {
 fn saturates_in_the_right_direction() {
     let params = Preset::P100Diesel.params();
     let mut fbl = Fbl::new(params, FblGains::default());
-    let up = fbl.step(20.0, 0.0, &Reference { thrust_n: 90.0, ..Reference::default() }).unwrap();
+    let up = fbl.step(State::new(20.0, 0.0), &Reference { thrust_n: 90.0, ..Reference::default() }).unwrap();
     assert_eq!(up.throttle_pct, THROTTLE_MAX_PCT);
     assert!(up.saturated && up.unclamped_pct > THROTTLE_MAX_PCT);
-    let down = fbl.step(80.0, 0.0, &Reference { thrust_n: 10.0, ..Reference::default() }).unwrap();
+    let down = fbl.step(State::new(80.0, 0.0), &Reference { thrust_n: 10.0, ..Reference::default() }).unwrap();
     assert_eq!(down.throttle_pct, THROTTLE_MIN_PCT);
     assert!(down.saturated);
 
@@ -139,7 +139,7 @@ fn saturates_in_the_right_direction() {
     flat.b_t = 0.0;
     flat.b_d = 0.0;
     let mut fbl = Fbl::new(flat, FblGains::default());
-    let c = fbl.step(20.0, 0.0, &Reference { thrust_n: 60.0, ..Reference::default() }).unwrap();
+    let c = fbl.step(State::new(20.0, 0.0), &Reference { thrust_n: 60.0, ..Reference::default() }).unwrap();
     assert_eq!((c.throttle_pct, c.saturated), (THROTTLE_MAX_PCT, true));
 }
 
@@ -153,7 +153,7 @@ fn no_root_picks_the_closest_reachable_throttle() {
     let g = params.g(100.0, 0.0);
     assert!(g < 0.0);
     // Ask for a strongly negative acceleration: v = needed/g is large and positive.
-    let c = fbl.step(100.0, 0.0, &Reference { thrust_n: -1000.0, ..Reference::default() }).unwrap();
+    let c = fbl.step(State::new(100.0, 0.0), &Reference { thrust_n: -1000.0, ..Reference::default() }).unwrap();
     assert!(c.saturated);
     assert!((c.throttle_pct - peak_pct).abs() < 1e-9, "{c:?}");
 }
@@ -163,11 +163,14 @@ fn non_finite_inputs_and_settings_are_errors() {
     let params = Preset::P100Diesel.params();
     let mut fbl = Fbl::new(params, FblGains::default());
     let r = Reference::default();
-    assert!(matches!(fbl.step(f64::NAN, 0.0, &r), Err(ControlError::NonFiniteInput { what: "thrust", .. })));
+    assert!(matches!(
+        fbl.step(State::new(f64::NAN, 0.0), &r),
+        Err(ControlError::NonFiniteInput { what: "thrust", .. })
+    ));
     let bad = Reference { thrust_accel_n_per_s2: f64::INFINITY, ..r };
-    assert!(fbl.step(10.0, 0.0, &bad).is_err());
+    assert!(fbl.step(State::new(10.0, 0.0), &bad).is_err());
     let mut fbl = Fbl::new(params, FblGains { kp: f64::NAN, kd: 1.0, ki: 0.0 });
-    assert!(matches!(fbl.step(10.0, 0.0, &r), Err(ControlError::InvalidSetting { name: "kp", .. })));
+    assert!(matches!(fbl.step(State::new(10.0, 0.0), &r), Err(ControlError::InvalidSetting { name: "kp", .. })));
 }
 
 #[test]

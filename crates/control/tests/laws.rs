@@ -6,7 +6,7 @@ use jetbench_control::{
     TrackingSample,
 };
 use jetbench_estim::{ObserverConfig, ThrustObserver};
-use jetbench_model::{Effects, Params, Plant, Preset, STEP_S, THROTTLE_MIN_PCT};
+use jetbench_model::{Effects, Params, Plant, Preset, State, STEP_S, THROTTLE_MIN_PCT};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
@@ -24,7 +24,7 @@ fn run(kind: Controller, truth: &Plant, model: &Plant, settings: &LawSettings, p
     let mut out = Run { reference_n: vec![], thrust_n: vec![], throttle_pct: vec![], fallbacks: 0 };
     for k in 0..(s / STEP_S) as usize {
         let state = engine.state();
-        let step = law.step(state.thrust_n, state.thrust_rate_n_per_s, k as f64 * STEP_S, profile).unwrap();
+        let step = law.step(state, k as f64 * STEP_S, profile).unwrap();
         engine.step(step.command.throttle_pct).unwrap();
         out.reference_n.push(step.reference.thrust_n);
         out.thrust_n.push(state.thrust_n);
@@ -107,7 +107,7 @@ fn noisy_run(kind: Controller, plant: &Plant, profile: &Profile, seed: u64) -> T
         let truth = engine.state();
         let estimate = observer.step(engine.measured_n() + noise.sample(&mut rng), applied_pct).unwrap();
         let time_s = k as f64 * STEP_S;
-        let out = law.step(estimate.thrust_n, estimate.thrust_rate_n_per_s, time_s, profile).unwrap();
+        let out = law.step(State::new(estimate.thrust_n, estimate.thrust_rate_n_per_s), time_s, profile).unwrap();
         applied_pct = out.command.throttle_pct;
         engine.step(applied_pct).unwrap();
         let limit = if out.command.unclamped_pct < THROTTLE_MIN_PCT { ThrottleLimit::Low } else { ThrottleLimit::High };
@@ -192,7 +192,7 @@ fn smc_is_the_study_law_and_its_boundary_layer_trades_chattering() {
     let (t, d) = (39.0, 2.0);
     let s = 20.0 * (t - 40.0) + (d - 1.0);
     let v = -(20.0 * (d - 1.0) + params.f(t, d) - 0.5) / params.g(t, d) - 10.0 * (0.01 * s).tanh();
-    let c = smc.step(t, d, &r).unwrap();
+    let c = smc.step(State::new(t, d), &r).unwrap();
     assert!((c.virtual_input - v).abs() < 1e-9, "{} vs {v}", c.virtual_input);
     assert!((params.v(c.throttle_pct) - v).abs() < 1e-9);
 
@@ -222,7 +222,7 @@ fn a_diverging_model_makes_the_mpc_fall_back_not_stall() {
     let mut fallbacks = 0;
     for k in 0..600 {
         let s = engine.state();
-        let out = mpc.step(s.thrust_n, s.thrust_rate_n_per_s, k as f64 * STEP_S, &profile).unwrap();
+        let out = mpc.step(s, k as f64 * STEP_S, &profile).unwrap();
         assert!((25.0..=100.0).contains(&out.command.throttle_pct));
         fallbacks += out.fallback as u64;
         engine.step(out.command.throttle_pct).unwrap();
@@ -242,11 +242,11 @@ fn bad_settings_and_inputs_are_errors_not_panics() {
         assert!(matches!(bad.validate(), Err(ControlError::SettingOutOfRange { name: "correction_rad_per_s", .. })));
     }
     let mut mpc = Mpc::new(plant.clone(), bad, FblGains::default());
-    assert!(mpc.step(10.0, 0.0, 0.0, &profile).is_err());
+    assert!(mpc.step(State::new(10.0, 0.0), 0.0, &profile).is_err());
     let mut law = Law::new(Controller::Mpc, &plant, &LawSettings::default()).expect("a feedback law");
-    assert!(matches!(law.step(f64::NAN, 0.0, 0.0, &profile), Err(ControlError::NonFiniteInput { .. })));
+    assert!(matches!(law.step(State::new(f64::NAN, 0.0), 0.0, &profile), Err(ControlError::NonFiniteInput { .. })));
     let mut smc = Smc::new(plant.params, SmcGains { beta: f64::INFINITY, ..SmcGains::default() });
-    assert!(matches!(smc.step(10.0, 0.0, &Reference::default()), Err(ControlError::InvalidSetting { .. })));
+    assert!(matches!(smc.step(State::new(10.0, 0.0), &Reference::default()), Err(ControlError::InvalidSetting { .. })));
     let parsed: Result<LawSettings, _> = toml::from_str("[mpc]\nhorizon = 1.0\n");
     assert!(parsed.is_err(), "a typo in a key is an error");
 }

@@ -222,8 +222,21 @@ pub fn encode(frame: &Frame) -> Vec<u8> {
 pub fn encode_into(frame: &Frame, out: &mut Vec<u8>) {
     let (payload, len) = payload_of(frame);
     out.clear();
-    out.extend_from_slice(&[SYNC, frame.kind(), len as u8]);
-    out.extend_from_slice(&payload[..len]);
+    frame_into(frame.kind(), &payload[..len], out);
+}
+
+/// The wire bytes of a frame of any `kind` and `payload` with a valid CRC,
+/// whether or not the board would accept them: what a misbehaving sender
+/// puts on the line, for tests and tools.
+pub fn raw_frame(kind: u8, payload: &[u8]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(payload.len() + 5);
+    frame_into(kind, payload, &mut out);
+    out
+}
+
+fn frame_into(kind: u8, payload: &[u8], out: &mut Vec<u8>) {
+    out.extend_from_slice(&[SYNC, kind, payload.len() as u8]);
+    out.extend_from_slice(payload);
     let crc = crc16(&out[1..]);
     out.extend_from_slice(&crc.to_le_bytes());
 }

@@ -1,6 +1,8 @@
 //! Throttle-board codec: round trips, every rejection kind, resynchronisation.
 
-use jetbench_io::board::{self, crc16, decode, encode, BoardStatus, Deframer, Frame, FrameError, Throttle, SYNC};
+use jetbench_io::board::{
+    self, crc16, decode, encode, raw_frame, BoardStatus, Deframer, Frame, FrameError, Throttle, SYNC,
+};
 use proptest::prelude::*;
 
 fn frames_of(bytes: &[u8]) -> (Vec<Frame>, board::Counters) {
@@ -11,14 +13,6 @@ fn frames_of(bytes: &[u8]) -> (Vec<Frame>, board::Counters) {
 }
 
 /// A frame with a valid CRC over arbitrary type and payload.
-fn raw_frame(kind: u8, payload: &[u8]) -> Vec<u8> {
-    let mut out = vec![SYNC, kind, payload.len() as u8];
-    out.extend_from_slice(payload);
-    let crc = crc16(&out[1..]);
-    out.extend_from_slice(&crc.to_le_bytes());
-    out
-}
-
 fn any_throttle() -> impl Strategy<Value = Throttle> {
     (0..=Throttle::MAX_RAW).prop_map(|r| Throttle::from_raw(r).unwrap())
 }

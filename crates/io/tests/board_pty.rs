@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
-use jetbench_io::board::{self, crc16, encode, Frame, Throttle, SYNC};
+use jetbench_io::board::{self, encode, raw_frame, Frame, Throttle};
 use jetbench_io::emulate::PtyBoard;
 use jetbench_io::serial::{ThrottleBoard, SILENT_AFTER};
 use jetbench_io::ThrottleOutput;
@@ -21,14 +21,6 @@ fn clock() -> u64 {
 
 fn link(name: &str) -> PathBuf {
     std::env::temp_dir().join(format!("jetbench-io-test-{}", std::process::id())).join(name)
-}
-
-fn raw_frame(kind: u8, payload: &[u8]) -> Vec<u8> {
-    let mut out = vec![SYNC, kind, payload.len() as u8];
-    out.extend_from_slice(payload);
-    let crc = crc16(&out[1..]);
-    out.extend_from_slice(&crc.to_le_bytes());
-    out
 }
 
 /// One burst of line noise with every rejection kind in it. Values in the

@@ -16,7 +16,7 @@
 //!
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! // A run recorded with `jetbench up --sim --duration 12 --record run.mcap`:
-//! let analysis = analyse_pipeline(&Recording::open("run.mcap")?, 2.0);
+//! let analysis = analyse_pipeline(&Recording::open("run.mcap".as_ref())?, 2.0);
 //! let e2e = analysis.e2e.percentiles();
 //! println!("{} cycles, p50 {:.0} µs, p99 {:.0} µs, {} misses", analysis.cycles, e2e.p50, e2e.p99, analysis.deadline_misses());
 //! # Ok(())

@@ -19,6 +19,11 @@ pub struct State {
 }
 
 impl State {
+    /// Thrust `thrust_n` (N) rising at `thrust_rate_n_per_s` (N/s).
+    pub const fn new(thrust_n: f64, thrust_rate_n_per_s: f64) -> Self {
+        State { thrust_n, thrust_rate_n_per_s }
+    }
+
     fn is_sane(&self) -> bool {
         self.thrust_n.is_finite()
             && self.thrust_rate_n_per_s.is_finite()

@@ -39,19 +39,9 @@ pub enum LaunchError {
     StopFailed { service: &'static str, how: String },
     #[error(transparent)]
     Bus(#[from] BusError),
-    #[error(transparent)]
-    Open(#[from] jetbench_bus::OpenError),
-    #[error(transparent)]
-    Port(#[from] jetbench_bus::PortError),
-    #[error(transparent)]
-    Send(#[from] jetbench_bus::SendError),
-    #[error(transparent)]
-    Receive(#[from] jetbench_bus::ReceiveError),
-    #[error(transparent)]
-    Wait(#[from] jetbench_bus::WaitError),
-    #[error(transparent)]
-    Env(#[from] jetbench_bus::EnvError),
 }
+
+jetbench_bus::from_bus_errors!(LaunchError);
 
 /// What to launch.
 #[derive(Clone, Debug)]

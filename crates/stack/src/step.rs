@@ -207,7 +207,8 @@ impl Control {
         let profile_time_s = state.stamp_ns.saturating_sub(start_ns) as f64 * 1e-9;
         let (r, c, controller, fallback, solve_s) = match &mut self.law {
             ControlLaw::Closed(law) => {
-                let out = law.step(state.thrust_n, state.thrust_rate_n_per_s, profile_time_s, &self.profile)?;
+                let estimate = State::new(state.thrust_n, state.thrust_rate_n_per_s);
+                let out = law.step(estimate, profile_time_s, &self.profile)?;
                 let code = law.kind().code();
                 (out.reference, out.command, code, out.fallback, out.solve_s)
             }

@@ -152,23 +152,12 @@ impl Loop {
         let link = std::env::temp_dir().join(format!("jetbench-alloc-{}-{kind}", std::process::id()));
         let emulator = PtyBoard::spawn(&link, clock).expect("emulated board");
         let bus = Bus::open(&format!("alloc-{kind}")).expect("bus");
+        let k = kind_index(kind);
         let buses = Buses {
-            thrust: (
-                bus.publisher(THRUST[kind_index(kind)]).expect("pub"),
-                bus.subscriber(THRUST[kind_index(kind)], 4).expect("sub"),
-            ),
-            state: (
-                bus.publisher(STATE[kind_index(kind)]).expect("pub"),
-                bus.subscriber(STATE[kind_index(kind)], 4).expect("sub"),
-            ),
-            command: (
-                bus.publisher(COMMAND[kind_index(kind)]).expect("pub"),
-                bus.subscriber(COMMAND[kind_index(kind)], 4).expect("sub"),
-            ),
-            actuation: (
-                bus.publisher(ACTUATION[kind_index(kind)]).expect("pub"),
-                bus.subscriber(ACTUATION[kind_index(kind)], 4).expect("sub"),
-            ),
+            thrust: ports(&bus, THRUST[k]),
+            state: ports(&bus, STATE[k]),
+            command: ports(&bus, COMMAND[k]),
+            actuation: ports(&bus, ACTUATION[k]),
             _bus: bus,
         };
         Loop {
@@ -225,6 +214,11 @@ impl Loop {
     fn actuator_output(&self) -> f64 {
         self.board.acknowledged().map_or(25.0, |a| a.applied_pct)
     }
+}
+
+/// A publisher and a subscriber of `channel`: one hand-over of the loop.
+fn ports<T: jetbench_msgs::Sample>(bus: &Bus, channel: Channel<T>) -> (Publisher<T>, Subscriber<T>) {
+    (bus.publisher(channel).expect("pub"), bus.subscriber(channel, 4).expect("sub"))
 }
 
 fn kind_index(kind: Controller) -> usize {

@@ -64,18 +64,9 @@ pub fn run(args: CanDecodeArgs) -> anyhow::Result<ExitCode> {
         }
         if let Some(r) = decoder.push_bytes(&line) {
             let c = calibration.apply(&r.physical());
-            writeln!(
-                out,
-                "{},{},{},{},{},{},{},{}",
-                r.at,
-                fixed(c[0], 2),
-                fixed(c[1], 2),
-                fixed(c[2], 2),
-                fixed(c[3], 3),
-                fixed(c[4], 3),
-                fixed(c[5], 3),
-                fixed(c[axis.index()], 2)
-            )?;
+            // Forces to 0.01 N and torques to 0.001 N·m: the sensor's resolution.
+            let wrench: Vec<String> = c.iter().enumerate().map(|(i, v)| fixed(*v, if i < 3 { 2 } else { 3 })).collect();
+            writeln!(out, "{},{},{}", r.at, wrench.join(","), fixed(c[axis.index()], 2))?;
         }
     }
     decoder.finish();

@@ -16,8 +16,9 @@
 //! use std::time::Duration;
 //!
 //! # fn main() -> Result<(), jetbench_io::DeviceError> {
-//! let mut rx = UserspaceCan::listen("example0")?;
-//! let mut tx = UserspaceCan::sender("example0")?;
+//! // Bus `example0` of bus namespace `default` (the caller's `JETBENCH_BUS`).
+//! let mut rx = UserspaceCan::listen("default", "example0")?;
+//! let mut tx = UserspaceCan::sender("default", "example0")?;
 //! tx.send(&CanFrame::standard(0x101, &[0; 8]).unwrap())?;
 //! let frame = rx.recv(Duration::from_millis(100))?;
 //! # Ok(())

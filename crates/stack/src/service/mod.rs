@@ -83,16 +83,6 @@ pub enum ServiceError {
     #[error(transparent)]
     Bus(#[from] BusError),
     #[error(transparent)]
-    Open(#[from] jetbench_bus::OpenError),
-    #[error(transparent)]
-    Port(#[from] jetbench_bus::PortError),
-    #[error(transparent)]
-    Send(#[from] jetbench_bus::SendError),
-    #[error(transparent)]
-    Receive(#[from] jetbench_bus::ReceiveError),
-    #[error(transparent)]
-    Wait(#[from] jetbench_bus::WaitError),
-    #[error(transparent)]
     Config(#[from] ConfigError),
     #[error(transparent)]
     Device(#[from] DeviceError),
@@ -112,6 +102,8 @@ pub enum ServiceError {
     #[error("{0} samples were dropped because the disk writer fell behind")]
     Dropped(u64),
 }
+
+jetbench_bus::from_bus_errors!(ServiceError);
 
 /// What a service is created with.
 pub struct Setup<'a> {
