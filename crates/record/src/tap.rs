@@ -1,0 +1,124 @@
+//! Every bus channel, read as the recorder reads it: one polled subscriber
+//! per channel, drained on the reader's own clock.
+//!
+//! Publishers never wake a polled subscriber, so a reader of every channel
+//! (the recorder, the live viewer, the bridge to other machines) costs the
+//! control path no system call, and a reader that stalls loses only its own
+//! queued samples, counted from `seq` gaps.
+//!
+//! ```no_run
+//! use jetbench_bus::Bus;
+//! use jetbench_record::tap::Tap;
+//!
+//! # fn main() -> Result<(), jetbench_bus::BusError> {
+//! let bus = Bus::open("my-tool")?;
+//! let tap = Tap::open(&bus, Tap::DEPTH)?;
+//! tap.drain(&mut |sample| println!("/{} seq {} ({} bytes)", sample.channel, sample.seq, sample.body.len()))?;
+//! println!("{} samples lost", tap.gaps());
+//! # Ok(())
+//! # }
+//! ```
+
+use std::time::Duration;
+
+use jetbench_bus::{AnySubscriber, Bus, BusError, Flow, Wake};
+use jetbench_msgs::{visit_channels, Channel, ChannelVisitor, Sample};
+
+/// One sample taken from the bus.
+#[derive(Clone, Copy, Debug)]
+pub struct TapSample<'a> {
+    /// Bus channel name, e.g. `bench/thrust`.
+    pub channel: &'static str,
+    pub seq: u64,
+    pub stamp_ns: u64,
+    /// The sample's bytes: its CDR body.
+    pub body: &'a [u8],
+}
+
+/// What a tap took from one channel.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ChannelCount {
+    pub channel: &'static str,
+    pub received: u64,
+    /// Samples lost before they were taken (`seq` gaps).
+    pub gaps: u64,
+}
+
+/// A polled subscriber on every channel of the service set.
+pub struct Tap {
+    subs: Vec<Box<dyn AnySubscriber>>,
+}
+
+impl Tap {
+    /// The deepest queue a channel allows: 5 s of samples at 100 Hz.
+    pub const DEPTH: usize = jetbench_bus::limits::MAX_BUFFER;
+
+    /// Subscribes to every channel with queues of `depth` samples.
+    pub fn open(bus: &Bus, depth: usize) -> Result<Tap, BusError> {
+        struct Subscribe<'a> {
+            bus: &'a Bus,
+            depth: usize,
+            subs: Vec<Box<dyn AnySubscriber>>,
+            error: Option<BusError>,
+        }
+        impl ChannelVisitor for Subscribe<'_> {
+            fn visit<T: Sample>(&mut self, channel: Channel<T>) {
+                match self.bus.polled_subscriber(channel, self.depth) {
+                    Ok(s) => self.subs.push(Box::new(s)),
+                    Err(e) => self.error = self.error.take().or(Some(e)),
+                }
+            }
+        }
+        let mut subscribe = Subscribe { bus, depth, subs: Vec::new(), error: None };
+        visit_channels(&mut subscribe);
+        match subscribe.error {
+            Some(e) => Err(e),
+            None => Ok(Tap { subs: subscribe.subs }),
+        }
+    }
+
+    /// Takes every queued sample of every channel, in channel order; returns how many.
+    pub fn drain(&self, sink: &mut dyn FnMut(TapSample<'_>)) -> Result<usize, BusError> {
+        let mut taken = 0;
+        for sub in &self.subs {
+            let channel = sub.channel_name();
+            taken += sub.drain_raw(&mut |seq, stamp_ns, body| sink(TapSample { channel, seq, stamp_ns, body }))?;
+        }
+        Ok(taken)
+    }
+
+    /// Drains every `period` until SIGINT/SIGTERM, then once more for what
+    /// arrived while stopping.
+    pub fn follow(&self, bus: &Bus, period: Duration, sink: &mut dyn FnMut(TapSample<'_>)) -> Result<(), BusError> {
+        let mut failure = None;
+        bus.run(&[], Some(period), |wake| {
+            if wake != Wake::Tick {
+                return Flow::Continue;
+            }
+            match self.drain(sink) {
+                Ok(_) => Flow::Continue,
+                Err(e) => {
+                    failure = Some(e);
+                    Flow::Stop
+                }
+            }
+        })?;
+        if let Some(e) = failure {
+            return Err(e);
+        }
+        self.drain(sink).map(|_| ())
+    }
+
+    /// Per-channel counts, in channel order.
+    pub fn counts(&self) -> Vec<ChannelCount> {
+        self.subs
+            .iter()
+            .map(|s| ChannelCount { channel: s.channel_name(), received: s.received(), gaps: s.gaps() })
+            .collect()
+    }
+
+    /// Samples lost on every channel so far.
+    pub fn gaps(&self) -> u64 {
+        self.subs.iter().map(|s| s.gaps()).sum()
+    }
+}
