@@ -8,5 +8,6 @@ pub mod latency_stage;
 pub mod load;
 pub mod metrics;
 pub mod model;
+pub mod play;
 pub mod replay;
 pub mod tare;
