@@ -15,8 +15,8 @@
 //!
 //! # fn main() -> Result<(), jetbench_bridge::BridgeError> {
 //! let bench = RemoteBench::connect(&"tcp/192.0.2.10:7447".parse::<Endpoint>()?, "default")?;
-//! let thrust = bench.subscribe(channels::THRUST, 256)?;
-//! while let Some(sample) = thrust.recv_timeout(std::time::Duration::from_secs(1))? {
+//! let mut thrust = bench.subscribe(channels::THRUST, 256)?;
+//! while let Some(sample) = thrust.recv_timeout(std::time::Duration::from_secs(1)) {
 //!     println!("{:.1} N", sample.thrust_n);
 //! }
 //! # Ok(())
