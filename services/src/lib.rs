@@ -31,6 +31,10 @@ pub struct ServiceArgs {
     /// The MCAP file to write (the recorder only).
     #[arg(long, value_name = "FILE.mcap")]
     pub out: Option<std::path::PathBuf>,
+    /// Where to serve other machines (the viewer: HOST:PORT, default 127.0.0.1:8765;
+    /// the bridge: a Zenoh endpoint, default tcp/127.0.0.1:7447; 0.0.0.0 for the control room).
+    #[arg(long, value_name = "ADDRESS")]
+    pub listen: Option<String>,
 }
 
 /// The `main` of service `S`: parses [`ServiceArgs`] (`about` is the binary's
@@ -47,7 +51,7 @@ pub fn service_main<S: Service>(about: &'static str) -> ExitCode {
     init_logging();
     let span = tracing::info_span!("service", name);
     let _entered = span.enter();
-    match run::<S>(&RunOptions { config: args.config, rt: args.rt, output: args.out }) {
+    match run::<S>(&RunOptions { config: args.config, rt: args.rt, output: args.out, listen: args.listen }) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             tracing::error!("{e:#}");

@@ -84,6 +84,10 @@ enum Cmd {
     ///
     /// Example: jetbench latency --duration 60 --load cpu --rt --plot latency.png
     Latency(cmd::latency::LatencyArgs),
+    /// Serve a recording to Foxglove at its recorded pace, like `ros2 bag play`.
+    ///
+    /// Example: jetbench play run.mcap --foxglove 127.0.0.1:8765 --rate 2 --loop
+    Play(cmd::play::PlayArgs),
     /// The built-in background load of `jetbench latency` (used where stress-ng is not installed).
     #[command(hide = true)]
     LatencyLoad(cmd::latency::LoadArgs),
@@ -130,6 +134,7 @@ fn run() -> anyhow::Result<ExitCode> {
         Cmd::Tare(args) => cmd::tare::run(args),
         Cmd::LatencyStage(args) => cmd::latency_stage::run(args),
         Cmd::Latency(args) => cmd::latency::run(args),
+        Cmd::Play(args) => cmd::play::run(args),
         Cmd::LatencyLoad(args) => cmd::latency::run_load(args),
     }
 }

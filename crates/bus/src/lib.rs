@@ -35,8 +35,8 @@
 //! [`env`] (namespace and transport), [`node`] (who is on the bus, clean-up),
 //! `iceoryx` and [`uds`] (the two transports), `transport` (the one place
 //! that chooses between them), [`bell`] (doorbells), `wait` (the wait loop),
-//! `port` (typed publishers and subscribers) and [`error`] (one error enum per
-//! operation).
+//! `port` (typed publishers and subscribers), [`tap`] (every channel, read as
+//! the recorder reads it) and [`error`] (one error enum per operation).
 
 pub mod bell;
 pub mod env;
@@ -45,6 +45,7 @@ mod iceoryx;
 pub mod node;
 mod port;
 pub mod signal;
+pub mod tap;
 mod transport;
 pub mod uds;
 mod wait;

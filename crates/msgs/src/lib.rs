@@ -383,16 +383,22 @@ pub enum ServiceId {
     Control = 4,
     Actuation = 5,
     Recorder = 6,
+    /// The Foxglove live view (off the control path).
+    Viewer = 7,
+    /// The Zenoh bridge to other machines (off the control path).
+    Bridge = 8,
 }
 
 impl ServiceId {
-    pub const ALL: [ServiceId; 6] = [
+    pub const ALL: [ServiceId; 8] = [
         ServiceId::SimBench,
         ServiceId::Sensing,
         ServiceId::Estimation,
         ServiceId::Control,
         ServiceId::Actuation,
         ServiceId::Recorder,
+        ServiceId::Viewer,
+        ServiceId::Bridge,
     ];
 
     /// The service's name, also its binary's suffix (`jetbench-<name>`).
@@ -404,6 +410,8 @@ impl ServiceId {
             ServiceId::Control => "control",
             ServiceId::Actuation => "actuation",
             ServiceId::Recorder => "recorder",
+            ServiceId::Viewer => "viewer",
+            ServiceId::Bridge => "bridge",
         }
     }
 

@@ -22,6 +22,7 @@
 //! # }
 //! ```
 
+pub mod clock;
 pub mod meta;
 pub mod series;
 mod thread;
@@ -59,6 +60,32 @@ pub enum RecordError {
     SampleTooLarge { channel: String, size: usize, max: usize },
     #[error("the recorder's writer thread stopped: {0}")]
     WriterGone(String),
+}
+
+/// A sample as its CDR message, the 4-byte header `00 01 00 00` plus its
+/// bytes, in a fixed buffer: what an MCAP message, a Foxglove message and a
+/// Zenoh payload carry.
+#[derive(Clone, Copy)]
+pub struct CdrMessage {
+    len: usize,
+    bytes: [u8; 4 + MAX_SAMPLE_BYTES],
+}
+
+impl CdrMessage {
+    /// `None` if `body` is larger than [`MAX_SAMPLE_BYTES`].
+    pub fn new(body: &[u8]) -> Option<Self> {
+        if body.len() > MAX_SAMPLE_BYTES {
+            return None;
+        }
+        let mut bytes = [0; 4 + MAX_SAMPLE_BYTES];
+        bytes[..4].copy_from_slice(&CDR_HEADER);
+        bytes[4..4 + body.len()].copy_from_slice(body);
+        Some(CdrMessage { len: 4 + body.len(), bytes })
+    }
+
+    pub fn as_bytes(&self) -> &[u8] {
+        &self.bytes[..self.len]
+    }
 }
 
 /// Writes bus samples into an MCAP file with every channel registered up front.
@@ -119,7 +146,8 @@ impl McapWriter {
     }
 
     /// Writes one sample's raw bytes on the bus channel `channel_name`.
-    /// `log_time_ns` is the monotonic time the recorder received it.
+    /// `log_time_ns` is the time the recorder received it, on the clock the
+    /// recording declares (see [`clock`]).
     pub fn write_raw(
         &mut self,
         channel_name: &str,
@@ -129,16 +157,11 @@ impl McapWriter {
         bytes: &[u8],
     ) -> Result<(), RecordError> {
         let id = *self.ids.get(channel_name).ok_or_else(|| RecordError::UnknownChannel(channel_name.into()))?;
-        let mut message = [0u8; 4 + MAX_SAMPLE_BYTES];
-        if bytes.len() > MAX_SAMPLE_BYTES {
-            return Err(RecordError::SampleTooLarge {
-                channel: channel_name.into(),
-                size: bytes.len(),
-                max: MAX_SAMPLE_BYTES,
-            });
-        }
-        message[..4].copy_from_slice(&CDR_HEADER);
-        message[4..4 + bytes.len()].copy_from_slice(bytes);
+        let message = CdrMessage::new(bytes).ok_or_else(|| RecordError::SampleTooLarge {
+            channel: channel_name.into(),
+            size: bytes.len(),
+            max: MAX_SAMPLE_BYTES,
+        })?;
         let header = mcap::records::MessageHeader {
             channel_id: id,
             // MCAP sequence numbers are 32-bit; the full seq is in the body.
@@ -146,7 +169,7 @@ impl McapWriter {
             log_time: log_time_ns,
             publish_time: publish_time_ns,
         };
-        self.writer.write_to_known_channel(&header, &message[..4 + bytes.len()]).map_err(|e| self.mcap_err(e))?;
+        self.writer.write_to_known_channel(&header, message.as_bytes()).map_err(|e| self.mcap_err(e))?;
         self.messages += 1;
         Ok(())
     }
@@ -256,14 +279,13 @@ impl Recording {
         if !recording.truncated && !bytes.ends_with(mcap::MAGIC) {
             recording.truncated = true;
         }
-        if let Ok(Some(summary)) = mcap::Summary::read(&bytes) {
-            for index in &summary.metadata_indexes {
-                if let Ok(m) = mcap::read::metadata(&bytes, index) {
-                    recording.metadata.insert(m.name, m.metadata);
-                }
-            }
-        }
+        recording.metadata = read_metadata(&bytes);
         Ok(recording)
+    }
+
+    /// How to read this recording's `log_time`s as wall-clock time.
+    pub fn time_base(&self) -> clock::TimeBase {
+        clock::TimeBase::new(&self.metadata, self.messages.first().map(|m| m.log_time_ns))
     }
 
     /// Decoded samples of one channel, in recorded order. Messages whose
@@ -287,6 +309,20 @@ impl Recording {
         }
         counts
     }
+}
+
+/// The metadata records of an MCAP file's bytes, by name (none if the file
+/// has no summary, e.g. one cut off mid-write).
+pub fn read_metadata(bytes: &[u8]) -> BTreeMap<String, BTreeMap<String, String>> {
+    let mut metadata = BTreeMap::new();
+    if let Ok(Some(summary)) = mcap::Summary::read(bytes) {
+        for index in &summary.metadata_indexes {
+            if let Ok(m) = mcap::read::metadata(bytes, index) {
+                metadata.insert(m.name, m.metadata);
+            }
+        }
+    }
+    metadata
 }
 
 /// Counts missing `seq` numbers in samples of one publisher.

@@ -18,6 +18,7 @@
 
 use std::collections::BTreeMap;
 
+use crate::clock::{ClockOrigin, LogClock};
 use crate::Recording;
 
 /// Name of the recorder's metadata record about the run.
@@ -28,8 +29,12 @@ pub const REPLAY: &str = "replay";
 pub const KEY_CONFIG: &str = "config";
 /// The estimator's resolved model parameters (a model file's TOML), which parse back bit for bit.
 pub const KEY_MODEL_TOML: &str = "model_toml";
-/// What the timestamps mean.
+/// What the timestamps mean, in words.
 pub const KEY_CLOCK: &str = "clock";
+/// The clock of `log_time`: `CLOCK_REALTIME` (wall clock, ns since the Unix epoch)
+/// or `CLOCK_MONOTONIC`; absent in recordings made before wall-clock log times,
+/// whose `log_time` is monotonic ([`crate::clock`] tells them apart).
+pub const KEY_LOG_TIME_CLOCK: &str = "log_time_clock";
 /// `CLOCK_MONOTONIC` when the recorder started, ns.
 pub const KEY_MONOTONIC_NS_AT_START: &str = "monotonic_ns_at_start";
 /// `CLOCK_REALTIME` (ns since the Unix epoch) at the same moment.
@@ -42,11 +47,27 @@ pub struct RunMetadata {
     /// Absent in recordings of older runs.
     pub model_toml: Option<String>,
     pub clock: String,
+    /// [`KEY_LOG_TIME_CLOCK`]; empty in older recordings.
+    pub log_time_clock: String,
     pub monotonic_ns_at_start: Option<u64>,
     pub realtime_ns_at_start: Option<u64>,
 }
 
 impl RunMetadata {
+    /// A run recorded with `log_time` on the wall clock at receive (what the
+    /// recorder writes), which started at `origin`.
+    pub fn wall_clock(origin: ClockOrigin) -> RunMetadata {
+        RunMetadata {
+            clock: "log_time is CLOCK_REALTIME at receive (ns since the Unix epoch); publish_time is the sample's \
+                    stamp_ns (CLOCK_MONOTONIC)"
+                .into(),
+            log_time_clock: LogClock::Realtime.name().into(),
+            monotonic_ns_at_start: Some(origin.monotonic_ns),
+            realtime_ns_at_start: Some(origin.realtime_ns),
+            ..RunMetadata::default()
+        }
+    }
+
     /// The run's record as the recorder writes it: `(RUN, entries)`.
     pub fn record(&self) -> (String, BTreeMap<String, String>) {
         let mut entries = BTreeMap::new();
@@ -54,8 +75,10 @@ impl RunMetadata {
         if let Some(model) = &self.model_toml {
             entries.insert(KEY_MODEL_TOML.to_string(), model.clone());
         }
-        if !self.clock.is_empty() {
-            entries.insert(KEY_CLOCK.to_string(), self.clock.clone());
+        for (key, value) in [(KEY_CLOCK, &self.clock), (KEY_LOG_TIME_CLOCK, &self.log_time_clock)] {
+            if !value.is_empty() {
+                entries.insert(key.to_string(), value.clone());
+            }
         }
         for (key, value) in [
             (KEY_MONOTONIC_NS_AT_START, self.monotonic_ns_at_start),
@@ -77,6 +100,7 @@ impl RunMetadata {
             config_toml: text(KEY_CONFIG).unwrap_or_default(),
             model_toml: text(KEY_MODEL_TOML),
             clock: text(KEY_CLOCK).unwrap_or_default(),
+            log_time_clock: text(KEY_LOG_TIME_CLOCK).unwrap_or_default(),
             monotonic_ns_at_start: ns(KEY_MONOTONIC_NS_AT_START),
             realtime_ns_at_start: ns(KEY_REALTIME_NS_AT_START),
         })

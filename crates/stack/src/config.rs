@@ -354,7 +354,8 @@ pub struct RtSection {
     pub enabled: bool,
     /// Lock every page of each service in memory (`mlockall`).
     pub lock_memory: bool,
-    /// SCHED_FIFO priority of each service, 1–99.
+    /// SCHED_FIFO priority of each service, 1–99 (the viewer and the bridge run at
+    /// the normal scheduler unless given one: they are off the control path).
     pub priority: PerService<u8>,
     /// SCHED_FIFO priority of actuation's ECU polling thread: below the
     /// control path, so a 9600-baud telemetry poll never delays a command.
@@ -379,6 +380,8 @@ impl Default for RtSection {
                 estimation: 60,
                 sensing: 50,
                 recorder: 40,
+                viewer: None,
+                bridge: None,
             },
             ecu_priority: 45,
             // The control chain on one core, so each hand-over wakes a process on the
@@ -390,12 +393,15 @@ impl Default for RtSection {
                 control: vec![1],
                 actuation: vec![1],
                 recorder: vec![0],
+                viewer: None,
+                bridge: None,
             },
         }
     }
 }
 
-/// One value per service, keyed by the service's name.
+/// One value per service, keyed by the service's name; the services off the
+/// control path (viewer, bridge) may go without one.
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct PerService<T> {
@@ -406,17 +412,23 @@ pub struct PerService<T> {
     pub control: T,
     pub actuation: T,
     pub recorder: T,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub viewer: Option<T>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bridge: Option<T>,
 }
 
 impl<T> PerService<T> {
-    pub fn get(&self, id: ServiceId) -> &T {
+    pub fn get(&self, id: ServiceId) -> Option<&T> {
         match id {
-            ServiceId::SimBench => &self.sim_bench,
-            ServiceId::Sensing => &self.sensing,
-            ServiceId::Estimation => &self.estimation,
-            ServiceId::Control => &self.control,
-            ServiceId::Actuation => &self.actuation,
-            ServiceId::Recorder => &self.recorder,
+            ServiceId::SimBench => Some(&self.sim_bench),
+            ServiceId::Sensing => Some(&self.sensing),
+            ServiceId::Estimation => Some(&self.estimation),
+            ServiceId::Control => Some(&self.control),
+            ServiceId::Actuation => Some(&self.actuation),
+            ServiceId::Recorder => Some(&self.recorder),
+            ServiceId::Viewer => self.viewer.as_ref(),
+            ServiceId::Bridge => self.bridge.as_ref(),
         }
     }
 }
@@ -424,21 +436,22 @@ impl<T> PerService<T> {
 impl RtSection {
     /// What service `id` asks of the kernel; `None` when real-time settings are
     /// off (neither `enabled` nor `force`).
+    /// A service with neither a priority nor CPUs (the viewer, the bridge, unless
+    /// configured) asks for nothing.
     pub fn request(&self, id: ServiceId, force: bool) -> Option<crate::rt::RtRequest> {
-        (self.enabled || force).then(|| crate::rt::RtRequest {
-            priority: Some(*self.priority.get(id)),
-            cpus: self.cpus.get(id).clone(),
-            lock_memory: self.lock_memory,
-        })
+        let (priority, cpus) = (self.priority.get(id).copied(), self.cpus.get(id).cloned().unwrap_or_default());
+        (self.enabled || force)
+            .then_some(())
+            .filter(|()| priority.is_some() || !cpus.is_empty())
+            .map(|()| crate::rt::RtRequest { priority, cpus, lock_memory: self.lock_memory })
     }
 
     fn validate(&self) -> Result<(), String> {
         for id in ServiceId::ALL {
-            let priority = *self.priority.get(id);
-            if !(1..=99).contains(&priority) {
+            if let Some(&priority) = self.priority.get(id).filter(|p| !(1..=99).contains(*p)) {
                 return Err(format!("[rt] priority.{} = {priority} must be within 1..99", id.name()));
             }
-            if let Some(cpu) = self.cpus.get(id).iter().find(|&&c| c >= 1024) {
+            if let Some(cpu) = self.cpus.get(id).into_iter().flatten().find(|&&c| c >= 1024) {
                 return Err(format!("[rt] cpus.{} names CPU {cpu}: CPUs are numbered from 0", id.name()));
             }
         }

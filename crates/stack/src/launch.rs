@@ -170,7 +170,8 @@ struct Status {
     counts: [u64; 5],
     /// `counts` when the last line was printed.
     printed: [u64; 5],
-    misses: [u64; 8],
+    /// Deadline misses by service id (ids start at 1).
+    misses: [u64; ServiceId::ALL.len() + 1],
     last_thrust_n: f64,
     last_reference_n: f64,
     last_throttle_pct: f64,
@@ -191,7 +192,7 @@ impl Status {
             health: bus.polled_subscriber(channels::HEALTH, 8 * Self::DEPTH)?,
             counts: [0; 5],
             printed: [0; 5],
-            misses: [0; 8],
+            misses: [0; ServiceId::ALL.len() + 1],
             last_thrust_n: f64::NAN,
             last_reference_n: f64::NAN,
             last_throttle_pct: f64::NAN,

@@ -10,6 +10,7 @@ pub mod latency;
 pub mod latency_stage;
 pub mod metrics;
 pub mod model;
+pub mod play;
 pub mod replay;
 pub mod tare;
 pub mod up;

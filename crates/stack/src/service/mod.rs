@@ -101,6 +101,9 @@ pub enum ServiceError {
     /// The recorder's disk writer fell behind and samples were dropped.
     #[error("{0} samples were dropped because the disk writer fell behind")]
     Dropped(u64),
+    /// The error of a service defined in another crate (the viewer, the bridge).
+    #[error(transparent)]
+    Other(Box<dyn std::error::Error + Send + Sync>),
 }
 
 jetbench_bus::from_bus_errors!(ServiceError);
@@ -111,6 +114,9 @@ pub struct Setup<'a> {
     pub bus: &'a Bus,
     /// The file a service writes (the recorder's MCAP file).
     pub output: Option<&'a Path>,
+    /// Where a service that serves other machines listens (the viewer's
+    /// `HOST:PORT`, the bridge's Zenoh endpoint); its default if `None`.
+    pub listen: Option<&'a str>,
 }
 
 /// How the runner wakes a service.
@@ -332,6 +338,8 @@ pub struct RunOptions {
     pub rt: bool,
     /// The file the service writes (`--out` of the recorder).
     pub output: Option<PathBuf>,
+    /// Where it listens (`--listen` of the viewer and the bridge).
+    pub listen: Option<String>,
 }
 
 /// Runs service `S` until SIGINT/SIGTERM or its first error.
@@ -343,7 +351,8 @@ pub fn run<S: Service>(options: &RunOptions) -> Result<(), ServiceError> {
         crate::rt::apply(&request).log(S::ID.name());
     }
     let bus = Bus::open(S::ID.name())?;
-    let setup = Setup { config: &config, bus: &bus, output: options.output.as_deref() };
+    let setup =
+        Setup { config: &config, bus: &bus, output: options.output.as_deref(), listen: options.listen.as_deref() };
     let (mut service, inputs) = S::new(&setup)?;
     let mut ctx = Context::new(&bus, HealthReporter::new(&bus, S::ID)?);
     announce_ready();

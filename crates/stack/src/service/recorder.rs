@@ -1,55 +1,35 @@
 //! The recorder: every channel into one MCAP file.
 
-use jetbench_bus::{AnySubscriber, Bus, PortError, Wake};
-use jetbench_msgs::{visit_channels, Channel, ChannelVisitor, Sample, ServiceId};
+use jetbench_bus::tap::Tap;
+use jetbench_bus::Wake;
+use jetbench_msgs::ServiceId;
+use jetbench_record::clock::ClockOrigin;
+use jetbench_record::meta::RunMetadata;
 use jetbench_record::{spawn_writer, RawRecord, RecordError, WriterHandle};
 
 use super::{Context, Schedule, Service, ServiceError, Setup};
-use crate::clock::{monotonic_ns, realtime_ns, PERIOD};
+use crate::clock::{realtime_ns, PERIOD};
 
-/// The recorder: subscribers polled on the recorder's own clock hand every
-/// sample to a writer thread through a bounded queue and never wait on the disk.
+/// The recorder: every channel read by a polled subscriber on the recorder's
+/// own clock ([`Tap`]), handed to a writer thread through a bounded queue that
+/// never waits on the disk. `log_time` is the wall clock at receive (viewers
+/// date the run when it happened); the samples keep their monotonic stamps,
+/// which are also the messages' `publish_time`.
 pub struct Recorder {
-    subs: Vec<Box<dyn AnySubscriber>>,
+    tap: Tap,
     /// `None` once finished.
     writer: Option<WriterHandle>,
 }
 
-/// Polled subscribers of every channel, as deep as a channel allows.
-fn subscribe_all(bus: &Bus) -> Result<Vec<Box<dyn AnySubscriber>>, PortError> {
-    struct Subscribe<'a> {
-        bus: &'a Bus,
-        subs: Vec<Box<dyn AnySubscriber>>,
-        error: Option<PortError>,
-    }
-    impl ChannelVisitor for Subscribe<'_> {
-        fn visit<T: Sample>(&mut self, channel: Channel<T>) {
-            // The deepest queue the channel allows: the recorder must never drop.
-            // Polled on the recorder's own clock: publishing costs the control path no
-            // wake-up of the recorder. The deepest queue holds 5 s at 100 Hz.
-            match self.bus.polled_subscriber(channel, jetbench_bus::limits::MAX_BUFFER) {
-                Ok(s) => self.subs.push(Box::new(s)),
-                Err(e) => self.error = self.error.take().or(Some(e)),
-            }
-        }
-    }
-    let mut subscribe = Subscribe { bus, subs: Vec::new(), error: None };
-    visit_channels(&mut subscribe);
-    match subscribe.error {
-        Some(e) => Err(e),
-        None => Ok(subscribe.subs),
-    }
-}
-
-/// Hands every sample queued on `sub` to the writer.
-fn drain(sub: &dyn AnySubscriber, writer: &mut WriterHandle) -> Result<(), ServiceError> {
-    let log_time_ns = monotonic_ns();
+/// Hands every sample queued on the bus to the writer, logged now.
+fn drain(tap: &Tap, writer: &mut WriterHandle) -> Result<(), ServiceError> {
+    let log_time_ns = realtime_ns();
     let mut failure = None;
-    sub.drain_raw(&mut |seq, stamp_ns, bytes| {
+    tap.drain(&mut |s| {
         if failure.is_some() {
             return;
         }
-        match RawRecord::new(sub.channel_name(), seq, log_time_ns, stamp_ns, bytes) {
+        match RawRecord::new(s.channel, s.seq, log_time_ns, s.stamp_ns, s.body) {
             Some(record) => {
                 if let Err(e) = writer.send(record) {
                     failure = Some(e);
@@ -57,8 +37,8 @@ fn drain(sub: &dyn AnySubscriber, writer: &mut WriterHandle) -> Result<(), Servi
             }
             None => {
                 failure = Some(RecordError::SampleTooLarge {
-                    channel: sub.channel_name().into(),
-                    size: bytes.len(),
+                    channel: s.channel.into(),
+                    size: s.body.len(),
                     max: jetbench_record::MAX_SAMPLE_BYTES,
                 })
             }
@@ -73,17 +53,20 @@ impl Service for Recorder {
 
     fn new(setup: &Setup<'_>) -> Result<(Self, ()), ServiceError> {
         let path = setup.output.ok_or_else(|| ServiceError::Setup("the recorder needs --out FILE.mcap".into()))?;
-        let subs = subscribe_all(setup.bus)?;
+        // The deepest queue a channel allows: the recorder must never drop.
+        let tap = Tap::open(setup.bus, Tap::DEPTH)?;
         // The config and the estimator's resolved model parameters, so that
-        // `jetbench replay` reproduces the run even when its model file is gone.
-        let mut run = crate::replay::run_metadata(setup.config)?;
-        run.clock =
-            "CLOCK_MONOTONIC; log_time is the recorder's receive time, publish_time the sample's stamp_ns".into();
-        run.monotonic_ns_at_start = Some(monotonic_ns());
-        run.realtime_ns_at_start = Some(realtime_ns());
+        // `jetbench replay` reproduces the run even when its model file is gone;
+        // and the clocks, so that every message is dated.
+        let estimator = crate::replay::run_metadata(setup.config)?;
+        let run = RunMetadata {
+            config_toml: estimator.config_toml,
+            model_toml: estimator.model_toml,
+            ..RunMetadata::wall_clock(ClockOrigin::now())
+        };
         let writer = spawn_writer(path, setup.config.recorder.queue, vec![run.record()])?;
-        tracing::info!("recording {} channels to {}", subs.len(), path.display());
-        Ok((Recorder { subs, writer: Some(writer) }, ()))
+        tracing::info!("recording {} channels to {}", tap.counts().len(), path.display());
+        Ok((Recorder { tap, writer: Some(writer) }, ()))
     }
 
     fn schedule(&self) -> Schedule {
@@ -95,10 +78,8 @@ impl Service for Recorder {
             return Ok(());
         }
         let Some(writer) = self.writer.as_mut() else { return Ok(()) };
-        for sub in &self.subs {
-            drain(sub.as_ref(), writer)?;
-        }
-        ctx.health().set_input_gaps(self.subs.iter().map(|s| s.gaps()).sum());
+        drain(&self.tap, writer)?;
+        ctx.health().set_input_gaps(self.tap.gaps());
         ctx.cycle(false)?;
         Ok(())
     }
@@ -106,16 +87,15 @@ impl Service for Recorder {
     /// Takes what arrived while stopping, closes the file and prints what was recorded.
     fn stop(&mut self, _inputs: &(), _ctx: &mut Context<'_>) -> Result<(), ServiceError> {
         let Some(mut writer) = self.writer.take() else { return Ok(()) };
-        for sub in &self.subs {
-            drain(sub.as_ref(), &mut writer)?;
-        }
+        drain(&self.tap, &mut writer)?;
         let dropped_full = writer.dropped_full;
         let stats = writer.finish()?;
         let report = RecorderReport {
             channels: self
-                .subs
-                .iter()
-                .map(|s| ChannelReport { channel: s.channel_name(), received: s.received(), gaps: s.gaps() })
+                .tap
+                .counts()
+                .into_iter()
+                .map(|c| ChannelReport { channel: c.channel, received: c.received, gaps: c.gaps })
                 .collect(),
             written: stats.written,
             dropped_full,

@@ -1,0 +1,64 @@
+//! The Foxglove live view of the bench, and recordings served the same way.
+//!
+//! Every bus channel is advertised as the recording has it: topic
+//! `/bench/...`, message encoding `cdr`, schema encoding `ros2msg`, schema
+//! `jetbench_msgs/msg/<Type>` with the same text, so the Foxglove app (or any
+//! client of its WebSocket protocol) decodes the samples with no custom code.
+//!
+//! ```no_run
+//! use jetbench_bus::Bus;
+//! use jetbench_viewer::{FoxgloveServer, LiveView, ServerOptions};
+//!
+//! # fn main() -> Result<(), jetbench_viewer::ViewerError> {
+//! let bus = Bus::open("viewer")?;
+//! let server = FoxgloveServer::start("127.0.0.1:8765", &ServerOptions::default())?;
+//! let mut view = LiveView::open(&bus, server)?;
+//! while !jetbench_bus::stop_requested() {
+//!     view.pump()?; // everything published since the last call, to every subscribed client
+//!     std::thread::sleep(jetbench_viewer::POLL_PERIOD);
+//! }
+//! eprint!("{}", view.report());
+//! # Ok(())
+//! # }
+//! ```
+//!
+//! The viewer is a process of its own that reads the bus through polled
+//! subscribers on its own 10 ms clock ([`jetbench_bus::tap`]): publishers
+//! never wait for it or wake it. Between it and each client, the SDK keeps a
+//! bounded backlog ([`ServerOptions::backlog`]) and drops the oldest messages
+//! of a client that does not keep up; the bus queues in front of it are
+//! bounded too, and what they lose is counted ([`LiveReport`]).
+
+mod channels;
+mod live;
+mod play;
+mod server;
+mod service;
+
+pub use channels::BenchChannels;
+pub use live::{ChannelReport, LiveReport, LiveView, POLL_PERIOD};
+pub use play::{PlayOptions, PlayReport, Player};
+pub use server::{ClientCounts, FoxgloveServer, ServerOptions, DEFAULT_ADDR};
+pub use service::Viewer;
+
+use jetbench_bus::BusError;
+use jetbench_record::RecordError;
+
+/// Why the viewer could not start or serve.
+#[derive(Debug, thiserror::Error)]
+pub enum ViewerError {
+    #[error("invalid listen address {addr:?}: {reason} (expected HOST:PORT, e.g. 127.0.0.1:8765, or 0.0.0.0:8765 for other machines)")]
+    Address { addr: String, reason: String },
+    #[error("cannot serve Foxglove on {addr}: {source} (is the port in use?)")]
+    Start { addr: String, source: foxglove::FoxgloveError },
+    #[error("cannot advertise channel {topic}: {source}")]
+    Channel { topic: String, source: foxglove::FoxgloveError },
+    #[error("playback rate {0} must be a positive number (1 = real time)")]
+    Rate(f64),
+    #[error(transparent)]
+    Bus(#[from] BusError),
+    #[error(transparent)]
+    Record(#[from] RecordError),
+}
+
+jetbench_bus::from_bus_errors!(ViewerError);

@@ -1,0 +1,256 @@
+//! Independent clients of the control-room services, set up by the tests
+//! themselves: the Foxglove WebSocket client in Node (scripts/nodeenv.sh), the
+//! Zenoh subscriber in Python (scripts/pyenv.sh); the viewer and the bridge as
+//! processes; two network namespaces joined by a veth pair; and the check that
+//! what a client decoded is what the run recorded.
+
+// Each test binary uses a subset of these helpers.
+#![allow(dead_code)]
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::Duration;
+
+use jetbench_msgs::{RosType, Sample};
+use jetbench_record::Recording;
+use serde_json::Value;
+
+use crate::common::{lines_of, repo_root, wait_with_watchdog};
+
+/// A TCP port nobody listens on now (the OS picks it; a test binds it right after).
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr()).expect("bind a free port").port()
+}
+
+/// The bus namespace of `common::jetbench(suite)`.
+pub fn namespace(suite: &str) -> String {
+    format!("{suite}{}", std::process::id())
+}
+
+/// A started process with its output read line by line.
+pub struct Process {
+    pub child: Child,
+    pub stdout: mpsc::Receiver<String>,
+    pub stderr: mpsc::Receiver<String>,
+    what: String,
+}
+
+impl Process {
+    /// Starts `command` and waits (at most 60 s) for `ready_line` on its stdout.
+    pub fn start(mut command: Command, ready_line: &str, what: &str) -> Process {
+        let mut child = command
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {what}: {e}"));
+        let stdout = lines_of(child.stdout.take().expect("stdout"));
+        let stderr = lines_of(child.stderr.take().expect("stderr"));
+        let mut process = Process { child, stdout, stderr, what: what.into() };
+        loop {
+            match process.stdout.recv_timeout(Duration::from_secs(60)) {
+                Ok(line) if line.trim() == ready_line => return process,
+                Ok(_) => {}
+                Err(_) => {
+                    let _ = process.child.kill();
+                    let _ = process.child.wait();
+                    panic!("{what} did not print {ready_line:?}:\n{}", process.stderr_text());
+                }
+            }
+        }
+    }
+
+    /// SIGTERM, then waits (watchdog 30 s); returns whether it exited 0 and its stderr.
+    pub fn stop(mut self) -> (bool, String) {
+        // SAFETY: signalling a child this test started and has not reaped.
+        unsafe { libc::kill(self.child.id() as i32, libc::SIGTERM) };
+        let status = wait_with_watchdog(&mut self.child, Duration::from_secs(30), &self.what);
+        (status.success(), self.stderr_text())
+    }
+
+    /// Kills it at once (a client that never reads would never notice a close).
+    pub fn kill(mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+
+    fn stderr_text(&self) -> String {
+        let mut lines = Vec::new();
+        while let Ok(line) = self.stderr.recv_timeout(Duration::from_millis(500)) {
+            lines.push(line);
+        }
+        lines.join("\n")
+    }
+}
+
+/// `command` run inside network namespace `netns`, if one is given.
+pub fn in_netns(netns: Option<&str>, program: &Path) -> Command {
+    match netns {
+        Some(ns) => {
+            let mut command = Command::new("ip");
+            command.args(["netns", "exec", ns]).arg(program);
+            command
+        }
+        None => Command::new(program),
+    }
+}
+
+/// The folder of the installed Node client (scripts/nodeenv.sh).
+pub fn node_env() -> PathBuf {
+    let out = Command::new(repo_root().join("scripts/nodeenv.sh")).output().expect("run scripts/nodeenv.sh");
+    assert!(out.status.success(), "scripts/nodeenv.sh failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
+}
+
+/// Starts the Node Foxglove client on `url` (see tests/clients/foxglove_client.mjs).
+pub fn foxglove_client(env: &Path, url: &str, topics: &[&str], extra: &[&str]) -> Process {
+    let mut command = Command::new("node");
+    command.arg(env.join("foxglove_client.mjs")).arg(url).arg("--topics").arg(topics.join(",")).args(extra);
+    Process::start(command, "subscribed", "the Node Foxglove client")
+}
+
+/// Two network namespaces joined by a veth pair, as two hosts on a link:
+/// the bench at `10.199.X.1`, the control room at `10.199.X.2`. Removed on drop.
+pub struct TwoHosts {
+    pub bench: String,
+    pub control_room: String,
+    pub bench_ip: String,
+}
+
+impl TwoHosts {
+    /// `Err` with the reason when this machine cannot make them (not root, no `ip`).
+    pub fn create() -> Result<TwoHosts, String> {
+        let id = std::process::id();
+        let hosts = TwoHosts {
+            bench: format!("jbbench{id}"),
+            control_room: format!("jbctl{id}"),
+            bench_ip: format!("10.199.{}.1", id % 250),
+        };
+        let peer_ip = format!("10.199.{}.2", id % 250);
+        let (a, b) = (format!("jbv{id}a"), format!("jbv{id}b"));
+        let steps: Vec<Vec<&str>> = vec![
+            vec!["netns", "add", &hosts.bench],
+            vec!["netns", "add", &hosts.control_room],
+            vec!["link", "add", &a, "type", "veth", "peer", "name", &b],
+            vec!["link", "set", &a, "netns", &hosts.bench],
+            vec!["link", "set", &b, "netns", &hosts.control_room],
+        ];
+        let bench_addr = format!("{}/30", hosts.bench_ip);
+        let peer_addr = format!("{peer_ip}/30");
+        let inside: Vec<(&str, Vec<&str>)> = vec![
+            (&hosts.bench, vec!["addr", "add", &bench_addr, "dev", &a]),
+            (&hosts.bench, vec!["link", "set", &a, "up"]),
+            (&hosts.bench, vec!["link", "set", "lo", "up"]),
+            (&hosts.control_room, vec!["addr", "add", &peer_addr, "dev", &b]),
+            (&hosts.control_room, vec!["link", "set", &b, "up"]),
+            (&hosts.control_room, vec!["link", "set", "lo", "up"]),
+        ];
+        let run = |args: &[&str]| -> Result<(), String> {
+            let out = Command::new("ip").args(args).output().map_err(|e| format!("ip {}: {e}", args.join(" ")))?;
+            if out.status.success() {
+                Ok(())
+            } else {
+                Err(format!("ip {}: {}", args.join(" "), String::from_utf8_lossy(&out.stderr).trim()))
+            }
+        };
+        for args in &steps {
+            run(args)?;
+        }
+        for (ns, args) in &inside {
+            let mut full = vec!["-n", ns];
+            full.extend(args);
+            run(&full)?;
+        }
+        Ok(hosts)
+    }
+}
+
+impl Drop for TwoHosts {
+    fn drop(&mut self) {
+        // Deleting a namespace deletes the veth end inside it, and with it the pair.
+        for ns in [&self.bench, &self.control_room] {
+            let _ = Command::new("ip").args(["netns", "del", ns]).output();
+        }
+    }
+}
+
+/// The stream a sample belongs to: its service for `bench/health`, else one.
+fn stream_of<T: Sample>(sample: &T) -> u32 {
+    T::FIELDS
+        .iter()
+        .find(|f| f.name == "service_id")
+        .map_or(0, |f| u32::from_le_bytes(sample.as_bytes()[f.offset..f.offset + 4].try_into().unwrap()))
+}
+
+/// A decoded value equals the little-endian value at the start of `bytes`:
+/// floats bit for bit (NaN as NaN), integers exactly (as numbers or, from
+/// JavaScript's bigints, strings).
+fn value_matches(ty: RosType, bytes: &[u8], value: &Value) -> bool {
+    let p = ty.primitive();
+    match ty {
+        RosType::Array(_, n) => value.as_array().is_some_and(|items| {
+            items.len() == n
+                && items.iter().enumerate().all(|(i, v)| value_matches(RosType::Scalar(p), &bytes[i * p.size()..], v))
+        }),
+        RosType::Scalar(_) => {
+            let text = ty.format_value(bytes);
+            match p.name() {
+                "float64" | "float32" => {
+                    let ours: f64 = text.parse().unwrap();
+                    value.as_f64().is_some_and(|v| v == ours || (v.is_nan() && ours.is_nan()))
+                        || value.as_str().is_some_and(|s| s.parse::<f64>().is_ok_and(|v| v.is_nan() && ours.is_nan()))
+                }
+                _ => value.as_u64().map(|v| v.to_string()).or_else(|| value.as_str().map(String::from)) == Some(text),
+            }
+        }
+    }
+}
+
+/// Checks every decoded message of `channel` against the recorded sample
+/// with the same `seq` (and service): returns how many matched, and the
+/// first few disagreements.
+pub fn compare_with_recording<T: Sample>(
+    recording: &Recording,
+    channel: jetbench_msgs::Channel<T>,
+    decoded: &[Value],
+) -> (usize, Vec<String>) {
+    let recorded: HashMap<(u32, u64), T> =
+        recording.samples(channel).into_iter().map(|s| ((stream_of(&s), s.seq()), s)).collect();
+    // Each publisher's first and last recorded seq: a sample from before the
+    // recorder started or after it stopped (a bridge outliving the run) is not
+    // expected in the recording.
+    let mut window: HashMap<u32, (u64, u64)> = HashMap::new();
+    for &(stream, seq) in recorded.keys() {
+        let w = window.entry(stream).or_insert((seq, seq));
+        *w = (w.0.min(seq), w.1.max(seq));
+    }
+    let mut matched = 0;
+    let mut failures = Vec::new();
+    for message in decoded {
+        let seq = message["seq"].as_u64().or_else(|| message["seq"].as_str().and_then(|s| s.parse().ok()));
+        let stream = message["service_id"].as_u64().unwrap_or(0) as u32;
+        let outside = |seq: u64| window.get(&stream).is_some_and(|&(first, last)| seq < first || seq > last);
+        if seq.is_some_and(outside) {
+            continue;
+        }
+        let Some(sample) = seq.and_then(|seq| recorded.get(&(stream, seq))) else {
+            failures.push(format!("{}: {message} is not in the recording", channel.name));
+            continue;
+        };
+        let bytes = sample.as_bytes();
+        let wrong: Vec<&str> = T::FIELDS
+            .iter()
+            .filter(|f| !value_matches(f.ros_type, &bytes[f.offset..], &message[f.name]))
+            .map(|f| f.name)
+            .collect();
+        if wrong.is_empty() {
+            matched += 1;
+        } else {
+            failures.push(format!("{}: fields {wrong:?} differ: decoded {message}, recorded {sample:?}", channel.name));
+        }
+    }
+    failures.truncate(5);
+    (matched, failures)
+}

@@ -1,0 +1,170 @@
+//! The Foxglove live view and playback, seen by an independent client: the
+//! Node packages @foxglove/ws-protocol, ws and @foxglove/rosmsg2-serialization
+//! (tests/clients/foxglove_client.mjs, installed by scripts/nodeenv.sh).
+//!
+//! While a client decodes /bench/thrust and /bench/state live, a second one
+//! connects and never reads, and a third tears its connection down
+//! mid-stream; the run must not notice. Hangs are caught by watchdogs; no
+//! test asserts a runtime.
+
+use std::path::Path;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use jetbench_msgs::{channels, Sample, ServiceId, StateEstimate, Thrust};
+use jetbench_record::{seq_gaps, Recording};
+use serde_json::Value;
+
+mod clients;
+mod common;
+
+use clients::{compare_with_recording, foxglove_client, free_port, node_env, Process};
+use common::{scratch, spawn_up, wait_with_watchdog};
+
+const SUITE: &str = "fox";
+
+fn read_json(path: &Path) -> Value {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_str(&text).expect("the client writes JSON")
+}
+
+/// The client's advertised channel for `topic` is the recording's: cdr, ros2msg, same schema.
+fn assert_advertised_as_recorded<T: Sample>(got: &Value, channel: jetbench_msgs::Channel<T>) {
+    let c = &got["channels"][channel.topic()];
+    assert_eq!(c["encoding"], "cdr", "{c}");
+    assert_eq!(c["schemaEncoding"], "ros2msg", "{c}");
+    assert_eq!(c["schemaName"], T::schema_name().as_str(), "{c}");
+    assert_eq!(c["schema"], T::schema_text().as_str(), "{c}");
+}
+
+/// At least 95 % of what was recorded arrived, and every message decoded to the recorded values.
+fn assert_received_as_recorded<T: Sample>(
+    got: &Value,
+    recording: &Recording,
+    channel: jetbench_msgs::Channel<T>,
+) -> usize {
+    let decoded = got["messages"][channel.topic()].as_array().cloned().unwrap_or_default();
+    let recorded = recording.samples(channel).len();
+    let (matched, failures) = compare_with_recording(recording, channel, &decoded);
+    assert!(failures.is_empty(), "{} decoded values differ from the recording:\n{}", channel.name, failures.join("\n"));
+    assert!(
+        matched as f64 >= 0.95 * recorded as f64,
+        "{}: the client decoded {matched} of the {recorded} recorded samples",
+        channel.name
+    );
+    matched
+}
+
+#[test]
+fn a_foxglove_client_sees_the_live_bench_as_recorded_and_bad_clients_change_nothing() {
+    let env = node_env();
+    let port = free_port();
+    let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_jetbench-viewer"));
+    command
+        .env(jetbench_bus::NAMESPACE_ENV, clients::namespace(SUITE))
+        .args(["--listen", &format!("127.0.0.1:{port}")]);
+    let viewer = Process::start(command, "ready", "jetbench-viewer");
+    let url = format!("ws://127.0.0.1:{port}");
+    let got_path = scratch(SUITE, "live-client.json");
+    let reader =
+        foxglove_client(&env, &url, &["/bench/thrust", "/bench/state"], &["--out", got_path.to_str().unwrap()]);
+    let all = ["/bench/thrust", "/bench/state", "/bench/health", "/bench/command", "/bench/actuation", "/sim/truth"];
+    let stalled = foxglove_client(&env, &url, &all, &["--behave", "stall"]);
+    let dropper = foxglove_client(&env, &url, &all, &["--behave", "drop", "--drop-after-s", "5"]);
+
+    let record = scratch(SUITE, "live.mcap");
+    let (mut up, _stdout, _stderr) = spawn_up(common::jetbench(SUITE), 20, &record);
+    let status = wait_with_watchdog(&mut up, Duration::from_secs(120), "jetbench up");
+    assert!(status.success(), "jetbench up failed: {status}");
+    let (viewer_ok, viewer_log) = viewer.stop();
+    let (_, reader_log) = reader.stop();
+    stalled.kill();
+    dropper.kill();
+    assert!(viewer_ok, "the viewer did not stop cleanly:\n{viewer_log}");
+    eprintln!("{viewer_log}");
+
+    let recording = Recording::open(&record).expect("read the run's recording");
+    let got = read_json(&got_path);
+    assert_eq!(got["errors"], serde_json::json!([]), "client errors\n{reader_log}");
+    assert_advertised_as_recorded(&got, channels::THRUST);
+    assert_advertised_as_recorded(&got, channels::STATE);
+    let thrust = assert_received_as_recorded::<Thrust>(&got, &recording, channels::THRUST);
+    let state = assert_received_as_recorded::<StateEstimate>(&got, &recording, channels::STATE);
+    eprintln!("the client decoded {thrust} thrust and {state} state samples, all equal to the recording");
+
+    // The loop ran as always: every sample of the control path, no gap.
+    for gaps in [
+        seq_gaps(&recording.samples(channels::THRUST)),
+        seq_gaps(&recording.samples(channels::STATE)),
+        seq_gaps(&recording.samples(channels::COMMAND)),
+    ] {
+        assert_eq!(gaps, 0, "the control path lost samples");
+    }
+    // Deadline misses of the control path, as the services report them. A
+    // virtual machine's scheduling can cost a miss now and then with or
+    // without clients; clients that slowed the loop would cost one per cycle.
+    let health = recording.samples(channels::HEALTH);
+    let mut misses = 0;
+    let mut cycles = 0;
+    for id in [ServiceId::Sensing, ServiceId::Estimation, ServiceId::Control, ServiceId::Actuation] {
+        let last = health.iter().rfind(|h| h.service_id == id as u32).expect("heartbeats");
+        misses += last.deadline_misses;
+        cycles += last.cycles;
+        eprintln!("{}: {} deadline misses in {} cycles", id.name(), last.deadline_misses, last.cycles);
+    }
+    assert!(misses * 100 <= cycles, "{misses} deadline misses in {cycles} cycles with the clients attached");
+
+    // The same recording played back: the same values, dated when they were recorded.
+    play_serves_the_recording_dated_as_recorded(&env, &record, &recording);
+}
+
+/// `jetbench play` at 4x: the client decodes the recorded values, each
+/// stamped with its wall-clock time (the recorder's monotonic log time moved
+/// onto the wall clock by the recording's clock origin).
+fn play_serves_the_recording_dated_as_recorded(env: &Path, record: &Path, recording: &Recording) {
+    let port = free_port();
+    let exe = Path::new(env!("CARGO_BIN_EXE_jetbench"));
+    let mut command = std::process::Command::new(exe);
+    command.arg("play").arg(record).args(["--foxglove", &format!("127.0.0.1:{port}"), "--rate", "4"]);
+    let mut play = command
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("start jetbench play");
+    let stdout = common::lines_of(play.stdout.take().expect("stdout"));
+    let first = stdout.recv_timeout(Duration::from_secs(30)).expect("jetbench play says where it serves");
+    assert!(first.starts_with("serving ") && first.contains(&format!("ws://127.0.0.1:{port}")), "{first}");
+    let got_path = scratch(SUITE, "play-client.json");
+    let client = foxglove_client(
+        env,
+        &format!("ws://127.0.0.1:{port}"),
+        &["/bench/thrust"],
+        &["--out", got_path.to_str().unwrap()],
+    );
+    let status = wait_with_watchdog(&mut play, Duration::from_secs(60), "jetbench play");
+    assert!(status.success(), "jetbench play failed: {status}");
+    let (_, client_log) = client.stop();
+    let got = read_json(&got_path);
+    assert_eq!(got["errors"], serde_json::json!([]), "client errors\n{client_log}");
+    let decoded = got["messages"]["/bench/thrust"].as_array().cloned().unwrap_or_default();
+    let (matched, failures) = compare_with_recording(recording, channels::THRUST, &decoded);
+    assert!(failures.is_empty(), "played values differ from the recording:\n{}", failures.join("\n"));
+    // The client connects just after playback started: it misses the first moments only.
+    let recorded = recording.samples(channels::THRUST).len();
+    assert!(matched * 10 >= recorded * 8, "the client decoded {matched} of {recorded} played samples");
+
+    let base = recording.time_base();
+    let by_seq: std::collections::HashMap<u64, u64> = recording
+        .messages
+        .iter()
+        .filter(|m| m.topic == "/bench/thrust")
+        .filter_map(|m| Some((Thrust::from_cdr(&m.data)?.seq, base.unix_ns(m.log_time_ns)?)))
+        .collect();
+    let now_ns = SystemTime::now().duration_since(UNIX_EPOCH).unwrap().as_nanos() as u64;
+    for m in &decoded {
+        let seq: u64 = m["seq"].as_str().and_then(|s| s.parse().ok()).expect("seq");
+        let stamp: u64 = m["_log_time_ns"].as_str().and_then(|s| s.parse().ok()).expect("timestamp");
+        assert_eq!(Some(&stamp), by_seq.get(&seq), "thrust seq {seq} is dated {stamp}");
+        assert!(stamp < now_ns && now_ns - stamp < 3_600_000_000_000, "thrust seq {seq} is not dated today: {stamp}");
+    }
+}
