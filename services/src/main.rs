@@ -31,6 +31,9 @@ enum Cmd {
         /// Stop after this many samples.
         #[arg(long, short = 'n')]
         count: Option<u64>,
+        /// Read the bench bridged at this Zenoh endpoint (`jetbench up --zenoh`), e.g. tcp/BENCH-PC:7447.
+        #[arg(long, value_name = "ENDPOINT")]
+        remote: Option<String>,
     },
     /// Measure a channel's rate and period jitter, e.g. `jetbench hz bench/thrust`.
     Hz {
@@ -41,7 +44,14 @@ enum Cmd {
         /// Stop after this many seconds (default: until Ctrl-C).
         #[arg(long)]
         duration: Option<f64>,
+        /// Read the bench bridged at this Zenoh endpoint (`jetbench up --zenoh`), e.g. tcp/BENCH-PC:7447.
+        #[arg(long, value_name = "ENDPOINT")]
+        remote: Option<String>,
     },
+    /// Record every channel of a running set to MCAP, here or from another machine.
+    ///
+    /// Example: jetbench record --remote tcp/BENCH-PC:7447 --duration 60 --out run.mcap
+    Record(cmd::record::RecordArgs),
     /// Summarise an MCAP recording: messages, rates and sequence gaps per channel.
     Info { file: PathBuf },
     /// Feed a recording's thrust through the estimator, as fast as possible, on recorded time.
@@ -114,13 +124,16 @@ fn run() -> anyhow::Result<ExitCode> {
     match cli.command {
         Cmd::Up(args) => cmd::up::run(args),
         Cmd::List => cmd::bus::list(),
-        Cmd::Echo { channel, count } => cmd::bus::with_channel(&channel, cmd::bus::Echo { count }),
-        Cmd::Hz { channel, window, duration } => {
+        Cmd::Echo { channel, count, remote } => {
+            cmd::bus::with_channel(&channel, remote.as_deref(), cmd::bus::Echo { count })
+        }
+        Cmd::Hz { channel, window, duration, remote } => {
             if !window.is_finite() || window <= 0.0 {
                 bail!("--window must be a positive number of seconds");
             }
-            cmd::bus::with_channel(&channel, cmd::bus::Hz { window, duration })
+            cmd::bus::with_channel(&channel, remote.as_deref(), cmd::bus::Hz { window, duration })
         }
+        Cmd::Record(args) => cmd::record::run_record(args),
         Cmd::Info { file } => cmd::info::run(&file),
         Cmd::Replay(args) => cmd::replay::run(args),
         Cmd::Identify(args) => cmd::identify::run(args),

@@ -38,7 +38,7 @@ pub struct Process {
 }
 
 impl Process {
-    /// Starts `command` and waits (at most 60 s) for `ready_line` on its stdout.
+    /// Starts `command` and waits (at most 60 s) for a line containing `ready_line` on its stdout.
     pub fn start(mut command: Command, ready_line: &str, what: &str) -> Process {
         let mut child = command
             .stdin(Stdio::null())
@@ -51,7 +51,7 @@ impl Process {
         let mut process = Process { child, stdout, stderr, what: what.into() };
         loop {
             match process.stdout.recv_timeout(Duration::from_secs(60)) {
-                Ok(line) if line.trim() == ready_line => return process,
+                Ok(line) if line.contains(ready_line) => return process,
                 Ok(_) => {}
                 Err(_) => {
                     let _ = process.child.kill();
@@ -68,6 +68,13 @@ impl Process {
         unsafe { libc::kill(self.child.id() as i32, libc::SIGTERM) };
         let status = wait_with_watchdog(&mut self.child, Duration::from_secs(30), &self.what);
         (status.success(), self.stderr_text())
+    }
+
+    /// Waits for it to end by itself (watchdog `limit`); whether it exited 0, and its output.
+    pub fn wait(mut self, limit: Duration) -> (bool, String) {
+        let status = wait_with_watchdog(&mut self.child, limit, &self.what);
+        let out: Vec<String> = self.stdout.try_iter().collect();
+        (status.success(), format!("{}\n{}", out.join("\n"), self.stderr_text()))
     }
 
     /// Kills it at once (a client that never reads would never notice a close).
@@ -208,30 +215,31 @@ fn value_matches(ty: RosType, bytes: &[u8], value: &Value) -> bool {
     }
 }
 
-/// Checks every decoded message of `channel` against the recorded sample
-/// with the same `seq` (and service): returns how many matched, and the
-/// first few disagreements.
+/// What a client decoded of one channel, against the recording: the samples
+/// that matched, how many the recording has from each publisher's first to last
+/// sample the client saw (what was published while it was connected), and the
+/// first few differences.
 pub fn compare_with_recording<T: Sample>(
     recording: &Recording,
     channel: jetbench_msgs::Channel<T>,
     decoded: &[Value],
-) -> (usize, Vec<String>) {
+) -> (usize, usize, Vec<String>) {
     let recorded: HashMap<(u32, u64), T> =
         recording.samples(channel).into_iter().map(|s| ((stream_of(&s), s.seq()), s)).collect();
     // Each publisher's first and last recorded seq: a sample from before the
     // recorder started or after it stopped (a bridge outliving the run) is not
     // expected in the recording.
-    let mut window: HashMap<u32, (u64, u64)> = HashMap::new();
+    let mut recorded_span: HashMap<u32, (u64, u64)> = HashMap::new();
     for &(stream, seq) in recorded.keys() {
-        let w = window.entry(stream).or_insert((seq, seq));
-        *w = (w.0.min(seq), w.1.max(seq));
+        widen(&mut recorded_span, stream, seq);
     }
+    let mut seen_span: HashMap<u32, (u64, u64)> = HashMap::new();
     let mut matched = 0;
     let mut failures = Vec::new();
     for message in decoded {
         let seq = message["seq"].as_u64().or_else(|| message["seq"].as_str().and_then(|s| s.parse().ok()));
         let stream = message["service_id"].as_u64().unwrap_or(0) as u32;
-        let outside = |seq: u64| window.get(&stream).is_some_and(|&(first, last)| seq < first || seq > last);
+        let outside = |seq: u64| recorded_span.get(&stream).is_some_and(|&(first, last)| seq < first || seq > last);
         if seq.is_some_and(outside) {
             continue;
         }
@@ -239,6 +247,7 @@ pub fn compare_with_recording<T: Sample>(
             failures.push(format!("{}: {message} is not in the recording", channel.name));
             continue;
         };
+        widen(&mut seen_span, stream, sample.seq());
         let bytes = sample.as_bytes();
         let wrong: Vec<&str> = T::FIELDS
             .iter()
@@ -251,6 +260,15 @@ pub fn compare_with_recording<T: Sample>(
             failures.push(format!("{}: fields {wrong:?} differ: decoded {message}, recorded {sample:?}", channel.name));
         }
     }
+    let published = recorded
+        .keys()
+        .filter(|(stream, seq)| seen_span.get(stream).is_some_and(|&(first, last)| (first..=last).contains(seq)))
+        .count();
     failures.truncate(5);
-    (matched, failures)
+    (matched, published, failures)
+}
+
+fn widen(spans: &mut HashMap<u32, (u64, u64)>, stream: u32, seq: u64) {
+    let span = spans.entry(stream).or_insert((seq, seq));
+    *span = (span.0.min(seq), span.1.max(seq));
 }

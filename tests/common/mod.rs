@@ -66,6 +66,21 @@ pub fn lines_of(stream: impl std::io::Read + Send + 'static) -> mpsc::Receiver<S
     rx
 }
 
+/// Waits until a line containing `text` arrives on `lines` (a child's output),
+/// at most `limit`; the lines before it, for messages.
+pub fn wait_for_line(lines: &mpsc::Receiver<String>, text: &str, limit: Duration) -> Result<Vec<String>, Vec<String>> {
+    let deadline = Instant::now() + limit;
+    let mut seen = Vec::new();
+    while let Ok(line) = lines.recv_timeout(deadline.saturating_duration_since(Instant::now())) {
+        let found = line.contains(text);
+        seen.push(line);
+        if found {
+            return Ok(seen);
+        }
+    }
+    Err(seen)
+}
+
 /// Runs a command to completion under the watchdog: status, stdout, stderr.
 pub fn run(command: &mut Command, limit: Duration, what: &str) -> (ExitStatus, String, String) {
     let mut child =
@@ -103,13 +118,24 @@ pub fn python() -> PathBuf {
 /// Starts `command up --sim --quiet --duration SECONDS --record RECORD` with its
 /// stdout and stderr read line by line on threads: the child and both streams.
 pub fn spawn_up(
+    command: Command,
+    duration_s: u32,
+    record: &Path,
+) -> (Child, mpsc::Receiver<String>, mpsc::Receiver<String>) {
+    spawn_up_with(command, duration_s, record, &[])
+}
+
+/// [`spawn_up`] with more arguments for `jetbench up` (e.g. `--foxglove ADDR`).
+pub fn spawn_up_with(
     mut command: Command,
     duration_s: u32,
     record: &Path,
+    extra: &[&str],
 ) -> (Child, mpsc::Receiver<String>, mpsc::Receiver<String>) {
     let mut child = command
         .args(["up", "--sim", "--quiet", "--duration", &duration_s.to_string(), "--record"])
         .arg(record)
+        .args(extra)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()

@@ -62,20 +62,39 @@ pub struct UpOptions {
     pub rt: bool,
     /// How samples travel between the services (set for each as `JETBENCH_TRANSPORT`).
     pub transport: jetbench_bus::Transport,
+    /// Serve the Foxglove live view here (`HOST:PORT`): starts the viewer service.
+    pub foxglove: Option<String>,
+    /// Publish every channel on Zenoh, listening here (`tcp/HOST:PORT`): starts the bridge service.
+    pub zenoh: Option<String>,
 }
 
 /// Start order: the recorder first so it sees every sample, then consumers
 /// before producers, and the simulated bench (when `simulated`), which clocks the loop, last.
 pub fn start_order(record: bool, simulated: bool) -> Vec<ServiceId> {
-    let mut order = Vec::new();
-    if record {
-        order.push(ServiceId::Recorder);
+    UpOptions::order(&[(ServiceId::Recorder, record)], simulated)
+}
+
+impl UpOptions {
+    /// The services this run starts, in order: the readers of every channel
+    /// (recorder, viewer, bridge) first, so they see every sample, then
+    /// consumers before producers, and the clocking simulated bench last.
+    pub fn services(&self) -> Vec<ServiceId> {
+        let readers = [
+            (ServiceId::Recorder, self.record.is_some()),
+            (ServiceId::Viewer, self.foxglove.is_some()),
+            (ServiceId::Bridge, self.zenoh.is_some()),
+        ];
+        Self::order(&readers, self.simulated)
     }
-    order.extend([ServiceId::Actuation, ServiceId::Control, ServiceId::Estimation, ServiceId::Sensing]);
-    if simulated {
-        order.push(ServiceId::SimBench);
+
+    fn order(readers: &[(ServiceId, bool)], simulated: bool) -> Vec<ServiceId> {
+        let mut order: Vec<ServiceId> = readers.iter().filter(|(_, on)| *on).map(|(id, _)| *id).collect();
+        order.extend([ServiceId::Actuation, ServiceId::Control, ServiceId::Estimation, ServiceId::Sensing]);
+        if simulated {
+            order.push(ServiceId::SimBench);
+        }
+        order
     }
-    order
 }
 
 fn binary(bin_dir: &Path, id: ServiceId) -> Result<PathBuf, LaunchError> {
@@ -107,10 +126,14 @@ impl Services {
             command.arg("--rt");
         }
         command.env(jetbench_bus::TRANSPORT_ENV, options.transport.name());
-        if id == ServiceId::Recorder {
-            if let Some(out) = &options.record {
-                command.arg("--out").arg(out);
-            }
+        let (flag, value) = match id {
+            ServiceId::Recorder => ("--out", options.record.as_ref().map(|p| p.as_os_str())),
+            ServiceId::Viewer => ("--listen", options.foxglove.as_deref().map(std::ffi::OsStr::new)),
+            ServiceId::Bridge => ("--listen", options.zenoh.as_deref().map(std::ffi::OsStr::new)),
+            _ => ("", None),
+        };
+        if let Some(value) = value {
+            command.arg(flag).arg(value);
         }
         // In its own process group (as the supervisor starts every child): Ctrl-C
         // reaches only the launcher, which then stops the services in order (so the
@@ -265,7 +288,7 @@ pub fn up(options: &UpOptions) -> Result<(), LaunchError> {
             }
         }
     }
-    let order = start_order(options.record.is_some(), options.simulated);
+    let order = options.services();
     for id in &order {
         binary(&options.bin_dir, *id)?;
     }

@@ -38,7 +38,7 @@ mod service;
 pub use channels::BenchChannels;
 pub use live::{ChannelReport, LiveReport, LiveView, POLL_PERIOD};
 pub use play::{PlayOptions, PlayReport, Player};
-pub use server::{ClientCounts, FoxgloveServer, ServerOptions, DEFAULT_ADDR};
+pub use server::{parse_listen, ClientCounts, FoxgloveServer, ServerOptions, DEFAULT_ADDR};
 pub use service::Viewer;
 
 use jetbench_bus::BusError;

@@ -141,7 +141,7 @@ impl FoxgloveServer {
 }
 
 /// `HOST:PORT` with an IPv4 or IPv6 address (`[::1]:8765`) or `localhost`.
-fn parse_listen(listen: &str) -> Result<SocketAddr, ViewerError> {
+pub fn parse_listen(listen: &str) -> Result<SocketAddr, ViewerError> {
     let error = |reason: &str| ViewerError::Address { addr: listen.into(), reason: reason.into() };
     let (host, port) = listen.rsplit_once(':').ok_or_else(|| error("no port"))?;
     let port: u16 = port.parse().map_err(|_| error("the port is not a number from 0 to 65535"))?;

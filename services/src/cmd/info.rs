@@ -19,6 +19,16 @@ pub fn print_summary(path: &Path) -> anyhow::Result<()> {
         recording.messages.len(),
         if recording.truncated { " (file truncated: read up to the last complete chunk)" } else { "" }
     );
+    let base = recording.time_base();
+    let when = |log_time_ns: Option<u64>| {
+        log_time_ns
+            .and_then(|t| base.unix_ns(t))
+            .and_then(jetbench_record::clock::format_local)
+            .unwrap_or_else(|| "unknown (an older recording without its clock origin)".into())
+    };
+    let (first, last) = (recording.messages.first(), recording.messages.iter().map(|m| m.log_time_ns).max());
+    println!("  start {}", when(first.map(|m| m.log_time_ns)));
+    println!("  end   {}", when(last));
     for c in recording.summary() {
         println!("  {:<18} {:>7} messages  {:>6.1} Hz  {} seq gaps", c.topic, c.messages, c.rate_hz, c.seq_gaps);
     }

@@ -65,6 +65,14 @@ pub struct UpArgs {
     /// measures against). Default: $JETBENCH_TRANSPORT, else iceoryx2.
     #[arg(long, value_enum)]
     transport: Option<TransportArg>,
+    /// Serve the Foxglove live view of every channel (the viewer service) at HOST:PORT:
+    /// 127.0.0.1:8765 without a value, 0.0.0.0:8765 for the control room.
+    #[arg(long, value_name = "HOST:PORT", num_args = 0..=1, default_missing_value = jetbench_viewer::DEFAULT_ADDR)]
+    foxglove: Option<String>,
+    /// Publish every channel on Zenoh (the bridge service), listening at ENDPOINT, e.g.
+    /// tcp/0.0.0.0:7447; keys jetbench/<namespace>/<channel>, payloads the CDR samples.
+    #[arg(long, value_name = "ENDPOINT")]
+    zenoh: Option<String>,
 }
 
 /// `--controller`: a feedback law (open loop comes with its profile, `--open-loop FILE`).
@@ -197,7 +205,15 @@ fn run_up(args: &UpArgs, config: Option<PathBuf>, checked: &BenchConfig) -> anyh
         simulated: checked.bench.devices == Devices::Sim,
         rt,
         transport,
+        foxglove: args.foxglove.clone(),
+        zenoh: args.zenoh.clone(),
     };
+    if let Some(listen) = &options.foxglove {
+        jetbench_viewer::parse_listen(listen).context("--foxglove")?;
+    }
+    if let Some(endpoint) = &options.zenoh {
+        endpoint.parse::<jetbench_bridge::Endpoint>().context("--zenoh")?;
+    }
     up(&options)?;
     println!("all services stopped cleanly");
     if let Some(path) = record {
