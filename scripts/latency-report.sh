@@ -21,8 +21,8 @@ sed 's/^priority = .*/priority = { sim-bench = 90, sensing = 80, estimation = 70
     config/sim.toml > "$feeder_first"
 grep -q '^priority = { sim-bench = 90, sensing = 80' "$feeder_first" || { echo "cannot derive the contrast config" >&2; exit 1; }
 
-echo "== jetbench latency --duration $seconds --load cpu --rt" >&2
-"$jb" latency --duration "$seconds" --load cpu --rt --json --plot "$out/latency-cpu-rt.png" > "$out/latency-cpu-rt.json"
+echo "== jetbench latency --duration $seconds --load cpu --rt --control-room" >&2
+"$jb" latency --duration "$seconds" --load cpu --rt --control-room --json --plot "$out/latency-cpu-rt.png" > "$out/latency-cpu-rt.json"
 echo "== jetbench latency --duration $contrast --load cpu (normal scheduler)" >&2
 "$jb" latency --duration "$contrast" --load cpu --json --plot "$out/latency-cpu.png" > "$out/latency-cpu.json"
 pair=$(( contrast / 2 > 2 ? contrast / 2 : 2 ))
@@ -71,6 +71,26 @@ def counts(r):
             f"- hypervisor steal while measuring: {steal} (a stolen virtual CPU stalls every process on it, SCHED_FIFO or not); "
             f"of the iceoryx2 deadline misses, {r['misses_during_steal']} came within 40 ms before to 20 ms after the host took a CPU\n"
             f"- real-time settings: {rt_note}")
+
+def control_room(r):
+    room = r.get("control_room")
+    if not room:
+        return "(not measured: run with --control-room)"
+    c = room["clients"]
+    errors = [e for x in c for e in x["errors"]]
+    return "\n".join([
+        "| µs | p50 | p90 | p99 | p99.9 | max |", "|---|---|---|---|---|---|",
+        row("service set over iceoryx2, no control room", r["e2e_us"]),
+        row("**the same set, control room attached**", room["e2e_us"]), "",
+        f"- with the control room: cycles {room['cycles']}, deadline misses **{room['deadline_misses']}** "
+        f"({room['misses_per_1000']:.2f} per 1000 cycles; without it {room['misses_per_1000_without']:.2f}), lost **{room['lost']}**; "
+        f"e2e p50 {room['e2e_p50_ratio']:.2f}×, p99 {room['e2e_p99_ratio']:.2f}× the set without it",
+        f"- deadline misses the services counted themselves: {room['service_deadline_misses']}",
+        f"- the clients, per round: Foxglove reader {[x['foxglove_read'] for x in c]} messages; stalled client connected "
+        f"{[x['foxglove_stalled'] for x in c]}; the dropping client read {[x['foxglove_dropped_after'] for x in c]} messages "
+        f"before it cut its connection; Zenoh subscriber {[x['zenoh_received'] for x in c]} samples, "
+        f"{sum(x['zenoh_gaps'] for x in c)} lost" + (f"; errors: {errors}" if errors else ""),
+    ])
 
 def per_hop(r):
     lines = ["| hand-over | floor p50 | service set p50 | its own cost p50 | floor p99 | service set p99 |", "|---|---|---|---|---|---|"]
@@ -136,6 +156,15 @@ the next stage's publish, so it holds the wake-up and the next stage's whole ste
 The floor's p99 leaves {budget:.1f} µs, over all four stages, for everything the service set does beyond waking
 processes: reading two CAN frames and calibrating them, the EKF, the control law, the tty write to the throttle
 board, and three receives and three publishes on the bus. Its hops cost several times that on their own.
+
+## The control room attached
+
+`--control-room` measures, in the same rounds, the iceoryx2 set with the Foxglove viewer (`--foxglove`) and the
+Zenoh bridge (`--zenoh`) running, and four clients attached: a Foxglove client reading every channel, one that
+subscribes to every channel and never reads again, one that reads and tears its connection down mid-stream, and a
+Zenoh subscriber of every channel. Both services read the bus through polled subscribers on their own 10 ms clock.
+
+{control_room(rt)}
 
 ## Contrast: the same load on the normal scheduler (no `--rt`, {contrast} s each)
 

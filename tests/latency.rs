@@ -76,6 +76,7 @@ fn latency_under_cpu_load_with_rt_measures_every_cycle() {
             "cpu",
             "--rt",
             "--json",
+            "--control-room",
             "--plot",
             plot.to_str().expect("utf-8 path"),
         ],
@@ -118,6 +119,29 @@ fn latency_under_cpu_load_with_rt_measures_every_cycle() {
         assert_eq!(uds["lost"].as_u64(), Some(0), "samples lost over Unix sockets under --rt: {report}");
     } else {
         assert!(!refused.is_empty(), "a non-root run must say what it could not set");
+    }
+    // The same set watched from the control room: as many cycles, every client served.
+    let room = &report["control_room"];
+    percentiles_ok(room, "e2e_us");
+    let room_cycles = room["cycles"].as_u64().expect("control_room.cycles");
+    assert!(room_cycles.abs_diff(expected) <= expected / 10, "{room_cycles} cycles watched, expected about {expected}");
+    for clients in room["clients"].as_array().expect("control_room.clients") {
+        assert_eq!(clients["errors"], serde_json::json!([]), "control-room clients: {clients}");
+        assert!(clients["foxglove_stalled"].as_bool() == Some(true), "the stalled client connected: {clients}");
+        assert!(clients["foxglove_read"].as_u64().is_some_and(|n| n > 100), "the reading client read: {clients}");
+        assert!(
+            clients["foxglove_dropped_after"].as_u64().is_some_and(|n| n > 0),
+            "the dropping client read first: {clients}"
+        );
+        assert!(
+            clients["zenoh_received"].as_u64().is_some_and(|n| n > 100),
+            "the Zenoh subscriber got samples: {clients}"
+        );
+        assert_eq!(clients["zenoh_gaps"].as_u64(), Some(0), "the Zenoh subscriber lost samples: {clients}");
+    }
+    // SAFETY: geteuid has no preconditions.
+    if unsafe { libc::geteuid() } == 0 {
+        assert_eq!(room["lost"].as_u64(), Some(0), "samples lost with the control room attached: {room}");
     }
     for file in [plot.clone(), plot.with_extension("svg")] {
         let size = std::fs::metadata(&file).map(|m| m.len()).unwrap_or(0);

@@ -33,6 +33,7 @@ use jetbench_stack::supervise::describe_exit;
 use serde::Serialize;
 
 use crate::chain::{run_chain, stage_rt_requests, ChainError, ChainOptions, ChainRun, HOPS as FLOOR_HOPS};
+use crate::control_room::{ControlRoom, ControlRoomReport};
 use crate::load::{Load, LoadError, LoadKind};
 use crate::pipeline::{analyse_pipeline, LatencyHistogram, Percentiles, PipelineAnalysis, HOPS};
 use crate::steal::{steal_ms_per_cpu, StealSampler};
@@ -57,6 +58,10 @@ pub struct CampaignOptions {
     /// The `jetbench` binary: it runs the service sets (`up`), the floor's
     /// stages (`latency-stage`) and the built-in load (`latency-load`).
     pub exe: PathBuf,
+    /// Also measure the service set over iceoryx2 with the control room
+    /// attached: the viewer and the bridge running, with Foxglove clients that
+    /// read, never read and disconnect, and a Zenoh subscriber ([`crate::control_room`]).
+    pub control_room: bool,
 }
 
 /// Why a run could not be measured.
@@ -104,29 +109,31 @@ pub trait Progress {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Measurement {
     Pipeline(Transport),
+    /// The iceoryx2 set with the viewer, the bridge and their clients.
+    ControlRoom,
     Floor,
 }
 
 impl Measurement {
     /// Round `r` measures in this order; odd rounds reverse it, so drift
     /// over the run favours none of them.
-    fn order(round: u32) -> [Measurement; 3] {
-        let forward = [
-            Measurement::Pipeline(Transport::Iceoryx2),
-            Measurement::Pipeline(Transport::UnixSockets),
-            Measurement::Floor,
-        ];
-        if round.is_multiple_of(2) {
-            forward
-        } else {
-            [forward[2], forward[1], forward[0]]
+    fn order(round: u32, control_room: bool) -> Vec<Measurement> {
+        let mut order = vec![Measurement::Pipeline(Transport::Iceoryx2)];
+        if control_room {
+            order.push(Measurement::ControlRoom);
         }
+        order.extend([Measurement::Pipeline(Transport::UnixSockets), Measurement::Floor]);
+        if !round.is_multiple_of(2) {
+            order.reverse();
+        }
+        order
     }
 
     fn describe(self) -> &'static str {
         match self {
             Measurement::Pipeline(Transport::Iceoryx2) => "service set over iceoryx2",
             Measurement::Pipeline(Transport::UnixSockets) => "service set over Unix sockets",
+            Measurement::ControlRoom => "iceoryx2 set, control room attached",
             Measurement::Floor => "floor: eventfd ping chain",
         }
     }
@@ -208,6 +215,9 @@ pub struct Report {
     /// 20 ms after the hypervisor took a CPU (a bench PC has no hypervisor).
     pub misses_during_steal: u64,
     pub ratios: Ratios,
+    /// The iceoryx2 set with the control room attached (`--control-room`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub control_room: Option<ControlRoomCost>,
 }
 
 #[derive(Serialize)]
@@ -226,6 +236,75 @@ pub struct Campaign {
     pub iceoryx2: PipelineAnalysis,
     pub uds: PipelineAnalysis,
     pub floor: FloorResult,
+    /// The iceoryx2 set with the control room attached (`--control-room`).
+    pub control_room: Option<PipelineAnalysis>,
+}
+
+/// Where the control room of one run connects: a Foxglove port and a Zenoh
+/// endpoint on this machine, free when reserved.
+struct Room {
+    foxglove: std::net::SocketAddr,
+    zenoh: String,
+}
+
+impl Room {
+    fn new() -> std::io::Result<Room> {
+        let free = || std::net::TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr());
+        Ok(Room { foxglove: free()?, zenoh: format!("tcp/{}", free()?) })
+    }
+
+    /// The arguments of `jetbench up` that start the viewer and the bridge there.
+    fn up_args(&self) -> Vec<String> {
+        vec!["--foxglove".into(), self.foxglove.to_string(), "--zenoh".into(), self.zenoh.clone()]
+    }
+
+    /// The clients, connecting as soon as the services are up.
+    fn attach(&self) -> ControlRoom {
+        let endpoint = self.zenoh.parse().expect("a tcp/HOST:PORT endpoint made here");
+        ControlRoom::attach(
+            self.foxglove,
+            endpoint,
+            jetbench_bus::namespace_name().unwrap_or_else(|_| "default".into()),
+        )
+    }
+}
+
+/// What watching the bench cost the loop: the iceoryx2 set with the control
+/// room attached against the same set without it, from the same rounds.
+#[derive(Serialize)]
+pub struct ControlRoomCost {
+    pub e2e_us: Percentiles,
+    pub cycles: u64,
+    pub deadline_misses: u64,
+    pub lost: u64,
+    pub service_deadline_misses: BTreeMap<String, u64>,
+    /// Deadline misses per 1000 cycles with the control room, and without it.
+    pub misses_per_1000: f64,
+    pub misses_per_1000_without: f64,
+    /// p99 with / p99 without.
+    pub e2e_p99_ratio: f64,
+    pub e2e_p50_ratio: f64,
+    /// What the clients did, one per round.
+    pub clients: Vec<ControlRoomReport>,
+}
+
+impl ControlRoomCost {
+    fn of(watched: &PipelineAnalysis, plain: &PipelineAnalysis, clients: &[ControlRoomReport]) -> Self {
+        let (with, without) = (watched.e2e.percentiles(), plain.e2e.percentiles());
+        let per_1000 = |p: &PipelineAnalysis| 1000.0 * p.deadline_misses() as f64 / p.cycles.max(1) as f64;
+        ControlRoomCost {
+            e2e_us: with,
+            cycles: watched.cycles,
+            deadline_misses: watched.deadline_misses(),
+            lost: watched.lost(),
+            service_deadline_misses: watched.service_deadline_misses.clone(),
+            misses_per_1000: per_1000(watched),
+            misses_per_1000_without: per_1000(plain),
+            e2e_p99_ratio: ratio(with.p99, without.p99),
+            e2e_p50_ratio: ratio(with.p50, without.p50),
+            clients: clients.to_vec(),
+        }
+    }
 }
 
 impl Campaign {
@@ -292,29 +371,52 @@ pub fn run_campaign(options: &CampaignOptions, progress: &mut dyn Progress) -> R
     let steal_sampler = StealSampler::start();
     let (mut iceoryx2, mut uds, mut floor) =
         (PipelineAnalysis::default(), PipelineAnalysis::default(), FloorResult::default());
+    let mut watched = options.control_room.then(|| (PipelineAnalysis::default(), Vec::new()));
     for round in 0..options.rounds {
-        for measurement in Measurement::order(round) {
+        for measurement in Measurement::order(round, options.control_room) {
             let what = format!("round {}/{}: {}", round + 1, options.rounds, measurement.describe());
-            match measurement {
-                Measurement::Pipeline(transport) => {
-                    let path = work.join(format!("{transport}-{}.mcap", round + 1));
-                    run_pipeline(options, &path, transport, segment_s, &what, progress)?;
-                    let recording = Recording::open(&path).map_err(|source| CampaignError::Recording {
-                        transport,
-                        path: path.clone(),
-                        source,
-                    })?;
-                    let analysis = analyse_pipeline(&recording, options.warmup_s);
-                    if analysis.completed == 0 {
-                        return Err(CampaignError::NoCycle { transport, path });
-                    }
-                    let total = if transport == Transport::Iceoryx2 { &mut iceoryx2 } else { &mut uds };
-                    total.merge(&analysis);
-                    if options.keep.is_none() {
-                        let _ = std::fs::remove_file(&path);
-                    }
+            let (transport, name) = match measurement {
+                Measurement::Floor => {
+                    floor.add(&run_floor(options, &config, segment_s, &what, progress)?);
+                    continue;
                 }
-                Measurement::Floor => floor.add(&run_floor(options, &config, segment_s, &what, progress)?),
+                Measurement::Pipeline(transport) => (transport, transport.name()),
+                Measurement::ControlRoom => (Transport::Iceoryx2, "control-room"),
+            };
+            let path = work.join(format!("{name}-{}.mcap", round + 1));
+            let clients = if measurement == Measurement::ControlRoom {
+                let room = Room::new().map_err(|source| CampaignError::Io {
+                    what: "reserve a port on",
+                    path: "127.0.0.1".into(),
+                    source,
+                })?;
+                let args = room.up_args();
+                let attached = room.attach();
+                run_pipeline(options, &path, transport, segment_s, &what, &args, progress)?;
+                Some(attached.finish())
+            } else {
+                run_pipeline(options, &path, transport, segment_s, &what, &[], progress)?;
+                None
+            };
+            let recording = Recording::open(&path).map_err(|source| CampaignError::Recording {
+                transport,
+                path: path.clone(),
+                source,
+            })?;
+            let analysis = analyse_pipeline(&recording, options.warmup_s);
+            if analysis.completed == 0 {
+                return Err(CampaignError::NoCycle { transport, path });
+            }
+            match (measurement, watched.as_mut(), clients) {
+                (Measurement::ControlRoom, Some((total, reports)), Some(clients)) => {
+                    total.merge(&analysis);
+                    reports.push(clients);
+                }
+                (Measurement::Pipeline(Transport::Iceoryx2), ..) => iceoryx2.merge(&analysis),
+                _ => uds.merge(&analysis),
+            }
+            if options.keep.is_none() {
+                let _ = std::fs::remove_file(&path);
             }
         }
     }
@@ -339,9 +441,10 @@ pub fn run_campaign(options: &CampaignOptions, progress: &mut dyn Progress) -> R
     for r in &floor.refused {
         add_once(&mut rt_refused, r);
     }
-    let report =
+    let mut report =
         build_report(options, load_description, rt_refused, &iceoryx2, &uds, &floor, steal_ms, misses_during_steal);
-    Ok(Campaign { report, iceoryx2, uds, floor })
+    report.control_room = watched.as_ref().map(|(pipeline, clients)| ControlRoomCost::of(pipeline, &iceoryx2, clients));
+    Ok(Campaign { report, iceoryx2, uds, floor, control_room: watched.map(|(pipeline, _)| pipeline) })
 }
 
 /// Waits for `finished` while a phase of `seconds` shows its progress.
@@ -395,6 +498,7 @@ fn run_pipeline(
     transport: Transport,
     seconds: f64,
     what: &str,
+    extra: &[String],
     progress: &mut dyn Progress,
 ) -> Result<(), CampaignError> {
     let seconds = options.warmup_s + seconds;
@@ -402,7 +506,8 @@ fn run_pipeline(
     command
         .args(["up", "--sim", "--quiet", "--transport", transport.name(), "--duration", &seconds.to_string()])
         .arg("--record")
-        .arg(recording);
+        .arg(recording)
+        .args(extra);
     if let Some(config) = &options.config {
         command.arg("--config").arg(config);
     }
@@ -511,6 +616,7 @@ fn build_report(
             e2e_p50_over_uds_p50: ratio(e2e.p50, uds_e2e.p50),
             e2e_p99_over_uds_p99: ratio(e2e.p99, uds_e2e.p99),
         },
+        control_room: None,
     }
 }
 
@@ -536,6 +642,9 @@ impl fmt::Display for Report {
             writeln!(f, "  hop {name:<37}{}", p.row())?;
         }
         writeln!(f, "  sensing period jitter                  {}", r.period_jitter_us.row())?;
+        if let Some(room) = &r.control_room {
+            writeln!(f, "same set, control room attached         {}", room.e2e_us.row())?;
+        }
         writeln!(f, "same service set over Unix sockets      {}", r.uds_us.row())?;
         for (name, p) in &r.uds.hops_us {
             writeln!(f, "  hop {name:<37}{}", p.row())?;
@@ -573,6 +682,27 @@ impl fmt::Display for Report {
                 r.misses_during_steal
             )?;
         }
+        if let Some(room) = &r.control_room {
+            let errors: Vec<&String> = room.clients.iter().flat_map(|c| &c.errors).collect();
+            writeln!(
+                f,
+                "control room attached (viewer, bridge; Foxglove clients that read, never read and disconnect; a \
+                 Zenoh subscriber): cycles {}, deadline misses {} ({:.2} per 1000 cycles, {:.2} without), lost {}; \
+                 e2e p50 {:.2}x, p99 {:.2}x the set without it; the clients read {} Foxglove messages and {} Zenoh \
+                 samples ({} lost){}",
+                room.cycles,
+                room.deadline_misses,
+                room.misses_per_1000,
+                room.misses_per_1000_without,
+                room.lost,
+                room.e2e_p50_ratio,
+                room.e2e_p99_ratio,
+                room.clients.iter().map(|c| c.foxglove_read).sum::<u64>(),
+                room.clients.iter().map(|c| c.zenoh_received).sum::<u64>(),
+                room.clients.iter().map(|c| c.zenoh_gaps).sum::<u64>(),
+                if errors.is_empty() { String::new() } else { format!("; client errors: {errors:?}") },
+            )?;
+        }
         writeln!(
             f,
             "ratios: iceoryx2 to the floor p99 {:.2} (p50 {:.2}); iceoryx2 to Unix sockets p50 {:.2}, p99 {:.2}",
@@ -590,9 +720,12 @@ mod tests {
 
     #[test]
     fn rounds_alternate_the_order_of_the_three() {
-        assert_eq!(Measurement::order(0)[0], Measurement::Pipeline(Transport::Iceoryx2));
-        assert_eq!(Measurement::order(1)[0], Measurement::Floor);
-        assert_eq!(Measurement::order(1)[2], Measurement::Pipeline(Transport::Iceoryx2));
+        assert_eq!(Measurement::order(0, false)[0], Measurement::Pipeline(Transport::Iceoryx2));
+        assert_eq!(Measurement::order(1, false)[0], Measurement::Floor);
+        assert_eq!(Measurement::order(1, false)[2], Measurement::Pipeline(Transport::Iceoryx2));
+        // The control room right after the plain iceoryx2 set (before it in odd rounds).
+        assert_eq!(Measurement::order(0, true)[1], Measurement::ControlRoom);
+        assert_eq!(Measurement::order(1, true)[2], Measurement::ControlRoom);
     }
 
     #[test]
@@ -606,6 +739,7 @@ mod tests {
             config: None,
             keep: None,
             exe: PathBuf::from("/nonexistent"),
+            control_room: false,
         };
         assert!(matches!(options.check(), Err(CampaignError::Options(m)) if m.contains("--rounds 4")));
         assert!(CampaignOptions { rounds: 2, ..options.clone() }.check().is_ok());

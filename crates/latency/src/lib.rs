@@ -8,6 +8,8 @@
 //! - [`chain`]: the machine's floor, a bare eventfd ping through four
 //!   processes at the services' real-time settings;
 //! - [`load`]: the background load (stress-ng, or a built-in generator);
+//! - [`control_room`]: the Foxglove and Zenoh clients attached to a run, to
+//!   measure what watching the bench costs the loop;
 //! - [`steal`]: the hypervisor's steal, sampled while measuring.
 //!
 //! ```no_run
@@ -25,6 +27,7 @@
 
 pub mod campaign;
 pub mod chain;
+pub mod control_room;
 pub mod load;
 pub mod pipeline;
 pub mod steal;

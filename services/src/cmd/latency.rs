@@ -45,6 +45,11 @@ pub struct LatencyArgs {
     /// Rounds the duration is split into; each measures all three in turn.
     #[arg(long, value_name = "N", default_value_t = 2)]
     rounds: u32,
+    /// Also measure the iceoryx2 set with the control room attached: the Foxglove
+    /// viewer and the Zenoh bridge running, Foxglove clients that read everything,
+    /// never read, and disconnect mid-stream, and a Zenoh subscriber of every channel.
+    #[arg(long)]
+    control_room: bool,
 }
 
 fn load_kind(s: &str) -> Result<LoadKind, String> {
@@ -124,6 +129,7 @@ pub fn run(args: LatencyArgs) -> anyhow::Result<ExitCode> {
         config: args.config.clone(),
         keep: args.keep.clone(),
         exe: std::env::current_exe().context("cannot locate the jetbench binary")?,
+        control_room: args.control_room,
     };
     let mut bars = Bars { bar: ProgressBar::hidden(), live: std::io::stderr().is_terminal() };
     let campaign = run_campaign(&options, &mut bars)?;
