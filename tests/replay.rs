@@ -119,6 +119,66 @@ fn a_live_run_replays_bit_for_bit() {
     }
 }
 
+/// `recording` as the recorder wrote it before log times were wall-clock time:
+/// every `log_time` on `CLOCK_MONOTONIC` (the sample's stamp, as it received it
+/// then), and no `log_time_clock` in the metadata.
+fn as_before_wall_clock_log_times(recording: &Recording, path: &Path) {
+    let mut writer = McapWriter::create(path).expect("create");
+    for (name, entries) in &recording.metadata {
+        let mut entries = entries.clone();
+        entries.remove(jetbench_record::meta::KEY_LOG_TIME_CLOCK);
+        writer.write_metadata(name, entries).expect("metadata");
+    }
+    for m in &recording.messages {
+        let body = &m.data[jetbench_msgs::CDR_HEADER.len()..];
+        let seq = u64::from_le_bytes(body[..8].try_into().expect("a seq"));
+        let channel = m.topic.trim_start_matches('/');
+        writer.write_raw(channel, seq, m.publish_time_ns, m.publish_time_ns, body).expect("write");
+    }
+    writer.finish().expect("finish");
+}
+
+#[test]
+fn a_recording_from_before_wall_clock_log_times_replays_identifies_and_dates_alike() {
+    let run_mcap = live_recording();
+    let recorded = Recording::open(run_mcap).expect("read the live recording");
+    let old = scratch("before-wall-clock.mcap");
+    as_before_wall_clock_log_times(&recorded, &old);
+    let old_recording = Recording::open(&old).expect("read it back");
+    assert!(old_recording.messages[0].log_time_ns < 1_000_000_000_000_000_000, "monotonic log times");
+
+    // Replay: bit for bit, as the new file.
+    let (code, out, err) = replay_cmd(&[&old]);
+    assert_eq!(code, Some(0), "an old recording must replay bit for bit\n{out}\n{err}");
+    assert_eq!(summary_count(&out, "identical:"), summary_count(&out, "compared:"), "{out}");
+    // Identification: the same data, so the same model.
+    let identify = |file: &Path| {
+        let mut command = jetbench();
+        command.args(["identify", "--method", "ls", "--json"]).arg(file);
+        let (code, out, err) = run(&mut command, Duration::from_secs(120), "jetbench identify");
+        assert_eq!(code, Some(0), "identify {}: {err}", file.display());
+        serde_json::from_str::<Value>(&out).expect("JSON")["methods"]["ls"]["params"].clone()
+    };
+    assert_eq!(identify(&old), identify(run_mcap), "the old and the new file identify alike");
+    // Dated: both show the run's start at the same wall-clock time (to the ms).
+    let start = |file: &Path| {
+        let mut command = jetbench();
+        command.arg("info").arg(file);
+        let (code, out, err) = run(&mut command, Duration::from_secs(30), "jetbench info");
+        assert_eq!(code, Some(0), "{err}");
+        out.lines().find_map(|l| l.trim().strip_prefix("start ").map(str::to_string)).expect("a start line")
+    };
+    let (old_start, new_start) = (start(&old), start(run_mcap));
+    assert!(old_start.starts_with("20") && !old_start.contains("unknown"), "{old_start}");
+    // The old file's first log time is the first sample's stamp, a few ms before the recorder logged it.
+    let seconds_of_day = |t: &str| -> f64 {
+        let clock = t.split(' ').nth(1).expect("HH:MM:SS.mmm");
+        clock.split(':').zip([3600.0, 60.0, 1.0]).map(|(v, unit)| v.parse::<f64>().expect("a number") * unit).sum()
+    };
+    let apart_s = (seconds_of_day(&old_start) - seconds_of_day(&new_start)).abs();
+    assert!(apart_s < 1.0 && old_start[..10] == new_start[..10], "old {old_start}, new {new_start}");
+}
+
 #[test]
 fn a_given_config_and_a_truncated_file_still_replay() {
     let run_mcap = live_recording();
