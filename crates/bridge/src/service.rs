@@ -1,10 +1,8 @@
 //! The bridge as a service of the set: started by `jetbench up --zenoh`, run
-//! by the runtime's one runner (bus, ready, heartbeat), reading the bus on its
-//! own clock.
+//! by the runtime's one runner as a reader of every channel.
 
-use jetbench_bus::Wake;
 use jetbench_msgs::ServiceId;
-use jetbench_stack::service::{Context, Schedule, Service, ServiceError, Setup};
+use jetbench_stack::service::{ChannelReader, ServiceError, Setup};
 
 use crate::publish::POLL_PERIOD;
 use crate::{Bridge, BridgeError, Endpoint, DEFAULT_ENDPOINT};
@@ -20,31 +18,27 @@ pub struct ZenohBridge {
     bridge: Bridge,
 }
 
-impl Service for ZenohBridge {
+impl ChannelReader for ZenohBridge {
     const ID: ServiceId = ServiceId::Bridge;
-    type Inputs = ();
+    const PERIOD: std::time::Duration = POLL_PERIOD;
 
-    fn new(setup: &Setup<'_>) -> Result<(Self, ()), ServiceError> {
+    fn open(setup: &Setup<'_>) -> Result<Self, ServiceError> {
         let endpoint: Endpoint = setup.listen.unwrap_or(DEFAULT_ENDPOINT).parse()?;
         let namespace = jetbench_bus::namespace_name()?;
         let bridge = Bridge::open(setup.bus, &endpoint, &namespace)?;
         tracing::info!("publishing every channel on Zenoh {endpoint} under jetbench/{namespace}/");
-        Ok((ZenohBridge { bridge }, ()))
+        Ok(ZenohBridge { bridge })
     }
 
-    fn schedule(&self) -> Schedule {
-        Schedule::Tick(POLL_PERIOD)
+    fn pump(&mut self) -> Result<(), ServiceError> {
+        Ok(self.bridge.pump().map(|_| ())?)
     }
 
-    fn process(&mut self, _wake: Wake, _inputs: &(), ctx: &mut Context<'_>) -> Result<(), ServiceError> {
-        self.bridge.pump()?;
-        ctx.health().set_input_gaps(self.bridge.gaps());
-        ctx.cycle(false)?;
-        Ok(())
+    fn gaps(&self) -> u64 {
+        self.bridge.gaps()
     }
 
-    fn stop(&mut self, _inputs: &(), _ctx: &mut Context<'_>) -> Result<(), ServiceError> {
-        self.bridge.pump()?;
+    fn finish(&mut self) -> Result<(), ServiceError> {
         eprint!("{}", self.bridge.report());
         self.bridge.close();
         Ok(())

@@ -40,6 +40,7 @@ pub enum OpenError {
         #[source]
         source: NodeCreationFailure,
     },
+    /// The stop flag could not be installed.
     #[error("cannot install the SIGINT/SIGTERM handlers")]
     Signal(#[source] std::io::Error),
 }
@@ -144,12 +145,16 @@ pub enum ReceiveError {
 /// A wait loop could not wait.
 #[derive(Debug, thiserror::Error)]
 pub enum WaitError {
+    /// A polled subscriber was given as an input: nothing rings for it.
     #[error("a polled subscriber of {channel} cannot wake a loop (use Bus::subscriber)")]
     Polled { channel: String },
+    /// Doorbells and sockets cannot be waited on together.
     #[error("the inputs of one loop must share a transport")]
     MixedTransports,
+    /// More inputs than one wait takes.
     #[error("cannot wait on {count} inputs, at most {max}")]
     TooMany { count: usize, max: usize },
+    /// The kernel refused the wait.
     #[error("cannot wait")]
     Wait(#[source] std::io::Error),
 }
@@ -157,16 +162,22 @@ pub enum WaitError {
 /// Anything that failed on the bus.
 #[derive(Debug, thiserror::Error)]
 pub enum BusError {
+    /// [`EnvError`]: the namespace or transport asked for.
     #[error(transparent)]
     Env(#[from] EnvError),
+    /// [`OpenError`]: joining the bus.
     #[error(transparent)]
     Open(#[from] OpenError),
+    /// [`PortError`]: a publisher or subscriber.
     #[error(transparent)]
     Port(#[from] PortError),
+    /// [`SendError`]: a publish.
     #[error(transparent)]
     Send(#[from] SendError),
+    /// [`ReceiveError`]: a take.
     #[error(transparent)]
     Receive(#[from] ReceiveError),
+    /// [`WaitError`]: a wait.
     #[error(transparent)]
     Wait(#[from] WaitError),
 }

@@ -18,6 +18,14 @@ fn sample(i: u64) -> Thrust {
     Thrust { thrust_n: i as f64, stamp_ns: i + 1, ..Thrust::default() }
 }
 
+/// The test's own channel on `transport`, a bus, and a publisher on it.
+fn publishing(test: &str, transport: Transport) -> (Channel<Thrust>, Bus, jetbench_bus::Publisher<Thrust>) {
+    let channel = channel(test, transport);
+    let bus = Bus::open_with(&format!("bus-test-{test}"), transport).expect("bus");
+    let publisher = bus.publisher(channel).expect("publisher");
+    (channel, bus, publisher)
+}
+
 /// Takes everything queued now; returns how many.
 fn drain_count(reader: &jetbench_bus::Subscriber<Thrust>) -> u64 {
     let mut n = 0;
@@ -70,10 +78,8 @@ fn a_woken_consumer_gets_every_sample_in_order() {
 #[test]
 fn a_polled_reader_drains_what_was_published_and_finds_nothing_more() {
     for transport in TRANSPORTS {
-        let channel = channel("polled", transport);
-        let bus = Bus::open_with("bus-test-polled", transport).expect("bus");
+        let (channel, bus, mut publisher) = publishing("polled", transport);
         let reader = bus.polled_subscriber(channel, 64).expect("subscriber");
-        let mut publisher = bus.publisher(channel).expect("publisher");
         for i in 0..20 {
             publisher.publish(sample(i)).expect("publish");
         }
@@ -101,10 +107,8 @@ fn a_polled_reader_drains_what_was_published_and_finds_nothing_more() {
 #[test]
 fn a_full_queue_loses_samples_as_counted_gaps() {
     for transport in TRANSPORTS {
-        let channel = channel("overflow", transport);
-        let bus = Bus::open_with("bus-test-overflow", transport).expect("bus");
         // A subscriber that comes after its publisher is found by it.
-        let mut publisher = bus.publisher(channel).expect("publisher");
+        let (channel, bus, mut publisher) = publishing("overflow", transport);
         let reader = bus.polled_subscriber(channel, 4).expect("subscriber");
         std::thread::sleep(Duration::from_millis(150));
         // Gaps are counted from the first sample a subscriber sees.
@@ -127,9 +131,7 @@ fn a_full_queue_loses_samples_as_counted_gaps() {
 #[test]
 fn a_departed_subscriber_costs_its_publisher_nothing() {
     for transport in TRANSPORTS {
-        let channel = channel("departed", transport);
-        let bus = Bus::open_with("bus-test-departed", transport).expect("bus");
-        let mut publisher = bus.publisher(channel).expect("publisher");
+        let (channel, bus, mut publisher) = publishing("departed", transport);
         let keeper = bus.polled_subscriber(channel, 64).expect("subscriber");
         let leaver = bus.polled_subscriber(channel, 64).expect("subscriber");
         std::thread::sleep(Duration::from_millis(150));

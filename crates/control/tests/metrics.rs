@@ -259,32 +259,29 @@ fn sines_and_chirps_have_no_holds_but_all_other_figures() {
     }
 }
 
+/// `duration_s` of a constant reference, the thrust at `before_n` until `switch_s`, then at `after_n`.
+fn held(duration_s: f64, reference_n: f64, switch_s: f64, before_n: f64, after_n: f64) -> Vec<TrackingSample> {
+    run(duration_s, |t_s| TrackingSample {
+        reference_n,
+        thrust_n: if t_s < switch_s { before_n } else { after_n },
+        ..TrackingSample::default()
+    })
+}
+
 #[test]
 fn the_tracking_band_has_a_floor_near_zero_thrust() {
     // At 10 N, 5 % is 0.5 N; the 1 N floor widens it. Half the samples 0.8 N off, half 1.2 N.
-    let samples = run(4.0, |t_s| TrackingSample {
-        reference_n: 10.0,
-        thrust_n: if t_s < 2.0 { 9.2 } else { 8.8 },
-        ..TrackingSample::default()
-    });
+    let samples = held(4.0, 10.0, 2.0, 9.2, 8.8);
     assert_close(metrics(&samples).within_5pct, 50.0, 1e-9, "within the floor");
     // At 100 N the 5 % band (5 N) applies.
-    let samples = run(4.0, |t_s| TrackingSample {
-        reference_n: 100.0,
-        thrust_n: if t_s < 1.0 { 94.0 } else { 96.0 },
-        ..TrackingSample::default()
-    });
+    let samples = held(4.0, 100.0, 1.0, 94.0, 96.0);
     assert_close(metrics(&samples).within_5pct, 75.0, 1e-9, "within 5 %");
 }
 
 #[test]
 fn skip_leaves_out_the_start_up_transient() {
     // 50 N reference; the first second the thrust is 50 N short, then on it.
-    let samples = run(5.0, |t_s| TrackingSample {
-        reference_n: 50.0,
-        thrust_n: if t_s < 1.0 { 0.0 } else { 50.0 },
-        ..TrackingSample::default()
-    });
+    let samples = held(5.0, 50.0, 1.0, 0.0, 50.0);
     assert_close(metrics(&samples).mae_n, 10.0, 1e-9, "with the transient");
     let skipped = tracking_metrics(&samples, &MetricsOptions { skip_s: 1.0, ..MetricsOptions::default() }).unwrap();
     assert_eq!(skipped.mae_n, 0.0);

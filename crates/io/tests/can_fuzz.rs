@@ -88,36 +88,59 @@ fn report(what: &str, n: u64, pairs: u64, counts: &jetbench_io::can::RejectCount
     println!("{what}: {n} inputs in {s:.2} s ({:.1} M/s), {pairs} readings; {counts}", n as f64 / s / 1e6);
 }
 
-#[test]
-fn random_and_mutated_frame_bytes() {
-    let mut rng = ChaCha8Rng::seed_from_u64(0x5eed_0001);
-    let n = iterations();
+/// A seeded stream of `iterations()` inputs into `input` (cleared each time):
+/// noise with probability `noise` (`noise_bytes` long), else the next valid one
+/// (`valid(rng, k, n_valid, input)`), mutated with probability 0.3; each goes to
+/// `decode(k, input)`. The time it started, for the report.
+fn hammer(
+    seed: u64,
+    noise: f64,
+    noise_bytes: usize,
+    mut valid: impl FnMut(&mut ChaCha8Rng, u64, u64, &mut Vec<u8>),
+    mutate: fn(&mut ChaCha8Rng, &mut Vec<u8>),
+    mut decode: impl FnMut(u64, &[u8]),
+) -> Instant {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let started = Instant::now();
-    let mut d = FrameDecoder::new(codec());
-    let mut buf = Vec::with_capacity(64);
-    let mut valid = 0;
-    for k in 0..n {
-        buf.clear();
-        if rng.random_bool(0.2) {
-            // Pure noise of any length around a frame's.
-            buf.resize(rng.random_range(0..2 * CAN_FRAME_BYTES), 0);
-            rng.fill_bytes(&mut buf);
+    let mut input = Vec::with_capacity(64);
+    let mut n_valid = 0;
+    for k in 0..iterations() {
+        input.clear();
+        if rng.random_bool(noise) {
+            input.resize(rng.random_range(0..noise_bytes), 0);
+            rng.fill_bytes(&mut input);
         } else {
-            buf.extend_from_slice(&valid_frame(&mut rng, valid).to_bytes());
-            valid += 1;
+            valid(&mut rng, k, n_valid, &mut input);
+            n_valid += 1;
             if rng.random_bool(0.3) {
-                mutate_bytes(&mut rng, &mut buf);
+                mutate(&mut rng, &mut input);
             }
         }
-        match CanFrame::from_bytes(&buf) {
+        decode(k, &input);
+    }
+    started
+}
+
+#[test]
+fn random_and_mutated_frame_bytes() {
+    let n = iterations();
+    let mut d = FrameDecoder::new(codec());
+    // Pure noise of any length around a frame's.
+    let started = hammer(
+        0x5eed_0001,
+        0.2,
+        2 * CAN_FRAME_BYTES,
+        |rng, _, valid, buf| buf.extend_from_slice(&valid_frame(rng, valid).to_bytes()),
+        mutate_bytes,
+        |k, buf| match CanFrame::from_bytes(buf) {
             Ok(frame) => {
                 if let Some(r) = d.push(&frame, k) {
                     assert!(r.at < k, "a reading is tagged with its first frame");
                 }
             }
             Err(kind) => d.reject(kind),
-        }
-    }
+        },
+    );
     d.finish();
     let c = d.counts();
     report("frame bytes", n, d.pairs_out(), c, started);
@@ -141,29 +164,23 @@ fn random_and_mutated_frame_bytes() {
 
 #[test]
 fn random_and_mutated_candump_lines() {
-    let mut rng = ChaCha8Rng::seed_from_u64(0x5eed_0002);
     let n = iterations();
-    let started = Instant::now();
     let mut log = CandumpDecoder::new(codec());
-    let mut line = Vec::with_capacity(64);
-    let mut valid = 0;
-    for k in 0..n {
-        line.clear();
-        if rng.random_bool(0.1) {
-            line.resize(rng.random_range(0..48), 0);
-            rng.fill_bytes(&mut line);
-            line.retain(|b| *b != b'\n');
-        } else {
+    let started = hammer(
+        0x5eed_0002,
+        0.1,
+        48,
+        |rng, k, valid, line| {
             let time = Timestamp { secs: 1_700_000_000 + k / 100_000, micros: (k % 100_000 * 10) as u32 };
-            line.extend_from_slice(format_line(time, "can0", &valid_frame(&mut rng, valid)).as_bytes());
-            valid += 1;
-            if rng.random_bool(0.3) {
-                mutate_text(&mut rng, &mut line);
-                line.retain(|b| *b != b'\n');
-            }
-        }
-        log.push_bytes(&line);
-    }
+            line.extend_from_slice(format_line(time, "can0", &valid_frame(rng, valid)).as_bytes());
+        },
+        mutate_text,
+        // One line per input: a newline inside is not this input's.
+        |_, line| {
+            let line: Vec<u8> = line.iter().copied().filter(|b| *b != b'\n').collect();
+            log.push_bytes(&line);
+        },
+    );
     log.finish();
     let c = log.counts();
     report("candump lines", n, log.pairs_out(), c, started);

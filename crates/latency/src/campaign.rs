@@ -67,14 +67,19 @@ pub struct CampaignOptions {
 /// Why a run could not be measured.
 #[derive(Debug, thiserror::Error)]
 pub enum CampaignError {
+    /// Options that leave nothing to measure.
     #[error("{0}")]
     Options(String),
+    /// The bench config does not load.
     #[error(transparent)]
     Config(#[from] ConfigError),
+    /// The background load did not start.
     #[error(transparent)]
     Load(#[from] LoadError),
+    /// A file or folder of the run.
     #[error("cannot {what} {path}: {source}")]
     Io { what: &'static str, path: PathBuf, source: std::io::Error },
+    /// `jetbench up` did not start.
     #[error("cannot start `jetbench up` from {exe}: {source}")]
     Launch { exe: PathBuf, source: std::io::Error },
     #[error("the service set over {transport} failed ({how}); its log is above{}",

@@ -14,10 +14,13 @@ pub const DEFAULT_SIM_CONFIG: &str = include_str!("../../../config/sim.toml");
 /// Why a configuration is unusable.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
+    /// The file cannot be read.
     #[error("cannot read the bench config {path}: {source}")]
     Read { path: PathBuf, source: std::io::Error },
+    /// Not TOML, or a key that does not exist (the message names it).
     #[error("bench config {origin}: {message}")]
     Parse { origin: String, message: String },
+    /// A value out of range, or settings that contradict each other.
     #[error("bench config {origin}: {message}")]
     Invalid { origin: String, message: String },
 }

@@ -26,12 +26,16 @@ use crate::step::{Actuator, Control, Estimation, Sensing, SimBench, SimError};
 /// Why [`synthetic_recording`] failed.
 #[derive(Debug, thiserror::Error)]
 pub enum SyntheticError {
+    /// The config's model or plant does not load, or the plant diverged.
     #[error(transparent)]
     Model(#[from] ModelError),
+    /// The simulated sensor's settings are unusable.
     #[error(transparent)]
     Sim(#[from] SimError),
+    /// The control law or its throttle profile cannot be set up.
     #[error(transparent)]
     ControlSetup(#[from] crate::config::ControlSetupError),
+    /// A step refused what the previous one gave it.
     #[error("cycle {cycle}: {service} rejected its input: {message}")]
     Step { cycle: usize, service: &'static str, message: String },
 }

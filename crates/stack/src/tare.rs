@@ -35,16 +35,21 @@ use crate::step::SimError;
 /// Why a tare failed.
 #[derive(Debug, thiserror::Error)]
 pub enum TareError {
+    /// The `[sensor]` settings are unusable.
     #[error("{0}")]
     Setup(String),
+    /// The CAN interface or the simulated sensor's bus.
     #[error(transparent)]
     Device(#[from] DeviceError),
+    /// The simulated sensor's noise.
     #[error(transparent)]
     Sim(#[from] SimError),
+    /// The sensor said nothing.
     #[error("no readings from the sensor on {interface} for 1 s ({counts}): is it powered and is the interface up?")]
     Silent { interface: CanInterface, counts: RejectCounts },
     #[error("no readings to average: {0}")]
     NoReadings(String),
+    /// The config file to write the tare into.
     #[error("cannot read {path}: {source}")]
     Read { path: PathBuf, source: std::io::Error },
     #[error("{path} is not TOML that can be edited: {message}")]

@@ -55,8 +55,10 @@ pub enum ViewerError {
     Channel { topic: String, source: foxglove::FoxgloveError },
     #[error("playback rate {0} must be a positive number (1 = real time)")]
     Rate(f64),
+    /// Reading the live bus.
     #[error(transparent)]
     Bus(#[from] BusError),
+    /// Reading the recording to play.
     #[error(transparent)]
     Record(#[from] RecordError),
 }

@@ -1,10 +1,8 @@
 //! The viewer as a service of the set: started by `jetbench up --foxglove`,
-//! run by the runtime's one runner (bus, ready, heartbeat), reading the bus on
-//! its own clock.
+//! run by the runtime's one runner as a reader of every channel.
 
-use jetbench_bus::Wake;
 use jetbench_msgs::ServiceId;
-use jetbench_stack::service::{Context, Schedule, Service, ServiceError, Setup};
+use jetbench_stack::service::{ChannelReader, ServiceError, Setup};
 
 use crate::{FoxgloveServer, LiveView, ServerOptions, ViewerError, DEFAULT_ADDR, POLL_PERIOD};
 
@@ -19,30 +17,26 @@ pub struct Viewer {
     view: LiveView,
 }
 
-impl Service for Viewer {
+impl ChannelReader for Viewer {
     const ID: ServiceId = ServiceId::Viewer;
-    type Inputs = ();
+    const PERIOD: std::time::Duration = POLL_PERIOD;
 
-    fn new(setup: &Setup<'_>) -> Result<(Self, ()), ServiceError> {
+    fn open(setup: &Setup<'_>) -> Result<Self, ServiceError> {
         let server = FoxgloveServer::start(setup.listen.unwrap_or(DEFAULT_ADDR), &ServerOptions::default())?;
         let view = LiveView::open(setup.bus, server)?;
         tracing::info!("Foxglove live view on {}", view.server().url());
-        Ok((Viewer { view }, ()))
+        Ok(Viewer { view })
     }
 
-    fn schedule(&self) -> Schedule {
-        Schedule::Tick(POLL_PERIOD)
+    fn pump(&mut self) -> Result<(), ServiceError> {
+        Ok(self.view.pump().map(|_| ())?)
     }
 
-    fn process(&mut self, _wake: Wake, _inputs: &(), ctx: &mut Context<'_>) -> Result<(), ServiceError> {
-        self.view.pump()?;
-        ctx.health().set_input_gaps(self.view.gaps());
-        ctx.cycle(false)?;
-        Ok(())
+    fn gaps(&self) -> u64 {
+        self.view.gaps()
     }
 
-    fn stop(&mut self, _inputs: &(), _ctx: &mut Context<'_>) -> Result<(), ServiceError> {
-        self.view.pump()?;
+    fn finish(&mut self) -> Result<(), ServiceError> {
         eprint!("{}", self.view.report());
         self.view.stop();
         Ok(())

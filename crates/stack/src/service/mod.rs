@@ -66,6 +66,7 @@ use crate::step::SimError;
 mod actuation;
 mod control;
 mod estimation;
+mod reader;
 mod recorder;
 mod sensing;
 mod sim_bench;
@@ -73,6 +74,7 @@ mod sim_bench;
 pub use actuation::Actuation;
 pub use control::Control;
 pub use estimation::Estimation;
+pub use reader::{ChannelReader, Reader};
 pub use recorder::{ChannelReport, Recorder, RecorderReport};
 pub use sensing::Sensing;
 pub use sim_bench::{SimBench, SENSOR_UNPLUGGED_FILE};
@@ -80,18 +82,25 @@ pub use sim_bench::{SimBench, SENSOR_UNPLUGGED_FILE};
 /// Why a service stopped with an error.
 #[derive(Debug, thiserror::Error)]
 pub enum ServiceError {
+    /// The bus: opening it, a port, a publish, a receive or a wait.
     #[error(transparent)]
     Bus(#[from] BusError),
+    /// The bench config does not load.
     #[error(transparent)]
     Config(#[from] ConfigError),
+    /// A device: the CAN sensor, the throttle board, the ECU, their emulators.
     #[error(transparent)]
     Device(#[from] DeviceError),
+    /// A model file does not load, or the simulated engine diverged.
     #[error(transparent)]
     Model(#[from] jetbench_model::ModelError),
+    /// The simulated sensor's settings are unusable.
     #[error(transparent)]
     Sim(#[from] SimError),
+    /// The recording cannot be written.
     #[error(transparent)]
     Record(#[from] RecordError),
+    /// The control law or its throttle profile cannot be set up.
     #[error(transparent)]
     ControlSetup(#[from] crate::config::ControlSetupError),
     /// A setting that the config checks cannot catch (e.g. a CAN interface this

@@ -1,17 +1,16 @@
 //! The recorder: every channel into one MCAP file.
 
 use jetbench_bus::tap::Tap;
-use jetbench_bus::Wake;
 use jetbench_msgs::ServiceId;
 use jetbench_record::clock::ClockOrigin;
 use jetbench_record::meta::RunMetadata;
 use jetbench_record::{spawn_writer, RawRecord, RecordError, WriterHandle};
 
-use super::{Context, Schedule, Service, ServiceError, Setup};
-use crate::clock::{realtime_ns, PERIOD};
+use super::{ChannelReader, ServiceError, Setup};
+use crate::clock::realtime_ns;
 
-/// The recorder: every channel read by a polled subscriber on the recorder's
-/// own clock ([`Tap`]), handed to a writer thread through a bounded queue that
+/// The recorder (run as [`Reader<Recorder>`](super::Reader)): every channel read
+/// by a polled subscriber on the recorder's own clock ([`Tap`]), handed to a writer thread through a bounded queue that
 /// never waits on the disk. `log_time` is the wall clock at receive (viewers
 /// date the run when it happened); the samples keep their monotonic stamps,
 /// which are also the messages' `publish_time`.
@@ -47,11 +46,10 @@ fn drain(tap: &Tap, writer: &mut WriterHandle) -> Result<(), ServiceError> {
     failure.map_or(Ok(()), |e| Err(e.into()))
 }
 
-impl Service for Recorder {
+impl ChannelReader for Recorder {
     const ID: ServiceId = ServiceId::Recorder;
-    type Inputs = ();
 
-    fn new(setup: &Setup<'_>) -> Result<(Self, ()), ServiceError> {
+    fn open(setup: &Setup<'_>) -> Result<Self, ServiceError> {
         let path = setup.output.ok_or_else(|| ServiceError::Setup("the recorder needs --out FILE.mcap".into()))?;
         // The deepest queue a channel allows: the recorder must never drop.
         let tap = Tap::open(setup.bus, Tap::DEPTH)?;
@@ -66,28 +64,23 @@ impl Service for Recorder {
         };
         let writer = spawn_writer(path, setup.config.recorder.queue, vec![run.record()])?;
         tracing::info!("recording {} channels to {}", tap.counts().len(), path.display());
-        Ok((Recorder { tap, writer: Some(writer) }, ()))
+        Ok(Recorder { tap, writer: Some(writer) })
     }
 
-    fn schedule(&self) -> Schedule {
-        Schedule::Tick(PERIOD)
-    }
-
-    fn process(&mut self, wake: Wake, _inputs: &(), ctx: &mut Context<'_>) -> Result<(), ServiceError> {
-        if wake != Wake::Tick {
-            return Ok(());
+    fn pump(&mut self) -> Result<(), ServiceError> {
+        match self.writer.as_mut() {
+            Some(writer) => drain(&self.tap, writer),
+            None => Ok(()),
         }
-        let Some(writer) = self.writer.as_mut() else { return Ok(()) };
-        drain(&self.tap, writer)?;
-        ctx.health().set_input_gaps(self.tap.gaps());
-        ctx.cycle(false)?;
-        Ok(())
     }
 
-    /// Takes what arrived while stopping, closes the file and prints what was recorded.
-    fn stop(&mut self, _inputs: &(), _ctx: &mut Context<'_>) -> Result<(), ServiceError> {
-        let Some(mut writer) = self.writer.take() else { return Ok(()) };
-        drain(&self.tap, &mut writer)?;
+    fn gaps(&self) -> u64 {
+        self.tap.gaps()
+    }
+
+    /// Closes the file and prints what was recorded.
+    fn finish(&mut self) -> Result<(), ServiceError> {
+        let Some(writer) = self.writer.take() else { return Ok(()) };
         let dropped_full = writer.dropped_full;
         let stats = writer.finish()?;
         let report = RecorderReport {
