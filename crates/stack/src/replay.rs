@@ -105,7 +105,7 @@ pub struct EstimatorSetup {
 }
 
 impl EstimatorSetup {
-    /// The estimator of a bench config, as `run_estimation` builds it.
+    /// The estimator of a bench config, as the estimation service builds it.
     pub fn from_config(config: &BenchConfig) -> Result<Self, ModelError> {
         Ok(EstimatorSetup { params: config.model_params()?, observer: config.estimator.observer_config() })
     }
