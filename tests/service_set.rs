@@ -320,6 +320,28 @@ fn killing_control_idles_actuation_and_a_restart_is_clean() {
     assert_eq!(seq_gaps(&thrust), 0);
 }
 
+/// `jetbench list` sees a running set over either transport: every channel and
+/// every service's node.
+#[test]
+fn list_shows_a_running_set_over_either_transport() {
+    let _bus = BUS.lock().unwrap_or_else(|e| e.into_inner());
+    for transport in ["iceoryx2", "uds"] {
+        let mut up = jetbench();
+        up.args(["up", "--sim", "--quiet", "--duration", "4", "--transport", transport]);
+        let (mut child, stdout, _stderr) = common::spawn_reading(up);
+        let ready = common::wait_for_line(&stdout, "services ready", Duration::from_secs(60));
+        let listed = output_with_watchdog(jetbench().arg("list"), "jetbench list");
+        let status = wait_with_watchdog(&mut child, Duration::from_secs(60), "jetbench up");
+        assert!(ready.is_ok() && status.success(), "{transport}: the set did not run: {ready:?}");
+        for channel in jetbench_msgs::channel_names() {
+            assert!(listed.lines().any(|l| l.trim() == channel), "{transport}: {channel} is not listed:\n{listed}");
+        }
+        for node in ["sim-bench", "sensing", "estimation", "control", "actuation"] {
+            assert!(listed.lines().any(|l| l.trim() == node), "{transport}: node {node} is not listed:\n{listed}");
+        }
+    }
+}
+
 #[test]
 fn bad_input_is_a_clear_error_and_starts_nothing() {
     let typo = scratch("typo.toml");

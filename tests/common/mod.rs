@@ -132,14 +132,13 @@ pub fn spawn_up_with(
     record: &Path,
     extra: &[&str],
 ) -> (Child, mpsc::Receiver<String>, mpsc::Receiver<String>) {
-    let mut child = command
-        .args(["up", "--sim", "--quiet", "--duration", &duration_s.to_string(), "--record"])
-        .arg(record)
-        .args(extra)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("start jetbench up");
+    command.args(["up", "--sim", "--quiet", "--duration", &duration_s.to_string(), "--record"]).arg(record).args(extra);
+    spawn_reading(command)
+}
+
+/// Starts `command` with its stdout and stderr read line by line on threads.
+pub fn spawn_reading(mut command: Command) -> (Child, mpsc::Receiver<String>, mpsc::Receiver<String>) {
+    let mut child = command.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("start jetbench");
     let stdout = lines_of(child.stdout.take().expect("stdout"));
     let stderr = lines_of(child.stderr.take().expect("stderr"));
     (child, stdout, stderr)

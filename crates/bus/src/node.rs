@@ -45,8 +45,9 @@ pub fn list_nodes() -> Vec<String> {
 }
 
 /// Names of the channels that exist in this namespace, over either transport:
-/// iceoryx2's publish-subscribe services, and the channels with a live socket
-/// subscriber (a jetbench channel by its name, anything else by its folder's).
+/// iceoryx2's publish-subscribe services, the jetbench channels whose doorbell
+/// someone holds (every publisher and subscriber of either transport does), and
+/// the channels with a live socket subscriber (any other by its folder's name).
 pub fn list_channels() -> Vec<String> {
     quiet_log();
     let mut names = Vec::new();
@@ -59,7 +60,10 @@ pub fn list_channels() -> Vec<String> {
         }
         CallbackProgression::Continue
     });
-    names.extend(crate::uds::live_channels(crate::env::namespace().ok().flatten().as_deref()));
+    let namespace = crate::env::namespace().ok().flatten();
+    names.extend(crate::uds::live_channels(namespace.as_deref()));
+    let held = |name: &str| crate::bell::path_of(namespace.as_deref(), name).exists();
+    names.extend(jetbench_msgs::channel_names().into_iter().filter(|n| held(n)).map(str::to_string));
     names.sort();
     names.dedup();
     names
