@@ -1,7 +1,6 @@
 //! The bench side: every bus channel published on Zenoh.
 
 use std::fmt;
-use std::time::Duration;
 
 use jetbench_bus::tap::{Tap, TapSample};
 use jetbench_bus::Bus;
@@ -12,9 +11,6 @@ use zenoh::qos::CongestionControl;
 use zenoh::Wait;
 
 use crate::{key_for, open_session, BridgeError, Endpoint, Role};
-
-/// How often the bus is read: once per control period, like the recorder.
-pub const POLL_PERIOD: Duration = Duration::from_millis(10);
 
 /// What the bridge did, printed at exit.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]

@@ -4,7 +4,6 @@
 use jetbench_msgs::ServiceId;
 use jetbench_stack::service::{ChannelReader, ServiceError, Setup};
 
-use crate::publish::POLL_PERIOD;
 use crate::{Bridge, BridgeError, Endpoint, DEFAULT_ENDPOINT};
 
 impl From<BridgeError> for ServiceError {
@@ -20,7 +19,6 @@ pub struct ZenohBridge {
 
 impl ChannelReader for ZenohBridge {
     const ID: ServiceId = ServiceId::Bridge;
-    const PERIOD: std::time::Duration = POLL_PERIOD;
 
     fn open(setup: &Setup<'_>) -> Result<Self, ServiceError> {
         let endpoint: Endpoint = setup.listen.unwrap_or(DEFAULT_ENDPOINT).parse()?;

@@ -15,7 +15,7 @@
 //! let mut view = LiveView::open(&bus, server)?;
 //! while !jetbench_bus::stop_requested() {
 //!     view.pump()?; // everything published since the last call, to every subscribed client
-//!     std::thread::sleep(jetbench_viewer::POLL_PERIOD);
+//!     std::thread::sleep(jetbench_stack::clock::PERIOD); // once a bench cycle, like the recorder
 //! }
 //! eprint!("{}", view.report());
 //! # Ok(())
@@ -36,7 +36,7 @@ mod server;
 mod service;
 
 pub use channels::BenchChannels;
-pub use live::{ChannelReport, LiveReport, LiveView, POLL_PERIOD};
+pub use live::{ChannelReport, LiveReport, LiveView};
 pub use play::{PlayOptions, PlayReport, Player};
 pub use server::{parse_listen, ClientCounts, FoxgloveServer, ServerOptions, DEFAULT_ADDR};
 pub use service::Viewer;

@@ -1,7 +1,6 @@
 //! The live view: every bus channel, as it is published, to every client.
 
 use std::fmt;
-use std::time::Duration;
 
 use jetbench_bus::tap::Tap;
 use jetbench_bus::Bus;
@@ -9,9 +8,6 @@ use jetbench_record::clock::realtime_ns;
 use jetbench_record::CdrMessage;
 
 use crate::{ClientCounts, FoxgloveServer, ViewerError};
-
-/// How often the bus is read: once per control period, like the recorder.
-pub const POLL_PERIOD: Duration = Duration::from_millis(10);
 
 /// What the viewer did with one channel.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]

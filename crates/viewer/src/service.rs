@@ -4,7 +4,7 @@
 use jetbench_msgs::ServiceId;
 use jetbench_stack::service::{ChannelReader, ServiceError, Setup};
 
-use crate::{FoxgloveServer, LiveView, ServerOptions, ViewerError, DEFAULT_ADDR, POLL_PERIOD};
+use crate::{FoxgloveServer, LiveView, ServerOptions, ViewerError, DEFAULT_ADDR};
 
 impl From<ViewerError> for ServiceError {
     fn from(e: ViewerError) -> Self {
@@ -19,7 +19,6 @@ pub struct Viewer {
 
 impl ChannelReader for Viewer {
     const ID: ServiceId = ServiceId::Viewer;
-    const PERIOD: std::time::Duration = POLL_PERIOD;
 
     fn open(setup: &Setup<'_>) -> Result<Self, ServiceError> {
         let server = FoxgloveServer::start(setup.listen.unwrap_or(DEFAULT_ADDR), &ServerOptions::default())?;
