@@ -294,16 +294,21 @@ impl Actuator {
         self.output(applied_pct, 0)
     }
 
-    /// A cycle without a fresh command: hold the last one, and after
-    /// `idle_after_missed` such cycles command idle.
-    pub fn on_missed(&mut self) -> Actuation {
+    /// A cycle without a fresh command, at `now_ns`: hold the last one, and
+    /// after `idle_after_missed` such cycles command idle. Before any command
+    /// the sample is stamped `now_ns` (a recording dates it by its stamp).
+    pub fn on_missed(&mut self, now_ns: u64) -> Actuation {
         self.missed = self.missed.saturating_add(1);
-        match self.last {
+        let mut out = match self.last {
             Some(c) if self.missed < self.idle_after_missed => {
                 self.output(c.throttle_pct.clamp(THROTTLE_MIN_PCT, THROTTLE_MAX_PCT), actuation_flags::STALE)
             }
             _ => self.output(THROTTLE_MIN_PCT, actuation_flags::STALE | actuation_flags::IDLE_FALLBACK),
+        };
+        if self.last.is_none() {
+            out.stamp_ns = now_ns;
         }
+        out
     }
 
     /// Completes this cycle's sample with what the board acknowledged:
@@ -524,12 +529,15 @@ mod tests {
     #[test]
     fn actuator_idles_on_the_third_missed_cycle() {
         let mut a = Actuator::new(3);
+        let before_any = a.on_missed(7_000);
+        assert_eq!((before_any.stamp_ns, before_any.command_seq), (7_000, 0), "stamped now, not at boot");
+        let mut a = Actuator::new(3);
         let applied = a.on_command(&command(5, 70.0));
         assert_eq!(applied.applied_pct, 70.0);
         assert_eq!(applied.flags, 0);
-        let m1 = a.on_missed();
-        let m2 = a.on_missed();
-        let m3 = a.on_missed();
+        let m1 = a.on_missed(1);
+        let m2 = a.on_missed(2);
+        let m3 = a.on_missed(3);
         assert_eq!((m1.applied_pct, m2.applied_pct), (70.0, 70.0));
         assert_eq!(m1.flags & actuation_flags::IDLE_FALLBACK, 0);
         assert_eq!(m3.applied_pct, THROTTLE_MIN_PCT);

@@ -64,7 +64,7 @@ impl Service for Actuation {
                 Some(command) => (self.step.on_command(&command), false),
                 None => return Ok(()),
             },
-            Wake::Missed(_) => (self.step.on_missed(), command.started()),
+            Wake::Missed(_) => (self.step.on_missed(ctx.wake_ns()), command.started()),
             Wake::Tick => return Ok(()),
         };
         if let Err(e) = self.board.write(output.applied_pct) {
