@@ -60,6 +60,11 @@ pub struct UpArgs {
     /// (CSV `time_s,throttle_pct`, e.g. from `jetbench excite`).
     #[arg(long, value_name = "FILE.csv", conflicts_with_all = ["controller", "profile"])]
     open_loop: Option<PathBuf>,
+    /// Inject a fault into the simulated sensor's path (repeatable; the kinds compose):
+    /// spikes:rate_per_s=R,size_n=N[,seed=S], stuck:at_s=T,for_s=D, nan:at_s=T[,for_s=D],
+    /// silence:at_s=T,for_s=D (times from the sensor's first frame).
+    #[arg(long, value_name = "KIND:KEY=VALUE,...", requires = "sim")]
+    inject: Vec<String>,
     /// How samples travel between the services: iceoryx2 shared memory, or
     /// copied through Unix domain sockets (uds, the baseline `jetbench latency`
     /// measures against). Default: $JETBENCH_TRANSPORT, else iceoryx2.
@@ -98,6 +103,7 @@ impl UpArgs {
             || self.plant.is_some()
             || self.profile.is_some()
             || self.open_loop.is_some()
+            || !self.inject.is_empty()
     }
 }
 
@@ -138,6 +144,7 @@ pub fn run(args: UpArgs) -> anyhow::Result<ExitCode> {
             checked.reference = jetbench_control::Profile::builtin(name, idle_n, max_n)
                 .with_context(|| format!("the model's thrust range {idle_n:.1}..{max_n:.1} N is empty"))?;
         }
+        checked.plant.inject.extend(args.inject.iter().cloned());
         if let Some(profile) = &args.open_loop {
             let profile = std::path::absolute(profile).unwrap_or_else(|_| profile.clone());
             checked.control.controller = Controller::OpenLoop;

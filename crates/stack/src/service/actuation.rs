@@ -5,7 +5,7 @@ use jetbench_io::serial::{EcuPoller, ThrottleBoard, SILENT_AFTER};
 use jetbench_io::ThrottleOutput;
 use jetbench_msgs::{channels, Command, EcuTelemetry, ServiceId};
 
-use super::{publish_now, Context, Input, Service, ServiceError, Setup};
+use super::{Context, Input, Service, ServiceError, Setup};
 use crate::clock::{monotonic_ns, COMMAND_DEADLINE};
 use crate::step::Actuator;
 
@@ -74,7 +74,7 @@ impl Service for Actuation {
         let mut output =
             self.step.with_board(output, board.acknowledged(), board.unacked_writes(), board.silent_writes());
         output.written_ns = board.written_ns().unwrap_or(0);
-        publish_now(&mut self.actuation, output, |a, ns| a.publish_ns = ns)?;
+        ctx.publish(&mut self.actuation, output, |a, ns| a.publish_ns = ns)?;
         let board_silent = board.silent_writes() >= SILENT_AFTER;
         if self.links.board(board_silent, board) {
             ctx.health().error();
@@ -83,7 +83,7 @@ impl Service for Actuation {
             if self.links.ecu(telemetry.flags, &self.ecu) {
                 ctx.health().error();
             }
-            publish_now(&mut self.telemetry, telemetry, |t, ns| t.publish_ns = ns)?;
+            ctx.publish(&mut self.telemetry, telemetry, |t, ns| t.publish_ns = ns)?;
         }
         let idle = self.step.is_idle_fallback();
         if idle != self.was_idle {

@@ -299,6 +299,25 @@ impl<'a> Context<'a> {
         log_rejection(count, what, error);
     }
 
+    /// Publishes `sample` with `publish_ns` stamped (by `set`) right before it
+    /// leaves. A sample holding NaN or an infinity is refused by the bus; that
+    /// is counted and logged as a rejection here, and the service runs on.
+    pub fn publish<T: Sample>(
+        &mut self,
+        publisher: &mut Publisher<T>,
+        mut sample: T,
+        set: fn(&mut T, u64),
+    ) -> Result<(), SendError> {
+        set(&mut sample, monotonic_ns());
+        match publisher.publish(sample) {
+            Err(e @ SendError::NonFinite { .. }) => {
+                self.reject("non-finite sample", &e);
+                Ok(())
+            }
+            result => result.map(drop),
+        }
+    }
+
     /// The heartbeat: error counts, input gaps, the fallback flag.
     pub fn health(&mut self) -> &mut HealthReporter {
         &mut self.health
@@ -310,16 +329,6 @@ pub fn log_rejection(count: u64, what: &str, error: &dyn std::fmt::Display) {
     if count <= 5 || count.is_multiple_of(1000) {
         tracing::warn!("{what} rejected ({count} so far): {error}");
     }
-}
-
-/// Publishes with `publish_ns` stamped right before the sample leaves.
-pub fn publish_now<T: Sample>(
-    publisher: &mut Publisher<T>,
-    mut sample: T,
-    set: fn(&mut T, u64),
-) -> Result<u64, SendError> {
-    set(&mut sample, monotonic_ns());
-    publisher.publish(sample)
 }
 
 /// Tells the launcher this process's ports exist.
