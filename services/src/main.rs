@@ -44,6 +44,11 @@ enum Cmd {
     },
     /// Summarise an MCAP recording: messages, rates and sequence gaps per channel.
     Info { file: PathBuf },
+    /// Rewrite a truncated or damaged recording as a valid, indexed MCAP file.
+    ///
+    /// Exit status 0: nothing lost; 3: data lost (the rest recovered); 1: failure.
+    /// Example: jetbench recover crashed.mcap --out fixed.mcap
+    Recover(cmd::recover::RecoverArgs),
     /// Feed a recording's thrust through the estimator, as fast as possible, on recorded time.
     ///
     /// Example: jetbench replay run.mcap --out replayed.mcap
@@ -122,6 +127,7 @@ fn run() -> anyhow::Result<ExitCode> {
             cmd::bus::with_channel(&channel, cmd::bus::Hz { window, duration })
         }
         Cmd::Info { file } => cmd::info::run(&file),
+        Cmd::Recover(args) => cmd::recover::run(args),
         Cmd::Replay(args) => cmd::replay::run(args),
         Cmd::Identify(args) => cmd::identify::run(args),
         Cmd::Diagnose(args) => cmd::diagnose::run(args),

@@ -11,6 +11,7 @@ pub mod latency_stage;
 pub mod metrics;
 pub mod model;
 pub mod play;
+pub mod recover;
 pub mod replay;
 pub mod tare;
 pub mod up;

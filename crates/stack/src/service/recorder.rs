@@ -1,5 +1,7 @@
 //! The recorder: every channel into one MCAP file.
 
+use std::time::{Duration, Instant};
+
 use jetbench_bus::tap::Tap;
 use jetbench_bus::Wake;
 use jetbench_msgs::ServiceId;
@@ -9,6 +11,14 @@ use jetbench_record::{spawn_writer, RawRecord, RecordError, WriterHandle};
 
 use super::{Context, Schedule, Service, ServiceError, Setup};
 use crate::clock::{realtime_ns, PERIOD};
+use crate::config::OnRecordError;
+
+/// At the end, the recorder takes what is still coming until the bus has been
+/// quiet this long: the last samples of services that are stopping with it
+/// (when the launcher died, every service stops at once).
+const QUIET: Duration = Duration::from_millis(50);
+/// ... but no longer than this.
+const LAST_SAMPLES_WAIT: Duration = Duration::from_secs(1);
 
 /// The recorder: every channel read by a polled subscriber on the recorder's
 /// own clock ([`Tap`]), handed to a writer thread through a bounded queue that
@@ -17,15 +27,21 @@ use crate::clock::{realtime_ns, PERIOD};
 /// which are also the messages' `publish_time`.
 pub struct Recorder {
     tap: Tap,
-    /// `None` once finished.
+    /// `None` once finished, or once writing failed and the run goes on without it.
     writer: Option<WriterHandle>,
+    on_error: OnRecordError,
+    /// Why recording stopped while the run went on (`on_error = "continue"`).
+    failed: Option<RecordError>,
 }
 
-/// Hands every sample queued on the bus to the writer, logged now.
-fn drain(tap: &Tap, writer: &mut WriterHandle) -> Result<(), ServiceError> {
+/// Hands every sample queued on the bus to the writer, logged now; returns
+/// how many there were.
+fn drain(tap: &Tap, writer: &mut WriterHandle) -> Result<usize, ServiceError> {
     let log_time_ns = realtime_ns();
     let mut failure = None;
+    let mut taken = 0;
     tap.drain(&mut |s| {
+        taken += 1;
         if failure.is_some() {
             return;
         }
@@ -44,7 +60,7 @@ fn drain(tap: &Tap, writer: &mut WriterHandle) -> Result<(), ServiceError> {
             }
         }
     })?;
-    failure.map_or(Ok(()), |e| Err(e.into()))
+    failure.map_or(Ok(taken), |e| Err(e.into()))
 }
 
 impl Service for Recorder {
@@ -66,7 +82,8 @@ impl Service for Recorder {
         };
         let writer = spawn_writer(path, setup.config.recorder.queue, vec![run.record()])?;
         tracing::info!("recording {} channels to {}", tap.counts().len(), path.display());
-        Ok((Recorder { tap, writer: Some(writer) }, ()))
+        let on_error = setup.config.recorder.on_error;
+        Ok((Recorder { tap, writer: Some(writer), on_error, failed: None }, ()))
     }
 
     fn schedule(&self) -> Schedule {
@@ -77,17 +94,45 @@ impl Service for Recorder {
         if wake != Wake::Tick {
             return Ok(());
         }
-        let Some(writer) = self.writer.as_mut() else { return Ok(()) };
-        drain(&self.tap, writer)?;
+        match self.writer.as_mut().map(|writer| drain(&self.tap, writer)) {
+            None => {
+                // Not recording (writing failed): the queues are emptied all the same.
+                self.tap.drain(&mut |_| {})?;
+            }
+            Some(Ok(_)) => {}
+            Some(Err(ServiceError::Record(e))) if self.on_error == OnRecordError::Continue => {
+                tracing::error!(
+                    "RECORDING STOPPED: {e}. The run goes on without recording ([recorder] on_error = \"continue\")"
+                );
+                ctx.reject("recording", &e);
+                ctx.health().set_fallback(true);
+                self.writer = None;
+                self.failed = Some(e);
+            }
+            Some(Err(e)) => return Err(e),
+        }
         ctx.health().set_input_gaps(self.tap.gaps());
         ctx.cycle(false)?;
         Ok(())
     }
 
-    /// Takes what arrived while stopping, closes the file and prints what was recorded.
+    /// Takes what arrives while the services stop (until the bus is quiet),
+    /// closes the file and prints what was recorded.
     fn stop(&mut self, _inputs: &(), _ctx: &mut Context<'_>) -> Result<(), ServiceError> {
-        let Some(mut writer) = self.writer.take() else { return Ok(()) };
-        drain(&self.tap, &mut writer)?;
+        let Some(mut writer) = self.writer.take() else {
+            if let Some(e) = &self.failed {
+                eprintln!("recorder: the recording stopped early and the run went on without it: {e}");
+            }
+            return Ok(());
+        };
+        let start = Instant::now();
+        let mut last_sample = start;
+        while last_sample.elapsed() < QUIET && start.elapsed() < LAST_SAMPLES_WAIT {
+            if drain(&self.tap, &mut writer)? > 0 {
+                last_sample = Instant::now();
+            }
+            std::thread::sleep(PERIOD);
+        }
         let dropped_full = writer.dropped_full;
         let stats = writer.finish()?;
         let report = RecorderReport {
