@@ -405,6 +405,10 @@ pub mod actuation_flags {
     pub const BOARD_SILENT: u32 = 1 << 3;
     /// The board reports it idles by its own watchdog.
     pub const BOARD_IDLE: u32 = 1 << 4;
+    /// Actuation's last sample: it stopped, and the board acknowledged the disarm
+    /// (the engine is at idle, `applied_pct` says so, and no command is applied
+    /// until the board is armed again).
+    pub const DISARMED: u32 = 1 << 5;
 }
 
 /// Flags of [`EcuTelemetry`](crate::EcuTelemetry).

@@ -68,6 +68,12 @@ pub struct BenchSection {
     /// refused with a message saying so.
     #[serde(default, skip_serializing)]
     pub rate_hz: Option<f64>,
+    /// A group that may use the running set too (watch it with `jetbench echo`
+    /// and the like): its files become `0660` instead of its user's only `0600`,
+    /// and the set must run with that group (`sg NAME -c "jetbench up ..."`).
+    /// See `jetbench_bus::access`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub group: Option<String>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
@@ -363,12 +369,26 @@ pub fn bus_namespace() -> String {
 #[serde(deny_unknown_fields, default)]
 pub struct RecorderSection {
     pub queue: usize,
+    /// What a run does when the recording cannot be written (a full disk).
+    pub on_error: OnRecordError,
 }
 
 impl Default for RecorderSection {
     fn default() -> Self {
-        RecorderSection { queue: 16_384 }
+        RecorderSection { queue: 16_384, on_error: OnRecordError::Stop }
     }
+}
+
+/// `[recorder] on_error`: what a run does when its recording fails.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum OnRecordError {
+    /// The recorder stops with the error and the launcher stops the run safely
+    /// (engine to idle, board disarmed): no run goes unrecorded.
+    #[default]
+    Stop,
+    /// The recorder says so, flags its heartbeat and the run goes on unrecorded.
+    Continue,
 }
 
 /// Real-time settings of the service processes (`[rt]`).

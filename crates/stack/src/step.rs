@@ -368,6 +368,11 @@ impl Actuator {
         out
     }
 
+    /// The sample of a stopped actuator: idle, whatever the last command was.
+    pub fn on_stop(&self) -> Actuation {
+        self.output(THROTTLE_MIN_PCT, actuation_flags::IDLE_FALLBACK)
+    }
+
     /// True while idling for lack of commands.
     pub fn is_idle_fallback(&self) -> bool {
         self.missed >= self.idle_after_missed || (self.missed > 0 && self.last.is_none())

@@ -115,6 +115,24 @@ fn model_spec(spec: &str) -> String {
     std::path::absolute(spec).map_or_else(|_| spec.to_string(), |p| p.display().to_string())
 }
 
+/// File name start of the config a launcher derives from its command line.
+const DERIVED_PREFIX: &str = "jetbench-up-";
+
+/// A launcher killed (SIGKILL) leaves its derived config behind: removed by the next.
+fn remove_derived_configs_of_dead_launchers() {
+    let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else { return };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let pid =
+            name.to_str().and_then(|n| n.strip_prefix(DERIVED_PREFIX)?.strip_suffix(".toml")?.parse::<i32>().ok());
+        // SAFETY: kill(pid, 0) only asks whether the process exists.
+        let gone = |pid| unsafe { libc::kill(pid, 0) } != 0 && std::io::Error::last_os_error().raw_os_error() == Some(libc::ESRCH);
+        if pid.is_some_and(gone) {
+            let _ = std::fs::remove_file(entry.path());
+        }
+    }
+}
+
 pub fn run(args: UpArgs) -> anyhow::Result<ExitCode> {
     // Check the config here so a typo is reported once, not by six services.
     let mut checked = BenchConfig::load_or_default(args.config.as_deref())?;
@@ -153,7 +171,8 @@ pub fn run(args: UpArgs) -> anyhow::Result<ExitCode> {
         let text = toml::to_string(&checked).context("cannot write the derived bench config")?;
         // Check it as the services will read it (this also loads models and profiles).
         BenchConfig::from_toml_str(&text, "the command-line options", None)?;
-        let path = std::env::temp_dir().join(format!("jetbench-up-{}.toml", std::process::id()));
+        remove_derived_configs_of_dead_launchers();
+        let path = std::env::temp_dir().join(format!("{DERIVED_PREFIX}{}.toml", std::process::id()));
         std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
         derived = Some(path.clone());
         Some(path)
@@ -194,6 +213,10 @@ fn run_up(args: &UpArgs, config: Option<PathBuf>, checked: &BenchConfig) -> anyh
                 bail!("cannot record to {}: folder {} does not exist", path.display(), dir.display());
             }
         }
+    }
+    if let Some(group) = &checked.bench.group {
+        // Every service inherits it: their files are shared with the group.
+        std::env::set_var(jetbench_bus::access::GROUP_ENV, group);
     }
     let options = UpOptions {
         config: config.map(|c| std::path::absolute(&c).unwrap_or(c)),

@@ -3,7 +3,7 @@
 use jetbench_bus::{Publisher, Wake};
 use jetbench_io::serial::{EcuPoller, ThrottleBoard, SILENT_AFTER};
 use jetbench_io::ThrottleOutput;
-use jetbench_msgs::{channels, Command, EcuTelemetry, ServiceId};
+use jetbench_msgs::{actuation_flags, channels, Command, EcuTelemetry, ServiceId};
 
 use super::{Context, Input, Service, ServiceError, Setup};
 use crate::clock::{monotonic_ns, COMMAND_DEADLINE};
@@ -102,9 +102,26 @@ impl Service for Actuation {
         Ok(())
     }
 
-    fn stop(&mut self, _command: &Input<Command>, _ctx: &mut Context<'_>) -> Result<(), ServiceError> {
-        // Disarm, whatever ended the loop.
+    fn stop(&mut self, _command: &Input<Command>, ctx: &mut Context<'_>) -> Result<(), ServiceError> {
+        // Disarm, whatever ended the loop, and say so in a last sample.
         self.board.stop();
+        // Idle, as the engine is once disarmed (the board then drives no signal,
+        // which the ECU takes as idle).
+        let mut last = self.step.on_stop();
+        match self.board.acknowledged() {
+            Some(ack) if !ack.armed => {
+                tracing::info!("throttle board disarmed (acknowledged): engine at idle");
+                last.flags |= actuation_flags::DISARMED;
+                last.round_trip_ns = ack.round_trip_ns;
+            }
+            _ => {
+                tracing::warn!(
+                    "the throttle board did not acknowledge the disarm; its own watchdog idles it in 100 ms"
+                );
+                last.flags |= actuation_flags::UNACKED;
+            }
+        }
+        ctx.publish(&mut self.actuation, last, |a, ns| a.publish_ns = ns)?;
         let c = self.board.counters();
         tracing::info!(
             "throttle board: {} acknowledged frames, {} rejected from the board ({} CRC, {} truncated), {} late \

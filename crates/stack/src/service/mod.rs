@@ -333,9 +333,32 @@ pub fn log_rejection(count: u64, what: &str, error: &dyn std::fmt::Display) {
 
 /// Tells the launcher this process's ports exist.
 pub fn announce_ready() {
+    announce("ready");
+}
+
+/// Tells the launcher why this process is about to stop with an error (it
+/// names the reason when it reports the death, e.g. a full disk).
+pub fn announce_failure(error: &dyn std::fmt::Display) {
+    announce(&format!("{FAILED_PREFIX}{error}"));
+}
+
+/// The line a service prints on stdout before it stops with an error.
+pub const FAILED_PREFIX: &str = "failed: ";
+
+fn announce(line: &str) {
     let mut out = std::io::stdout().lock();
-    let _ = writeln!(out, "ready");
+    let _ = writeln!(out, "{line}");
     let _ = out.flush();
+}
+
+/// The process that started this one, as it was when the service started.
+static PARENT_PID: std::sync::OnceLock<u32> = std::sync::OnceLock::new();
+
+/// True when the process that started this service (the launcher) is gone:
+/// the parent-death signal stopped the service, and it is on its own.
+pub fn launcher_gone() -> bool {
+    // SAFETY: getppid has no preconditions.
+    PARENT_PID.get().is_some_and(|&pid| unsafe { libc::getppid() } as u32 != pid)
 }
 
 /// How [`run`] starts a service.
@@ -353,6 +376,10 @@ pub struct RunOptions {
 
 /// Runs service `S` until SIGINT/SIGTERM or its first error.
 pub fn run<S: Service>(options: &RunOptions) -> Result<(), ServiceError> {
+    // SAFETY: getppid has no preconditions.
+    PARENT_PID.get_or_init(|| unsafe { libc::getppid() } as u32);
+    // Before anything is created: the set's files are its user's (or group's) only.
+    jetbench_bus::access::restrict().map_err(|e| ServiceError::Setup(e.to_string()))?;
     let mut config = BenchConfig::load_or_default(options.config.as_deref())?;
     // `--rt` is `[rt] enabled = true` for this run: the service's own threads follow it.
     config.rt.enabled |= options.rt;

@@ -1,7 +1,7 @@
 //! The simulated bench: engine, force sensor, throttle board and ECU in real time.
 
 use std::path::PathBuf;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use jetbench_bus::{Publisher, Wake};
 use jetbench_io::can::source::CanForceSink;
@@ -93,6 +93,48 @@ impl Service for SimBench {
         if !ctx.bus().sleep_until(self.next) {
             return Ok(());
         }
+        self.tick(ctx)
+    }
+
+    /// Runs the bench down (see [`SimBench::run_down`]) and reports what its devices saw.
+    fn stop(&mut self, _inputs: &(), ctx: &mut Context<'_>) -> Result<(), ServiceError> {
+        let run_down = self.run_down(ctx);
+        let fw = self.board.firmware();
+        let c = fw.counters();
+        let status = fw.status(monotonic_ns());
+        tracing::info!(
+            "throttle board emulator: {} valid frames, {} commands applied, {} watchdog trips, {} at the end; \
+             rejected: crc={} truncated={} bad_length={} unknown_type={} out_of_range={} garbage_bytes={}; \
+             ECU emulator answered {} polls",
+            c.frames,
+            self.board.applied_count(),
+            status.watchdog_trips,
+            if fw.is_armed() { "armed" } else { "disarmed" },
+            c.crc_errors,
+            c.truncated,
+            c.bad_length,
+            c.unknown_type,
+            c.out_of_range,
+            c.garbage_bytes,
+            self.ecu.polls()
+        );
+        if !self.faults.plan().is_empty() {
+            let [spikes, stuck, nan, silent] = self.injected;
+            tracing::info!(
+                "injected sensor faults: {spikes} spikes, {stuck} stuck frames, {nan} NaN frames, {silent} silent frames"
+            );
+        }
+        run_down
+    }
+}
+
+/// The longest a stopping sim-bench runs on for its board to idle: the board's
+/// own watchdog (100 ms) and a few cycles.
+const RUN_DOWN: Duration = Duration::from_millis(300);
+
+impl SimBench {
+    /// One 10 ms step of the bench, at its scheduled time.
+    fn tick(&mut self, ctx: &mut Context<'_>) -> Result<(), ServiceError> {
         let start_ns = ctx.woke();
         // A sensor keeps its own clock: after a scheduling hiccup the missed
         // ticks are caught up, so the frame rate holds. Only a real stall
@@ -121,27 +163,19 @@ impl Service for SimBench {
         Ok(())
     }
 
-    fn stop(&mut self, _inputs: &(), _ctx: &mut Context<'_>) -> Result<(), ServiceError> {
-        let fw = self.board.firmware();
-        let c = fw.counters();
-        tracing::info!(
-            "throttle board emulator: {} valid frames, {} commands applied; rejected: crc={} truncated={} \
-             bad_length={} unknown_type={} out_of_range={} garbage_bytes={}; ECU emulator answered {} polls",
-            c.frames,
-            self.board.applied_count(),
-            c.crc_errors,
-            c.truncated,
-            c.bad_length,
-            c.unknown_type,
-            c.out_of_range,
-            c.garbage_bytes,
-            self.ecu.polls()
-        );
-        if !self.faults.plan().is_empty() {
-            let [spikes, stuck, nan, silent] = self.injected;
-            tracing::info!("injected sensor faults: {spikes} spikes, {stuck} stuck frames, {nan} NaN frames, {silent} silent frames");
+    /// A bench outlives the processes that drive it: when sim-bench is asked to
+    /// stop, its engine, board and sensor run on until the board drives idle
+    /// (actuation disarmed it, or its own watchdog tripped; at most
+    /// [`RUN_DOWN`]), so that `sim/truth` shows the engine brought to idle
+    /// whatever stopped the set, a launcher killed with every service at once too.
+    fn run_down(&mut self, ctx: &mut Context<'_>) -> Result<(), ServiceError> {
+        let deadline = Instant::now() + RUN_DOWN;
+        while self.board.output_pct(monotonic_ns()).is_some() && Instant::now() < deadline {
+            std::thread::sleep(self.next.saturating_duration_since(Instant::now()));
+            self.tick(ctx)?;
         }
-        Ok(())
+        // One more step, so the idle engine is on record.
+        self.tick(ctx)
     }
 }
 
