@@ -89,6 +89,15 @@ enum Cmd {
     ///
     /// Example: jetbench latency --duration 60 --load cpu --rt --plot latency.png
     Latency(cmd::latency::LatencyArgs),
+    /// The fault campaign: every process killed, recorder crashes, a full disk, bad sensor
+    /// data, a second set, another user; bounds checked, report written.
+    ///
+    /// Example: jetbench faults --repeat 10 --report docs/faults/REPORT.md
+    Faults(cmd::faults::FaultsArgs),
+    /// The set for minutes under load: memory per process over time, lost samples, misses.
+    ///
+    /// Example: jetbench soak --minutes 30 --load all
+    Soak(cmd::faults::SoakArgs),
     /// Serve a recording to Foxglove at its recorded pace, like `ros2 bag play`.
     ///
     /// Example: jetbench play run.mcap --foxglove 127.0.0.1:8765 --rate 2 --loop
@@ -141,6 +150,8 @@ fn run() -> anyhow::Result<ExitCode> {
         Cmd::LatencyStage(args) => cmd::latency_stage::run(args),
         Cmd::Latency(args) => cmd::latency::run(args),
         Cmd::Play(args) => cmd::play::run(args),
+        Cmd::Faults(args) => cmd::faults::run(args),
+        Cmd::Soak(args) => cmd::faults::soak(args),
         Cmd::LatencyLoad(args) => cmd::latency::run_load(args),
     }
 }

@@ -4,6 +4,7 @@
 pub mod bus;
 pub mod can_decode;
 pub mod diagnose;
+pub mod faults;
 pub mod identify;
 pub mod info;
 pub mod latency;
