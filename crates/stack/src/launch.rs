@@ -40,7 +40,7 @@ pub enum LaunchError {
     #[error(transparent)]
     Bus(#[from] BusError),
     #[error(transparent)]
-    InUse(#[from] jetbench_bus::lock::LockError),
+    Lock(#[from] jetbench_bus::lock::LockError),
     #[error(transparent)]
     Group(#[from] jetbench_bus::access::GroupError),
 }
