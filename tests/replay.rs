@@ -10,7 +10,7 @@ use std::process::Command;
 use std::sync::OnceLock;
 use std::time::Duration;
 
-use jetbench_msgs::{channels, RosType, Sample, StateEstimate, Thrust};
+use jetbench_msgs::{channels, state_flags, RosType, Sample, StateEstimate, Thrust};
 use jetbench_record::{McapWriter, Recording};
 use serde_json::Value;
 
@@ -43,13 +43,16 @@ fn summary_count(out: &str, key: &str) -> usize {
         .unwrap_or_else(|| panic!("no `{key}` count in the summary:\n{out}"))
 }
 
-/// One 8 s live run of the simulated bench, recorded; shared by the tests.
+/// One 8 s live run of the simulated bench, recorded; shared by the tests. Its
+/// sensor spikes and sticks for a while, so the estimator's gate acts: the
+/// measurements it rejects are part of what replays bit for bit.
 fn live_recording() -> &'static Path {
     static RUN: OnceLock<PathBuf> = OnceLock::new();
     RUN.get_or_init(|| {
         let out = scratch("run.mcap");
         let mut command = jetbench();
         command.args(["up", "--sim", "--duration", "8", "--quiet", "--record"]).arg(&out);
+        command.args(["--inject", "spikes:rate_per_s=2,size_n=30", "--inject", "stuck:at_s=4,for_s=0.5"]);
         let (code, stdout, stderr) = run(&mut command, Duration::from_secs(120), "jetbench up");
         assert_eq!(code, Some(0), "jetbench up failed\n{stdout}\n{stderr}");
         out
@@ -94,6 +97,9 @@ fn a_live_run_replays_bit_for_bit() {
     let (a, b) = (recorded.samples(channels::STATE), replayed.samples(channels::STATE));
     assert_eq!(a.len(), b.len());
     assert!(a.len() >= 700);
+    for flag in [state_flags::MEASUREMENT_REJECTED, state_flags::SENSOR_STUCK] {
+        assert!(b.iter().any(|s| s.flags & flag != 0), "the gate's flag {flag:#x} is replayed too");
+    }
     for (x, y) in a.iter().zip(&b) {
         assert_eq!(x.as_bytes(), y.as_bytes(), "state {} differs: {x:?} vs {y:?}", x.seq);
     }

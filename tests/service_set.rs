@@ -191,6 +191,13 @@ fn up_records_a_complete_closed_loop_run() {
         );
         assert!(a.round_trip_ns > 0, "seq {}: no round trip measured", a.seq);
     }
+    // The run ends safely: control stopped first, actuation idled and then
+    // disarmed the board, and sim-bench ran its engine down to idle.
+    let last = actuation.last().expect("actuation samples");
+    assert_ne!(last.flags & actuation_flags::DISARMED, 0, "the last actuation sample: {last:?}");
+    assert_eq!(last.applied_pct, 25.0);
+    let truth_end = recording.samples(channels::SIM_TRUTH);
+    assert_eq!(truth_end.last().map(|t| t.engine_throttle_pct), Some(25.0), "the engine ends at idle");
     let mut rtt_us: Vec<f64> = acked.iter().map(|a| a.round_trip_ns as f64 * 1e-3).collect();
     rtt_us.sort_by(f64::total_cmp);
     println!("board round trip: median {:.0} us, max {:.0} us", rtt_us[rtt_us.len() / 2], rtt_us[rtt_us.len() - 1]);

@@ -56,6 +56,7 @@ pub fn service_main<S: Service>(about: &'static str) -> ExitCode {
         Err(e) => {
             tracing::error!("{e:#}");
             eprintln!("jetbench-{name}: error: {e:#}");
+            jetbench_stack::service::announce_failure(&format_args!("{e:#}"));
             ExitCode::FAILURE
         }
     }

@@ -54,6 +54,11 @@ enum Cmd {
     Record(cmd::record::RecordArgs),
     /// Summarise an MCAP recording: messages, rates and sequence gaps per channel.
     Info { file: PathBuf },
+    /// Rewrite a truncated or damaged recording as a valid, indexed MCAP file.
+    ///
+    /// Exit status 0: nothing lost; 3: data lost (the rest recovered); 1: failure.
+    /// Example: jetbench recover crashed.mcap --out fixed.mcap
+    Recover(cmd::recover::RecoverArgs),
     /// Feed a recording's thrust through the estimator, as fast as possible, on recorded time.
     ///
     /// Example: jetbench replay run.mcap --out replayed.mcap
@@ -94,6 +99,15 @@ enum Cmd {
     ///
     /// Example: jetbench latency --duration 60 --load cpu --rt --plot latency.png
     Latency(cmd::latency::LatencyArgs),
+    /// The fault campaign: every process killed, recorder crashes, a full disk, bad sensor
+    /// data, a second set, another user; bounds checked, report written.
+    ///
+    /// Example: jetbench faults --repeat 10 --report docs/faults/REPORT.md
+    Faults(cmd::faults::FaultsArgs),
+    /// The set for minutes under load: memory per process over time, lost samples, misses.
+    ///
+    /// Example: jetbench soak --minutes 30 --load all
+    Soak(cmd::faults::SoakArgs),
     /// Serve a recording to Foxglove at its recorded pace, like `ros2 bag play`.
     ///
     /// Example: jetbench play run.mcap --foxglove 127.0.0.1:8765 --rate 2 --loop
@@ -135,6 +149,7 @@ fn run() -> anyhow::Result<ExitCode> {
         }
         Cmd::Record(args) => cmd::record::run_record(args),
         Cmd::Info { file } => cmd::info::run(&file),
+        Cmd::Recover(args) => cmd::recover::run(args),
         Cmd::Replay(args) => cmd::replay::run(args),
         Cmd::Identify(args) => cmd::identify::run(args),
         Cmd::Diagnose(args) => cmd::diagnose::run(args),
@@ -148,6 +163,8 @@ fn run() -> anyhow::Result<ExitCode> {
         Cmd::LatencyStage(args) => cmd::latency_stage::run(args),
         Cmd::Latency(args) => cmd::latency::run(args),
         Cmd::Play(args) => cmd::play::run(args),
+        Cmd::Faults(args) => cmd::faults::run(args),
+        Cmd::Soak(args) => cmd::faults::soak(args),
         Cmd::LatencyLoad(args) => cmd::latency::run_load(args),
     }
 }

@@ -2,7 +2,7 @@
 //! by the runtime's one runner as a reader of every channel.
 
 use jetbench_msgs::ServiceId;
-use jetbench_stack::service::{ChannelReader, ServiceError, Setup};
+use jetbench_stack::service::{ChannelReader, Context, ServiceError, Setup};
 
 use crate::{Bridge, BridgeError, Endpoint, DEFAULT_ENDPOINT};
 
@@ -28,8 +28,8 @@ impl ChannelReader for ZenohBridge {
         Ok(ZenohBridge { bridge })
     }
 
-    fn pump(&mut self) -> Result<(), ServiceError> {
-        Ok(self.bridge.pump().map(|_| ())?)
+    fn pump(&mut self, _ctx: &mut Context<'_>) -> Result<usize, ServiceError> {
+        Ok(self.bridge.pump()?)
     }
 
     fn gaps(&self) -> u64 {

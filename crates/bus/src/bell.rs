@@ -78,7 +78,13 @@ impl Doorbell {
         // Another process may be removing the file as it lets go of it: the
         // lock is taken on what the path names, then checked to still be it.
         for _ in 0..16 {
-            let file = OpenOptions::new().read(true).write(true).create(true).truncate(false).mode(0o600).open(path)?;
+            let file = OpenOptions::new()
+                .read(true)
+                .write(true)
+                .create(true)
+                .truncate(false)
+                .mode(crate::access::file_mode())
+                .open(path)?;
             flock(&file, libc::LOCK_SH)?;
             let held = file.metadata()?;
             match std::fs::metadata(path) {

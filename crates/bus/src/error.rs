@@ -119,6 +119,9 @@ pub enum SendError {
         #[source]
         source: std::io::Error,
     },
+    /// The sample holds NaN or an infinity: it was not published (and used no `seq`).
+    #[error("refused to publish on {channel}: field `{field}` is not a finite number")]
+    NonFinite { channel: &'static str, field: &'static str },
 }
 
 /// Samples could not be taken.

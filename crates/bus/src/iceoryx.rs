@@ -28,30 +28,52 @@ pub(crate) fn quiet_log() {
 }
 
 /// The iceoryx2 configuration of this process's namespace: its files get
-/// their own prefix.
+/// their own prefix (`jb_default_` without a namespace), so no other iceoryx2
+/// program on the machine shares them.
 pub(crate) fn config() -> &'static Config {
     static CONFIG: OnceLock<Config> = OnceLock::new();
     CONFIG.get_or_init(|| {
         let mut config = Config::global_config().clone();
-        if let Ok(Some(ns)) = crate::env::namespace() {
-            if let Ok(prefix) = FileName::new(format!("jb_{ns}_").as_bytes()) {
-                config.global.prefix = prefix;
-            }
+        if let Ok(prefix) = FileName::new(prefix().as_bytes()) {
+            config.global.prefix = prefix;
         }
         config
     })
+}
+
+fn prefix() -> String {
+    format!("jb_{}_", crate::env::namespace_name().unwrap_or_else(|_| "default".into()))
+}
+
+/// Closes iceoryx2's node counter of this namespace to other users: iceoryx2
+/// opens that one segment to everyone (so that any user's node gets a unique
+/// id), and the namespace's prefix makes it the set's alone. It holds no samples.
+fn tighten_node_counter() {
+    let prefix = prefix();
+    let Ok(entries) = std::fs::read_dir("/dev/shm") else { return };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let name = name.to_string_lossy();
+        if name.starts_with(&prefix) && name.ends_with("global_mgmt") {
+            if let Err(e) = crate::access::tighten(&entry.path()) {
+                tracing::debug!("cannot restrict {}: {e}", entry.path().display());
+            }
+        }
+    }
 }
 
 /// Creates this process's node (iceoryx2's signal handling off: see [`crate::signal`]).
 pub(crate) fn create_node(node_name: &str) -> Result<Node<ipc::Service>, OpenError> {
     let name: NodeName =
         node_name.try_into().map_err(|source| OpenError::NodeName { name: node_name.into(), source })?;
-    NodeBuilder::new()
+    let node = NodeBuilder::new()
         .config(config())
         .name(&name)
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<ipc::Service>()
-        .map_err(|source| OpenError::Node { node: node_name.into(), source })
+        .map_err(|source| OpenError::Node { node: node_name.into(), source })?;
+    tighten_node_counter();
+    Ok(node)
 }
 
 fn service<T: Sample>(

@@ -32,16 +32,19 @@
 //! ```
 //!
 //! One module per concern: [`signal`] (the stop flag every wait checks),
-//! [`env`] (namespace and transport), [`node`] (who is on the bus, clean-up),
+//! [`env`] (namespace and transport), [`access`] (who may touch a set's
+//! files), [`lock`] (one set per namespace), [`node`] (who is on the bus, clean-up),
 //! `iceoryx` and [`uds`] (the two transports), `transport` (the one place
 //! that chooses between them), [`bell`] (doorbells), `wait` (the wait loop),
 //! `port` (typed publishers and subscribers), [`tap`] (every channel, read as
 //! the recorder reads it) and [`error`] (one error enum per operation).
 
+pub mod access;
 pub mod bell;
 pub mod env;
 pub mod error;
 mod iceoryx;
+pub mod lock;
 pub mod node;
 mod port;
 pub mod signal;

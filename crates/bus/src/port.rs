@@ -23,8 +23,12 @@ pub struct Publisher<T: Sample> {
 
 impl<T: Sample> Publisher<T> {
     /// Publishes `sample` with the next `seq` and wakes the channel's woken
-    /// subscribers. Returns the `seq` given to the sample.
+    /// subscribers. Returns the `seq` given to the sample. A sample with a NaN
+    /// or infinite field is refused ([`SendError::NonFinite`]) and takes no `seq`.
     pub fn publish(&mut self, mut sample: T) -> Result<u64, SendError> {
+        if let Some(field) = sample.non_finite_field() {
+            return Err(SendError::NonFinite { channel: self.channel.name, field });
+        }
         let seq = self.next_seq;
         sample.set_seq(seq);
         self.outlet.send(sample, &self.bell, self.channel.name)?;

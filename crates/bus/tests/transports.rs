@@ -143,3 +143,34 @@ fn a_departed_subscriber_costs_its_publisher_nothing() {
         assert_eq!((drain_count(&keeper), keeper.gaps()), (10, 0), "{transport}");
     }
 }
+
+#[test]
+fn a_sample_that_is_not_a_number_is_refused_and_takes_no_seq() {
+    for transport in TRANSPORTS {
+        let channel = channel("nan", transport);
+        let bus = Bus::open_with("bus-test-nan", transport).expect("bus");
+        let subscriber = bus.subscriber(channel, 16).expect("subscriber");
+        let mut publisher = bus.publisher(channel).expect("publisher");
+        assert_eq!(publisher.publish(sample(1)).expect("publish"), 0);
+        for bad in [
+            Thrust { thrust_n: f64::NAN, ..sample(2) },
+            Thrust { force_n: [0.0, f64::INFINITY, 0.0], ..sample(2) },
+            Thrust { torque_nm: [0.0, 0.0, f64::NEG_INFINITY], ..sample(2) },
+        ] {
+            let err = publisher.publish(bad).expect_err("a non-finite sample must be refused");
+            assert!(matches!(err, jetbench_bus::SendError::NonFinite { .. }), "{err}");
+            assert!(err.to_string().contains("is not a finite number"), "{err}");
+        }
+        assert_eq!(publisher.publish(sample(3)).expect("publish"), 1, "the refused samples took no seq");
+        let deadline = Instant::now() + Duration::from_secs(10);
+        let mut got = Vec::new();
+        while got.len() < 2 && Instant::now() < deadline {
+            while let Some(s) = subscriber.try_recv().expect("receive") {
+                got.push((s.seq, s.thrust_n));
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        assert_eq!(got, [(0, 1.0), (1, 3.0)], "{transport}: only the finite samples arrive, gap-free");
+        assert_eq!(subscriber.gaps(), 0);
+    }
+}

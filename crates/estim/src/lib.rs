@@ -24,13 +24,17 @@
 //! T[k+1] = T + Ṫ·Δt + T̈·Δt²/2,   Ṫ[k+1] = Ṫ + T̈·Δt,   T̈ = f(T, Ṫ) + g(T, Ṫ)·v(u),   y = T
 //! ```
 //!
-//! with an analytic Jacobian and white unmodelled acceleration as process noise.
+//! with an analytic Jacobian and white unmodelled acceleration as process noise. Each
+//! measurement passes a [`gate`] first: a spike (chi-square test on the innovation) or a
+//! stuck sensor (the same reading over and over) is not used, and the estimate says so.
 //!
 //! [`SavitzkyGolay`] smooths and differentiates whole recordings offline (thrust rate and
 //! acceleration for identification), with scipy's `savgol_filter` edge handling.
 
+pub mod gate;
 mod observer;
 mod savgol;
 
-pub use observer::{EstimError, Estimate, ObserverConfig, ThrustObserver};
+pub use gate::{GateConfig, Verdict};
+pub use observer::{EstimError, Estimate, Gated, ObserverConfig, ThrustObserver};
 pub use savgol::{SavGolError, SavitzkyGolay};

@@ -3,6 +3,8 @@
 use jetbench_model::{Params, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S};
 use nalgebra::{Matrix2, SMatrix, Vector2};
 
+use crate::gate::{Gate, GateConfig, Verdict};
+
 type Mat2 = SMatrix<f64, 2, 2>;
 
 /// Errors of the observer; `Copy` so a rejected configuration can be reported on every step.
@@ -48,6 +50,8 @@ pub struct ObserverConfig {
     pub initial_thrust_var_n2: f64,
     /// Thrust-rate variance right after the first measurement, (N/s)².
     pub initial_rate_var: f64,
+    /// Which measurements are plausible enough to use (spikes, a stuck sensor).
+    pub gate: GateConfig,
 }
 
 impl Default for ObserverConfig {
@@ -60,6 +64,7 @@ impl Default for ObserverConfig {
             accel_noise_n_per_s2: 200.0,
             initial_thrust_var_n2: 7.0,
             initial_rate_var: 1.0e4,
+            gate: GateConfig::default(),
         }
     }
 }
@@ -83,7 +88,7 @@ impl ObserverConfig {
                 });
             }
         }
-        Ok(())
+        self.gate.validate()
     }
 }
 
@@ -102,6 +107,8 @@ pub struct Estimate {
     pub thrust_var_n2: f64,
     /// Variance of the rate estimate, (N/s)².
     pub thrust_rate_var: f64,
+    /// Whether the measurement was used ([`crate::gate`]).
+    pub verdict: Verdict,
 }
 
 /// EKF of `[T, Ṫ]` at [`STEP_S`]. Fixed-size algebra only, so a step never allocates;
@@ -116,6 +123,8 @@ pub struct ThrustObserver {
     /// `None` until the first measurement.
     state: Option<(Vector2<f64>, Mat2)>,
     fallbacks: u64,
+    gate: Gate,
+    gated: Gated,
 }
 
 impl ThrustObserver {
@@ -133,14 +142,25 @@ impl ThrustObserver {
         let gain = Vector2::new(0.5 * dt * dt, dt);
         let sigma = config.accel_noise_n_per_s2;
         let process_noise = gain * gain.transpose() * (sigma * sigma);
-        Self { params, config, process_noise, invalid, state: None, fallbacks: 0 }
+        Self {
+            params,
+            config,
+            process_noise,
+            invalid,
+            state: None,
+            fallbacks: 0,
+            gate: Gate::default(),
+            gated: Gated::default(),
+        }
     }
 
     /// One 10 ms cycle: predict over the last interval with `throttle_pct`, the throttle
     /// that was applied during it, then correct with `thrust_meas_n`.
     ///
     /// The first call initialises the thrust from the measurement (rate 0). A non-finite
-    /// input returns [`EstimError::NonFiniteInput`] and changes nothing. When the model
+    /// input returns [`EstimError::NonFiniteInput`] and changes nothing. A measurement the
+    /// gate finds implausible ([`crate::gate`]: a spike, a stuck sensor) is not used: the
+    /// estimate is the prediction, and [`Estimate::verdict`] says why. When the model
     /// prediction is non-finite or leaves the model's range (a bad or locally valid model),
     /// that step uses a constant-rate prediction instead and [`ThrustObserver::fallbacks`]
     /// counts it, so the output is never NaN.
@@ -157,7 +177,8 @@ impl ThrustObserver {
         let Some((x, p)) = self.state else {
             let (x, p) = self.initial(thrust_meas_n);
             self.state = Some((x, p));
-            return Ok(self.estimate(&x, &p, throttle_pct, 0.0));
+            self.gate.first(thrust_meas_n);
+            return Ok(self.estimate(&x, &p, throttle_pct, 0.0, Verdict::Accepted));
         };
 
         let (x_pred, f) = match self.predict(&x, throttle_pct) {
@@ -172,13 +193,30 @@ impl ThrustObserver {
         // Scalar measurement y = T, so the gain is a column of P over a scalar.
         let innovation_n = thrust_meas_n - x_pred[0];
         let s = p_pred[(0, 0)] + self.config.measurement_var_n2;
-        let k = Vector2::new(p_pred[(0, 0)] / s, p_pred[(1, 0)] / s);
-        let x_new = x_pred + k * innovation_n;
-        // Joseph form keeps P symmetric positive semi-definite under rounding.
-        let i_kh = Matrix2::new(1.0 - k[0], 0.0, -k[1], 1.0);
-        let r = self.config.measurement_var_n2;
-        let p_new = i_kh * p_pred * i_kh.transpose() + k * k.transpose() * r;
-        let p_new = (p_new + p_new.transpose()) * 0.5;
+        let verdict = self.gate.judge(&self.config.gate, thrust_meas_n, innovation_n * innovation_n / s);
+        let (x_new, p_new) = match verdict {
+            Verdict::Accepted => {
+                let k = Vector2::new(p_pred[(0, 0)] / s, p_pred[(1, 0)] / s);
+                let x_new = x_pred + k * innovation_n;
+                // Joseph form keeps P symmetric positive semi-definite under rounding.
+                let i_kh = Matrix2::new(1.0 - k[0], 0.0, -k[1], 1.0);
+                let r = self.config.measurement_var_n2;
+                let p_new = i_kh * p_pred * i_kh.transpose() + k * k.transpose() * r;
+                (x_new, (p_new + p_new.transpose()) * 0.5)
+            }
+            // The measurement is not used: the prediction stands, and its growing
+            // variance widens the gate for the measurements that follow.
+            Verdict::Rejected | Verdict::Stuck => (x_pred, (p_pred + p_pred.transpose()) * 0.5),
+            // The thrust is where the sensor says, however far from the model; the
+            // rate is kept, with the variances of a fresh start.
+            Verdict::Restarted => (Vector2::new(thrust_meas_n, x_pred[1]), self.initial(thrust_meas_n).1),
+        };
+        match verdict {
+            Verdict::Accepted => {}
+            Verdict::Rejected => self.gated.rejected += 1,
+            Verdict::Stuck => self.gated.stuck += 1,
+            Verdict::Restarted => self.gated.restarts += 1,
+        }
 
         let (x_new, p_new, innovation_n) = if x_new.iter().chain(p_new.iter()).all(|v| v.is_finite()) {
             (x_new, p_new, innovation_n)
@@ -189,18 +227,26 @@ impl ThrustObserver {
             (x0, p0, 0.0)
         };
         self.state = Some((x_new, p_new));
-        Ok(self.estimate(&x_new, &p_new, throttle_pct, innovation_n))
+        Ok(self.estimate(&x_new, &p_new, throttle_pct, innovation_n, verdict))
     }
 
     /// Forgets the estimate and the fallback count; the next step initialises again.
     pub fn reset(&mut self) {
         self.state = None;
         self.fallbacks = 0;
+        self.gate = Gate::default();
+        self.gated = Gated::default();
     }
 
     /// Steps whose model prediction was unusable and replaced by a constant-rate one.
     pub fn fallbacks(&self) -> u64 {
         self.fallbacks
+    }
+
+    /// Measurements the gate rejected as implausible (spikes), ignored as stuck, and
+    /// restarted the filter at, since the start.
+    pub fn gated(&self) -> Gated {
+        self.gated
     }
 
     /// The model the filter predicts with.
@@ -235,7 +281,7 @@ impl ThrustObserver {
         usable.then_some((x_pred, f))
     }
 
-    fn estimate(&self, x: &Vector2<f64>, p: &Mat2, throttle_pct: f64, innovation_n: f64) -> Estimate {
+    fn estimate(&self, x: &Vector2<f64>, p: &Mat2, throttle_pct: f64, innovation_n: f64, verdict: Verdict) -> Estimate {
         let accel = self.params.accel(x[0], x[1], throttle_pct);
         Estimate {
             thrust_n: x[0],
@@ -244,8 +290,17 @@ impl ThrustObserver {
             innovation_n,
             thrust_var_n2: p[(0, 0)],
             thrust_rate_var: p[(1, 1)],
+            verdict,
         }
     }
+}
+
+/// Counts of measurements the gate did not use ([`ThrustObserver::gated`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Gated {
+    pub rejected: u64,
+    pub stuck: u64,
+    pub restarts: u64,
 }
 
 /// Constant-rate prediction, used when the model's own prediction is unusable.

@@ -3,7 +3,7 @@
 mod common;
 
 use common::{rms, simulate_run, Run, NOISE_VAR_N2};
-use jetbench_estim::{EstimError, Estimate, ObserverConfig, ThrustObserver};
+use jetbench_estim::{EstimError, Estimate, Gated, ObserverConfig, ThrustObserver, Verdict};
 use jetbench_model::{Params, Preset, STEP_S};
 
 /// Skip the first second, while the filter converges from its initial guess.
@@ -152,4 +152,91 @@ fn reset_starts_over() {
     observer.reset();
     assert_eq!(observer.step(20.0, 50.0).unwrap(), first);
     assert_eq!(observer.fallbacks(), 0);
+}
+
+#[test]
+fn honest_noise_passes_the_gate_on_a_whole_run() {
+    // 60 s of steps, a sine and full steps, with the P100's noise: nothing is gated,
+    // with the matched model and with the study's mismatched ones.
+    let run = simulate_run(Preset::P100Diesel.params(), 60.0, 17);
+    for preset in [Preset::P100Diesel, Preset::P100Ekf, Preset::P100Ls] {
+        let mut observer = ThrustObserver::new(preset.params(), ObserverConfig::default());
+        for (&y, &u) in run.thrust_meas_n.iter().zip(&run.throttle_pct) {
+            observer.step(y, u).unwrap();
+        }
+        assert_eq!(observer.gated(), Gated::default(), "{preset}");
+    }
+}
+
+#[test]
+fn a_spike_is_rejected_and_leaves_the_estimate_where_the_prediction_was() {
+    let params = Preset::P100Diesel.params();
+    let run = simulate_run(params, 8.0, 19);
+    let mut observer = ThrustObserver::new(params, ObserverConfig::default());
+    let at = 520; // mid-step from 40 to 80 %
+    for k in 0..at {
+        observer.step(run.thrust_meas_n[k], run.throttle_pct[k]).unwrap();
+    }
+    let (y, u) = (run.thrust_meas_n[at], run.throttle_pct[at]);
+    let clean = observer.clone().step(y, u).unwrap();
+    assert_eq!(clean.verdict, Verdict::Accepted);
+    let spiked: Vec<(ThrustObserver, Estimate)> = [30.0, -30.0, 25.0]
+        .iter()
+        .map(|spike_n| {
+            let mut o = observer.clone();
+            let e = o.step(y + spike_n, u).unwrap();
+            assert_eq!(e.verdict, Verdict::Rejected, "{spike_n} N spike");
+            assert_eq!(o.gated().rejected, 1);
+            assert!((e.innovation_n - spike_n - clean.innovation_n).abs() < 1e-9, "the innovation reports the spike");
+            (o, e)
+        })
+        .collect();
+    // Not used: whatever the spike, the estimate is the prediction, bit for bit.
+    for (_, e) in &spiked[1..] {
+        assert_eq!((e.thrust_n, e.thrust_rate_n_per_s), (spiked[0].1.thrust_n, spiked[0].1.thrust_rate_n_per_s));
+    }
+    // And the next clean measurements are used again.
+    let (mut after, _) = spiked.into_iter().next().unwrap();
+    for k in at + 1..at + 50 {
+        assert_eq!(after.step(run.thrust_meas_n[k], run.throttle_pct[k]).unwrap().verdict, Verdict::Accepted);
+    }
+}
+
+#[test]
+fn a_stuck_sensor_is_flagged_after_ten_identical_readings_and_a_real_jump_restarts_the_filter() {
+    let params = Preset::P100Diesel.params();
+    let run = simulate_run(params, 12.0, 23);
+    let mut observer = ThrustObserver::new(params, ObserverConfig::default());
+    for k in 0..300 {
+        observer.step(run.thrust_meas_n[k], run.throttle_pct[k]).unwrap();
+    }
+    let frozen = run.thrust_meas_n[299];
+    let verdicts: Vec<Verdict> =
+        (300..450).map(|k| observer.step(frozen, run.throttle_pct[k]).unwrap().verdict).collect();
+    let first_stuck = verdicts.iter().position(|v| *v == Verdict::Stuck).expect("flagged stuck");
+    assert_eq!(first_stuck, 8, "the tenth identical reading (the 9th repeat) is the first flagged");
+    assert!(verdicts[first_stuck..].iter().all(|v| *v == Verdict::Stuck));
+    // Fresh readings are used again at once; the estimate followed the model meanwhile.
+    let back = observer.step(run.thrust_meas_n[450], run.throttle_pct[450]).unwrap();
+    assert_ne!(back.verdict, Verdict::Stuck);
+    assert!((back.thrust_n - run.truth[450].thrust_n).abs() < 8.0, "{back:?} vs {:?}", run.truth[450]);
+
+    // A filter started 40 N off (a bad first sample) does not lock itself out.
+    let mut observer = ThrustObserver::new(params, ObserverConfig::default());
+    observer.step(run.thrust_meas_n[0] + 40.0, run.throttle_pct[0]).unwrap();
+    let verdicts: Vec<Verdict> =
+        (1..10).map(|k| observer.step(run.thrust_meas_n[k], run.throttle_pct[k]).unwrap().verdict).collect();
+    assert_eq!(
+        verdicts[..6],
+        [
+            Verdict::Rejected,
+            Verdict::Rejected,
+            Verdict::Rejected,
+            Verdict::Rejected,
+            Verdict::Rejected,
+            Verdict::Restarted
+        ]
+    );
+    assert_eq!(observer.gated().restarts, 1);
+    assert!(verdicts[6..].iter().all(|v| *v == Verdict::Accepted), "{verdicts:?}");
 }

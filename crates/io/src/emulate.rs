@@ -309,6 +309,9 @@ impl PtyHost {
         // the driver reconnects).
         let (master, slave) = TTYPort::pair().map_err(|e| err(format!("cannot open a pty pair: {e}")))?;
         let slave_path = slave.name().ok_or_else(|| err("the pty slave has no name".into()))?;
+        // The emulated device is its user's alone (devpts may give the tty group write access).
+        std::fs::set_permissions(&slave_path, std::os::unix::fs::PermissionsExt::from_mode(0o600))
+            .map_err(|e| err(format!("cannot restrict {slave_path}: {e}")))?;
         publish_link(link, Path::new(&slave_path))?;
         let master_writer = master.try_clone_native().map_err(|e| err(format!("cannot clone the pty master: {e}")))?;
         let stop = Arc::new(AtomicBool::new(false));

@@ -27,7 +27,7 @@
 
 mod schema;
 
-pub use schema::{cdr_layout, parse_schema, CdrField, FieldInfo, RosType, SchemaError};
+pub use schema::{cdr_layout, parse_schema, CdrField, FieldInfo, Primitive, RosType, SchemaError};
 
 use iceoryx2::prelude::ZeroCopySend;
 
@@ -77,6 +77,31 @@ pub trait Sample: Copy + Default + core::fmt::Debug + ZeroCopySend + 'static {
         // floats, and have no padding (asserted at compile time), so every
         // byte is initialised.
         unsafe { core::slice::from_raw_parts((self as *const Self).cast::<u8>(), core::mem::size_of::<Self>()) }
+    }
+
+    /// The first floating-point field holding NaN or an infinity, if any. The
+    /// bus refuses to publish such a sample: no consumer of a channel ever has
+    /// to defend against a value that is not a number.
+    fn non_finite_field(&self) -> Option<&'static str> {
+        let bytes = self.as_bytes();
+        for field in Self::FIELDS {
+            let width = match field.ros_type.primitive() {
+                Primitive::Float64 => 8,
+                Primitive::Float32 => 4,
+                _ => continue,
+            };
+            for i in 0..field.ros_type.len() {
+                let at = &bytes[field.offset + i * width..];
+                let finite = match width {
+                    8 => at.first_chunk::<8>().is_some_and(|b| f64::from_le_bytes(*b).is_finite()),
+                    _ => at.first_chunk::<4>().is_some_and(|b| f32::from_le_bytes(*b).is_finite()),
+                };
+                if !finite {
+                    return Some(field.name);
+                }
+            }
+        }
+        None
     }
 
     /// Reads a sample from its raw bytes; `None` if the length is wrong.
@@ -303,6 +328,11 @@ sample! {
         pub engine_throttle_pct: f64,
         /// Noise-free measurement the sensor would report, N.
         pub measured_thrust_n: f64,
+        /// What injected faults added to the reading sent on the thrust axis, N
+        /// (a spike's size; 0 without a fault).
+        pub injected_n: f64,
+        /// Faults injected into this step's sensor frame (see [`sim_faults`]).
+        pub faults: u64,
     }
 }
 
@@ -311,6 +341,19 @@ pub mod sensor_status {
     pub const OVERLOAD: u32 = 1 << 0;
     pub const TEMPERATURE_WARNING: u32 = 1 << 1;
     pub const CALIBRATION_INVALID: u32 = 1 << 2;
+}
+
+/// Faults injected into the simulated sensor (`jetbench up --sim --inject`), as
+/// [`SimTruth`](crate::SimTruth) marks them.
+pub mod sim_faults {
+    /// The reading was off by a spike (`injected_n`).
+    pub const SPIKE: u64 = 1 << 0;
+    /// The sensor repeated an earlier reading.
+    pub const STUCK: u64 = 1 << 1;
+    /// The reading was not a number (it enters at sensing's decoder).
+    pub const NAN: u64 = 1 << 2;
+    /// The sensor sent nothing.
+    pub const SILENCE: u64 = 1 << 3;
 }
 
 /// Flags of [`Thrust`](crate::Thrust).
@@ -330,6 +373,13 @@ pub mod state_flags {
     pub const MODEL_FALLBACK: u64 = 1 << 0;
     /// No actuation sample has been seen yet; the idle throttle was assumed.
     pub const INPUT_ASSUMED: u64 = 1 << 1;
+    /// The thrust measurement was implausible (a spike: its innovation failed the
+    /// chi-square gate) and was not used; the estimate is the model's prediction.
+    pub const MEASUREMENT_REJECTED: u64 = 1 << 2;
+    /// The sensor repeats the same reading (stuck); its readings are not used.
+    pub const SENSOR_STUCK: u64 = 1 << 3;
+    /// Measurements were rejected too often in a row: the filter restarted at this one.
+    pub const FILTER_RESTARTED: u64 = 1 << 4;
 }
 
 /// Flags of [`Command`](crate::Command).
@@ -355,6 +405,10 @@ pub mod actuation_flags {
     pub const BOARD_SILENT: u32 = 1 << 3;
     /// The board reports it idles by its own watchdog.
     pub const BOARD_IDLE: u32 = 1 << 4;
+    /// Actuation's last sample: it stopped, and the board acknowledged the disarm
+    /// (the engine is at idle, `applied_pct` says so, and no command is applied
+    /// until the board is armed again).
+    pub const DISARMED: u32 = 1 << 5;
 }
 
 /// Flags of [`EcuTelemetry`](crate::EcuTelemetry).

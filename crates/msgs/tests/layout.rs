@@ -116,3 +116,16 @@ fn schema_parser_rejects_garbage() {
     assert!(parse_schema("float64[x] a").is_err());
     assert_eq!(parse_schema("# comment\n\nuint8[4] raw # trailing").unwrap().len(), 1);
 }
+
+#[test]
+fn a_non_finite_field_is_found_by_name() {
+    use jetbench_msgs::{Sample, StateEstimate, Thrust};
+    assert_eq!(Thrust::default().non_finite_field(), None);
+    let t = Thrust { force_n: [1.0, 2.0, f64::NAN], ..Thrust::default() };
+    assert_eq!(t.non_finite_field(), Some("force_n"));
+    let s = StateEstimate { thrust_rate_var_n2_per_s2: f64::INFINITY, ..StateEstimate::default() };
+    assert_eq!(s.non_finite_field(), Some("thrust_rate_var_n2_per_s2"));
+    // Integers are never "not a number", whatever their bits.
+    let h = jetbench_msgs::Health { cycles: u64::MAX, ..Default::default() };
+    assert_eq!(h.non_finite_field(), None);
+}

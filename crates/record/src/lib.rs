@@ -24,6 +24,7 @@
 
 pub mod clock;
 pub mod meta;
+pub mod recover;
 pub mod series;
 mod thread;
 
@@ -60,6 +61,36 @@ pub enum RecordError {
     SampleTooLarge { channel: String, size: usize, max: usize },
     #[error("the recorder's writer thread stopped: {0}")]
     WriterGone(String),
+    /// The disk holding the recording is full (or its quota or the file size
+    /// limit is reached): nothing more can be written.
+    #[error(
+        "the disk holding {path} is full ({source}): recording stopped after {written} messages; everything \
+         flushed before is in the file (`jetbench recover {path} --out FIXED.mcap`, on another disk, rewrites it whole)"
+    )]
+    DiskFull { path: PathBuf, written: u64, source: std::io::Error },
+}
+
+impl RecordError {
+    /// This error as [`RecordError::DiskFull`] when it is one (a write that
+    /// failed for lack of space), `written` messages into the file.
+    pub fn classify_disk_full(self, written: u64) -> RecordError {
+        let io = match &self {
+            RecordError::Mcap { source: mcap::McapError::Io(io), .. } | RecordError::Create { source: io, .. } => io,
+            _ => return self,
+        };
+        let full = matches!(
+            io.kind(),
+            std::io::ErrorKind::StorageFull | std::io::ErrorKind::QuotaExceeded | std::io::ErrorKind::FileTooLarge
+        );
+        match self {
+            RecordError::Mcap { path, source: mcap::McapError::Io(source) } | RecordError::Create { path, source }
+                if full =>
+            {
+                RecordError::DiskFull { path, written, source }
+            }
+            other => other,
+        }
+    }
 }
 
 /// A sample as its CDR message, the 4-byte header `00 01 00 00` plus its
@@ -88,6 +119,15 @@ impl CdrMessage {
     }
 }
 
+/// How every jetbench MCAP file is written: zstd chunks, the `ros2` profile,
+/// the library named.
+pub(crate) fn write_options() -> mcap::WriteOptions {
+    mcap::WriteOptions::new()
+        .compression(Some(mcap::Compression::Zstd))
+        .profile(PROFILE)
+        .library(concat!("jetbench ", env!("CARGO_PKG_VERSION")))
+}
+
 /// Writes bus samples into an MCAP file with every channel registered up front.
 pub struct McapWriter {
     writer: mcap::Writer<BufWriter<File>>,
@@ -103,12 +143,7 @@ impl McapWriter {
     pub fn create(path: &Path) -> Result<Self, RecordError> {
         let file = File::create(path).map_err(|source| RecordError::Create { path: path.into(), source })?;
         let mcap_err = |source| RecordError::Mcap { path: path.into(), source };
-        let writer = mcap::WriteOptions::new()
-            .compression(Some(mcap::Compression::Zstd))
-            .profile(PROFILE)
-            .library(concat!("jetbench ", env!("CARGO_PKG_VERSION")))
-            .create(BufWriter::new(file))
-            .map_err(mcap_err)?;
+        let writer = write_options().create(BufWriter::new(file)).map_err(mcap_err)?;
 
         struct Register<'a> {
             writer: mcap::Writer<BufWriter<File>>,
@@ -311,8 +346,10 @@ impl Recording {
     }
 }
 
-/// The metadata records of an MCAP file's bytes, by name (none if the file
-/// has no summary, e.g. one cut off mid-write).
+/// The metadata records of an MCAP file's bytes, by name: through the
+/// summary's index, or, in a file cut off before its summary (a recorder
+/// killed mid-run), read from the records before the cut (the recorder writes
+/// its metadata first).
 pub fn read_metadata(bytes: &[u8]) -> BTreeMap<String, BTreeMap<String, String>> {
     let mut metadata = BTreeMap::new();
     if let Ok(Some(summary)) = mcap::Summary::read(bytes) {
@@ -321,8 +358,19 @@ pub fn read_metadata(bytes: &[u8]) -> BTreeMap<String, BTreeMap<String, String>>
                 metadata.insert(m.name, m.metadata);
             }
         }
+        return metadata;
     }
-    metadata
+    let Ok(reader) = mcap::read::LinearReader::new_with_options(bytes, mcap::read::Options::IgnoreEndMagic.into())
+    else {
+        return metadata;
+    };
+    reader
+        .map_while(Result::ok)
+        .filter_map(|record| match record {
+            mcap::records::Record::Metadata(m) => Some((m.name, m.metadata)),
+            _ => None,
+        })
+        .collect()
 }
 
 /// Counts missing `seq` numbers in samples of one publisher.

@@ -16,8 +16,9 @@ use crate::{McapWriter, RecordError};
 /// Largest sample a record slot holds; every `jetbench_msgs` type fits.
 pub const MAX_SAMPLE_BYTES: usize = 128;
 
-/// Longest time a written message may sit in an unflushed chunk.
-const FLUSH_EVERY: Duration = Duration::from_secs(1);
+/// Longest time a written message may sit in an unflushed chunk: what a
+/// recorder killed at the worst moment loses (plus the last 10 ms tick).
+pub const FLUSH_EVERY: Duration = Duration::from_millis(500);
 
 /// One sample on its way to disk; fixed size, so sending allocates nothing.
 #[derive(Clone, Copy, Debug)]
@@ -70,17 +71,24 @@ impl WriterHandle {
                 self.dropped_full += 1;
                 Ok(false)
             }
-            Err(TrySendError::Disconnected(_)) => Err(RecordError::WriterGone(self.finish_error())),
+            Err(TrySendError::Disconnected(_)) => Err(self.finish_error()),
         }
     }
 
-    fn finish_error(&mut self) -> String {
+    /// Why the writer thread ended: its own error (e.g. [`RecordError::DiskFull`]).
+    fn finish_error(&mut self) -> RecordError {
         self.sender = None;
         match self.thread.take().map(JoinHandle::join) {
-            Some(Ok(Err(e))) => e.to_string(),
-            Some(Err(_)) => "writer thread panicked".into(),
-            _ => "writer thread ended".into(),
+            Some(Ok(Err(e))) => e,
+            Some(Err(_)) => RecordError::WriterGone("writer thread panicked".into()),
+            _ => RecordError::WriterGone("writer thread ended".into()),
         }
+    }
+
+    /// True once the writer thread has ended (an error it met, such as a full
+    /// disk, is returned by the next [`WriterHandle::send`]).
+    pub fn has_stopped(&self) -> bool {
+        self.thread.as_ref().is_none_or(JoinHandle::is_finished)
     }
 
     /// Closes the queue, waits until everything queued is written, and
@@ -101,9 +109,9 @@ pub type MetadataRecords = Vec<(String, BTreeMap<String, String>)>;
 /// Opens `path`, writes `metadata`, and starts the writer thread with a
 /// queue of `capacity` records.
 pub fn spawn_writer(path: &Path, capacity: usize, metadata: MetadataRecords) -> Result<WriterHandle, RecordError> {
-    let mut writer = McapWriter::create(path)?;
+    let mut writer = McapWriter::create(path).map_err(|e| e.classify_disk_full(0))?;
     for (name, entries) in metadata {
-        writer.write_metadata(&name, entries)?;
+        writer.write_metadata(&name, entries).map_err(|e| e.classify_disk_full(0))?;
     }
     let (sender, receiver) = bounded(capacity);
     let thread = std::thread::Builder::new()
@@ -113,8 +121,24 @@ pub fn spawn_writer(path: &Path, capacity: usize, metadata: MetadataRecords) -> 
     Ok(WriterHandle { sender: Some(sender), thread: Some(thread), dropped_full: 0 })
 }
 
-fn write_loop(mut writer: McapWriter, receiver: Receiver<RawRecord>) -> Result<WriterStats, RecordError> {
+/// Writes until the queue closes. An error ends the thread at once, logged
+/// from here so that it is reported the moment it happens, not when the
+/// recorder next hands a sample over.
+fn write_loop(writer: McapWriter, receiver: Receiver<RawRecord>) -> Result<WriterStats, RecordError> {
     let mut stats = WriterStats::default();
+    write_all(writer, &receiver, &mut stats).map_err(|e| {
+        let e = e.classify_disk_full(stats.written);
+        tracing::error!("{e}");
+        e
+    })?;
+    Ok(stats)
+}
+
+fn write_all(
+    mut writer: McapWriter,
+    receiver: &Receiver<RawRecord>,
+    stats: &mut WriterStats,
+) -> Result<(), RecordError> {
     let mut last_flush = Instant::now();
     let mut unflushed = false;
     loop {
@@ -136,5 +160,5 @@ fn write_loop(mut writer: McapWriter, receiver: Receiver<RawRecord>) -> Result<W
         }
     }
     writer.finish()?;
-    Ok(stats)
+    Ok(())
 }

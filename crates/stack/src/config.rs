@@ -71,6 +71,12 @@ pub struct BenchSection {
     /// refused with a message saying so.
     #[serde(default, skip_serializing)]
     pub rate_hz: Option<f64>,
+    /// A group that may use the running set too (watch it with `jetbench echo`
+    /// and the like): its files become `0660` instead of its user's only `0600`,
+    /// and the set must run with that group (`sg NAME -c "jetbench up ..."`).
+    /// See `jetbench_bus::access`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub group: Option<String>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
@@ -100,9 +106,18 @@ pub struct PlantSection {
     /// N and N·m: the offset `jetbench tare` finds and `[sensor] tare` removes.
     #[serde(default)]
     pub sensor_zero: [f64; 6],
+    /// Faults injected into the simulated sensor's path, `KIND:KEY=VALUE,...`
+    /// each (`jetbench up --inject`; see [`crate::inject`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub inject: Vec<String>,
 }
 
 impl PlantSection {
+    /// The injected faults ([`crate::inject`]); none unless asked for.
+    pub fn faults(&self) -> Result<crate::inject::FaultPlan, crate::inject::InjectError> {
+        crate::inject::FaultPlan::parse(&self.inject)
+    }
+
     /// The simulated force sensor of this plant: its noise, its zero offset, its seed.
     pub fn sensor(&self) -> Result<crate::step::SimForceSensor, crate::step::SimError> {
         crate::step::SimForceSensor::new(self.noise_var_n2, self.sensor_zero, self.seed)
@@ -236,21 +251,38 @@ impl SensorSection {
 pub struct EstimatorSection {
     pub measurement_var_n2: f64,
     pub accel_noise_n_per_s2: f64,
+    /// A measurement whose normalised innovation squared exceeds this is rejected
+    /// (chi-square, one degree of freedom; 25 = five standard deviations).
+    pub gate_chi2: f64,
+    /// Identical readings in a row that mark the sensor stuck; 0 turns the test
+    /// off (a noise-free simulated sensor repeats itself at rest).
+    pub stuck_after_samples: u32,
 }
 
 impl Default for EstimatorSection {
     fn default() -> Self {
         let d = jetbench_estim::ObserverConfig::default();
-        EstimatorSection { measurement_var_n2: d.measurement_var_n2, accel_noise_n_per_s2: d.accel_noise_n_per_s2 }
+        EstimatorSection {
+            measurement_var_n2: d.measurement_var_n2,
+            accel_noise_n_per_s2: d.accel_noise_n_per_s2,
+            gate_chi2: d.gate.chi2_threshold,
+            stuck_after_samples: d.gate.stuck_after_samples,
+        }
     }
 }
 
 impl EstimatorSection {
     pub fn observer_config(&self) -> jetbench_estim::ObserverConfig {
+        let d = jetbench_estim::ObserverConfig::default();
         jetbench_estim::ObserverConfig {
             measurement_var_n2: self.measurement_var_n2,
             accel_noise_n_per_s2: self.accel_noise_n_per_s2,
-            ..jetbench_estim::ObserverConfig::default()
+            gate: jetbench_estim::GateConfig {
+                chi2_threshold: self.gate_chi2,
+                stuck_after_samples: self.stuck_after_samples,
+                ..d.gate
+            },
+            ..d
         }
     }
 }
@@ -340,12 +372,26 @@ pub fn bus_namespace() -> String {
 #[serde(deny_unknown_fields, default)]
 pub struct RecorderSection {
     pub queue: usize,
+    /// What a run does when the recording cannot be written (a full disk).
+    pub on_error: OnRecordError,
 }
 
 impl Default for RecorderSection {
     fn default() -> Self {
-        RecorderSection { queue: 16_384 }
+        RecorderSection { queue: 16_384, on_error: OnRecordError::Stop }
     }
+}
+
+/// `[recorder] on_error`: what a run does when its recording fails.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum OnRecordError {
+    /// The recorder stops with the error and the launcher stops the run safely
+    /// (engine to idle, board disarmed): no run goes unrecorded.
+    #[default]
+    Stop,
+    /// The recorder says so, flags its heartbeat and the run goes on unrecorded.
+    Continue,
 }
 
 /// Real-time settings of the service processes (`[rt]`).
@@ -516,6 +562,10 @@ impl BenchConfig {
         if !(self.plant.noise_var_n2.is_finite() && self.plant.noise_var_n2 >= 0.0) {
             return Err(invalid(format!("[plant] noise_var_n2 = {} must be >= 0", self.plant.noise_var_n2)));
         }
+        self.plant.faults().map_err(|e| invalid(format!("[plant] inject: {e}")))?;
+        if !self.plant.inject.is_empty() && self.bench.devices != Devices::Sim {
+            return Err(invalid("[plant] inject needs the simulated bench (devices = \"sim\")".into()));
+        }
         if !(0.0..=120.0).contains(&self.plant.initial_throttle_pct) {
             return Err(invalid(format!(
                 "[plant] initial_throttle_pct = {} is outside 0..120",
@@ -525,6 +575,7 @@ impl BenchConfig {
         for (key, v) in [
             ("[estimator] measurement_var_n2", self.estimator.measurement_var_n2),
             ("[estimator] accel_noise_n_per_s2", self.estimator.accel_noise_n_per_s2),
+            ("[estimator] gate_chi2", self.estimator.gate_chi2),
             ("[control.fbl] kp", self.control.fbl.kp),
             ("[control.fbl] kd", self.control.fbl.kd),
             ("[control.smc] a1", self.control.smc.a1),

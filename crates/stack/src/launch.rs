@@ -39,6 +39,10 @@ pub enum LaunchError {
     StopFailed { service: &'static str, how: String },
     #[error(transparent)]
     Bus(#[from] BusError),
+    #[error(transparent)]
+    Lock(#[from] jetbench_bus::lock::LockError),
+    #[error(transparent)]
+    Group(#[from] jetbench_bus::access::GroupError),
 }
 
 jetbench_bus::from_bus_errors!(LaunchError);
@@ -114,6 +118,8 @@ fn binary(bin_dir: &Path, id: ServiceId) -> Result<PathBuf, LaunchError> {
 struct Services {
     ids: Vec<ServiceId>,
     children: Supervisor,
+    /// Why each service said it failed, if it did (its `failed: ...` line).
+    failures: Vec<Option<String>>,
 }
 
 impl Services {
@@ -137,12 +143,15 @@ impl Services {
         }
         // In its own process group (as the supervisor starts every child): Ctrl-C
         // reaches only the launcher, which then stops the services in order (so the
-        // recorder sees the last samples).
+        // recorder sees the last samples). Should the launcher die (SIGKILL), each
+        // service gets SIGTERM from the kernel and stops safely on its own.
+        let spawn = SpawnOptions { parent_death_signal: Some(libc::SIGTERM), ..SpawnOptions::default() };
         let index = self
             .children
-            .spawn(id.name(), &mut command, SpawnOptions::default())
+            .spawn(id.name(), &mut command, spawn)
             .map_err(|e| LaunchError::Spawn { service: id.name(), source: e.source })?;
         self.ids.push(id);
+        self.failures.push(None);
         println!("started {} (pid {})", id.name(), self.children.pid(index));
         Ok(())
     }
@@ -155,6 +164,8 @@ impl Services {
         while let Some((i, line)) = next {
             if line.trim() == "ready" {
                 ready.push(self.ids[i]);
+            } else if let Some(why) = line.strip_prefix(crate::service::FAILED_PREFIX) {
+                self.failures[i] = Some(why.to_string());
             } else {
                 println!("{}: {line}", self.ids[i].name());
             }
@@ -163,18 +174,40 @@ impl Services {
         ready
     }
 
-    /// The first service that has ended, as the error naming it.
+    /// The first service that has ended, as the error naming it (and why it
+    /// said it failed, e.g. its disk is full).
     fn died(&mut self) -> Option<LaunchError> {
         let (i, status) = self.children.reap()?;
-        Some(LaunchError::ServiceDied { service: self.ids[i].name(), how: describe_exit(status) })
+        // Its last words may still be in the pipe.
+        self.pump_lines(Duration::from_millis(20));
+        let how = match &self.failures[i] {
+            Some(why) => format!("{}: {why}", describe_exit(status)),
+            None => describe_exit(status),
+        };
+        Some(LaunchError::ServiceDied { service: self.ids[i].name(), how })
     }
 
-    /// Stops the services in reverse start order: the clocking sim-bench first
-    /// and the recorder last, so no sample is lost in between. Returns the
-    /// first that did not stop cleanly.
+    /// Stops the services safely, the engine first: control, so that actuation
+    /// idles within its missed cycles and the board acknowledges; after
+    /// [`FAILSAFE_GRACE`], actuation, which disarms the board; then the rest
+    /// from the clocking sim-bench (which runs its engine down to idle) back,
+    /// and the recorder last, so that all of it is recorded. Returns the first
+    /// that did not stop cleanly.
     fn stop_all(&mut self) -> Option<(ServiceId, String)> {
-        let order = (0..self.ids.len()).rev().collect();
-        let failure = self.children.stop(StopOrder::InTurn(order), STOP_TIMEOUT);
+        let index = |id| self.ids.iter().position(|&i| i == id);
+        let (control, actuation, recorder) =
+            (index(ServiceId::Control), index(ServiceId::Actuation), index(ServiceId::Recorder));
+        let mut failure = None;
+        if let Some(c) = control.filter(|&c| self.children.exited(c).is_none()) {
+            failure = self.children.stop(StopOrder::InTurn(vec![c]), STOP_TIMEOUT);
+            if actuation.is_some_and(|a| self.children.exited(a).is_none()) {
+                std::thread::sleep(FAILSAFE_GRACE);
+            }
+        }
+        let rest =
+            (0..self.ids.len()).rev().filter(|&i| Some(i) != control && Some(i) != actuation && Some(i) != recorder);
+        let order = actuation.into_iter().chain(rest).chain(recorder).collect();
+        failure = failure.or(self.children.stop(StopOrder::InTurn(order), STOP_TIMEOUT));
         self.pump_lines(Duration::ZERO);
         failure.map(|(i, how)| (self.ids[i], how))
     }
@@ -270,9 +303,13 @@ impl Status {
 /// requested, with every service stopped.
 pub fn up(options: &UpOptions) -> Result<(), LaunchError> {
     jetbench_bus::install_signal_flag()?;
+    jetbench_bus::access::restrict()?;
     if let Some(ns) = jetbench_bus::namespace()? {
         println!("bus namespace {ns} ({} is set)", jetbench_bus::NAMESPACE_ENV);
     }
+    // One set per namespace, held by the services too until the last is gone.
+    let lock = jetbench_bus::lock::NamespaceLock::acquire("jetbench up")?;
+    lock.inherit().map_err(|source| jetbench_bus::lock::LockError::Io { path: lock.path().into(), source })?;
     let cleaned = jetbench_bus::cleanup_dead_nodes();
     if cleaned > 0 {
         println!("cleaned up {cleaned} bus node(s) left by a previous run");

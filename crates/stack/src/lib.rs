@@ -12,6 +12,7 @@
 pub mod clock;
 pub mod config;
 pub mod health;
+pub mod inject;
 pub mod launch;
 pub mod replay;
 pub mod rt;

@@ -26,7 +26,9 @@
 //! and `flags`. `seq` and `publish_ns` belong to the live publisher and are not
 //! compared. That holds because the estimator is a pure function of its
 //! configuration, the thrust samples it processed and the throttle each
-//! prediction used, and a recording holds all three:
+//! prediction used (its measurement gate included: which measurements it
+//! rejects as spikes or a stuck sensor depends on nothing else), and a
+//! recording holds all three:
 //! - the configuration: the recorder's `jetbench` metadata record holds the
 //!   bench config (`config`) and the resolved model parameters (`model_toml`,
 //!   which parse back bit for bit), so a model file deleted since does not matter;

@@ -4,7 +4,7 @@
 //! replay and in tests. Time comes in as arguments, never from a clock.
 
 use jetbench_control::{Controller, Law, Profile};
-use jetbench_estim::{EstimError, ObserverConfig, ThrustObserver};
+use jetbench_estim::{EstimError, ObserverConfig, ThrustObserver, Verdict};
 use jetbench_io::{Acknowledgement, ForceReading};
 use jetbench_model::{
     ModelError, Params, Plant, PlantEngine, PlantSample, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT,
@@ -19,6 +19,7 @@ use rand_distr::{Distribution, Normal};
 
 use crate::clock::PERIOD_NS;
 use crate::config::SensorSection;
+use crate::inject::FaultPlan;
 use jetbench_io::calib::{Calibration, CalibrationError};
 
 /// Why sensing rejected a reading.
@@ -37,6 +38,8 @@ pub struct Sensing {
     last: Option<(u32, u64)>,
     frame_seq: u64,
     silent_since_ns: Option<u64>,
+    /// Injected driver faults (the simulated bench only): readings made NaN.
+    faults: FaultPlan,
 }
 
 impl Sensing {
@@ -48,7 +51,26 @@ impl Sensing {
             last: None,
             frame_seq: 0,
             silent_since_ns: None,
+            faults: FaultPlan::default(),
         })
+    }
+
+    /// With the `nan` faults of `plan` injected where a driver fault would put
+    /// them: the decoded reading, before it is checked (see [`crate::inject`]).
+    pub fn with_faults(mut self, plan: FaultPlan) -> Self {
+        self.faults = plan;
+        self
+    }
+
+    /// Frames since the previous reading, from the wrapping counter and the time.
+    fn frames_since_last(&self, counter: u32, received_ns: u64) -> Option<u64> {
+        let (last, last_ns) = self.last?;
+        // The wire counter is 8 bits wide and wraps; after a long silence
+        // the time since the last frame tells how many times it wrapped.
+        let step = u64::from(counter.wrapping_sub(last) & 0xff);
+        let elapsed = received_ns.saturating_sub(last_ns) / PERIOD_NS;
+        let wraps = if elapsed > step + 128 { (elapsed - step + 128) / 256 } else { 0 };
+        Some(step + 256 * wraps)
     }
 
     /// One reading (raw sensor units, N and N·m) received at `received_ns`:
@@ -56,17 +78,17 @@ impl Sensing {
     /// thrust axis. A counter jump sets `FRAME_GAP`; the first reading after
     /// [`Sensing::silent`] sets `SENSOR_RESUMED`.
     pub fn step(&mut self, reading: &ForceReading, received_ns: u64) -> Result<Thrust, SensingError> {
+        let frames = self.frames_since_last(reading.counter, received_ns);
+        let mut reading = *reading;
+        let frame = frames.map_or(0, |n| self.frame_seq + n.max(1));
+        if !self.faults.is_empty() && self.faults.at(frame).nan {
+            reading.force_n[self.axis] = f64::NAN;
+        }
         if reading.force_n.iter().chain(&reading.torque_nm).any(|v| !v.is_finite()) {
             return Err(SensingError::NonFinite(reading.force_n));
         }
         let mut flags = 0;
-        if let Some((last, last_ns)) = self.last {
-            // The wire counter is 8 bits wide and wraps; after a long silence
-            // the time since the last frame tells how many times it wrapped.
-            let step = u64::from(reading.counter.wrapping_sub(last) & 0xff);
-            let elapsed = received_ns.saturating_sub(last_ns) / PERIOD_NS;
-            let wraps = if elapsed > step + 128 { (elapsed - step + 128) / 256 } else { 0 };
-            let frames = step + 256 * wraps;
+        if let Some(frames) = frames {
             if frames != 1 {
                 flags |= thrust_flags::FRAME_GAP;
             }
@@ -79,7 +101,7 @@ impl Sensing {
         if reading.status & (sensor_status::OVERLOAD | sensor_status::CALIBRATION_INVALID) != 0 {
             flags |= thrust_flags::SENSOR_STATUS;
         }
-        let c = self.calibration.apply(reading);
+        let c = self.calibration.apply(&reading);
         let force_n = [c[0], c[1], c[2]];
         Ok(Thrust {
             seq: 0,
@@ -129,7 +151,9 @@ impl Estimation {
         }
     }
 
-    /// One thrust sample: predict with the last applied throttle, update.
+    /// One thrust sample: predict with the last applied throttle, update. A
+    /// measurement the observer's gate does not use (a spike, a stuck sensor) is
+    /// flagged in the estimate ([`state_flags`]).
     pub fn step(&mut self, thrust: &Thrust) -> Result<StateEstimate, EstimError> {
         let mut flags = 0;
         let throttle_pct = self.applied_pct.unwrap_or_else(|| {
@@ -141,6 +165,12 @@ impl Estimation {
         if self.observer.fallbacks() != fallbacks_before {
             flags |= state_flags::MODEL_FALLBACK;
         }
+        flags |= match e.verdict {
+            Verdict::Accepted => 0,
+            Verdict::Rejected => state_flags::MEASUREMENT_REJECTED,
+            Verdict::Stuck => state_flags::SENSOR_STUCK,
+            Verdict::Restarted => state_flags::FILTER_RESTARTED,
+        };
         Ok(StateEstimate {
             seq: 0,
             stamp_ns: thrust.stamp_ns,
@@ -343,6 +373,11 @@ impl Actuator {
         out
     }
 
+    /// The sample of a stopped actuator: idle, whatever the last command was.
+    pub fn on_stop(&self) -> Actuation {
+        self.output(THROTTLE_MIN_PCT, actuation_flags::IDLE_FALLBACK)
+    }
+
     /// True while idling for lack of commands.
     pub fn is_idle_fallback(&self) -> bool {
         self.missed >= self.idle_after_missed || (self.missed > 0 && self.last.is_none())
@@ -504,6 +539,8 @@ impl SimBench {
             thrust_rate_n_per_s,
             engine_throttle_pct,
             measured_thrust_n: measured_n,
+            injected_n: 0.0,
+            faults: 0,
         };
         Ok((reading, truth))
     }

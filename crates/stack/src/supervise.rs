@@ -98,12 +98,19 @@ impl Supervisor {
         command.process_group(0).stdout(Stdio::piped()).stderr(Stdio::inherit());
         command.stdin(if options.stdin { Stdio::piped() } else { Stdio::null() });
         if let Some(signal) = options.parent_death_signal {
-            // SAFETY: runs between fork and exec and calls only prctl, which is
-            // async-signal-safe, on plain integers; it allocates nothing.
+            let parent = std::process::id() as libc::pid_t;
+            // SAFETY: runs between fork and exec and calls only prctl and
+            // getppid, which are async-signal-safe, on plain integers; it
+            // allocates nothing (the error is built from a static string).
             unsafe {
                 command.pre_exec(move || {
                     if libc::prctl(libc::PR_SET_PDEATHSIG, signal as libc::c_ulong) != 0 {
                         return Err(std::io::Error::last_os_error());
+                    }
+                    // The parent may have died between fork and prctl: then no
+                    // signal will ever come, so do not start at all.
+                    if libc::getppid() != parent {
+                        return Err(std::io::Error::from(std::io::ErrorKind::BrokenPipe));
                     }
                     Ok(())
                 });

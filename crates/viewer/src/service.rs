@@ -2,7 +2,7 @@
 //! run by the runtime's one runner as a reader of every channel.
 
 use jetbench_msgs::ServiceId;
-use jetbench_stack::service::{ChannelReader, ServiceError, Setup};
+use jetbench_stack::service::{ChannelReader, Context, ServiceError, Setup};
 
 use crate::{FoxgloveServer, LiveView, ServerOptions, ViewerError, DEFAULT_ADDR};
 
@@ -27,8 +27,8 @@ impl ChannelReader for Viewer {
         Ok(Viewer { view })
     }
 
-    fn pump(&mut self) -> Result<(), ServiceError> {
-        Ok(self.view.pump().map(|_| ())?)
+    fn pump(&mut self, _ctx: &mut Context<'_>) -> Result<usize, ServiceError> {
+        Ok(self.view.pump()?)
     }
 
     fn gaps(&self) -> u64 {

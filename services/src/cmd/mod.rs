@@ -4,6 +4,7 @@
 pub mod bus;
 pub mod can_decode;
 pub mod diagnose;
+pub mod faults;
 pub mod identify;
 pub mod info;
 pub mod latency;
@@ -12,6 +13,7 @@ pub mod metrics;
 pub mod model;
 pub mod play;
 pub mod record;
+pub mod recover;
 pub mod replay;
 pub mod tare;
 pub mod up;

@@ -5,7 +5,6 @@
 //! into the exit status (0 identical, 1 differs, 2 error) so that scripts can
 //! check the determinism contract.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
@@ -112,12 +111,7 @@ fn replay_file(args: &ReplayArgs) -> anyhow::Result<bool> {
         }
         None => EstimatorSource::Recorded,
     };
-    let mut recording = Recording::open(&args.file)?;
-    if recording.truncated && !recording.metadata.contains_key(jetbench_record::meta::RUN) {
-        // A cut-off file has no summary, so its metadata index is gone; the
-        // record itself sits at the start of the file.
-        recording.metadata = metadata_before_the_cut(&args.file);
-    }
+    let recording = Recording::open(&args.file)?;
 
     let start = Instant::now();
     let outcome = replay(&recording, source, args.inputs.into())
@@ -217,23 +211,7 @@ fn print_summary(file: &Path, r: &ReplayReport, elapsed_s: f64) {
     }
 }
 
-/// Metadata records before the point where a truncated file was cut off.
-fn metadata_before_the_cut(path: &Path) -> BTreeMap<String, BTreeMap<String, String>> {
-    let Ok(bytes) = std::fs::read(path) else { return BTreeMap::new() };
-    let Ok(reader) = mcap::read::LinearReader::new_with_options(&bytes, mcap::read::Options::IgnoreEndMagic.into())
-    else {
-        return BTreeMap::new();
-    };
-    reader
-        .map_while(Result::ok)
-        .filter_map(|record| match record {
-            mcap::records::Record::Metadata(m) => Some((m.name, m.metadata)),
-            _ => None,
-        })
-        .collect()
-}
-
 /// True when both paths name one existing file.
-fn same_file(a: &Path, b: &Path) -> bool {
+pub fn same_file(a: &Path, b: &Path) -> bool {
     matches!((std::fs::canonicalize(a), std::fs::canonicalize(b)), (Ok(a), Ok(b)) if a == b)
 }

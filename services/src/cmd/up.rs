@@ -60,6 +60,11 @@ pub struct UpArgs {
     /// (CSV `time_s,throttle_pct`, e.g. from `jetbench excite`).
     #[arg(long, value_name = "FILE.csv", conflicts_with_all = ["controller", "profile"])]
     open_loop: Option<PathBuf>,
+    /// Inject a fault into the simulated sensor's path (repeatable; the kinds compose):
+    /// spikes:rate_per_s=R,size_n=N[,seed=S], stuck:at_s=T,for_s=D, nan:at_s=T[,for_s=D],
+    /// silence:at_s=T,for_s=D (times from the sensor's first frame).
+    #[arg(long, value_name = "KIND:KEY=VALUE,...", requires = "sim")]
+    inject: Vec<String>,
     /// How samples travel between the services: iceoryx2 shared memory, or
     /// copied through Unix domain sockets (uds, the baseline `jetbench latency`
     /// measures against). Default: $JETBENCH_TRANSPORT, else iceoryx2.
@@ -106,6 +111,7 @@ impl UpArgs {
             || self.plant.is_some()
             || self.profile.is_some()
             || self.open_loop.is_some()
+            || !self.inject.is_empty()
     }
 }
 
@@ -115,6 +121,24 @@ fn model_spec(spec: &str) -> String {
         return spec.to_string();
     }
     std::path::absolute(spec).map_or_else(|_| spec.to_string(), |p| p.display().to_string())
+}
+
+/// File name start of the config a launcher derives from its command line.
+const DERIVED_PREFIX: &str = "jetbench-up-";
+
+/// A launcher killed (SIGKILL) leaves its derived config behind: removed by the next.
+fn remove_derived_configs_of_dead_launchers() {
+    let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else { return };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let pid =
+            name.to_str().and_then(|n| n.strip_prefix(DERIVED_PREFIX)?.strip_suffix(".toml")?.parse::<i32>().ok());
+        // SAFETY: kill(pid, 0) only asks whether the process exists.
+        let gone = |pid| unsafe { libc::kill(pid, 0) } != 0 && std::io::Error::last_os_error().raw_os_error() == Some(libc::ESRCH);
+        if pid.is_some_and(gone) {
+            let _ = std::fs::remove_file(entry.path());
+        }
+    }
 }
 
 pub fn run(args: UpArgs) -> anyhow::Result<ExitCode> {
@@ -146,6 +170,7 @@ pub fn run(args: UpArgs) -> anyhow::Result<ExitCode> {
             checked.reference = jetbench_control::Profile::builtin(name, idle_n, max_n)
                 .with_context(|| format!("the model's thrust range {idle_n:.1}..{max_n:.1} N is empty"))?;
         }
+        checked.plant.inject.extend(args.inject.iter().cloned());
         if let Some(profile) = &args.open_loop {
             let profile = std::path::absolute(profile).unwrap_or_else(|_| profile.clone());
             checked.control.controller = Controller::OpenLoop;
@@ -154,7 +179,8 @@ pub fn run(args: UpArgs) -> anyhow::Result<ExitCode> {
         let text = toml::to_string(&checked).context("cannot write the derived bench config")?;
         // Check it as the services will read it (this also loads models and profiles).
         BenchConfig::from_toml_str(&text, "the command-line options", None)?;
-        let path = std::env::temp_dir().join(format!("jetbench-up-{}.toml", std::process::id()));
+        remove_derived_configs_of_dead_launchers();
+        let path = std::env::temp_dir().join(format!("{DERIVED_PREFIX}{}.toml", std::process::id()));
         std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
         derived = Some(path.clone());
         Some(path)
@@ -195,6 +221,10 @@ fn run_up(args: &UpArgs, config: Option<PathBuf>, checked: &BenchConfig) -> anyh
                 bail!("cannot record to {}: folder {} does not exist", path.display(), dir.display());
             }
         }
+    }
+    if let Some(group) = &checked.bench.group {
+        // Every service inherits it: their files are shared with the group.
+        std::env::set_var(jetbench_bus::access::GROUP_ENV, group);
     }
     let options = UpOptions {
         config: config.map(|c| std::path::absolute(&c).unwrap_or(c)),

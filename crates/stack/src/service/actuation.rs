@@ -3,9 +3,9 @@
 use jetbench_bus::{Publisher, Wake};
 use jetbench_io::serial::{EcuPoller, ThrottleBoard, SILENT_AFTER};
 use jetbench_io::ThrottleOutput;
-use jetbench_msgs::{channels, Command, EcuTelemetry, ServiceId};
+use jetbench_msgs::{actuation_flags, channels, Command, EcuTelemetry, ServiceId};
 
-use super::{publish_now, Context, Input, Service, ServiceError, Setup};
+use super::{Context, Input, Service, ServiceError, Setup};
 use crate::clock::{monotonic_ns, COMMAND_DEADLINE};
 use crate::step::Actuator;
 
@@ -74,7 +74,7 @@ impl Service for Actuation {
         let mut output =
             self.step.with_board(output, board.acknowledged(), board.unacked_writes(), board.silent_writes());
         output.written_ns = board.written_ns().unwrap_or(0);
-        publish_now(&mut self.actuation, output, |a, ns| a.publish_ns = ns)?;
+        ctx.publish(&mut self.actuation, output, |a, ns| a.publish_ns = ns)?;
         let board_silent = board.silent_writes() >= SILENT_AFTER;
         if self.links.board(board_silent, board) {
             ctx.health().error();
@@ -83,7 +83,7 @@ impl Service for Actuation {
             if self.links.ecu(telemetry.flags, &self.ecu) {
                 ctx.health().error();
             }
-            publish_now(&mut self.telemetry, telemetry, |t, ns| t.publish_ns = ns)?;
+            ctx.publish(&mut self.telemetry, telemetry, |t, ns| t.publish_ns = ns)?;
         }
         let idle = self.step.is_idle_fallback();
         if idle != self.was_idle {
@@ -102,9 +102,26 @@ impl Service for Actuation {
         Ok(())
     }
 
-    fn stop(&mut self, _command: &Input<Command>, _ctx: &mut Context<'_>) -> Result<(), ServiceError> {
-        // Disarm, whatever ended the loop.
+    fn stop(&mut self, _command: &Input<Command>, ctx: &mut Context<'_>) -> Result<(), ServiceError> {
+        // Disarm, whatever ended the loop, and say so in a last sample.
         self.board.stop();
+        // Idle, as the engine is once disarmed (the board then drives no signal,
+        // which the ECU takes as idle).
+        let mut last = self.step.on_stop();
+        match self.board.acknowledged() {
+            Some(ack) if !ack.armed => {
+                tracing::info!("throttle board disarmed (acknowledged): engine at idle");
+                last.flags |= actuation_flags::DISARMED;
+                last.round_trip_ns = ack.round_trip_ns;
+            }
+            _ => {
+                tracing::warn!(
+                    "the throttle board did not acknowledge the disarm; its own watchdog idles it in 100 ms"
+                );
+                last.flags |= actuation_flags::UNACKED;
+            }
+        }
+        ctx.publish(&mut self.actuation, last, |a, ns| a.publish_ns = ns)?;
         let c = self.board.counters();
         tracing::info!(
             "throttle board: {} acknowledged frames, {} rejected from the board ({} CRC, {} truncated), {} late \

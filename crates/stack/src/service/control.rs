@@ -3,7 +3,7 @@
 use jetbench_bus::{Publisher, Wake};
 use jetbench_msgs::{channels, command_flags, Command, Reference, ServiceId, StateEstimate};
 
-use super::{publish_now, Context, Input, Service, ServiceError, Setup};
+use super::{Context, Input, Service, ServiceError, Setup};
 use crate::clock::INPUT_DEADLINE;
 use crate::step::{self, ControlLaw};
 
@@ -45,8 +45,8 @@ impl Service for Control {
                         ctx.reject("MPC solve", &"fell back to FBL for this cycle");
                     }
                     // The command first: it wakes actuation, the reference only the recorder.
-                    publish_now(&mut self.command, command, |c, ns| c.publish_ns = ns)?;
-                    publish_now(&mut self.reference, reference, |r, ns| r.publish_ns = ns)?;
+                    ctx.publish(&mut self.command, command, |c, ns| c.publish_ns = ns)?;
+                    ctx.publish(&mut self.reference, reference, |r, ns| r.publish_ns = ns)?;
                 }
                 Err(e) => ctx.reject("state estimate", &e),
             }

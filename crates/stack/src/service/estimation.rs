@@ -1,9 +1,9 @@
 //! Estimation: `bench/thrust` (and the newest `bench/actuation`, read with it) in, `bench/state` out.
 
 use jetbench_bus::{Publisher, Subscriber, Wake};
-use jetbench_msgs::{channels, Actuation, ServiceId, StateEstimate, Thrust};
+use jetbench_msgs::{channels, state_flags, Actuation, ServiceId, StateEstimate, Thrust};
 
-use super::{publish_now, Context, Input, Service, ServiceError, Setup};
+use super::{Context, Input, Service, ServiceError, Setup};
 use crate::clock::INPUT_DEADLINE;
 use crate::step;
 
@@ -39,11 +39,33 @@ impl Service for Estimation {
             }
             match self.step.step(&sample) {
                 Ok(state) => {
-                    publish_now(&mut self.state, state, |s, ns| s.publish_ns = ns)?;
+                    ctx.publish(&mut self.state, state, |s, ns| s.publish_ns = ns)?;
+                    report_gated(&state, &sample, ctx);
                 }
                 Err(e) => ctx.reject("thrust sample", &e),
             }
             Ok(())
         })
+    }
+}
+
+/// Counts and logs a measurement the estimator's gate did not use (after the
+/// estimate is out: the log never delays the control path).
+fn report_gated(state: &StateEstimate, thrust: &Thrust, ctx: &mut Context<'_>) {
+    let (seq, innovation_n) = (thrust.seq, state.innovation_n);
+    if state.flags & state_flags::MEASUREMENT_REJECTED != 0 {
+        ctx.reject(
+            "implausible thrust (spike)",
+            &format_args!("thrust seq {seq}: innovation {innovation_n:+.1} N fails the chi-square gate"),
+        );
+    }
+    if state.flags & state_flags::SENSOR_STUCK != 0 {
+        ctx.reject("stuck sensor", &format_args!("thrust seq {seq} repeats {:.2} N", thrust.thrust_n));
+    }
+    if state.flags & state_flags::FILTER_RESTARTED != 0 {
+        ctx.reject(
+            "estimator restart",
+            &format_args!("thrust seq {seq}: restarted at {:.1} N after rejections in a row", thrust.thrust_n),
+        );
     }
 }

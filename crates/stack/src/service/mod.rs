@@ -308,6 +308,25 @@ impl<'a> Context<'a> {
         log_rejection(count, what, error);
     }
 
+    /// Publishes `sample` with `publish_ns` stamped (by `set`) right before it
+    /// leaves. A sample holding NaN or an infinity is refused by the bus; that
+    /// is counted and logged as a rejection here, and the service runs on.
+    pub fn publish<T: Sample>(
+        &mut self,
+        publisher: &mut Publisher<T>,
+        mut sample: T,
+        set: fn(&mut T, u64),
+    ) -> Result<(), SendError> {
+        set(&mut sample, monotonic_ns());
+        match publisher.publish(sample) {
+            Err(e @ SendError::NonFinite { .. }) => {
+                self.reject("non-finite sample", &e);
+                Ok(())
+            }
+            result => result.map(drop),
+        }
+    }
+
     /// The heartbeat: error counts, input gaps, the fallback flag.
     pub fn health(&mut self) -> &mut HealthReporter {
         &mut self.health
@@ -321,21 +340,34 @@ pub fn log_rejection(count: u64, what: &str, error: &dyn std::fmt::Display) {
     }
 }
 
-/// Publishes with `publish_ns` stamped right before the sample leaves.
-pub fn publish_now<T: Sample>(
-    publisher: &mut Publisher<T>,
-    mut sample: T,
-    set: fn(&mut T, u64),
-) -> Result<u64, SendError> {
-    set(&mut sample, monotonic_ns());
-    publisher.publish(sample)
-}
-
 /// Tells the launcher this process's ports exist.
 pub fn announce_ready() {
+    announce("ready");
+}
+
+/// Tells the launcher why this process is about to stop with an error (it
+/// names the reason when it reports the death, e.g. a full disk).
+pub fn announce_failure(error: &dyn std::fmt::Display) {
+    announce(&format!("{FAILED_PREFIX}{error}"));
+}
+
+/// The line a service prints on stdout before it stops with an error.
+pub const FAILED_PREFIX: &str = "failed: ";
+
+fn announce(line: &str) {
     let mut out = std::io::stdout().lock();
-    let _ = writeln!(out, "ready");
+    let _ = writeln!(out, "{line}");
     let _ = out.flush();
+}
+
+/// The process that started this one, as it was when the service started.
+static PARENT_PID: std::sync::OnceLock<u32> = std::sync::OnceLock::new();
+
+/// True when the process that started this service (the launcher) is gone:
+/// the parent-death signal stopped the service, and it is on its own.
+pub fn launcher_gone() -> bool {
+    // SAFETY: getppid has no preconditions.
+    PARENT_PID.get().is_some_and(|&pid| unsafe { libc::getppid() } as u32 != pid)
 }
 
 /// How [`run`] starts a service.
@@ -353,6 +385,10 @@ pub struct RunOptions {
 
 /// Runs service `S` until SIGINT/SIGTERM or its first error.
 pub fn run<S: Service>(options: &RunOptions) -> Result<(), ServiceError> {
+    // SAFETY: getppid has no preconditions.
+    PARENT_PID.get_or_init(|| unsafe { libc::getppid() } as u32);
+    // Before anything is created: the set's files are its user's (or group's) only.
+    jetbench_bus::access::restrict().map_err(|e| ServiceError::Setup(e.to_string()))?;
     let mut config = BenchConfig::load_or_default(options.config.as_deref())?;
     // `--rt` is `[rt] enabled = true` for this run: the service's own threads follow it.
     config.rt.enabled |= options.rt;

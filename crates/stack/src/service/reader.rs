@@ -1,15 +1,23 @@
 //! The services that read every channel on their own clock: the recorder, the
 //! Foxglove viewer, the Zenoh bridge. Polled subscribers never wake them, so
 //! publishers never wait for them; each wakes every period, takes what
-//! arrived, and reports what it lost.
+//! arrived, and reports what it lost. At the end each takes what still comes
+//! until the bus is quiet: the last samples of services stopping with it (when
+//! the launcher died, every service stops at once).
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use jetbench_bus::Wake;
 use jetbench_msgs::ServiceId;
 
 use super::{Context, Schedule, Service, ServiceError, Setup};
 use crate::clock::PERIOD;
+
+/// At the end, a reader takes what is still coming until the bus has been
+/// quiet this long ...
+const QUIET: Duration = Duration::from_millis(50);
+/// ... but no longer than this.
+const LAST_SAMPLES_WAIT: Duration = Duration::from_secs(1);
 
 /// A reader of every channel; [`Reader`] runs it as a service.
 pub trait ChannelReader: Sized {
@@ -21,13 +29,15 @@ pub trait ChannelReader: Sized {
     /// Subscribes to every channel and opens what it writes or serves.
     fn open(setup: &Setup<'_>) -> Result<Self, ServiceError>;
 
-    /// Takes everything published since the last call and passes it on.
-    fn pump(&mut self) -> Result<(), ServiceError>;
+    /// Takes everything published since the last call and passes it on;
+    /// returns how many samples there were. A failure it can run on is
+    /// counted on `ctx` ([`Context::reject`]) rather than returned.
+    fn pump(&mut self, ctx: &mut Context<'_>) -> Result<usize, ServiceError>;
 
     /// Samples lost on the bus before it took them (`seq` gaps), every channel.
     fn gaps(&self) -> u64;
 
-    /// At the end, after a last [`ChannelReader::pump`]: release, report.
+    /// At the end, once the bus is quiet: release, report.
     fn finish(&mut self) -> Result<(), ServiceError>;
 }
 
@@ -50,15 +60,21 @@ impl<R: ChannelReader> Service for Reader<R> {
         if wake != Wake::Tick {
             return Ok(());
         }
-        self.0.pump()?;
+        self.0.pump(ctx)?;
         ctx.health().set_input_gaps(self.0.gaps());
         ctx.cycle(false)?;
         Ok(())
     }
 
-    fn stop(&mut self, _inputs: &(), _ctx: &mut Context<'_>) -> Result<(), ServiceError> {
-        // What arrived while the set was stopping.
-        self.0.pump()?;
+    fn stop(&mut self, _inputs: &(), ctx: &mut Context<'_>) -> Result<(), ServiceError> {
+        let start = Instant::now();
+        let mut last_sample = start;
+        while last_sample.elapsed() < QUIET && start.elapsed() < LAST_SAMPLES_WAIT {
+            if self.0.pump(ctx)? > 0 {
+                last_sample = Instant::now();
+            }
+            std::thread::sleep(R::PERIOD);
+        }
         self.0.finish()
     }
 }

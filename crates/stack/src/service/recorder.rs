@@ -6,8 +6,9 @@ use jetbench_record::clock::ClockOrigin;
 use jetbench_record::meta::RunMetadata;
 use jetbench_record::{spawn_writer, RawRecord, RecordError, WriterHandle};
 
-use super::{ChannelReader, ServiceError, Setup};
+use super::{ChannelReader, Context, ServiceError, Setup};
 use crate::clock::realtime_ns;
+use crate::config::OnRecordError;
 
 /// The recorder (run as [`Reader<Recorder>`](super::Reader)): every channel read
 /// by a polled subscriber on the recorder's own clock ([`Tap`]), handed to a writer thread through a bounded queue that
@@ -16,15 +17,21 @@ use crate::clock::realtime_ns;
 /// which are also the messages' `publish_time`.
 pub struct Recorder {
     tap: Tap,
-    /// `None` once finished.
+    /// `None` once finished, or once writing failed and the run goes on without it.
     writer: Option<WriterHandle>,
+    on_error: OnRecordError,
+    /// Why recording stopped while the run went on (`on_error = "continue"`).
+    failed: Option<RecordError>,
 }
 
-/// Hands every sample queued on the bus to the writer, logged now.
-fn drain(tap: &Tap, writer: &mut WriterHandle) -> Result<(), ServiceError> {
+/// Hands every sample queued on the bus to the writer, logged now; returns
+/// how many there were.
+fn drain(tap: &Tap, writer: &mut WriterHandle) -> Result<usize, ServiceError> {
     let log_time_ns = realtime_ns();
     let mut failure = None;
+    let mut taken = 0;
     tap.drain(&mut |s| {
+        taken += 1;
         if failure.is_some() {
             return;
         }
@@ -43,7 +50,7 @@ fn drain(tap: &Tap, writer: &mut WriterHandle) -> Result<(), ServiceError> {
             }
         }
     })?;
-    failure.map_or(Ok(()), |e| Err(e.into()))
+    failure.map_or(Ok(taken), |e| Err(e.into()))
 }
 
 impl ChannelReader for Recorder {
@@ -64,13 +71,25 @@ impl ChannelReader for Recorder {
         };
         let writer = spawn_writer(path, setup.config.recorder.queue, vec![run.record()])?;
         tracing::info!("recording {} channels to {}", tap.counts().len(), path.display());
-        Ok(Recorder { tap, writer: Some(writer) })
+        let on_error = setup.config.recorder.on_error;
+        Ok(Recorder { tap, writer: Some(writer), on_error, failed: None })
     }
 
-    fn pump(&mut self) -> Result<(), ServiceError> {
-        match self.writer.as_mut() {
-            Some(writer) => drain(&self.tap, writer),
-            None => Ok(()),
+    fn pump(&mut self, ctx: &mut Context<'_>) -> Result<usize, ServiceError> {
+        match self.writer.as_mut().map(|writer| drain(&self.tap, writer)) {
+            // Not recording (writing failed): the queues are emptied all the same.
+            None => Ok(self.tap.drain(&mut |_| {})?),
+            Some(Err(ServiceError::Record(e))) if self.on_error == OnRecordError::Continue => {
+                tracing::error!(
+                    "RECORDING STOPPED: {e}. The run goes on without recording ([recorder] on_error = \"continue\")"
+                );
+                ctx.reject("recording", &e);
+                ctx.health().set_fallback(true);
+                self.writer = None;
+                self.failed = Some(e);
+                Ok(0)
+            }
+            taken => taken.unwrap_or(Ok(0)),
         }
     }
 
@@ -80,7 +99,12 @@ impl ChannelReader for Recorder {
 
     /// Closes the file and prints what was recorded.
     fn finish(&mut self) -> Result<(), ServiceError> {
-        let Some(writer) = self.writer.take() else { return Ok(()) };
+        let Some(writer) = self.writer.take() else {
+            if let Some(e) = &self.failed {
+                eprintln!("recorder: the recording stopped early and the run went on without it: {e}");
+            }
+            return Ok(());
+        };
         let dropped_full = writer.dropped_full;
         let stats = writer.finish()?;
         let report = RecorderReport {

@@ -6,7 +6,7 @@ use jetbench_io::can::RejectCounts;
 use jetbench_io::ForceSource;
 use jetbench_msgs::{channels, ServiceId, Thrust};
 
-use super::{log_rejection, publish_now, Context, Schedule, Service, ServiceError, Setup};
+use super::{log_rejection, Context, Schedule, Service, ServiceError, Setup};
 use crate::clock::INPUT_DEADLINE;
 use crate::step;
 
@@ -33,7 +33,11 @@ impl Service for Sensing {
         let codec = config.sensor.codec().map_err(|e| ServiceError::Setup(e.to_string()))?;
         let source = CanForceSource::open(&interface, codec)?;
         tracing::info!("reading {}", source.describe());
-        let step = step::Sensing::new(&config.sensor).map_err(|e| ServiceError::Setup(format!("[sensor] {e}")))?;
+        let mut step = step::Sensing::new(&config.sensor).map_err(|e| ServiceError::Setup(format!("[sensor] {e}")))?;
+        if config.bench.devices == crate::config::Devices::Sim {
+            // The simulated bench's injected driver faults (`--inject nan:...`).
+            step = step.with_faults(config.plant.faults().map_err(|e| ServiceError::Setup(e.to_string()))?);
+        }
         let thrust = setup.bus.publisher(channels::THRUST)?;
         Ok((Sensing { step, source, thrust, seen: RejectCounts::default() }, ()))
     }
@@ -61,7 +65,7 @@ impl Service for Sensing {
         }
         match self.step.step(&reading, start_ns) {
             Ok(thrust) => {
-                publish_now(&mut self.thrust, thrust, |t, ns| t.publish_ns = ns)?;
+                ctx.publish(&mut self.thrust, thrust, |t, ns| t.publish_ns = ns)?;
             }
             Err(e) => ctx.reject("force reading", &e),
         }

@@ -1,7 +1,7 @@
 //! The simulated bench: engine, force sensor, throttle board and ECU in real time.
 
 use std::path::PathBuf;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use jetbench_bus::{Publisher, Wake};
 use jetbench_io::can::source::CanForceSink;
@@ -12,6 +12,7 @@ use jetbench_msgs::{channels, ServiceId, SimTruth};
 use super::{Context, Schedule, Service, ServiceError, Setup};
 use crate::clock::{monotonic_ns, PERIOD, STALL};
 use crate::config::{sim_port_link, Devices};
+use crate::inject::FaultySensor;
 use crate::step;
 
 /// File that, while it exists, unplugs sim-bench's force sensor (it stops
@@ -24,6 +25,10 @@ pub const SENSOR_UNPLUGGED_FILE: &str = "sensor-unplugged";
 /// on its own pty pair, published where actuation opens them.
 pub struct SimBench {
     sim: step::SimBench,
+    /// Injected faults between the sensor and its frames (`--inject`).
+    faults: FaultySensor,
+    /// Frames injected with each fault, by [`jetbench_msgs::sim_faults`] bit.
+    injected: [u64; 4],
     sensor: CanForceSink,
     unplugged: Unplugged,
     board: PtyBoard,
@@ -43,6 +48,10 @@ impl Service for SimBench {
             return Err(ServiceError::Setup("sim-bench runs only with [bench] devices = \"sim\"".into()));
         }
         let sim = step::SimBench::new(&config.plant()?, config.plant.sensor()?, config.plant.initial_throttle_pct);
+        let plan = config.plant.faults().map_err(|e| ServiceError::Setup(e.to_string()))?;
+        if !plan.is_empty() {
+            tracing::warn!("injecting sensor faults: {plan}");
+        }
         // The force sensor: real CAN frames on the configured interface (the
         // userspace bus here, vcan or can0 where the kernel has CAN).
         let interface =
@@ -58,6 +67,8 @@ impl Service for SimBench {
         tracing::info!("throttle board on {}, ECU on {}", board.link().display(), ecu.link().display());
         let bench = SimBench {
             sim,
+            faults: FaultySensor::new(plan),
+            injected: [0; 4],
             sensor,
             unplugged: Unplugged::new(sim_port_link(SENSOR_UNPLUGGED_FILE)),
             board,
@@ -82,6 +93,48 @@ impl Service for SimBench {
         if !ctx.bus().sleep_until(self.next) {
             return Ok(());
         }
+        self.tick(ctx)
+    }
+
+    /// Runs the bench down (see [`SimBench::run_down`]) and reports what its devices saw.
+    fn stop(&mut self, _inputs: &(), ctx: &mut Context<'_>) -> Result<(), ServiceError> {
+        let run_down = self.run_down(ctx);
+        let fw = self.board.firmware();
+        let c = fw.counters();
+        let status = fw.status(monotonic_ns());
+        tracing::info!(
+            "throttle board emulator: {} valid frames, {} commands applied, {} watchdog trips, {} at the end; \
+             rejected: crc={} truncated={} bad_length={} unknown_type={} out_of_range={} garbage_bytes={}; \
+             ECU emulator answered {} polls",
+            c.frames,
+            self.board.applied_count(),
+            status.watchdog_trips,
+            if fw.is_armed() { "armed" } else { "disarmed" },
+            c.crc_errors,
+            c.truncated,
+            c.bad_length,
+            c.unknown_type,
+            c.out_of_range,
+            c.garbage_bytes,
+            self.ecu.polls()
+        );
+        if !self.faults.plan().is_empty() {
+            let [spikes, stuck, nan, silent] = self.injected;
+            tracing::info!(
+                "injected sensor faults: {spikes} spikes, {stuck} stuck frames, {nan} NaN frames, {silent} silent frames"
+            );
+        }
+        run_down
+    }
+}
+
+/// The longest a stopping sim-bench runs on for its board to idle: the board's
+/// own watchdog (100 ms) and a few cycles.
+const RUN_DOWN: Duration = Duration::from_millis(300);
+
+impl SimBench {
+    /// One 10 ms step of the bench, at its scheduled time.
+    fn tick(&mut self, ctx: &mut Context<'_>) -> Result<(), ServiceError> {
         let start_ns = ctx.woke();
         // A sensor keeps its own clock: after a scheduling hiccup the missed
         // ticks are caught up, so the frame rate holds. Only a real stall
@@ -91,37 +144,38 @@ impl Service for SimBench {
         self.next = if now > self.next + STALL { now + PERIOD } else { self.next + PERIOD };
         // Idle while the board idles (disarmed, or its watchdog tripped).
         let throttle_pct = self.board.output_pct(start_ns).unwrap_or(jetbench_model::THROTTLE_MIN_PCT);
-        let (reading, truth) = self.sim.step_driven(start_ns, throttle_pct).map_err(|e| {
+        let (reading, mut truth) = self.sim.step_driven(start_ns, throttle_pct).map_err(|e| {
             tracing::error!("the simulated engine failed: {e}");
             e
         })?;
+        let injected = self.faults.apply(reading);
+        (truth.faults, truth.injected_n) = (injected.faults, injected.injected_n);
+        for (bit, count) in self.injected.iter_mut().enumerate() {
+            *count += (injected.faults >> bit) & 1;
+        }
         self.ecu_model.step(truth.thrust_n, truth.engine_throttle_pct, jetbench_model::STEP_S);
         self.ecu.set_reading(self.ecu_model.reading());
-        if self.unplugged.check() {
+        if let (true, Some(reading)) = (self.unplugged.check(), injected.reading) {
             self.sensor.emit(&reading, start_ns)?;
         }
-        self.truth.publish(truth)?;
+        ctx.publish(&mut self.truth, truth, |_, _| {})?;
         ctx.cycle(late)?;
         Ok(())
     }
 
-    fn stop(&mut self, _inputs: &(), _ctx: &mut Context<'_>) -> Result<(), ServiceError> {
-        let fw = self.board.firmware();
-        let c = fw.counters();
-        tracing::info!(
-            "throttle board emulator: {} valid frames, {} commands applied; rejected: crc={} truncated={} \
-             bad_length={} unknown_type={} out_of_range={} garbage_bytes={}; ECU emulator answered {} polls",
-            c.frames,
-            self.board.applied_count(),
-            c.crc_errors,
-            c.truncated,
-            c.bad_length,
-            c.unknown_type,
-            c.out_of_range,
-            c.garbage_bytes,
-            self.ecu.polls()
-        );
-        Ok(())
+    /// A bench outlives the processes that drive it: when sim-bench is asked to
+    /// stop, its engine, board and sensor run on until the board drives idle
+    /// (actuation disarmed it, or its own watchdog tripped; at most
+    /// [`RUN_DOWN`]), so that `sim/truth` shows the engine brought to idle
+    /// whatever stopped the set, a launcher killed with every service at once too.
+    fn run_down(&mut self, ctx: &mut Context<'_>) -> Result<(), ServiceError> {
+        let deadline = Instant::now() + RUN_DOWN;
+        while self.board.output_pct(monotonic_ns()).is_some() && Instant::now() < deadline {
+            std::thread::sleep(self.next.saturating_duration_since(Instant::now()));
+            self.tick(ctx)?;
+        }
+        // One more step, so the idle engine is on record.
+        self.tick(ctx)
     }
 }
 

@@ -1,0 +1,191 @@
+//! Bad sensor data in the live loop (`jetbench up --sim --inject ...`),
+//! judged from the recording: `sim/truth` marks every injected frame, and a
+//! frame is followed through the loop by its number (`sim/truth` seq k is the
+//! sensor frame k that `bench/thrust` counts in `frame_seq`; a state names its
+//! thrust sample in `source_seq`, a command its state).
+
+use std::collections::HashMap;
+
+use jetbench_control::recorded::{recording_metrics, ThrustSource};
+use jetbench_control::MetricsOptions;
+use jetbench_msgs::{channels, sim_faults, state_flags, visit_channels, Channel, ChannelVisitor, Sample};
+use jetbench_record::Recording;
+
+use crate::set::run_to_end;
+use crate::{p50_max, Bench, FaultsError};
+
+/// What bad data did to a live run.
+#[derive(Clone, Debug, Default)]
+pub struct BadData {
+    pub duration_s: f64,
+    /// `--inject` specifications of the run.
+    pub inject: Vec<String>,
+    /// Frames with a spike (and no other fault) that reached the estimator, and
+    /// those whose state was flagged rejected.
+    pub spikes: usize,
+    pub spikes_rejected: usize,
+    /// Spikes on a frame with another fault (stuck, NaN, silent): not judged.
+    pub spikes_in_other_faults: usize,
+    /// States flagged rejected without a spike in their frame.
+    pub other_rejections: usize,
+    /// Tracking MAE (true thrust against the reference), N; and of the same run without faults.
+    pub mae_n: f64,
+    pub baseline_mae_n: f64,
+    /// |throttle step| of the command computed at a spike, % (p50, max), and at
+    /// every other cycle (p50, max): the loop's own movement.
+    pub step_at_spike_pct: (f64, f64),
+    pub step_elsewhere_pct: (f64, f64),
+    /// From the first stuck frame to the first state flagged stuck, s.
+    pub stuck_flagged_after_s: Option<f64>,
+    /// NaN frames injected, and those of them that reached `bench/thrust` (should be none).
+    pub nan_frames: usize,
+    pub nan_published: usize,
+    /// Recorded samples holding NaN or an infinity, on any channel.
+    pub non_finite_samples: usize,
+    /// Silent frames; actuation idled meanwhile (its fail-safe).
+    pub silent_frames: usize,
+    pub idled_in_silence: bool,
+    pub problems: Vec<String>,
+}
+
+/// Runs `jetbench up --sim --inject SPEC...` for `duration_s` (and, with
+/// `baseline`, the same run without faults, for the MAE) and judges the recording.
+pub fn bad_data(bench: &Bench, inject: &[&str], duration_s: u32, baseline: bool) -> Result<BadData, FaultsError> {
+    let run = |inject: &[&str]| -> Result<Recording, FaultsError> {
+        let namespace = bench.fresh_namespace();
+        let record = bench.scratch(&format!("inject-{namespace}.mcap"));
+        let mut command = bench.command(&namespace);
+        command.args(["up", "--sim", "--quiet", "--duration", &duration_s.to_string(), "--record"]).arg(&record);
+        for spec in inject {
+            command.args(["--inject", spec]);
+        }
+        let (status, said) = run_to_end(&mut command, "jetbench up --inject")?;
+        if !status.success() {
+            return Err(FaultsError::Failed { what: format!("jetbench up --inject {inject:?}"), message: said });
+        }
+        Ok(Recording::open(&record)?)
+    };
+    let faulty = run(inject)?;
+    let mut out = judge(&faulty);
+    out.duration_s = f64::from(duration_s);
+    out.inject = inject.iter().map(|s| s.to_string()).collect();
+    out.baseline_mae_n = if baseline { mae(&run(&[])?) } else { f64::NAN };
+    if baseline && out.mae_n > 1.10 * out.baseline_mae_n {
+        out.problems
+            .push(format!("MAE {:.3} N, more than 10 % above {:.3} N without spikes", out.mae_n, out.baseline_mae_n));
+    }
+    Ok(out)
+}
+
+fn mae(recording: &Recording) -> f64 {
+    let options = MetricsOptions { skip_s: 1.0, ..MetricsOptions::default() };
+    recording_metrics(recording, Some(ThrustSource::Truth), &options)
+        .ok()
+        .and_then(|m| m.runs.first().map(|r| r.metrics.mae_n))
+        .unwrap_or(f64::NAN)
+}
+
+/// Judges one recording of a run with injected faults.
+pub fn judge(recording: &Recording) -> BadData {
+    let truth = recording.samples(channels::SIM_TRUTH);
+    let thrust = recording.samples(channels::THRUST);
+    let states = recording.samples(channels::STATE);
+    let commands = recording.samples(channels::COMMAND);
+    let actuation = recording.samples(channels::ACTUATION);
+    let thrust_of_frame: HashMap<u64, u64> = thrust.iter().map(|t| (t.frame_seq, t.seq)).collect();
+    let state_of_thrust: HashMap<u64, usize> = states.iter().enumerate().map(|(i, s)| (s.source_seq, i)).collect();
+    let frame_of_thrust: HashMap<u64, u64> = thrust.iter().map(|t| (t.seq, t.frame_seq)).collect();
+    let state_at = |frame: u64| thrust_of_frame.get(&frame).and_then(|t| state_of_thrust.get(t)).map(|&i| &states[i]);
+    let mut out = BadData { mae_n: mae(recording), ..BadData::default() };
+
+    // A spike on a stuck, NaN or silent frame is another fault's frame: a
+    // silent one never arrives, and one on a stuck sensor breaks its repeats.
+    let spiked = truth.iter().filter(|t| t.faults & sim_faults::SPIKE != 0);
+    let spike_frames: Vec<u64> =
+        spiked.clone().filter(|t| t.faults == sim_faults::SPIKE && state_at(t.seq).is_some()).map(|t| t.seq).collect();
+    out.spikes_in_other_faults = spiked.filter(|t| t.faults != sim_faults::SPIKE).count();
+    out.spikes = spike_frames.len();
+    out.spikes_rejected = spike_frames
+        .iter()
+        .filter(|&&k| state_at(k).is_some_and(|s| s.flags & state_flags::MEASUREMENT_REJECTED != 0))
+        .count();
+    let spike_states: std::collections::HashSet<u64> =
+        spike_frames.iter().filter_map(|&k| state_at(k)).map(|s| s.seq).collect();
+    out.other_rejections = states
+        .iter()
+        .filter(|s| s.flags & state_flags::MEASUREMENT_REJECTED != 0 && !spike_states.contains(&s.seq))
+        .count();
+    let (mut at_spike, mut elsewhere) = (Vec::new(), Vec::new());
+    for w in commands.windows(2) {
+        let step = (w[1].throttle_pct - w[0].throttle_pct).abs();
+        if spike_states.contains(&w[1].source_seq) {
+            at_spike.push(step)
+        } else {
+            elsewhere.push(step)
+        }
+    }
+    out.step_at_spike_pct = p50_max(&at_spike);
+    out.step_elsewhere_pct = p50_max(&elsewhere);
+
+    let first_stuck = truth.iter().find(|t| t.faults & sim_faults::STUCK != 0).map(|t| t.seq);
+    let flagged = states
+        .iter()
+        .find(|s| s.flags & state_flags::SENSOR_STUCK != 0)
+        .and_then(|s| frame_of_thrust.get(&s.source_seq).copied());
+    if let (Some(from), Some(flagged)) = (first_stuck, flagged) {
+        out.stuck_flagged_after_s = Some(flagged.saturating_sub(from) as f64 * jetbench_model::STEP_S);
+    }
+    let nan_frames: Vec<u64> = truth.iter().filter(|t| t.faults & sim_faults::NAN != 0).map(|t| t.seq).collect();
+    out.nan_frames = nan_frames.len();
+    out.nan_published = nan_frames.iter().filter(|k| thrust_of_frame.contains_key(k)).count();
+    out.non_finite_samples = non_finite_samples(recording);
+
+    let silent: Vec<&jetbench_msgs::SimTruth> = truth.iter().filter(|t| t.faults & sim_faults::SILENCE != 0).collect();
+    out.silent_frames = silent.len();
+    if let (Some(first), Some(last)) = (silent.first(), silent.last()) {
+        out.idled_in_silence = actuation.iter().any(|a| {
+            a.publish_ns > first.stamp_ns
+                && a.publish_ns <= last.stamp_ns
+                && a.flags & jetbench_msgs::actuation_flags::IDLE_FALLBACK != 0
+        });
+    }
+    judge_bounds(&mut out, first_stuck.is_some());
+    out
+}
+
+fn judge_bounds(out: &mut BadData, stuck_injected: bool) {
+    if out.spikes_rejected != out.spikes {
+        out.problems.push(format!("{} of {} spikes rejected", out.spikes_rejected, out.spikes));
+    }
+    // After a stuck sensor or a silence, the first fresh reading may rightly
+    // fail the gate; with spikes alone, nothing but a spike may.
+    let spikes_only = !stuck_injected && out.silent_frames == 0 && out.nan_frames == 0;
+    if spikes_only && out.other_rejections > 0 {
+        out.problems.push(format!("{} honest measurements rejected", out.other_rejections));
+    }
+    if stuck_injected && !out.stuck_flagged_after_s.is_some_and(|s| s < 1.0) {
+        out.problems.push(format!("stuck sensor flagged after {:?} s", out.stuck_flagged_after_s));
+    }
+    if out.nan_published > 0 || out.non_finite_samples > 0 {
+        out.problems.push(format!(
+            "NaN reached the bus: {} NaN frames published, {} non-finite samples recorded",
+            out.nan_published, out.non_finite_samples
+        ));
+    }
+    if out.silent_frames > 0 && !out.idled_in_silence {
+        out.problems.push("actuation did not idle while the sensor was silent".into());
+    }
+}
+
+/// Samples of any channel with a NaN or infinite field.
+fn non_finite_samples(recording: &Recording) -> usize {
+    struct Count<'a>(&'a Recording, usize);
+    impl ChannelVisitor for Count<'_> {
+        fn visit<T: Sample>(&mut self, channel: Channel<T>) {
+            self.1 += self.0.samples(channel).iter().filter(|s| s.non_finite_field().is_some()).count();
+        }
+    }
+    let mut count = Count(recording, 0);
+    visit_channels(&mut count);
+    count.1
+}

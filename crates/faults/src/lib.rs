@@ -1,0 +1,115 @@
+//! Faults at the bench, measured: the experiments behind `jetbench faults`
+//! (`scripts/faults.sh`, which writes `docs/faults/REPORT.md`) and `jetbench
+//! soak` (`scripts/soak.sh`). Every experiment runs the real `jetbench`
+//! binary and its real service processes, sends real signals and reads the
+//! real recordings; the end-to-end tests (`tests/faults.rs`) run each once and
+//! assert the bounds.
+//!
+//! - [`kill`]: SIGKILL of each service and of the launcher, then the safe
+//!   state measured in the recording, the orphans counted, a restart tried;
+//! - [`recorder`]: a recorder killed mid-run (what is lost, `jetbench
+//!   recover`, every offline command on the truncated file) and a recorder
+//!   whose disk fills ([`recorder::disk_full`]);
+//! - [`inject`]: bad sensor data in the live loop (`--inject`);
+//! - [`set`]: a running set, a second set in the same namespace, and who may
+//!   read its files;
+//! - [`soak`]: the set for minutes under load, its memory over time;
+//! - [`report`]: the campaign and its report.
+//!
+//! ```no_run
+//! use jetbench_faults::kill::{kill_trial, Victim};
+//! use jetbench_faults::Bench;
+//!
+//! # fn main() -> Result<(), jetbench_faults::FaultsError> {
+//! let bench = Bench::new("target/release/jetbench".into(), "faults", std::env::temp_dir().join("faults"))?;
+//! let trial = kill_trial(&bench, Victim::Control, 2.5)?;
+//! println!("{}: safe after {:?} ms", trial.victim, trial.time_to_safe_ms);
+//! # Ok(())
+//! # }
+//! ```
+
+use std::cell::Cell;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Duration;
+
+pub mod inject;
+pub mod kill;
+pub mod recorder;
+pub mod report;
+pub mod set;
+pub mod soak;
+
+/// Why an experiment could not be run (a fault it measures is a result, not an error).
+#[derive(Debug, thiserror::Error)]
+pub enum FaultsError {
+    #[error("cannot run {what}: {source}")]
+    Start { what: String, source: std::io::Error },
+    #[error("{what} did not end within {limit:?} (a hang); it was killed")]
+    Hang { what: String, limit: Duration },
+    #[error("{what}: {message}")]
+    Failed { what: String, message: String },
+    #[error(transparent)]
+    Record(#[from] jetbench_record::RecordError),
+    #[error("{path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+}
+
+/// Where and how experiments run `jetbench`: the binary (its services next to
+/// it), a bus namespace of their own for each set, a scratch folder, and the
+/// Python with the reference MCAP reader (if any).
+#[derive(Debug)]
+pub struct Bench {
+    pub exe: PathBuf,
+    namespace: String,
+    scratch: PathBuf,
+    /// `python` with `mcap` installed (scripts/pyenv.sh), to read recovered files independently.
+    pub python: Option<PathBuf>,
+    sets: Cell<u32>,
+}
+
+impl Bench {
+    /// `exe` is the `jetbench` binary; namespaces are `<namespace><pid>x<n>`.
+    pub fn new(exe: PathBuf, namespace: &str, scratch: PathBuf) -> Result<Self, FaultsError> {
+        std::fs::create_dir_all(&scratch).map_err(|source| FaultsError::Io { path: scratch.clone(), source })?;
+        let namespace = format!("{namespace}{}", std::process::id());
+        Ok(Bench { exe, namespace, scratch, python: None, sets: Cell::new(0) })
+    }
+
+    /// A bus namespace no set of this bench has used.
+    pub fn fresh_namespace(&self) -> String {
+        self.sets.set(self.sets.get() + 1);
+        format!("{}x{}", self.namespace, self.sets.get())
+    }
+
+    /// `jetbench` in bus namespace `namespace`, finding its services next to it.
+    pub fn command(&self, namespace: &str) -> Command {
+        let mut command = Command::new(&self.exe);
+        command.env("JETBENCH_BUS", namespace);
+        if let Some(dir) = self.exe.parent() {
+            command.env("JETBENCH_BIN_DIR", dir);
+        }
+        command
+    }
+
+    /// A fresh path in the scratch folder (an old file of that name removed).
+    pub fn scratch(&self, name: &str) -> PathBuf {
+        let path = self.scratch.join(name);
+        let _ = std::fs::remove_file(&path);
+        path
+    }
+
+    pub fn scratch_dir(&self) -> &Path {
+        &self.scratch
+    }
+}
+
+/// Percentiles of a list: p50 and max (NaN when empty).
+pub fn p50_max(values: &[f64]) -> (f64, f64) {
+    let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return (f64::NAN, f64::NAN);
+    }
+    v.sort_by(f64::total_cmp);
+    (v[v.len() / 2], v[v.len() - 1])
+}

@@ -1,0 +1,462 @@
+//! The campaign: every fault, repeated at random moments, and its report
+//! (`docs/faults/REPORT.md`).
+
+use std::fmt::Write;
+
+use jetbench_stack::config::OnRecordError;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Uniform};
+
+use crate::inject::{bad_data, BadData};
+use crate::kill::{kill_trial, KillTrial, Victim};
+use crate::recorder::{disk_full, recorder_crash, DiskFull, RecorderCrash};
+use crate::set::{access_as_another_user, second_up, Access, SecondUp};
+use crate::{p50_max, Bench, FaultsError};
+
+/// A part of the campaign (`jetbench faults --only PART`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Part {
+    /// Kills of one process, or of each (`kill`, `kill:control`, ...).
+    Kill(Option<Victim>),
+    Recorder,
+    Disk,
+    Inject,
+    SecondUp,
+    Access,
+}
+
+impl std::str::FromStr for Part {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        Ok(match s {
+            "kill" => Part::Kill(None),
+            "recorder" => Part::Recorder,
+            "disk" => Part::Disk,
+            "inject" => Part::Inject,
+            "second-up" => Part::SecondUp,
+            "access" => Part::Access,
+            other => match other.strip_prefix("kill:") {
+                Some(victim) => Part::Kill(Some(victim.parse()?)),
+                None => {
+                    return Err(format!(
+                        "unknown part `{other}`: kill, kill:PROCESS, recorder, disk, inject, second-up or access"
+                    ))
+                }
+            },
+        })
+    }
+}
+
+/// How the campaign runs.
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// Each kill and each recorder crash, this many times; disk full and the
+    /// injections up to three times.
+    pub repeat: usize,
+    /// Seed of the random kill moments (printed in the report).
+    pub seed: u64,
+    /// Length of the run with spikes, and of the one without, s.
+    pub spike_seconds: u32,
+    /// The parts to run; all when empty.
+    pub only: Vec<Part>,
+}
+
+/// Kills come between these many seconds into a run.
+const KILL_WINDOW_S: (f64, f64) = (2.0, 12.0);
+/// The recorder is killed after 10 s of a run, within this many more.
+const CRASH_AT_S: (f64, f64) = (10.0, 12.0);
+/// The crash whose file every offline command reads comes later: `diagnose`
+/// needs 15 s of data (1000 samples to fit, 500 to validate on).
+pub const READERS_CRASH_AT_S: f64 = 20.0;
+/// The disk a recording fills, KiB: a few seconds of recording.
+const DISK_KIB: u64 = 256;
+/// The issue's injection command, every kind at once.
+pub const ALL_KINDS: [&str; 4] =
+    ["spikes:rate_per_s=2,size_n=30", "stuck:at_s=10,for_s=1.5", "nan:at_s=20", "silence:at_s=30,for_s=0.5"];
+
+/// What the campaign measured.
+#[derive(Debug, Default)]
+pub struct Campaign {
+    pub repeat: usize,
+    pub seed: u64,
+    pub kills: Vec<KillTrial>,
+    pub crashes: Vec<RecorderCrash>,
+    pub disk: Vec<DiskFull>,
+    pub bad_data: Vec<BadData>,
+    pub second_up: Option<SecondUp>,
+    pub access: Option<Access>,
+    /// Experiments that could not run at all (e.g. no tmpfs could be mounted).
+    pub not_run: Vec<String>,
+}
+
+/// Runs the campaign, telling `progress` what it does.
+pub fn run(bench: &Bench, options: &Options, progress: &mut dyn FnMut(&str)) -> Campaign {
+    let wants = |part: Part| {
+        options.only.is_empty()
+            || options.only.iter().any(|p| *p == part || matches!((p, part), (Part::Kill(None), Part::Kill(_))))
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
+    let mut c = Campaign { repeat: options.repeat, seed: options.seed, ..Campaign::default() };
+    let note = |c: &mut Campaign, what: &str, e: FaultsError| c.not_run.push(format!("{what}: {e}"));
+    for victim in Victim::ALL.into_iter().filter(|v| wants(Part::Kill(Some(*v)))) {
+        let window = Uniform::new(KILL_WINDOW_S.0, KILL_WINDOW_S.1).expect("a valid window");
+        for i in 0..options.repeat {
+            let at_s = window.sample(&mut rng);
+            progress(&format!("kill {victim} {}/{} at {at_s:.2} s", i + 1, options.repeat));
+            match kill_trial(bench, victim, at_s) {
+                Ok(t) => c.kills.push(t),
+                Err(e) => note(&mut c, &format!("kill {victim}"), e),
+            }
+        }
+    }
+    if wants(Part::Recorder) {
+        let window = Uniform::new(CRASH_AT_S.0, CRASH_AT_S.1).expect("a valid window");
+        for i in 0..options.repeat {
+            let at_s = window.sample(&mut rng) + if i == 0 { READERS_CRASH_AT_S - CRASH_AT_S.0 } else { 0.0 };
+            progress(&format!("recorder crash {}/{} at {at_s:.2} s", i + 1, options.repeat));
+            match recorder_crash(bench, at_s, i == 0) {
+                Ok(r) => c.crashes.push(r),
+                Err(e) => note(&mut c, "recorder crash", e),
+            }
+        }
+    }
+    if wants(Part::Disk) {
+        for on_error in [OnRecordError::Stop, OnRecordError::Continue] {
+            for i in 0..options.repeat.min(3) {
+                progress(&format!("disk full, on_error = {on_error:?} {}/{}", i + 1, options.repeat.min(3)));
+                match disk_full(bench, on_error, DISK_KIB) {
+                    Ok(d) => c.disk.push(d),
+                    Err(e) => note(&mut c, "disk full", e),
+                }
+            }
+        }
+    }
+    if wants(Part::Inject) {
+        progress(&format!("spikes for {} s, and the same run without", options.spike_seconds));
+        match bad_data(bench, &ALL_KINDS[..1], options.spike_seconds, true) {
+            Ok(b) => c.bad_data.push(b),
+            Err(e) => note(&mut c, "spikes", e),
+        }
+        progress("every kind at once, 32 s");
+        match bad_data(bench, &ALL_KINDS, 32, false) {
+            Ok(b) => c.bad_data.push(b),
+            Err(e) => note(&mut c, "every kind at once", e),
+        }
+    }
+    if wants(Part::SecondUp) {
+        progress("a second set in a namespace in use");
+        match second_up(bench) {
+            Ok(s) => c.second_up = Some(s),
+            Err(e) => note(&mut c, "second up", e),
+        }
+    }
+    if wants(Part::Access) {
+        progress("another user and a running set's files");
+        match access_as_another_user(bench) {
+            Ok(a) => c.access = Some(a),
+            Err(e) => note(&mut c, "access", e),
+        }
+    }
+    c
+}
+
+impl Campaign {
+    /// Every bound broken, one line each (empty: all held).
+    pub fn problems(&self) -> Vec<String> {
+        let mut out: Vec<String> = Vec::new();
+        for t in &self.kills {
+            out.extend(t.problems.iter().map(|p| format!("kill {} at {:.2} s: {p}", t.victim, t.at_s)));
+        }
+        for r in &self.crashes {
+            out.extend(r.problems.iter().map(|p| format!("recorder crash at {:.2} s: {p}", r.at_s)));
+        }
+        for d in &self.disk {
+            out.extend(d.problems.iter().map(|p| format!("disk full ({:?}): {p}", d.on_error)));
+        }
+        for b in &self.bad_data {
+            out.extend(b.problems.iter().map(|p| format!("inject {:?}: {p}", b.inject)));
+        }
+        if let Some(s) = &self.second_up {
+            if s.status == Some(0) || !s.names_the_first || !s.side_by_side {
+                out.push(format!("second up: {s:?}"));
+            }
+        }
+        if let Some(a) = &self.access {
+            if !a.open_to_others.is_empty() || !a.loose_modes.is_empty() || a.echo_status == Some(0) {
+                out.push(format!("access: {a:?}"));
+            }
+        }
+        out.extend(self.not_run.iter().map(|n| format!("not run: {n}")));
+        out
+    }
+
+    /// The report, in Markdown.
+    pub fn markdown(&self, machine: &str) -> String {
+        let mut md = String::new();
+        let _ = self.write_markdown(&mut md, machine);
+        md
+    }
+
+    fn write_markdown(&self, md: &mut String, machine: &str) -> std::fmt::Result {
+        writeln!(md, "# Faults at the bench: the campaign")?;
+        writeln!(md)?;
+        writeln!(
+            md,
+            "Measured by `scripts/faults.sh` (`jetbench faults --repeat {} --seed {} --report docs/faults/REPORT.md`) \
+             on {machine}. Real processes, real signals (SIGKILL), real files; the simulated bench behind the same \
+             drivers as the real one. Times to a safe state are from the kill to the first sample that shows it, on the \
+             samples' own `CLOCK_MONOTONIC` stamps. Each line of a table can be run again with the command beside it.",
+            self.repeat, self.seed
+        )?;
+        self.write_kills(md)?;
+        self.write_crashes(md)?;
+        self.write_disk(md)?;
+        self.write_bad_data(md)?;
+        self.write_set(md)?;
+        writeln!(md, "\n## Bounds broken\n")?;
+        let problems = self.problems();
+        if problems.is_empty() {
+            writeln!(md, "None: every bound of the campaign held.")?;
+        }
+        for p in problems {
+            writeln!(md, "- {}", p.lines().next().unwrap_or_default())?;
+        }
+        Ok(())
+    }
+
+    fn write_kills(&self, md: &mut String) -> std::fmt::Result {
+        writeln!(md, "\n## Every process killed\n")?;
+        writeln!(
+            md,
+            "SIGKILL at a random moment {}–{} s into a recorded run. After each, a new `jetbench up` in the same \
+             namespace runs 2 s and must record from its first sample, gap-free (\"restart clean\").\n",
+            KILL_WINDOW_S.0, KILL_WINDOW_S.1
+        )?;
+        writeln!(
+            md,
+            "| killed | kills | safe state | time to safe state p50 / max (ms) | idle after (missed cycles) | \
+             named by the launcher | orphans | restart clean | recording | samples lost | reproduce |"
+        )?;
+        writeln!(md, "|---|---:|---|---:|---:|---:|---:|---:|---|---:|---|")?;
+        for victim in Victim::ALL {
+            let trials: Vec<&KillTrial> = self.kills.iter().filter(|t| t.victim == victim).collect();
+            if trials.is_empty() {
+                continue;
+            }
+            let times: Vec<f64> = trials.iter().filter_map(|t| t.time_to_safe_ms).collect();
+            let (p50, max) = p50_max(&times);
+            let cycles: Vec<String> = {
+                let mut c: Vec<u32> = trials.iter().filter_map(|t| t.idle_cycle).collect();
+                c.sort_unstable();
+                c.dedup();
+                c.iter().map(u32::to_string).collect()
+            };
+            let count = |f: &dyn Fn(&KillTrial) -> bool| trials.iter().filter(|t| f(t)).count();
+            let recording = if victim == Victim::Recorder {
+                format!("{}/{} readable, truncated (see below)", count(&|t| t.readable), trials.len())
+            } else {
+                format!("{}/{} readable and closed", count(&|t| t.readable && !t.truncated), trials.len())
+            };
+            writeln!(
+                md,
+                "| {victim} | {} | {} | {p50:.1} / {max:.1} | {} | {}/{} | {} | {}/{} | {recording} | {} | \
+                 `jetbench faults --only kill:{victim} --repeat 10` |",
+                trials.len(),
+                victim.safe_state(),
+                if cycles.is_empty() { "–".into() } else { cycles.join(", ") },
+                count(&|t| t.named),
+                trials.len(),
+                trials.iter().map(|t| t.orphans.len()).sum::<usize>(),
+                count(&|t| t.restart_clean),
+                trials.len(),
+                trials.iter().map(|t| t.seq_gaps).sum::<u64>(),
+            )?;
+        }
+        writeln!(
+            md,
+            "\nFor the recorder the time is from the kill until the launcher had stopped the whole set safely (control \
+             first, actuation idling and then disarming the board, sim-bench running its engine down to idle). The \
+             board dies with sim-bench, so no acknowledgement is possible there: actuation idles for lack of commands \
+             and flags the board silent. Killing actuation leaves the throttle where it was until the board's own \
+             watchdog (100 ms) idles it: the time is to the first `sim/truth` step at idle throttle."
+        )
+    }
+
+    fn write_crashes(&self, md: &mut String) -> std::fmt::Result {
+        if self.crashes.is_empty() {
+            return Ok(());
+        }
+        writeln!(md, "\n## Recorder killed mid-run, then recovered\n")?;
+        let lost: Vec<f64> = self.crashes.iter().map(|c| c.lost_s).collect();
+        let (p50, max) = p50_max(&lost);
+        let statuses: Vec<String> =
+            self.crashes.iter().map(|c| format!("{:?}", c.recover_status.unwrap_or(-1))).collect();
+        let python = self.crashes.iter().filter(|c| matches!(c.python, Some(Ok(_)))).count();
+        writeln!(
+            md,
+            "SIGKILL of the recorder {}–{} s into a run ({}–{} s for the first, whose file every offline command \
+             reads), {} times (`jetbench faults --only recorder --repeat 10`). Chunks are flushed every 0.5 s.\n",
+            CRASH_AT_S.0,
+            CRASH_AT_S.1,
+            READERS_CRASH_AT_S,
+            READERS_CRASH_AT_S + CRASH_AT_S.1 - CRASH_AT_S.0,
+            self.crashes.len()
+        )?;
+        writeln!(md, "| figure | value |\n|---|---|")?;
+        writeln!(md, "| data missing before the kill (newest message in the file to the kill), p50 / max | {p50:.3} s / {max:.3} s |")?;
+        writeln!(md, "| `jetbench recover` exit status (0 nothing lost, 3 data lost) | {} |", statuses.join(", "))?;
+        writeln!(
+            md,
+            "| recovered messages / messages in the truncated file | {} |",
+            self.crashes.iter().map(|c| format!("{}/{}", c.recovered, c.messages)).collect::<Vec<_>>().join(", ")
+        )?;
+        writeln!(
+            md,
+            "| Python `mcap` reads the recovered file with its chunk indexes | {python}/{} |",
+            self.crashes.len()
+        )?;
+        if let Some(first) = self.crashes.iter().find(|c| !c.readers.is_empty()) {
+            for r in &first.readers {
+                writeln!(
+                    md,
+                    "| `{} crashed.mcap` on the truncated file | exit {}, {} |",
+                    r.command,
+                    r.status.map_or("killed".into(), |s| s.to_string()),
+                    if r.warned { "warns that it is truncated" } else { "NO WARNING" }
+                )?;
+            }
+        }
+        Ok(())
+    }
+
+    fn write_disk(&self, md: &mut String) -> std::fmt::Result {
+        if self.disk.is_empty() {
+            return Ok(());
+        }
+        writeln!(md, "\n## Disk full\n")?;
+        writeln!(
+            md,
+            "The recording goes to a tmpfs of {DISK_KIB} KiB mounted for the run, which fills a few seconds in \
+             (`jetbench faults --only disk`). The loop is watched from outside by `jetbench echo bench/command` in \
+             the same namespace: the commands published after the recorder's message, on their own stamps.\n"
+        )?;
+        writeln!(
+            md,
+            "| `[recorder] on_error` | full after (s) | then | commands after it: count, rate (Hz), longest interval \
+             (ms) | board disarmed | recovered (exit, messages) |"
+        )?;
+        writeln!(md, "|---|---:|---|---|---|---|")?;
+        for d in &self.disk {
+            let then = match d.on_error {
+                OnRecordError::Stop => format!(
+                    "safe stop {:.0} ms after the message, exit {:?}",
+                    d.stopped_after_ms.unwrap_or(f64::NAN),
+                    d.exit_status
+                ),
+                OnRecordError::Continue => format!("ran on unrecorded, exit {:?}", d.exit_status),
+            };
+            writeln!(
+                md,
+                "| {} | {:.1} | {then} | {}, {:.1}, {:.1} | {} | {}, {} |",
+                if d.on_error == OnRecordError::Stop { "stop" } else { "continue" },
+                d.full_after_s.unwrap_or(f64::NAN),
+                d.commands_after_full,
+                d.rate_after_full_hz,
+                d.max_interval_after_full_ms,
+                if d.disarmed { "yes" } else { "no" },
+                d.recover_status.unwrap_or(-1),
+                d.recovered
+            )?;
+        }
+        if let Some(d) = self.disk.first() {
+            writeln!(md, "\nThe recorder's message: `{}`", d.said.trim())?;
+        }
+        Ok(())
+    }
+
+    fn write_bad_data(&self, md: &mut String) -> std::fmt::Result {
+        if self.bad_data.is_empty() {
+            return Ok(());
+        }
+        writeln!(md, "\n## Bad sensor data in the live loop\n")?;
+        writeln!(md, "| `--inject` | run (s) | spikes rejected | other rejections | tracking MAE (N), without faults | throttle step at a spike p50 / max (%) | every other step p50 / max (%) | stuck flagged after (s) | NaN frames reaching the bus | non-finite samples recorded | idle while silent |")?;
+        writeln!(md, "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---|")?;
+        for b in &self.bad_data {
+            writeln!(
+                md,
+                "| `{}` | {:.0} | {}/{} | {} | {} | {:.2} / {:.2} | {:.2} / {:.2} | {} | {}/{} | {} | {} |",
+                b.inject.join(" "),
+                b.duration_s,
+                b.spikes_rejected,
+                b.spikes,
+                b.other_rejections,
+                if b.baseline_mae_n.is_nan() {
+                    format!("{:.3}", b.mae_n)
+                } else {
+                    format!(
+                        "{:.3}, {:.3} ({:+.1} %)",
+                        b.mae_n,
+                        b.baseline_mae_n,
+                        100.0 * (b.mae_n / b.baseline_mae_n - 1.0)
+                    )
+                },
+                b.step_at_spike_pct.0,
+                b.step_at_spike_pct.1,
+                b.step_elsewhere_pct.0,
+                b.step_elsewhere_pct.1,
+                b.stuck_flagged_after_s.map_or("–".into(), |s| format!("{s:.2}")),
+                b.nan_published,
+                b.nan_frames,
+                b.non_finite_samples,
+                if b.silent_frames == 0 {
+                    "–"
+                } else if b.idled_in_silence {
+                    "yes"
+                } else {
+                    "no"
+                },
+            )?;
+        }
+        writeln!(
+            md,
+            "\nReproduce: `jetbench up --sim --duration 32 --record bad.mcap --inject {}`, or `jetbench faults --only \
+             inject`. The throttle step at a spike is that of the controller's own loop: a rejected measurement \
+             leaves the estimate at the prediction whatever the spike's size (`crates/stack/tests/injected.rs` \
+             measures a spike's effect against the same loop fed the clean reading).",
+            ALL_KINDS.join(" --inject ")
+        )
+    }
+
+    fn write_set(&self, md: &mut String) -> std::fmt::Result {
+        if let Some(s) = &self.second_up {
+            writeln!(md, "\n## One set per namespace\n")?;
+            writeln!(
+                md,
+                "A second `jetbench up` in a namespace in use exited {:?}{}: `{}`. A set in another namespace ran \
+                 beside it: {}. (`jetbench faults --only second-up`)",
+                s.status,
+                if s.names_the_first { ", naming the first set's pid" } else { " WITHOUT naming the first set" },
+                s.message.trim(),
+                if s.side_by_side { "yes" } else { "NO" }
+            )?;
+        }
+        if let Some(a) = &self.access {
+            writeln!(md, "\n## Only the bench user\n")?;
+            writeln!(
+                md,
+                "As user `nobody` (through `setpriv`), against a running set's {} files and sockets (shared memory, \
+                 doorbells, the namespace lock, the CAN sockets, their folders): {} could be read or written; files \
+                 with any permission for group or others: {}. `jetbench echo bench/thrust` as `nobody` exited {:?}: \
+                 `{}`. (`jetbench faults --only access`)",
+                a.tried,
+                a.open_to_others.len(),
+                a.loose_modes.len(),
+                a.echo_status,
+                a.echo_said.trim()
+            )?;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,102 @@
+//! `jetbench faults` and `jetbench soak`: glue over [`jetbench_faults`].
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::Context;
+use jetbench_faults::report::{Options, Part};
+use jetbench_faults::Bench;
+use jetbench_latency::load::LoadKind;
+
+/// Arguments of `jetbench faults`.
+#[derive(clap::Args)]
+#[command(after_help = "Exit status: 0 every bound held, 1 a bound broke or an experiment could not run.
+
+Examples:
+  jetbench faults --repeat 10 --report docs/faults/REPORT.md   # the whole campaign (scripts/faults.sh)
+  jetbench faults --only kill:actuation --repeat 3
+  jetbench faults --only disk --only recorder")]
+pub struct FaultsArgs {
+    /// Kill each process, and crash the recorder, this many times at random moments.
+    #[arg(long, default_value_t = 10)]
+    repeat: usize,
+    /// Seed of the random moments.
+    #[arg(long, default_value_t = 17)]
+    seed: u64,
+    /// Only these parts (repeatable): kill, kill:PROCESS (sensing, estimation, control,
+    /// actuation, sim-bench, recorder, launcher), recorder, disk, inject, second-up, access.
+    #[arg(long, value_name = "PART")]
+    only: Vec<Part>,
+    /// Length of the run with spikes (and of the one without), s.
+    #[arg(long, default_value_t = 30)]
+    spike_seconds: u32,
+    /// Write the report (Markdown) here.
+    #[arg(long, value_name = "FILE.md")]
+    report: Option<PathBuf>,
+    /// Python with `mcap` installed, to read recovered files independently (scripts/pyenv.sh prints it).
+    #[arg(long, value_name = "PYTHON")]
+    python: Option<PathBuf>,
+}
+
+/// Arguments of `jetbench soak`.
+#[derive(clap::Args)]
+pub struct SoakArgs {
+    /// How long, minutes.
+    #[arg(long, default_value_t = 30.0)]
+    minutes: f64,
+    /// Background load: none, cpu, all (computation, memory traffic and file I/O).
+    #[arg(long, default_value = "all")]
+    load: LoadKind,
+    /// Sample every process's memory every this many seconds.
+    #[arg(long, default_value_t = 10.0)]
+    every: f64,
+    /// Run the set with its real-time settings (`jetbench up --rt`), as a bench under load should.
+    #[arg(long)]
+    rt: bool,
+}
+
+fn bench(python: Option<PathBuf>) -> anyhow::Result<Bench> {
+    let exe = std::env::current_exe().context("cannot locate the jetbench binary")?;
+    let scratch = std::env::temp_dir().join(format!("jetbench-faults-{}", std::process::id()));
+    let mut bench = Bench::new(exe, "faults", scratch)?;
+    bench.python = python;
+    Ok(bench)
+}
+
+fn machine() -> String {
+    let cpus = jetbench_stack::rt::online_cpus();
+    let kernel = std::fs::read_to_string("/proc/sys/kernel/osrelease").unwrap_or_default();
+    format!("{cpus} CPUs, Linux {}", kernel.trim())
+}
+
+pub fn run(args: FaultsArgs) -> anyhow::Result<ExitCode> {
+    let bench = bench(args.python)?;
+    let options =
+        Options { repeat: args.repeat.max(1), seed: args.seed, spike_seconds: args.spike_seconds, only: args.only };
+    let campaign = jetbench_faults::report::run(&bench, &options, &mut |what| eprintln!("faults: {what}"));
+    let report = campaign.markdown(&machine());
+    match &args.report {
+        Some(path) => {
+            std::fs::write(path, &report).with_context(|| format!("cannot write {}", path.display()))?;
+            println!("report written to {}", path.display());
+        }
+        None => print!("{report}"),
+    }
+    let problems = campaign.problems();
+    for p in &problems {
+        eprintln!("faults: bound broken: {p}");
+    }
+    let _ = std::fs::remove_dir_all(bench.scratch_dir());
+    Ok(if problems.is_empty() { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+}
+
+pub fn soak(args: SoakArgs) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(args.minutes > 0.0 && args.every > 0.0, "--minutes and --every must be positive");
+    let bench = bench(None)?;
+    let every = Duration::from_secs_f64(args.every);
+    let soak = jetbench_faults::soak::soak(&bench, args.minutes, args.load, args.rt, every)?;
+    print!("{soak}");
+    let _ = std::fs::remove_dir_all(bench.scratch_dir());
+    Ok(if soak.exit_ok { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+}
