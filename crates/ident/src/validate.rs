@@ -121,9 +121,14 @@ pub fn noise_floor(data: &[Series]) -> Option<NoiseFloor> {
 
 /// Thrust and thrust rate at the start of `y`, read off a local polynomial fit.
 /// Noisy at the edge (a rate error of tens of N/s is common at σ = 2.6 N); see
-/// [`fit_initial_state`] for the state a free run should start from.
+/// [`fit_initial_state`] for the state a free run should start from. A missing
+/// sample (NaN) in the window falls back to the first sample, at rest.
 pub fn initial_state(y: &[f64]) -> State {
     let window = STATE_WINDOW.min(if y.len() % 2 == 1 { y.len() } else { y.len().saturating_sub(1) });
+    if y[..window].iter().any(|v| !v.is_finite()) {
+        let thrust_n = y.iter().copied().find(|v| v.is_finite()).unwrap_or(0.0);
+        return State { thrust_n, thrust_rate_n_per_s: 0.0 };
+    }
     let fit = SavitzkyGolay::new(window, STATE_ORDER.min(window.saturating_sub(2)))
         .ok()
         .and_then(|sg| Some((sg.apply(&y[..window], 0, STEP_S).ok()?, sg.apply(&y[..window], 1, STEP_S).ok()?)));
@@ -147,6 +152,7 @@ pub fn fit_initial_state(model: &dyn Dynamics, y: &[f64], u: &[f64]) -> State {
 }
 
 /// [`fit_initial_state`] of a run that starts `t0_s` seconds into the recording.
+/// Samples of `y` that are NaN (lost or rejected) are left out of the fit.
 pub fn fit_initial_state_at(model: &dyn Dynamics, t0_s: f64, y: &[f64], u: &[f64]) -> State {
     let n = y.len().min(u.len()).min(INITIAL_FIT_SAMPLES);
     let mut x = initial_state(y);
@@ -154,7 +160,8 @@ pub fn fit_initial_state_at(model: &dyn Dynamics, t0_s: f64, y: &[f64], u: &[f64
         return x;
     }
     let (mut base, mut dt_run, mut dd_run) = (Vec::new(), Vec::new(), Vec::new());
-    let sse = |sim: &[f64]| -> f64 { sim.iter().zip(y).map(|(s, m)| (s - m).powi(2)).sum() };
+    let sse =
+        |sim: &[f64]| -> f64 { sim.iter().zip(y).filter(|(_, m)| m.is_finite()).map(|(s, m)| (s - m).powi(2)).sum() };
     for _ in 0..4 {
         if model.free_run_at(t0_s, x, &u[..n], &mut base).is_some() {
             return initial_state(y);
@@ -169,7 +176,7 @@ pub fn fit_initial_state_at(model: &dyn Dynamics, t0_s: f64, y: &[f64], u: &[f64
         }
         // Normal equations of the 2-parameter linearised problem.
         let (mut a11, mut a12, mut a22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
-        for k in 0..n {
+        for k in (0..n).filter(|&k| y[k].is_finite()) {
             let (j1, j2) = ((dt_run[k] - base[k]) / ht, (dd_run[k] - base[k]) / hd);
             let r = y[k] - base[k];
             a11 += j1 * j1;
