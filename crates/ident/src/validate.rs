@@ -88,6 +88,45 @@ pub fn free_run_fn(
     None
 }
 
+/// A plant free-run over the throttle of a recording or a profile, as `jetbench
+/// simulate` does it: from the state fitted to the first 2 s of measured thrust, or at
+/// rest at the first throttle (effects included) when there is none.
+#[derive(Clone, Debug, PartialEq)]
+pub struct InputRun {
+    /// Simulated measured thrust per row (NaN after a divergence), N.
+    pub thrust_n: Vec<f64>,
+    /// Where the model diverged, s from the first row.
+    pub diverged_at_s: Option<f64>,
+}
+
+/// Runs `plant` over `input`'s throttle (one run: the throttle is held over gaps).
+pub fn simulate_input(plant: &Plant, input: &Series) -> InputRun {
+    let t0_s = input.t_s.first().copied().unwrap_or(0.0);
+    let initial = if input.has_thrust() {
+        fit_initial_state_at(plant, t0_s, &input.thrust_n, &input.u_pct)
+    } else {
+        State { thrust_n: plant.rest_thrust_n(input.u_pct.first().copied().unwrap_or(0.0)), thrust_rate_n_per_s: 0.0 }
+    };
+    let mut thrust_n = Vec::new();
+    let diverged_at_s = plant.free_run(t0_s, initial, &input.u_pct, &mut thrust_n);
+    InputRun { thrust_n, diverged_at_s }
+}
+
+/// Writes `time_s,throttle_pct,thrust_n[,measured_n]` of a simulation over `input`, up
+/// to a divergence.
+pub fn write_simulation_csv<W: std::io::Write>(mut out: W, input: &Series, thrust_n: &[f64]) -> std::io::Result<()> {
+    let measured = input.has_thrust();
+    writeln!(out, "time_s,throttle_pct,thrust_n{}", if measured { ",measured_n" } else { "" })?;
+    for (k, simulated) in thrust_n.iter().enumerate().take_while(|(_, t)| !t.is_nan()) {
+        write!(out, "{:?},{:?},{:?}", input.t_s[k], input.u_pct[k], simulated)?;
+        if measured {
+            write!(out, ",{:?}", input.thrust_n[k])?;
+        }
+        writeln!(out)?;
+    }
+    out.flush()
+}
+
 /// The measurement noise, estimated from the data.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct NoiseFloor {
@@ -155,16 +194,31 @@ pub fn fit_initial_state(model: &dyn Dynamics, y: &[f64], u: &[f64]) -> State {
 /// Samples of `y` that are NaN (lost or rejected) are left out of the fit.
 pub fn fit_initial_state_at(model: &dyn Dynamics, t0_s: f64, y: &[f64], u: &[f64]) -> State {
     let n = y.len().min(u.len()).min(INITIAL_FIT_SAMPLES);
-    let mut x = initial_state(y);
+    let edge = initial_state(y);
     if n < 10 {
-        return x;
+        return edge;
     }
     let (mut base, mut dt_run, mut dd_run) = (Vec::new(), Vec::new(), Vec::new());
     let sse =
         |sim: &[f64]| -> f64 { sim.iter().zip(y).filter(|(_, m)| m.is_finite()).map(|(s, m)| (s - m).powi(2)).sum() };
+    // Two starts: the local polynomial's, and at rest at the first samples' mean (the
+    // polynomial's rate at the edge can be tens of N/s off, enough to make a model that
+    // is stiff in Ṫ (K_DD > 0) run away).
+    let first: Vec<f64> = y[..n].iter().copied().filter(|v| v.is_finite()).take(10).collect();
+    let rest = State { thrust_n: first.iter().sum::<f64>() / first.len().max(1) as f64, thrust_rate_n_per_s: 0.0 };
+    let mut best: Option<(f64, State)> = None;
+    for start in [edge, rest] {
+        if model.free_run_at(t0_s, start, &u[..n], &mut base).is_none() {
+            let e = sse(&base);
+            if best.is_none_or(|(b, _)| e < b) {
+                best = Some((e, start));
+            }
+        }
+    }
+    let Some((_, mut x)) = best else { return rest };
     for _ in 0..4 {
         if model.free_run_at(t0_s, x, &u[..n], &mut base).is_some() {
-            return initial_state(y);
+            return x;
         }
         let (ht, hd) = (0.1, 1.0);
         let bumped_t = State { thrust_n: x.thrust_n + ht, ..x };

@@ -182,6 +182,22 @@ impl EffectKind {
         }
     }
 
+    /// Every kind with its keys, their bounds and its physics, the discrepancy's terms
+    /// too: the catalogue as a command's help shows it.
+    pub fn catalogue_help() -> String {
+        let mut help = String::new();
+        for kind in Self::ALL {
+            let keys: Vec<String> =
+                kind.keys().iter().zip(kind.bounds()).map(|(key, (lo, hi))| format!("{key}=[{lo}, {hi}]")).collect();
+            help.push_str(&format!("  {}:{}\n      {}\n", kind.name(), keys.join(","), kind.physics()));
+        }
+        help.push_str("  discrepancy terms (each with its shape key; absent terms are 0):\n");
+        for term in DISCREPANCY_TERMS {
+            help.push_str(&format!("      {}: {}\n", DISCREPANCY_KEYS[term.coefficient], term.meaning));
+        }
+        help
+    }
+
     /// Comma-separated valid names, for error messages.
     pub fn valid_names() -> String {
         Self::ALL.iter().map(|k| k.name()).collect::<Vec<_>>().join(", ")

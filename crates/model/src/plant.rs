@@ -417,6 +417,9 @@ impl PlantEngine {
     /// and averages the throttle map over them.
     fn shaped_drive(&mut self, throttle_pct: f64, i: usize) -> Drive {
         let tick_s = STEP_S / SUBSTEPS as f64;
+        if let (Some(delay), None, None, true) = (self.delay_s, self.rate_limit, self.lag_alpha, self.ticks > 1) {
+            return self.delayed_drive(i as f64 * self.ticks as f64 * tick_s - delay, self.ticks as f64 * tick_s);
+        }
         let mut sum = Drive::default();
         for j in 0..self.ticks {
             let tick = i * self.ticks + j;
@@ -443,6 +446,28 @@ impl PlantEngine {
         }
         let n = self.ticks as f64;
         Drive { v: sum.v / n, below: sum.below / n, above: sum.above / n }
+    }
+
+    /// The throttle map averaged over `[from_s, from_s + h]` of the commanded throttle,
+    /// times relative to the start of the current row: what a pure delay gives a
+    /// substep, in closed form (the rows are held, so at most two share the window).
+    fn delayed_drive(&mut self, from_s: f64, h: f64) -> Drive {
+        let n = self.history.len() as i64;
+        let row = |j: i64| self.history[(n - 1 + j.clamp(1 - n, 0)) as usize];
+        let first = (from_s / STEP_S + 1e-9).floor() as i64;
+        let last = ((from_s + h) / STEP_S - 1e-9).floor() as i64;
+        let late = self.drive_of(row(last));
+        self.engine_throttle_pct = row(last);
+        if last <= first {
+            return late;
+        }
+        let w = (((first + 1) as f64 * STEP_S - from_s) / h).clamp(0.0, 1.0);
+        let early = self.drive_of(row(first));
+        Drive {
+            v: w * early.v + (1.0 - w) * late.v,
+            below: w * early.below + (1.0 - w) * late.below,
+            above: w * early.above + (1.0 - w) * late.above,
+        }
     }
 
     /// The sensor side and the thrust history, after the engine moved from `t0` to `t1`

@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 
 use crate::Recording;
 use jetbench_model::STEP_S;
-use jetbench_msgs::channels;
+use jetbench_msgs::{actuation_flags, channels};
 
 /// Largest relative deviation of a step from [`STEP_S`] before the series is split.
 const GAP_FACTOR: f64 = 1.5;
@@ -311,6 +311,13 @@ impl Series {
 
     /// Reads identification data from a recording (see the module docs).
     pub fn from_recording(recording: &Recording, name: &str) -> Result<Series, DataError> {
+        Self::from_recording_noted(recording, name).map(|(series, _)| series)
+    }
+
+    /// [`Series::from_recording`], with a note of the rows left out because the throttle
+    /// the board applied is not known there: the board had not acknowledged the command
+    /// (`UNACKED`) or was silent (`BOARD_SILENT`). They become gaps, as lost rows do.
+    pub fn from_recording_noted(recording: &Recording, name: &str) -> Result<(Series, Option<String>), DataError> {
         let invalid = |message: String| DataError::Invalid { path: name.to_owned(), message };
         let thrust = recording.samples(channels::THRUST);
         let mut actuation = recording.samples(channels::ACTUATION);
@@ -324,16 +331,22 @@ impl Series {
         let mut series = Series { name: name.to_owned(), ..Series::default() };
         let origin_frame = thrust[0].frame_seq;
         let mut next_actuation = 0;
-        let mut applied: Option<f64> = None;
+        let mut applied: Option<(f64, u32)> = None;
+        let mut unknown = 0usize;
         for (k, sample) in thrust.iter().enumerate() {
             // The throttle held until the next sample: the last one published before it.
             let until_ns = thrust.get(k + 1).map_or(sample.stamp_ns + (STEP_S * 1e9) as u64, |next| next.stamp_ns);
             while next_actuation < actuation.len() && actuation[next_actuation].publish_ns < until_ns {
-                applied = Some(actuation[next_actuation].applied_pct);
+                let a = &actuation[next_actuation];
+                applied = Some((a.applied_pct, a.flags));
                 next_actuation += 1;
             }
             // Before the first applied throttle the input is unknown: start after it.
-            let Some(u) = applied else { continue };
+            let Some((u, flags)) = applied else { continue };
+            if flags & (actuation_flags::UNACKED | actuation_flags::BOARD_SILENT) != 0 {
+                unknown += 1;
+                continue;
+            }
             // Time from the sensor's own frame counter: frames are sent every 10 ms,
             // while the receive stamps jitter with the PC's load. A lost frame still
             // shows as a gap.
@@ -346,7 +359,14 @@ impl Series {
             series.thrust_n.push(sample.thrust_n);
         }
         series.check()?;
-        Ok(series)
+        let note = (unknown > 0).then(|| {
+            format!(
+                "{name}: {unknown} row(s) ({:.1} %) left out: the board had not acknowledged the throttle or was \
+                 silent, so what it applied is not known",
+                100.0 * unknown as f64 / thrust.len() as f64
+            )
+        });
+        Ok((series, note))
     }
 
     /// Loads a CSV or MCAP file (told apart by the MCAP magic bytes).
@@ -370,7 +390,11 @@ impl Series {
         let name = path.display().to_string();
         let bytes = std::fs::read(path).map_err(|source| DataError::Read { path: path.into(), source })?;
         if bytes.starts_with(mcap_magic()) {
-            return Ok((Self::load(path, require_thrust)?, None));
+            let recording = Recording::open(path)?;
+            let (series, note) = Series::from_recording_noted(&recording, &name)?;
+            let truncated = recording.truncated.then(|| format!("{name} is truncated; the data up to its last chunk"));
+            let notes: Vec<String> = truncated.into_iter().chain(note).collect();
+            return Ok((series, (!notes.is_empty()).then(|| notes.join("; "))));
         }
         Series::from_csv_any_rate(bytes.as_slice(), &name, require_thrust)
     }

@@ -9,7 +9,7 @@ use anyhow::{bail, Context};
 use jetbench_ident::excite::{self, MIN_SAMPLES};
 use jetbench_ident::synth::{self, Bench};
 use jetbench_ident::validate;
-use jetbench_model::{resolve_model, resolve_params, Effect, EffectKind, State};
+use jetbench_model::{resolve_model, resolve_params, Effect, EffectKind};
 use jetbench_record::series::Series;
 
 /// Arguments of `jetbench simulate`.
@@ -42,45 +42,24 @@ pub fn simulate(args: SimulateArgs) -> anyhow::Result<ExitCode> {
     // Without effects the plant is the ten-parameter engine, bit for bit.
     let plant = resolve_model(&args.model)?.plant();
     let input = Series::load(&args.input, false)?;
-    let t0_s = input.t_s[0];
-    let initial = if input.has_thrust() {
-        validate::fit_initial_state_at(&plant, t0_s, &input.thrust_n, &input.u_pct)
-    } else {
-        State { thrust_n: plant.params.stable_equilibrium(input.u_pct[0]).unwrap_or(0.0), thrust_rate_n_per_s: 0.0 }
-    };
-    let mut thrust = Vec::new();
     if input.runs().len() > 1 {
         eprintln!("warning: the input has gaps in time; it is simulated as one run with the throttle held over them");
     }
-    let diverged = plant.free_run(t0_s, initial, &input.u_pct, &mut thrust);
-    let mut out: Box<dyn Write> = match &args.out {
+    let run = validate::simulate_input(&plant, &input);
+    let out: Box<dyn Write> = match &args.out {
         Some(p) => Box::new(BufWriter::new(File::create(p).with_context(|| format!("cannot create {}", p.display()))?)),
         None => Box::new(std::io::stdout().lock()),
     };
-    let measured = input.has_thrust();
-    writeln!(out, "time_s,throttle_pct,thrust_n{}", if measured { ",measured_n" } else { "" })?;
-    for (k, simulated) in thrust.iter().enumerate().take_while(|(_, t)| !t.is_nan()) {
-        write!(out, "{:?},{:?},{:?}", input.t_s[k], input.u_pct[k], simulated)?;
-        if measured {
-            write!(out, ",{:?}", input.thrust_n[k])?;
-        }
-        writeln!(out)?;
-    }
-    out.flush()?;
-    if let Some(at) = diverged {
+    validate::write_simulation_csv(out, &input, &run.thrust_n)?;
+    if let Some(at) = run.diverged_at_s {
         bail!(
             "the model diverged {at:.2} s into the run (t = {:.2} s); output stops there. The model is only locally \
              valid: check it with `jetbench identify` or keep the throttle where it was identified",
             input.t_s[0] + at
         );
     }
-    if measured {
-        if let Some(s) = validate::score(input.thrust_n.iter().copied().zip(thrust.iter().copied())) {
-            eprintln!(
-                "against the measured thrust: MAE {:.3} N, RMSE {:.3} N, fit {:.1} %",
-                s.mae_n, s.rmse_n, s.fit_pct
-            );
-        }
+    if let Some(s) = validate::score(input.thrust_n.iter().copied().zip(run.thrust_n.iter().copied())) {
+        eprintln!("against the measured thrust: MAE {:.3} N, RMSE {:.3} N, fit {:.1} %", s.mae_n, s.rmse_n, s.fit_pct);
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -186,19 +165,7 @@ fn sim_record_help() -> String {
          real bench adds: CAN spikes and lost rows.\n\n\
          Effects (--effect NAME:KEY=VALUE,..., or [effects.NAME] with the same keys in a model file):\n",
     );
-    for kind in EffectKind::ALL {
-        let keys: Vec<String> =
-            kind.keys().iter().zip(kind.bounds()).map(|(key, (lo, hi))| format!("{key}=[{lo}, {hi}]")).collect();
-        help.push_str(&format!("  {}:{}\n      {}\n", kind.name(), keys.join(","), kind.physics()));
-    }
-    help.push_str("  discrepancy terms (each with its shape key; absent terms are 0):\n");
-    for term in jetbench_model::discrepancy::DISCREPANCY_TERMS {
-        help.push_str(&format!(
-            "      {}: {}\n",
-            jetbench_model::discrepancy::DISCREPANCY_KEYS[term.coefficient],
-            term.meaning
-        ));
-    }
+    help.push_str(&EffectKind::catalogue_help());
     help.push_str(
         "\nExamples:\n  \
          jetbench sim-record --model p220-kerosene --seed 3 --out p220.csv\n  \

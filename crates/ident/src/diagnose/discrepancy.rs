@@ -103,7 +103,7 @@ fn sensitivities(
             }
             let spec = current.with(EffectKind::Discrepancy, values);
             let plant: Plant = spec.plant(fixed)?;
-            problem.simulate(&plant, false, &mut probe_sim).ok()?;
+            problem.simulate(&plant, &spec.states, false, &mut probe_sim).ok()?;
             Some(
                 problem
                     .runs
@@ -131,13 +131,8 @@ fn sensitivities(
 /// Innovations of `columns` (one vector per run) over `part`, in the order of
 /// [`Problem::innovations`].
 fn whitened(problem: &Problem<'_>, runs: &[Vec<f64>], part: Part) -> Vec<f64> {
-    let ar = problem.ar();
     let mut out = Vec::new();
-    for (run, x) in problem.runs.iter().zip(runs) {
-        out.extend(
-            (0..x.len()).filter(|&k| (k < run.cut) == (part == Part::Calibration)).filter_map(|k| ar.innovation(x, k)),
-        );
-    }
+    problem.whiten_part(runs, part, &mut out);
     out
 }
 

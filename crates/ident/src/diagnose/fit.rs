@@ -3,15 +3,16 @@
 //! innovations of the noise model (the prediction-error criterion of coloured noise;
 //! for white noise, plain least squares on the output error).
 
-use jetbench_model::{Effect, EffectKind, Effects, Params, Plant};
+use jetbench_model::{Effect, EffectKind, Effects, Params, Plant, State};
 use nalgebra::{DMatrix, DVector};
 
 use super::problem::{Part, Problem, Sim};
 
 /// Iterations of a fit (each costs one simulation per free parameter).
 const MAX_ITERATIONS: usize = 25;
-/// A fit stops once an iteration lowers the sum of squares by less than this fraction.
-const TOLERANCE: f64 = 1e-7;
+/// A fit stops once an iteration improves `N·ln(SSE/N)` by less than this: hypotheses are
+/// compared on that scale, where differences below a few units mean nothing.
+const TOLERANCE_SCORE: f64 = 0.25;
 
 /// What is free in a hypothesis, and where a fit starts.
 #[derive(Clone, Debug, PartialEq)]
@@ -25,11 +26,21 @@ pub(crate) struct Spec {
     pub discrepancy_free: Vec<usize>,
     /// Scales of the discrepancy's values (the size that moves the output by about 1 N).
     pub discrepancy_scale: Vec<f64>,
+    /// Where each run starts: fitted to its first two seconds under this hypothesis (or
+    /// the one it grew from), held during a fit.
+    pub states: Vec<State>,
 }
 
 impl Spec {
-    pub fn new(params: Params) -> Self {
-        Self { params, refit: false, effects: Vec::new(), discrepancy_free: Vec::new(), discrepancy_scale: Vec::new() }
+    pub fn new(params: Params, states: Vec<State>) -> Self {
+        Self {
+            params,
+            refit: false,
+            effects: Vec::new(),
+            discrepancy_free: Vec::new(),
+            discrepancy_scale: Vec::new(),
+            states,
+        }
     }
 
     /// Parameters a fit of this hypothesis estimates (its BIC count).
@@ -231,8 +242,9 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
     };
     let mut sim = Sim::new();
     let mut evaluate = |x: &[f64], r: &mut Vec<f64>| -> Option<f64> {
-        let plant = build(x).plant(fixed)?;
-        problem.simulate(&plant, true, &mut sim).ok()?;
+        let spec = build(x);
+        let plant = spec.plant(fixed)?;
+        problem.simulate(&plant, &spec.states, true, &mut sim).ok()?;
         problem.innovations(&sim, Part::Calibration, r);
         let sse: f64 = r.iter().map(|v| v * v).sum();
         sse.is_finite().then_some(sse)
@@ -284,12 +296,12 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
             clamp(&mut next);
             match evaluate(&next, &mut trial_r) {
                 Some(s) if s < sse && trial_r.len() == r.len() => {
-                    let gain = (sse - s) / sse;
+                    let gain = r.len() as f64 * (sse / s).ln();
                     x = next;
                     sse = s;
                     std::mem::swap(&mut r, &mut trial_r);
                     lambda = (lambda / 4.0).max(1e-9);
-                    improved = gain > TOLERANCE;
+                    improved = gain > TOLERANCE_SCORE;
                     break;
                 }
                 _ => lambda *= 5.0,

@@ -67,8 +67,11 @@ pub struct Options {
     /// Most effects added.
     pub max_effects: usize,
     /// Smallest validation-MAE improvement worth modelling, as a fraction of the noise
-    /// floor: below it a hypothesis is statistically visible but not worth a claim.
+    /// floor: below it a hypothesis is statistically visible but not worth a claim...
     pub min_gain: f64,
+    /// ... unless its held-out score gain is at least this (score units: 40 is a
+    /// likelihood ratio of e²⁰), evidence no chance alignment of noise gives.
+    pub strong_evidence: f64,
     /// Effects tried (default: the catalogue and the discrepancy).
     pub candidates: Vec<EffectKind>,
     /// Try re-identifying the ten parameters.
@@ -86,6 +89,7 @@ impl Default for Options {
             holdout: 0.3,
             max_effects: 3,
             min_gain: 0.01,
+            strong_evidence: 40.0,
             candidates: EffectKind::ALL.to_vec(),
             refit: true,
             ambiguity: 10.0,
@@ -283,10 +287,19 @@ impl Search<'_, '_> {
     fn evaluate(&self, fit: Fit) -> Option<Scored> {
         let plant = fit.spec.plant(&self.model.effects)?;
         let mut sim = Sim::new();
-        self.problem.simulate(&plant, false, &mut sim).ok()?;
+        self.problem.simulate(&plant, &fit.spec.states, false, &mut sim).ok()?;
         let (sse_val, n_val) = self.problem.sse(&sim, Part::Validation);
         let mae_val = self.problem.mae(&sim, Part::Validation);
         (sse_val.is_finite() && mae_val.is_finite()).then_some(Scored { fit, sim, sse_val, n_val, mae_val })
+    }
+
+    /// `scored` with each run's initial state fitted anew under it (the same model, a
+    /// better start), when that simulates.
+    fn restart(&self, scored: Scored) -> Scored {
+        let Some(plant) = scored.fit.spec.plant(&self.model.effects) else { return scored };
+        let mut fit = scored.fit.clone();
+        fit.spec.states = self.problem.initial_states(&plant);
+        self.evaluate(fit).unwrap_or(scored)
     }
 
     fn fit(&self, spec: &Spec) -> Option<Scored> {
@@ -301,7 +314,7 @@ impl Search<'_, '_> {
             .filter_map(|g| {
                 let spec = current.with(kind, g.clone());
                 let plant = spec.plant(&self.model.effects)?;
-                self.problem.simulate(&plant, true, &mut sim).ok()?;
+                self.problem.simulate(&plant, &spec.states, true, &mut sim).ok()?;
                 Some((self.problem.sse(&sim, Part::Calibration).0, g))
             })
             .min_by(|a, b| a.0.total_cmp(&b.0))?
@@ -338,7 +351,7 @@ pub fn diagnose(
     let floor_n = problem.noise.mae_n;
 
     progress("simulating the model over the recording");
-    let given = Spec::new(model.model);
+    let given = Spec::new(model.model, problem.given_states());
     let search = Search { problem: &problem, model, options, floor_n };
     let before = search.fit(&given).ok_or_else(|| diverged(&problem, &nominal, data))?;
     progress("analysing the residual");
@@ -387,7 +400,7 @@ pub fn diagnose(
 
 fn diverged(problem: &Problem<'_>, nominal: &jetbench_model::Plant, data: &[Series]) -> IdentError {
     let mut sim = Sim::new();
-    let (i, at) = problem.simulate(nominal, false, &mut sim).err().unwrap_or((0, f64::NAN));
+    let (i, at) = problem.simulate(nominal, &problem.given_states(), false, &mut sim).err().unwrap_or((0, f64::NAN));
     IdentError::Failed(format!(
         "the model diverges on the recorded input of {} at t = {at:.2} s, so it cannot be compared with the \
          recording; identify a model that is valid over this throttle range first (jetbench identify)",
@@ -443,6 +456,7 @@ fn search_both(search: &Search<'_, '_>, before: &Scored, analysis: &Analysis, pr
         })
         .collect();
     let first = Kept { name: REFIT, evidence: evidence(before, &refit, None, options, analysis.findings.clone()) };
+    let refit = search.restart(refit);
     let after_refit = residual::analyse(search.problem, &refit.sim);
     let both = forward(search, refit, &after_refit, &helped, "parameters", vec![first], progress);
     rounds.extend(both.rounds);
@@ -532,7 +546,7 @@ fn forward(
         let Some(name) = accepted else { break };
         let Some((_, Some(next), _)) = tried.into_iter().find(|(n, _, _)| *n == name) else { break };
         kept.push(Kept { name, evidence: evidence(&current, &next, runner_up, options, residual_now) });
-        current = next;
+        current = search.restart(next);
         let analysis = residual::analyse(search.problem, &current.sim);
         peak_hz = peak(&analysis);
         residual_now = analysis.findings;
@@ -573,7 +587,8 @@ fn decide(
     let admissible = |c: &&Candidate| {
         c.score_gain.is_some_and(|g| g > 0.0)
             && c.unphysical.is_none()
-            && current.mae_val - c.mae_val_n >= options.min_gain * search.floor_n
+            && (current.mae_val - c.mae_val_n >= options.min_gain * search.floor_n
+                || c.score_gain.is_some_and(|g| g >= options.strong_evidence))
     };
     let (accepted, reason) = match candidates.iter().find(admissible) {
         Some(c) if phase == "parameters" && c.name == REFIT => {

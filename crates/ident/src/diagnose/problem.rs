@@ -61,6 +61,9 @@ pub(crate) struct Run {
     pub y: Vec<f64>,
     /// First grid index of the validation part (`y.len()` when the run has none).
     pub cut: usize,
+    /// Grid steps between the run's samples (1 at 100 Hz, 2 for a 50 Hz file): the
+    /// spacing the noise model and the prewhitening work at.
+    pub stride: usize,
     pub t0_s: f64,
     pub initial: State,
 }
@@ -136,12 +139,16 @@ impl<'a> Problem<'a> {
             cut.push(s.t_s.partition_point(|&t| t < split_s));
             let steps = s.grid_steps();
             let max_steps = (MAX_HELD_GAP_S / STEP_S).round() as usize;
+            // The file's own spacing (2 steps for 50 Hz): only more than that is a gap.
+            let mut sorted: Vec<usize> = steps[1..].to_vec();
+            sorted.sort_unstable();
+            let spacing = sorted.get(sorted.len() / 2).copied().unwrap_or(1).max(1);
             let mut start = 0;
             for k in 1..=s.len() {
                 if k < s.len() && steps[k] <= max_steps {
-                    if steps[k] > 1 {
+                    if steps[k] > spacing {
                         gaps += 1;
-                        lost_rows += steps[k] - 1;
+                        lost_rows += steps[k].div_ceil(spacing) - 1;
                     }
                     continue;
                 }
@@ -155,8 +162,9 @@ impl<'a> Problem<'a> {
             }
         }
         let outliers = reject_outliers(&mut runs);
-        let noise = noise::estimate(&runs.iter().map(|r| r.y.clone()).collect::<Vec<_>>())
-            .ok_or_else(|| IdentError::TooLittleData("too few samples to estimate the sensor noise".into()))?;
+        let noise =
+            noise::estimate(&runs.iter().map(|r| r.y.iter().copied().step_by(r.stride).collect()).collect::<Vec<_>>())
+                .ok_or_else(|| IdentError::TooLittleData("too few samples to estimate the sensor noise".into()))?;
         let count = |part: Part| -> usize {
             runs.iter()
                 .map(|r| r.y.iter().enumerate().filter(|(k, y)| y.is_finite() && r.in_part(*k, part)).count())
@@ -184,7 +192,10 @@ impl<'a> Problem<'a> {
             notes: Vec::new(),
         };
         let mut problem = Self { data, runs, cut, n_cal, n_val, noise, report };
-        problem.fit_initial_states(nominal);
+        let states = problem.initial_states(nominal);
+        for (run, state) in problem.runs.iter_mut().zip(states) {
+            run.initial = state;
+        }
         Ok(problem)
     }
 
@@ -205,14 +216,20 @@ impl<'a> Problem<'a> {
             y[grid[j]] = s.thrust_n[k];
         }
         let cut = rows.clone().position(|k| k >= cut_row).map_or(len, |j| grid[j]);
-        Run { series, t0_s: s.t_s[rows.start], rows, grid, u, y, cut, initial: State::default() }
+        let mut gaps: Vec<usize> = grid.windows(2).map(|w| w[1] - w[0]).collect();
+        gaps.sort_unstable();
+        let stride = gaps.get(gaps.len() / 2).copied().unwrap_or(1).max(1);
+        Run { series, t0_s: s.t_s[rows.start], rows, grid, u, y, cut, stride, initial: State::default() }
     }
 
-    /// Fits each run's initial state to its first two seconds under `plant`.
-    pub fn fit_initial_states(&mut self, plant: &Plant) {
-        for run in &mut self.runs {
-            run.initial = fit_initial_state_at(plant, run.t0_s, &run.y, &run.u);
-        }
+    /// Each run's initial state fitted to its first two seconds under `plant`.
+    pub fn initial_states(&self, plant: &Plant) -> Vec<State> {
+        self.runs.iter().map(|run| fit_initial_state_at(plant, run.t0_s, &run.y, &run.u)).collect()
+    }
+
+    /// The initial states fitted under the given model.
+    pub fn given_states(&self) -> Vec<State> {
+        self.runs.iter().map(|run| run.initial).collect()
     }
 
     /// The noise model fits and scores use.
@@ -220,18 +237,24 @@ impl<'a> Problem<'a> {
         &self.noise.model
     }
 
-    /// Simulates `plant` over every run (only up to the split when `calibration_only`).
-    /// `Err` carries (series, time s) of a divergence.
-    pub fn simulate(&self, plant: &Plant, calibration_only: bool, out: &mut Sim) -> Result<(), (usize, f64)> {
+    /// Simulates `plant` over every run from `states` (only up to the split when
+    /// `calibration_only`). `Err` carries (series, time s) of a divergence.
+    pub fn simulate(
+        &self,
+        plant: &Plant,
+        states: &[State],
+        calibration_only: bool,
+        out: &mut Sim,
+    ) -> Result<(), (usize, f64)> {
         out.resize_with(self.runs.len(), Vec::new);
         let mut failure = None;
-        for (run, sim) in self.runs.iter().zip(out.iter_mut()) {
+        for ((run, sim), &initial) in self.runs.iter().zip(out.iter_mut()).zip(states) {
             let end = if calibration_only { run.cut.min(run.u.len()) } else { run.u.len() };
             if end == 0 {
                 sim.clear();
                 continue;
             }
-            if let Some(at) = plant.free_run_with(SUBSTEPS, run.t0_s, run.initial, &run.u[..end], sim) {
+            if let Some(at) = plant.free_run_with(SUBSTEPS, run.t0_s, initial, &run.u[..end], sim) {
                 failure.get_or_insert((run.series, run.t0_s + at));
             }
         }
@@ -244,14 +267,29 @@ impl<'a> Problem<'a> {
         (0..run.y.len()).map(|k| run.y[k] - sim[i].get(k).copied().unwrap_or(f64::NAN)).collect()
     }
 
+    /// The innovations of `x` (a grid vector of run `i`, NaN where there is no sample)
+    /// under the noise model, at the run's stride: element `j` belongs to grid index
+    /// `j·stride`, NaN where a sample it needs is missing.
+    pub fn whiten(&self, i: usize, x: &[f64]) -> Vec<f64> {
+        let strided: Vec<f64> = x.iter().copied().step_by(self.runs[i].stride).collect();
+        (0..strided.len()).map(|j| self.ar().innovation(&strided, j).unwrap_or(f64::NAN)).collect()
+    }
+
+    /// Innovations of grid vectors `x` (one per run) over `part`, in a fixed order.
+    pub fn whiten_part(&self, x: &[Vec<f64>], part: Part, out: &mut Vec<f64>) {
+        out.clear();
+        for (i, run) in self.runs.iter().enumerate() {
+            let w = self.whiten(i, &x[i]);
+            out.extend(
+                w.iter().enumerate().filter(|(j, w)| w.is_finite() && run.in_part(j * run.stride, part)).map(|p| *p.1),
+            );
+        }
+    }
+
     /// Innovations (prewhitened residuals) over `part`, in a fixed order.
     pub fn innovations(&self, sim: &Sim, part: Part, out: &mut Vec<f64>) {
-        out.clear();
-        let ar = self.ar();
-        for (i, run) in self.runs.iter().enumerate() {
-            let r = self.residual(i, sim);
-            out.extend((0..r.len()).filter(|&k| run.in_part(k, part)).filter_map(|k| ar.innovation(&r, k)));
-        }
+        let residuals: Vec<Vec<f64>> = (0..self.runs.len()).map(|i| self.residual(i, sim)).collect();
+        self.whiten_part(&residuals, part, out);
     }
 
     /// Sum of squared innovations over `part`, and how many.

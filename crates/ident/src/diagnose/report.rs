@@ -62,7 +62,7 @@ pub(crate) fn found(
                 .into_iter()
                 .map(|(k, g)| (k, if g != 0.0 { 100.0 * (params[k] - g) / g.abs() } else { f64::NAN }))
                 .collect::<BTreeMap<_, _>>();
-            evidence.summary = explain_refit(&change_pct, &uncertainty, &params);
+            evidence.summary = explain_refit(&named(&given.model), &uncertainty, &params);
             refit = Some(Refit { params, uncertainty, change_pct, evidence });
             continue;
         }
@@ -171,26 +171,34 @@ fn explain(
 }
 
 fn explain_refit(
-    change_pct: &BTreeMap<&'static str, f64>,
+    given: &BTreeMap<&'static str, f64>,
     errors: &BTreeMap<&'static str, f64>,
     params: &BTreeMap<&'static str, f64>,
 ) -> String {
-    let mut changes: Vec<(&str, f64)> =
-        change_pct.iter().map(|(k, v)| (*k, *v)).filter(|(_, v)| v.is_finite()).collect();
-    changes.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
-    let significant: Vec<String> = changes
+    // The changes the data is surest of, in standard errors; a relative change means
+    // little for a coefficient near zero.
+    let mut changes: Vec<(&str, f64, f64)> = params
         .iter()
-        .filter(|(k, _)| {
-            let (v, e) = (params[k], errors.get(k).copied().unwrap_or(f64::NAN));
-            !e.is_finite() || v.abs() > 2.0 * e
+        .filter_map(|(k, v)| {
+            let (g, e) = (given[k], errors.get(k).copied().unwrap_or(f64::NAN));
+            let z = (v - g) / e;
+            (z.is_finite() && z.abs() >= 3.0).then_some((*k, v - g, z))
         })
+        .collect();
+    changes.sort_by(|a, b| b.2.abs().total_cmp(&a.2.abs()));
+    let text: Vec<String> = changes
+        .iter()
         .take(4)
-        .map(|(k, v)| format!("{k} {v:+.1} %"))
+        .map(|(k, d, z)| {
+            let g = given[k];
+            let relative = if g.abs() > 1e-12 { format!(" ({:+.1} %)", 100.0 * d / g.abs()) } else { String::new() };
+            format!("{k} {g:.4} → {:.4}{relative}, {:.0} standard errors", g + d, z.abs())
+        })
         .collect();
     format!(
-        "The ten parameters refitted on the calibration part explain the residual on held-out data; the largest \
+        "The ten parameters refitted on the calibration part explain the residual on held-out data; the surest \
          changes: {}.",
-        if significant.is_empty() { "none beyond their uncertainty".to_owned() } else { significant.join(", ") }
+        if text.is_empty() { "none beyond 3 standard errors (they move together)".to_owned() } else { text.join(", ") }
     )
 }
 

@@ -151,6 +151,7 @@ pub struct Analysis {
 struct RunView {
     file: usize,
     r: Vec<f64>,
+    /// Innovations at the run's stride (see [`Problem::whiten`]).
     w: Vec<f64>,
     yhat: Vec<f64>,
     rate: Vec<f64>,
@@ -191,7 +192,7 @@ pub(crate) fn analyse(problem: &Problem<'_>, sim: &Sim) -> Analysis {
                 })
                 .collect();
             let du = (0..run.u.len()).map(|k| if k == 0 { 0.0 } else { run.u[k] - run.u[k - 1] }).collect();
-            let w = (0..r.len()).map(|k| ar.innovation(&r, k).unwrap_or(f64::NAN)).collect();
+            let w = problem.whiten(i, &r);
             RunView { file: run.series, r, w, yhat, rate, du, t0_s: run.t0_s }
         })
         .collect();
