@@ -79,6 +79,9 @@ pub struct Options {
     /// Score units (`N·ln(SSE/N)`, twice a log-likelihood) within which two hypotheses
     /// explain the held-out data equally well: 10 is a likelihood ratio of e⁵ ≈ 150.
     pub ambiguity: f64,
+    /// Physics is preferred to a refit only when it fits the held-out data better by
+    /// this many standard errors of the paired difference (and by more than `ambiguity`).
+    pub significance_z: f64,
     /// Notes from loading the recordings (another sampling rate, ...), passed on to the report.
     pub notes: Vec<String>,
 }
@@ -93,6 +96,7 @@ impl Default for Options {
             candidates: EffectKind::ALL.to_vec(),
             refit: true,
             ambiguity: 10.0,
+            significance_z: 2.0,
             notes: Vec::new(),
         }
     }
@@ -262,7 +266,8 @@ impl Scored {
         n * (self.sse_val / n).ln()
     }
 
-    /// What stops it being a claim: an effect outside its physical range.
+    /// What stops it being a claim: an effect outside its physical range, or a value
+    /// the fit left on the edge of its range.
     fn unphysical(&self) -> Option<String> {
         let problems: Vec<String> = self
             .fit
@@ -270,6 +275,7 @@ impl Scored {
             .effects
             .iter()
             .filter_map(|(kind, v)| Some(format!("{kind}: {}", Effect::new(*kind, v).ok()?.unphysical()?)))
+            .chain(self.fit.spec.at_bound())
             .collect();
         (!problems.is_empty()).then(|| problems.join("; "))
     }
@@ -291,6 +297,27 @@ impl Search<'_, '_> {
         let (sse_val, n_val) = self.problem.sse(&sim, Part::Validation);
         let mae_val = self.problem.mae(&sim, Part::Validation);
         (sse_val.is_finite() && mae_val.is_finite()).then_some(Scored { fit, sim, sse_val, n_val, mae_val })
+    }
+
+    /// How many standard errors `b` fits the held-out data worse than `a` (a paired test
+    /// of two non-nested models, Vuong's): the per-sample difference of squared
+    /// innovations, summed, over its standard error. Positive: `a` is better.
+    fn paired_z(&self, a: &Scored, b: &Scored) -> f64 {
+        let (mut wa, mut wb) = (Vec::new(), Vec::new());
+        self.problem.innovations(&a.sim, Part::Validation, &mut wa);
+        self.problem.innovations(&b.sim, Part::Validation, &mut wb);
+        if wa.len() != wb.len() || wa.len() < 2 {
+            return 0.0;
+        }
+        let d: Vec<f64> = wa.iter().zip(&wb).map(|(x, y)| y * y - x * x).collect();
+        let n = d.len() as f64;
+        let mean = d.iter().sum::<f64>() / n;
+        let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
+        if var > 0.0 {
+            mean * n.sqrt() / var.sqrt()
+        } else {
+            0.0
+        }
     }
 
     /// `scored` with each run's initial state fitted anew under it (the same model, a
@@ -357,10 +384,25 @@ pub fn diagnose(
     progress("analysing the residual");
     let analysis_before = residual::analyse(&problem, &before.sim);
 
-    let Path { current, rounds, mut kept } = search_both(&search, &before, &analysis_before, progress);
+    let Path { current, rounds, mut kept, alternative } = search_both(&search, &before, &analysis_before, progress);
     let mut dropped = Vec::new();
     progress("checking that everything kept is needed");
-    let current = prune(&search, current, &mut kept, &mut dropped);
+    let mut current = prune(&search, current, &mut kept, &mut dropped);
+    if let Some((physics, mut physics_kept)) = alternative.filter(|_| !current.fit.spec.refit) {
+        // The refit went: the effects it was chosen with were picked beside it. Physics
+        // alone, as the physics search found it, may name them better.
+        let mut physics_dropped = Vec::new();
+        let physics = prune(&search, physics, &mut physics_kept, &mut physics_dropped);
+        if physics.score() <= current.score() {
+            dropped.push(format!(
+                "the refit search's effects without the refit score no better than the physics search's ({:+.1}): \
+                 those are kept",
+                current.score() - physics.score()
+            ));
+            dropped.extend(physics_dropped);
+            (current, kept) = (physics, physics_kept);
+        }
+    }
 
     progress("analysing the improved model");
     let analysis_after = residual::analyse(&problem, &current.sim);
@@ -419,6 +461,9 @@ struct Path {
     current: Scored,
     rounds: Vec<Round>,
     kept: Vec<Kept>,
+    /// The physics search's result, when the refit search was chosen over it: if pruning
+    /// later drops the refit, the two are physics alone and compete again on score.
+    alternative: Option<(Scored, Vec<Kept>)>,
 }
 
 /// Both searches, and the choice between them: physics alone, against the ten
@@ -436,10 +481,16 @@ fn search_both(search: &Search<'_, '_>, before: &Scored, analysis: &Analysis, pr
     spec.refit = true;
     let refit = search.fit(&spec);
     let tried = vec![(REFIT, refit, None)];
-    let (accepted, reason, candidates) = decide(search, before, &tried, "parameters");
+    let (accepted, mut reason, candidates) = decide(search, before, &tried, "parameters");
+    // When physics is claimed, the refit competes even if it does not pay for its ten
+    // parameters alone: a claim must explain the data better than re-identifying would.
+    let competes = accepted.is_none() && !physics.kept.is_empty();
+    if competes {
+        reason = format!("{reason}; the refit still competes with the physics found, on fit");
+    }
     let mut rounds = physics.rounds;
     rounds.push(Round { mae_val_n: before.mae_val, candidates, accepted, reason, phase: "parameters" });
-    let Some((_, Some(refit), _)) = tried.into_iter().next().filter(|_| accepted.is_some()) else {
+    let Some((_, Some(refit), _)) = tried.into_iter().next().filter(|_| accepted.is_some() || competes) else {
         return Path { rounds, ..physics };
     };
     // Effects worth trying on top of the refit: those that helped the physics search.
@@ -460,22 +511,31 @@ fn search_both(search: &Search<'_, '_>, before: &Scored, analysis: &Analysis, pr
     let after_refit = residual::analyse(search.problem, &refit.sim);
     let both = forward(search, refit, &after_refit, &helped, "parameters", vec![first], progress);
     rounds.extend(both.rounds);
-    let refit_lower = both.current.misfit() <= physics.current.misfit();
-    let choose_refit = both.current.misfit() <= physics.current.misfit() + options.ambiguity;
-    let (chosen, other) =
-        if choose_refit { (both.current, &physics.current) } else { (physics.current, &both.current) };
-    let difference = (chosen.misfit() - other.misfit()).abs();
+    // Physics wins only when it fits the held-out data better by more than the ambiguity
+    // and by a significant paired difference; otherwise the refit explains as well.
+    let margin = both.current.misfit() - physics.current.misfit();
+    let z = search.paired_z(&physics.current, &both.current);
+    let choose_refit = !(margin > options.ambiguity && z >= options.significance_z);
+    let named: Vec<&str> = physics.kept.iter().map(|k| k.name).collect();
     let reason = if choose_refit {
         format!(
-            "the refitted parameters explain the held-out data as well as physics alone (misfit {difference:.1} \
-             {} than without the refit): blame the parameters first",
-            if refit_lower { "lower" } else { "higher, within the ambiguity" }
+            "the refitted parameters explain the held-out data as well as the physics found ({}): misfit {margin:+.1} \
+             against it, {z:.1} standard errors of the paired difference; blame the parameters first",
+            if named.is_empty() { "nothing".to_owned() } else { named.join(", ") }
         )
     } else {
-        format!("physics alone explains the held-out data better than any refit (misfit {difference:.1} lower)")
+        format!(
+            "physics alone explains the held-out data better than any refit: misfit {margin:.1} lower, {z:.1} \
+             standard errors of the paired difference"
+        )
+    };
+    let (chosen, kept, alternative) = if choose_refit {
+        (both.current, both.kept, Some((physics.current, physics.kept)))
+    } else {
+        (physics.current, physics.kept, None)
     };
     rounds.push(Round { mae_val_n: chosen.mae_val, candidates: Vec::new(), accepted: None, reason, phase: "choice" });
-    Path { current: chosen, rounds, kept: if choose_refit { both.kept } else { physics.kept } }
+    Path { current: chosen, rounds, kept, alternative }
 }
 
 fn evidence(
@@ -551,7 +611,7 @@ fn forward(
         peak_hz = peak(&analysis);
         residual_now = analysis.findings;
     }
-    Path { current, rounds, kept }
+    Path { current, rounds, kept, alternative: None }
 }
 
 /// Which hypothesis of a round is kept, why, and every candidate for the report.

@@ -286,7 +286,7 @@ pub(crate) fn cause(d: &Diagnosis) -> Cause {
         Cause::MissingPhysics
     } else if d.refit.is_some() {
         Cause::Parameters
-    } else if d.after.whiteness.white && d.mae_after_n <= 1.1 * d.noise_floor_n {
+    } else if (d.after.whiteness.white || !d.after.systematic()) && d.mae_after_n <= 1.1 * d.noise_floor_n {
         Cause::None
     } else {
         Cause::Unexplained
@@ -336,42 +336,52 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
         }
     };
     let best = d.rounds.first().and_then(|r| r.candidates.first());
-    let text =
-        match d.cause {
-            Cause::None => format!(
-            "Nothing left out: the residual is white under the noise model (Ljung–Box p = {:.2}) and no hypothesis \
-             improves the held-out fit{}. {mae}: the model explains the recording.",
-            after.p_value,
-            best.map_or(String::new(), |c| format!(" (best candidate {}: validation MAE {:.3} N)", c.name, c.mae_val_n))
-        ),
-            Cause::Parameters => format!(
-                "The parameters are off, not the physics: re-identify. {} No effect improves on the refitted model. \
-             {mae}; {whiteness}.{}",
-                d.refit.as_ref().map_or(String::new(), |r| r.evidence.summary.clone()),
-                remains()
-            ),
-            Cause::MissingPhysics => {
-                let mut text: Vec<String> = d.effects.iter().map(|e| e.evidence.summary.clone()).collect();
-                for e in d.effects.iter().filter(|e| e.evidence.ambiguous) {
-                    if let Some((other, _)) = e.evidence.runner_up {
-                        text.push(format!("({} and {other} fit almost equally well at this noise level.)", e.name));
-                    }
-                }
-                if let Some(r) = &d.refit {
-                    text.push(format!("The parameters were off too and are refitted jointly: {}", r.evidence.summary));
-                }
-                format!("{} {mae}; {whiteness}.{}", text.join(" "), remains())
-            }
-            Cause::Unexplained => {
-                let why = d.rounds.last().map_or(String::new(), |r| format!(" ({})", r.reason));
-                let what: Vec<&str> = d.before.findings.iter().map(String::as_str).collect();
+    let text = match d.cause {
+        Cause::None => format!(
+            "Nothing left out: {} and no hypothesis improves the held-out fit{}. {mae}: the model explains the \
+             recording.",
+            if after.white {
+                format!("the residual is white under the noise model (Ljung–Box p = {:.2})", after.p_value)
+            } else {
                 format!(
+                    "the residual shows no systematic pattern (its whiteness under the noise model, Ljung–Box p = \
+                     {:.1e}, fails only as noise a little more coloured than modelled does)",
+                    after.p_value
+                )
+            },
+            best.map_or(String::new(), |c| format!(
+                " (best candidate {}: validation MAE {:.3} N)",
+                c.name, c.mae_val_n
+            ))
+        ),
+        Cause::Parameters => format!(
+            "The parameters are off, not the physics: re-identify. {} No effect improves on the refitted model. \
+             {mae}; {whiteness}.{}",
+            d.refit.as_ref().map_or(String::new(), |r| r.evidence.summary.clone()),
+            remains()
+        ),
+        Cause::MissingPhysics => {
+            let mut text: Vec<String> = d.effects.iter().map(|e| e.evidence.summary.clone()).collect();
+            for e in d.effects.iter().filter(|e| e.evidence.ambiguous) {
+                if let Some((other, _)) = e.evidence.runner_up {
+                    text.push(format!("({} and {other} fit almost equally well at this noise level.)", e.name));
+                }
+            }
+            if let Some(r) = &d.refit {
+                text.push(format!("The parameters were off too and are refitted jointly: {}", r.evidence.summary));
+            }
+            format!("{} {mae}; {whiteness}.{}", text.join(" "), remains())
+        }
+        Cause::Unexplained => {
+            let why = d.rounds.last().map_or(String::new(), |r| format!(" ({})", r.reason));
+            let what: Vec<&str> = d.before.findings.iter().map(String::as_str).collect();
+            format!(
                 "Unexplained: the residual is systematic but no hypothesis explains it on held-out data{why}. What \
                  remains: {}. {mae}.",
                 what.join("; ")
             )
-            }
-        };
+        }
+    };
     format!("{text}{}", data_note(d))
 }
 

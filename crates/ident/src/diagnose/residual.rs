@@ -147,6 +147,16 @@ pub struct Analysis {
     pub findings: Vec<String>,
 }
 
+impl Analysis {
+    /// True when something is located beyond a failed whiteness test: a systematic window,
+    /// a class mean or a drift beyond [`T_SIGNIFICANT`], a throttle correlation, power
+    /// above the noise model's. Without any of these a non-white residual is noise a
+    /// little more coloured than its model, not something left out.
+    pub fn systematic(&self) -> bool {
+        self.findings.len() > 1
+    }
+}
+
 /// One run's residual and what it is compared with, on the grid (NaN: no sample).
 struct RunView {
     file: usize,
