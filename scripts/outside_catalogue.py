@@ -33,12 +33,18 @@ STEP_S = 0.01
 SUBSTEPS = 10
 
 
-def parse_physics(spec):
+def parse_spec(spec):
+    """`name:key=value,...` as (name, {key: value}): the form of --effect and of --physics."""
     name, _, rest = spec.partition(":")
     values = {}
     for pair in filter(None, rest.split(",")):
         key, _, value = pair.partition("=")
         values[key.strip()] = float(value)
+    return name.strip(), values
+
+
+def parse_physics(spec):
+    name, values = parse_spec(spec)
     needed = {
         "heat_soak": ["loss_per_n", "time_constant_s"],
         "fuel_soak": ["loss_per_pct", "time_constant_s"],

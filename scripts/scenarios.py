@@ -23,21 +23,14 @@ import time
 import tomllib
 from pathlib import Path
 
+from outside_catalogue import parse_spec
+
 ROOT = Path(__file__).resolve().parent.parent
 SUITE = ROOT / "recordings" / "scenarios"
 PARAM_TOLERANCE = 0.20
 FLOOR_TOLERANCE = 0.10
 # Channels a closed-loop case keeps: what a diagnosis reads.
 CLOSED_LOOP_TOPICS = {"/bench/thrust", "/bench/actuation"}
-
-
-def parse_effect(spec):
-    name, _, rest = spec.partition(":")
-    params = {}
-    for pair in filter(None, rest.split(",")):
-        key, _, value = pair.partition("=")
-        params[key.strip()] = float(value)
-    return name.strip(), params
 
 
 def model_arg(model):
@@ -139,7 +132,7 @@ def judge(case, result):
     that is not there."""
     if "error" in result:
         return [f"error: {result['error']}"], False
-    truth = dict(parse_effect(e) for e in case.get("effects", []))
+    truth = dict(parse_spec(e) for e in case.get("effects", []))
     expected = set(truth) | ({"discrepancy"} if "outside" in case else set())
     found = {e["name"]: e["params"] for e in result["effects"]}
     problems = []
@@ -161,10 +154,10 @@ def judge(case, result):
 
 def fmt_truth(case):
     parts = []
-    for name, params in (parse_effect(e) for e in case.get("effects", [])):
+    for name, params in (parse_spec(e) for e in case.get("effects", [])):
         parts.append(f"{name}: " + ", ".join(f"{k} = {v:.4g}" for k, v in params.items()))
     if "outside" in case:
-        name, params = parse_effect(case["outside"])
+        name, params = parse_spec(case["outside"])
         parts.append(f"*{name}* (outside): " + ", ".join(f"{k} = {v:.4g}" for k, v in params.items()))
     if "plant" in case and case["plant"].startswith("plants/") and "params" in case["plant"]:
         parts.append(f"parameters off ({case['plant']})")

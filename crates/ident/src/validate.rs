@@ -8,7 +8,7 @@
 
 use jetbench_estim::SavitzkyGolay;
 use jetbench_model::{
-    rk4_step, Engine, Params, Plant, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S, SUBSTEPS,
+    rk4_step, Effects, Params, Plant, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S, SUBSTEPS,
 };
 use serde::Serialize;
 
@@ -46,20 +46,10 @@ impl Dynamics for Plant {
 }
 
 impl Dynamics for Params {
+    /// The ten-parameter engine: a plant without effects, which is [`jetbench_model::Engine`]
+    /// bit for bit.
     fn free_run(&self, initial: State, u_pct: &[f64], out: &mut Vec<f64>) -> Option<f64> {
-        let mut engine = Engine::new(*self, initial);
-        out.clear();
-        out.push(initial.thrust_n);
-        for (k, &u) in u_pct.iter().enumerate().take(u_pct.len().saturating_sub(1)) {
-            match engine.step(u) {
-                Ok(s) => out.push(s.thrust_n),
-                Err(_) => {
-                    out.resize(u_pct.len(), f64::NAN);
-                    return Some((k + 1) as f64 * STEP_S);
-                }
-            }
-        }
-        None
+        Plant::new(*self, Effects::none()).free_run(0.0, initial, u_pct, out)
     }
 }
 
