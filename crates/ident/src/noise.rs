@@ -11,7 +11,7 @@
 //! hundredths of a newton, the noise's second difference newtons), and the AR
 //! parameters maximise the exact Gaussian likelihood of those contrasts over windows
 //! of 32 samples (restricted maximum likelihood: whatever constant and slope the
-//! signal has in a window cancels). The order (0 to 3) is chosen by BIC, so white
+//! signal has in a window cancels). The order (0 to 6) is chosen by BIC, so white
 //! noise stays AR(0). The noise's whole variance, and with it the noise floor,
 //! follows from the model: `σ_e² = σ_w²·Σψ_j²` with `ψ` its impulse response.
 //!
@@ -35,7 +35,7 @@ use rand_distr::{Distribution, Normal};
 use serde::Serialize;
 
 /// Largest AR order tried.
-pub const MAX_ORDER: usize = 3;
+pub const MAX_ORDER: usize = 6;
 /// Samples per likelihood window.
 const WINDOW: usize = 32;
 /// Shortest window used (the tail of a stretch between gaps).
@@ -223,6 +223,59 @@ pub fn estimate(stretches: &[Vec<f64>]) -> Option<NoiseEstimate> {
     Some(NoiseEstimate { sigma_n, mae_n: sigma_n * (2.0 / std::f64::consts::PI).sqrt(), model, contrasts, bic })
 }
 
+/// Most AR order [`fit_to_series`] tries.
+pub const MAX_RESIDUAL_ORDER: usize = 12;
+
+/// An AR model of a series that is all noise (a residual nothing explains): Yule–Walker
+/// (Levinson–Durbin) on its autocovariance, pairs with a missing sample (NaN) left out,
+/// the order (0 to [`MAX_RESIDUAL_ORDER`]) by BIC. Unlike [`estimate`] it sees the noise's
+/// slow parts too, but it calls whatever the series holds noise. `None` with too few
+/// samples.
+pub fn fit_to_series(series: &[Vec<f64>]) -> Option<ArModel> {
+    let n: usize = series.iter().map(|x| x.iter().filter(|v| v.is_finite()).count()).sum();
+    if n < 200 {
+        return None;
+    }
+    let mean = series.iter().flatten().filter(|v| v.is_finite()).sum::<f64>() / n as f64;
+    let gamma: Vec<f64> = (0..=MAX_RESIDUAL_ORDER)
+        .map(|lag| {
+            let (mut sum, mut pairs) = (0.0, 0usize);
+            for x in series {
+                for (a, b) in x.iter().zip(x.iter().skip(lag)) {
+                    if a.is_finite() && b.is_finite() {
+                        sum += (a - mean) * (b - mean);
+                        pairs += 1;
+                    }
+                }
+            }
+            sum / pairs.max(1) as f64
+        })
+        .collect();
+    if !(gamma[0] > 0.0) {
+        return Some(ArModel::white(gamma[0].max(1e-12)));
+    }
+    // Levinson–Durbin: every order at once, each with its innovation variance.
+    let (mut phi, mut var) = (Vec::new(), gamma[0]);
+    let mut best = (n as f64 * var.ln(), ArModel::white(var));
+    for p in 1..=MAX_RESIDUAL_ORDER {
+        let k = (gamma[p] - phi.iter().enumerate().map(|(i, f)| f * gamma[p - 1 - i]).sum::<f64>()) / var;
+        if !(k.abs() < 1.0) {
+            break;
+        }
+        let previous = phi.clone();
+        for (i, f) in phi.iter_mut().enumerate() {
+            *f = previous[i] - k * previous[previous.len() - 1 - i];
+        }
+        phi.push(k);
+        var *= 1.0 - k * k;
+        let bic = n as f64 * var.ln() + p as f64 * (n as f64).ln();
+        if bic < best.0 {
+            best = (bic, ArModel::new(phi.clone(), var));
+        }
+    }
+    Some(best.1)
+}
+
 /// A starting point in the (atanh-scaled) PACF space of order `order` that extends
 /// the lower-order fit `phi` with a zero.
 fn pacf_start(phi: &[f64], order: usize) -> Vec<f64> {
@@ -391,6 +444,20 @@ mod tests {
             }
             assert!((found.model.marginal_var() - var).abs() < 0.08 * var, "{phi:?}: {}", found.model.marginal_var());
         }
+    }
+
+    #[test]
+    fn a_residual_that_is_all_noise_gets_its_whole_model() {
+        // White noise plus a slow wander: second differences miss the wander, the
+        // series' own autocovariance does not.
+        let slow = ArModel::new(vec![0.97], 1.0).with_marginal_var(2.0).generate(30_000, 8);
+        let fast = ArModel::white(5.0).generate(30_000, 9);
+        let e: Vec<f64> = slow.iter().zip(&fast).map(|(a, b)| a + b).collect();
+        let model = fit_to_series(&[e]).unwrap();
+        assert!((model.marginal_var() - 7.0).abs() < 0.7, "{model:?}: {}", model.marginal_var());
+        assert!(!model.phi.is_empty());
+        let white = fit_to_series(&[ArModel::white(7.0).generate(30_000, 10)]).unwrap();
+        assert_eq!(white.order(), 0, "{white:?}");
     }
 
     #[test]

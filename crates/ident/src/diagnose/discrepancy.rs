@@ -17,7 +17,7 @@ use jetbench_model::discrepancy::{DiscrepancyTerm, DISCREPANCY_DEFAULTS, DISCREP
 use jetbench_model::{EffectKind, Effects, Plant};
 use nalgebra::{DMatrix, DVector};
 
-use super::fit::Spec;
+use super::fit::{Fit, Spec};
 use super::problem::{Part, Problem, Sim};
 
 /// Most terms a discrepancy takes.
@@ -65,7 +65,7 @@ pub(crate) struct Selection {
     pub columns: Vec<String>,
 }
 
-fn library(problem: &Problem<'_>) -> Vec<Column> {
+fn library(problem: &Problem<'_>, history_max_s: f64) -> Vec<Column> {
     let mut u: Vec<f64> = problem.runs.iter().flat_map(|r| r.u.iter().copied()).collect();
     u.sort_by(f64::total_cmp);
     let q = |f: f64| u.get(((u.len().saturating_sub(1)) as f64 * f) as usize).copied().unwrap_or(50.0);
@@ -75,7 +75,9 @@ fn library(problem: &Problem<'_>) -> Vec<Column> {
     for term in DISCREPANCY_TERMS {
         match term.coefficient {
             0 | 2 => out.extend(knots.iter().map(|&k| Column { term, shape: Some(k), probe: 0.02 })),
-            4 => out.extend(HISTORY_S.iter().map(|&t| Column { term, shape: Some(t), probe: 2e-5 })),
+            4 => out.extend(
+                HISTORY_S.iter().filter(|&&t| t <= history_max_s).map(|&t| Column { term, shape: Some(t), probe: 2e-5 }),
+            ),
             7 => out.push(Column { term, shape: None, probe: 1e-7 }),
             _ => out.push(Column { term, shape: None, probe: 1e-8 }),
         }
@@ -142,7 +144,7 @@ pub(crate) fn select(problem: &Problem<'_>, fixed: &Effects, current: &Spec, sim
     if current.has(EffectKind::Discrepancy) || fixed.get(EffectKind::Discrepancy).is_some() {
         return None;
     }
-    let columns = library(problem);
+    let columns = library(problem, current.history_max_s);
     let sens = sensitivities(problem, fixed, current, sim, &columns);
     let residual: Vec<Vec<f64>> = (0..problem.runs.len()).map(|i| problem.residual(i, sim)).collect();
     let (r_cal, r_val) =
@@ -229,4 +231,37 @@ pub(crate) fn select(problem: &Problem<'_>, fixed: &Effects, current: &Spec, sim
     }
     free.sort_unstable();
     Some(Selection { values, free, scale, columns: labels })
+}
+
+/// The term of a fitted discrepancy that does nothing: its shape on the edge of the range
+/// a fit may explore (a time constant gone to its bound is a constant), or its coefficient
+/// within two standard errors of zero; the least significant such term.
+pub(crate) fn idle_term(fit: &Fit) -> Option<DiscrepancyTerm> {
+    let values = fit.spec.values(EffectKind::Discrepancy)?;
+    let errors = fit.stderr.iter().find(|(k, _)| *k == EffectKind::Discrepancy).map(|(_, e)| e.as_slice())?;
+    DISCREPANCY_TERMS
+        .iter()
+        .copied()
+        .filter(|t| fit.spec.discrepancy_free.contains(&t.coefficient))
+        .filter_map(|t| {
+            let z = values[t.coefficient].abs() / errors[t.coefficient];
+            let edge = t.shape.is_some_and(|i| {
+                let (lo, hi) = fit.spec.value_bounds(EffectKind::Discrepancy, i);
+                let tolerance = 1e-3 * fit.spec.discrepancy_scale.get(i).copied().unwrap_or(1.0);
+                values[i] - lo <= tolerance || hi - values[i] <= tolerance
+            });
+            (edge || !(z >= 2.0)).then_some((if edge { 0.0 } else { z }, t))
+        })
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, t)| t)
+}
+
+/// `spec` without `term` (its coefficient 0, no longer fitted); `None` when it was the
+/// last term.
+pub(crate) fn without_term(spec: &Spec, term: DiscrepancyTerm) -> Option<Spec> {
+    let mut values = spec.values(EffectKind::Discrepancy)?.to_vec();
+    values[term.coefficient] = 0.0;
+    let mut next = spec.with(EffectKind::Discrepancy, values);
+    next.discrepancy_free.retain(|&i| i != term.coefficient && Some(i) != term.shape);
+    (!next.discrepancy_free.is_empty()).then_some(next)
 }

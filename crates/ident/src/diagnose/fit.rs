@@ -13,6 +13,12 @@ const MAX_ITERATIONS: usize = 25;
 /// A fit stops once an iteration improves `N·ln(SSE/N)` by less than this: hypotheses are
 /// compared on that scale, where differences below a few units mean nothing.
 const TOLERANCE_SCORE: f64 = 0.25;
+/// A refit keeps each of the ten parameters within about this fraction of its given value
+/// unless the data asks for more: a prior worth one noise variance at this move. The data
+/// moves what it determines (a 5 % error costs a quarter of a noise variance to correct);
+/// combinations the calibration part hardly sees stay where they were instead of
+/// wandering off and spoiling the held-out part.
+const REFIT_PRIOR: f64 = 0.1;
 
 /// What is free in a hypothesis, and where a fit starts.
 #[derive(Clone, Debug, PartialEq)]
@@ -29,6 +35,11 @@ pub(crate) struct Spec {
     /// Where each run starts: fitted to its first two seconds under this hypothesis (or
     /// the one it grew from), held during a fit.
     pub states: Vec<State>,
+    /// The ten parameters as given: the centre of a refit's prior, and its scales.
+    pub given: Params,
+    /// Longest thrust-history time constant a fit may explore, s: a third of the longest
+    /// run, so that a history is seen to settle (longer, it is a constant or a ramp).
+    pub history_max_s: f64,
 }
 
 impl Spec {
@@ -40,6 +51,8 @@ impl Spec {
             discrepancy_free: Vec::new(),
             discrepancy_scale: Vec::new(),
             states,
+            given: params,
+            history_max_s: f64::INFINITY,
         }
     }
 
@@ -123,7 +136,7 @@ impl Spec {
     fn scale(&self, slot: Slot) -> f64 {
         match slot {
             Slot::Param(i) => {
-                let v = self.params.to_array()[i].abs();
+                let v = self.given.to_array()[i].abs();
                 if v > 1e-9 {
                     v
                 } else {
@@ -144,7 +157,17 @@ impl Spec {
     fn bounds(&self, slot: Slot) -> (f64, f64) {
         match slot {
             Slot::Param(_) => (f64::NEG_INFINITY, f64::INFINITY),
-            Slot::Value(e, i) => fit_bounds(self.effects[e].0, i),
+            Slot::Value(e, i) => self.value_bounds(self.effects[e].0, i),
+        }
+    }
+
+    /// The range a fit of value `index` of `kind` may explore ([`fit_bounds`], the
+    /// thrust history kept to what the data can show).
+    pub fn value_bounds(&self, kind: EffectKind, index: usize) -> (f64, f64) {
+        let (lo, hi) = fit_bounds(kind, index);
+        match (kind, index) {
+            (EffectKind::Discrepancy, 5) => (lo, hi.min(self.history_max_s).max(lo)),
+            _ => (lo, hi),
         }
     }
 
@@ -261,11 +284,23 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
         }
     };
     let mut sim = Sim::new();
+    let sigma_w = problem.ar().innovation_var.sqrt();
+    let given: Vec<f64> = layout
+        .iter()
+        .zip(&scales)
+        .map(|(&s, sc)| if let Slot::Param(i) = s { spec.given.to_array()[i] / sc } else { 0.0 })
+        .collect();
     let mut evaluate = |x: &[f64], r: &mut Vec<f64>| -> Option<f64> {
         let spec = build(x);
         let plant = spec.plant(fixed)?;
         problem.simulate(&plant, &spec.states, true, &mut sim).ok()?;
         problem.innovations(&sim, Part::Calibration, r);
+        // The refit's prior, as pseudo-residuals in the innovations' units.
+        for (j, slot) in layout.iter().enumerate() {
+            if let Slot::Param(_) = slot {
+                r.push(sigma_w * (x[j] - given[j]) / REFIT_PRIOR);
+            }
+        }
         let sse: f64 = r.iter().map(|v| v * v).sum();
         sse.is_finite().then_some(sse)
     };

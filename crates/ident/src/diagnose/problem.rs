@@ -109,9 +109,15 @@ pub struct DataReport {
     pub runs: usize,
     /// Notes from loading (another sampling rate, ...).
     pub notes: Vec<String>,
+    /// True when nothing explained the residual and the noise model (and the floor) were
+    /// refitted on it: the data's second differences miss a noise's slow parts.
+    pub from_residual: bool,
+    /// The floor from the data alone, before that, N.
+    pub floor_from_data_n: f64,
 }
 
 /// Recordings split into calibration and validation samples.
+#[derive(Clone)]
 pub(crate) struct Problem<'a> {
     pub data: &'a [Series],
     pub runs: Vec<Run>,
@@ -190,6 +196,8 @@ impl<'a> Problem<'a> {
             run_splits,
             runs: runs.len(),
             notes: Vec::new(),
+            from_residual: false,
+            floor_from_data_n: noise.mae_n,
         };
         let mut problem = Self { data, runs, cut, n_cal, n_val, noise, report };
         let states = problem.initial_states(nominal);
@@ -227,9 +235,40 @@ impl<'a> Problem<'a> {
         self.runs.iter().map(|run| fit_initial_state_at(plant, run.t0_s, &run.y, &run.u)).collect()
     }
 
+    /// The longest run, s.
+    pub fn longest_run_s(&self) -> f64 {
+        self.runs.iter().map(|r| r.u.len() as f64 * STEP_S).fold(0.0, f64::max)
+    }
+
     /// The initial states fitted under the given model.
     pub fn given_states(&self) -> Vec<State> {
         self.runs.iter().map(|run| run.initial).collect()
+    }
+
+    /// This problem with the noise model refitted on the residual of `sim` (see
+    /// [`noise::fit_to_series`]), when that can be done.
+    pub fn with_noise_from(&self, sim: &Sim) -> Option<Self> {
+        let residuals: Vec<Vec<f64>> = (0..self.runs.len())
+            .map(|i| self.residual(i, sim).into_iter().step_by(self.runs[i].stride).collect())
+            .collect();
+        let model = noise::fit_to_series(&residuals)?;
+        let mut refined = self.clone();
+        let sigma_n = model.marginal_var().sqrt();
+        refined.noise = NoiseEstimate {
+            sigma_n,
+            mae_n: sigma_n * (2.0 / std::f64::consts::PI).sqrt(),
+            contrasts: self.noise.contrasts,
+            bic: Vec::new(),
+            model,
+        };
+        let report = &mut refined.report;
+        report.model = format!("{} (from the residual)", refined.noise.model.describe());
+        report.ar = refined.noise.model.phi.clone();
+        report.sigma_n = sigma_n;
+        report.innovation_sigma_n = refined.noise.model.innovation_var.sqrt();
+        report.floor_n = refined.noise.mae_n;
+        report.from_residual = true;
+        Some(refined)
     }
 
     /// The noise model fits and scores use.

@@ -306,7 +306,13 @@ fn data_note(d: &Diagnosis) -> String {
     if n.run_splits > 0 {
         parts.push(format!("{} long gap(s) split the runs", n.run_splits));
     }
-    if !n.ar.is_empty() {
+    if n.from_residual {
+        parts.push(format!(
+            "the noise has slow parts its second differences do not show: modelled on the residual as {} (σ {:.2} \
+             N; floor {:.2} N, {:.2} N from the data alone)",
+            n.model, n.sigma_n, n.floor_n, n.floor_from_data_n
+        ));
+    } else if !n.ar.is_empty() {
         parts.push(format!("sensor noise coloured, {} (σ {:.2} N)", n.model, n.sigma_n));
     }
     parts.extend(n.notes.iter().cloned());

@@ -35,6 +35,8 @@ pub const ALPHA: f64 = 0.01;
 pub const T_SIGNIFICANT: f64 = 4.0;
 /// Cross-correlation lags with the throttle change: from −0.5 s to +2 s.
 const XCORR_LAGS: (i64, i64) = (-50, 200);
+/// Lags of the Bartlett correction of the throttle correlation's bound (1 s).
+const BARTLETT_LAGS: usize = 100;
 /// Samples per Welch segment (10.24 s).
 const WELCH_SEGMENT: usize = 1024;
 /// Block length for locating systematic windows (2 s).
@@ -353,9 +355,28 @@ fn input_correlation(runs: &[RunView], n: usize) -> InputCorrelation {
         .collect();
     let (peak_index, peak) =
         values.iter().copied().enumerate().max_by(|a, b| a.1.abs().total_cmp(&b.1.abs())).unwrap_or((0, 0.0));
+    // Bartlett: a cross-correlation of two autocorrelated series varies more than 1/N,
+    // by 1 + 2·Σ ρ_r(k)·ρ_Δu(k) (ramps make Δu correlated, coloured noise makes r so).
+    let acf = |f: &dyn Fn(&RunView) -> &Vec<f64>, lag: usize, mean: f64, ss: f64| -> f64 {
+        let mut sum = 0.0;
+        for v in runs {
+            let x = f(v);
+            for (a, b) in x.iter().zip(x.iter().skip(lag)) {
+                if a.is_finite() && b.is_finite() {
+                    sum += (a - mean) * (b - mean);
+                }
+            }
+        }
+        sum / ss
+    };
+    let factor = 1.0
+        + 2.0
+            * (1..=BARTLETT_LAGS)
+                .map(|k| acf(&|v| &v.r, k, mr, sr * sr) * acf(&|v| &v.du, k, mu, su * su))
+                .sum::<f64>();
     InputCorrelation {
         lags_s: lags.iter().map(|&l| l as f64 * STEP_S).collect(),
-        bound: 1.96 / (n as f64).sqrt(),
+        bound: 1.96 * (factor.max(1.0) / n as f64).sqrt(),
         peak_lag_s: lags[peak_index] as f64 * STEP_S,
         peak,
         values,
