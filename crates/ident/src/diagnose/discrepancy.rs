@@ -75,9 +75,11 @@ fn library(problem: &Problem<'_>, history_max_s: f64) -> Vec<Column> {
     for term in DISCREPANCY_TERMS {
         match term.coefficient {
             0 | 2 => out.extend(knots.iter().map(|&k| Column { term, shape: Some(k), probe: 0.02 })),
-            4 => out.extend(
-                HISTORY_S.iter().filter(|&&t| t <= history_max_s).map(|&t| Column { term, shape: Some(t), probe: 2e-5 }),
-            ),
+            4 => out.extend(HISTORY_S.iter().filter(|&&t| t <= history_max_s).map(|&t| Column {
+                term,
+                shape: Some(t),
+                probe: 2e-5,
+            })),
             7 => out.push(Column { term, shape: None, probe: 1e-7 }),
             _ => out.push(Column { term, shape: None, probe: 1e-8 }),
         }

@@ -133,6 +133,18 @@ impl Spec {
         (!edges.is_empty()).then(|| edges.join("; "))
     }
 
+    /// What a refit's prior charges for its parameters, in the units of the score
+    /// (`Σ (Δθ / (REFIT_PRIOR·θ))²`, the pseudo-residuals of [`fit`] over the noise
+    /// variance): 0 without a refit, a quarter of a unit per parameter 5 % off, 9 per
+    /// parameter 30 % off.
+    pub fn prior_cost(&self) -> f64 {
+        if !self.refit {
+            return 0.0;
+        }
+        let (params, given) = (self.params.to_array(), self.given.to_array());
+        (0..params.len()).map(|i| ((params[i] - given[i]) / (self.scale(Slot::Param(i)) * REFIT_PRIOR)).powi(2)).sum()
+    }
+
     fn scale(&self, slot: Slot) -> f64 {
         match slot {
             Slot::Param(i) => {

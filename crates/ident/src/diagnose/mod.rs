@@ -304,7 +304,9 @@ impl Search<'_, '_> {
     /// How many standard errors `b` fits the held-out data worse than `a` (a paired test
     /// of two non-nested models, Vuong's): the per-sample difference of squared
     /// innovations, summed, over its standard error. Positive: `a` is better.
-    fn paired_z(&self, a: &Scored, b: &Scored) -> f64 {
+    /// How many standard errors `a` fits the held-out data better than `b` by (paired,
+    /// per sample), `b` charged `extra` score units on top (spread over the samples).
+    fn paired_z(&self, a: &Scored, b: &Scored, extra: f64) -> f64 {
         let (mut wa, mut wb) = (Vec::new(), Vec::new());
         self.problem.innovations(&a.sim, Part::Validation, &mut wa);
         self.problem.innovations(&b.sim, Part::Validation, &mut wb);
@@ -313,7 +315,8 @@ impl Search<'_, '_> {
         }
         let d: Vec<f64> = wa.iter().zip(&wb).map(|(x, y)| y * y - x * x).collect();
         let n = d.len() as f64;
-        let mean = d.iter().sum::<f64>() / n;
+        // A score unit (of `N·ln(SSE/N)`) is `SSE/N` of squared innovation.
+        let mean = (d.iter().sum::<f64>() + extra * b.sse_val / b.n_val as f64) / n;
         let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
         if var > 0.0 {
             mean * n.sqrt() / var.sqrt()
@@ -540,9 +543,13 @@ fn search_both(search: &Search<'_, '_>, before: &Scored, analysis: &Analysis, pr
     let both = forward(search, refit, &after_refit, &helped, "parameters", vec![first], progress);
     rounds.extend(both.rounds);
     // Physics wins only when it fits the held-out data better by more than the ambiguity
-    // and by a significant paired difference; otherwise the refit explains as well.
-    let margin = both.current.misfit() - physics.current.misfit();
-    let z = search.paired_z(&physics.current, &both.current);
+    // and by a significant paired difference; otherwise the refit explains as well. The
+    // refit is judged with what its prior charged it on the calibration part: parameters
+    // far from the given ones must explain the data the better for it (a few per cent off
+    // costs nothing; 30 % off in four parameters, about 36 units).
+    let prior = both.current.fit.spec.prior_cost() - physics.current.fit.spec.prior_cost();
+    let margin = both.current.misfit() + prior - physics.current.misfit();
+    let z = search.paired_z(&physics.current, &both.current, prior);
     let choose_refit = !(margin > options.ambiguity && z >= options.significance_z);
     let named: Vec<&str> = physics.kept.iter().map(|k| k.name).collect();
     let reason = if choose_refit {
