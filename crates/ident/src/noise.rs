@@ -251,7 +251,7 @@ pub fn fit_to_series(series: &[Vec<f64>]) -> Option<ArModel> {
             sum / pairs.max(1) as f64
         })
         .collect();
-    if !(gamma[0] > 0.0) {
+    if gamma[0].is_nan() || gamma[0] <= 0.0 {
         return Some(ArModel::white(gamma[0].max(1e-12)));
     }
     // Levinson–Durbin: every order at once, each with its innovation variance.
@@ -259,7 +259,7 @@ pub fn fit_to_series(series: &[Vec<f64>]) -> Option<ArModel> {
     let mut best = (n as f64 * var.ln(), ArModel::white(var));
     for p in 1..=MAX_RESIDUAL_ORDER {
         let k = (gamma[p] - phi.iter().enumerate().map(|(i, f)| f * gamma[p - 1 - i]).sum::<f64>()) / var;
-        if !(k.abs() < 1.0) {
+        if k.is_nan() || k.abs() >= 1.0 {
             break;
         }
         let previous = phi.clone();

@@ -252,7 +252,7 @@ pub(crate) fn idle_term(fit: &Fit) -> Option<DiscrepancyTerm> {
                 let tolerance = 1e-3 * fit.spec.discrepancy_scale.get(i).copied().unwrap_or(1.0);
                 values[i] - lo <= tolerance || hi - values[i] <= tolerance
             });
-            (edge || !(z >= 2.0)).then_some((if edge { 0.0 } else { z }, t))
+            (edge || z.is_nan() || z < 2.0).then_some((if edge { 0.0 } else { z }, t))
         })
         .min_by(|a, b| a.0.total_cmp(&b.0))
         .map(|(_, t)| t)

@@ -364,8 +364,7 @@ impl Search<'_, '_> {
         spec.discrepancy_free = selection.free;
         spec.discrepancy_scale = selection.scale;
         let mut fitted = self.fit(&spec)?;
-        loop {
-            let Some(idle) = discrepancy::idle_term(&fitted.fit) else { break };
+        while let Some(idle) = discrepancy::idle_term(&fitted.fit) {
             let Some(without) = discrepancy::without_term(&fitted.fit.spec, idle) else { break };
             fitted = self.fit(&without)?;
         }
