@@ -1,12 +1,15 @@
 #!/usr/bin/env python3
 """Runs `jetbench diagnose` blind on every case of recordings/scenarios/scenarios.toml and
-writes recordings/scenarios/REPORT.md: truth, what was found, parameters, MAE before and
-after, and the time each case took. With --record, first re-records every case with
-`jetbench sim-record`.
+writes recordings/scenarios/REPORT.md: truth, what was found, the cause, parameters, MAE before
+and after, and the time each case took. With --record, first re-records every case (closed-loop
+cases, 5 minutes each in real time, only with --closed-loop too).
 
-Standard library only. Exit status 1 when a case misses the suite's criteria (the same
-ones tests/scenarios.rs asserts): the right effect names, parameters within 20 %, and
-validation MAE after within 10 % of the noise floor.
+Standard library only (the closed-loop recordings are trimmed with Python's `mcap`, set up by
+scripts/pyenv.sh). Exit status 1 when a case misses the suite's criteria (the same ones
+tests/scenarios.rs asserts): the right effect names (none where none, only `discrepancy` for
+physics outside the catalogue), parameters within 20 %, the right cause, and validation MAE
+after within 10 % of the noise floor. `--jetbench` runs another build, e.g. main's, on the same
+cases (to measure a before), and `--out` writes the report elsewhere.
 """
 
 import argparse
@@ -15,23 +18,19 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import time
 import tomllib
 from pathlib import Path
+
+from outside_catalogue import parse_spec
 
 ROOT = Path(__file__).resolve().parent.parent
 SUITE = ROOT / "recordings" / "scenarios"
 PARAM_TOLERANCE = 0.20
 FLOOR_TOLERANCE = 0.10
-
-
-def parse_effect(spec):
-    name, _, rest = spec.partition(":")
-    params = {}
-    for pair in filter(None, rest.split(",")):
-        key, _, value = pair.partition("=")
-        params[key.strip()] = float(value)
-    return name.strip(), params
+# Channels a closed-loop case keeps: what a diagnosis reads.
+CLOSED_LOOP_TOPICS = {"/bench/thrust", "/bench/actuation"}
 
 
 def model_arg(model):
@@ -39,69 +38,164 @@ def model_arg(model):
     return str(path) if model.endswith(".toml") else model
 
 
+def recording(case):
+    return SUITE / f"{case['name']}.{'mcap' if 'closed_loop' in case else 'csv'}"
+
+
+def expected_cause(case):
+    if "cause" in case:
+        return case["cause"]
+    return "missing_physics" if case.get("effects") or "outside" in case else "none"
+
+
+def noise_var(suite, case):
+    return case.get("noise_var_n2", suite["noise_var_n2"])
+
+
 def record(jetbench, suite, case):
-    cmd = [jetbench, "sim-record", "--model", model_arg(case["model"]), "--seed", str(case["seed"]),
-           "--duration", str(suite["duration_s"]), "--noise-var", str(suite["noise_var_n2"]),
-           "--out", str(SUITE / f"{case['name']}.csv")]
-    for effect in case["effects"]:
+    out = recording(case)
+    plant = model_arg(case.get("plant", case["model"]))
+    if "outside" in case:
+        with tempfile.TemporaryDirectory() as tmp:
+            profile = Path(tmp) / "profile.csv"
+            subprocess.run([jetbench, "excite", "--duration", str(suite["duration_s"]), "--seed", str(case["seed"]),
+                            "--out", str(profile)], check=True, stdout=subprocess.DEVNULL)
+            subprocess.run([sys.executable, str(ROOT / "scripts" / "outside_catalogue.py"), "--plant", plant,
+                            "--profile", str(profile), "--physics", case["outside"], "--noise-var",
+                            str(noise_var(suite, case)), "--seed", str(case["seed"]), "--out", str(out)], check=True)
+        return
+    cmd = [jetbench, "sim-record", "--model", plant, "--seed", str(case["seed"]), "--duration",
+           str(suite["duration_s"]), "--noise-var", str(noise_var(suite, case)), "--out", str(out)]
+    for effect in case.get("effects", []):
         cmd += ["--effect", effect]
+    if case.get("noise_ar"):
+        cmd += ["--noise-ar", ",".join(str(x) for x in case["noise_ar"])]
+    for key in ("spikes", "drop"):
+        if key in case:
+            cmd += [f"--{key}", str(case[key])]
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
 
 
+def record_closed_loop(jetbench, suite, case):
+    """Runs the live simulated bench in closed loop and keeps the channels a diagnosis reads."""
+    python = subprocess.run([str(ROOT / "scripts" / "pyenv.sh")], check=True, capture_output=True,
+                            text=True).stdout.strip()
+    config = (ROOT / "config" / "sim.toml").read_text()
+    config = config.replace("seed = 1\n", f"seed = {case['seed']}\n", 1)
+    config = config.replace(f"noise_var_n2 = {suite['noise_var_n2']}\n", f"noise_var_n2 = {noise_var(suite, case)}\n", 1)
+    with tempfile.TemporaryDirectory() as tmp:
+        config_path, full = Path(tmp) / "bench.toml", Path(tmp) / "full.mcap"
+        config_path.write_text(config)
+        subprocess.run([jetbench, "up", "--sim", "--config", str(config_path), "--quiet", "--plant",
+                        model_arg(case["plant"]), "--model", model_arg(case["model"]), "--controller",
+                        case["closed_loop"], "--profile", "campaign", "--duration",
+                        str(case.get("duration_s", suite["duration_s"])),
+                        "--record", str(full)], check=True, stdout=subprocess.DEVNULL)
+        trim = (
+            "import sys\n"
+            "from mcap.reader import make_reader\n"
+            "from mcap.writer import Writer, CompressionType\n"
+            "keep = set(sys.argv[3].split(','))\n"
+            "with open(sys.argv[1], 'rb') as src, open(sys.argv[2], 'wb') as dst:\n"
+            "    reader = make_reader(src)\n"
+            "    w = Writer(dst, compression=CompressionType.ZSTD)\n"
+            "    w.start(profile='', library='jetbench scenarios.py')\n"
+            "    schemas, channels = {}, {}\n"
+            "    for schema, channel, message in reader.iter_messages():\n"
+            "        if channel.topic not in keep:\n"
+            "            continue\n"
+            "        if schema.id not in schemas:\n"
+            "            schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)\n"
+            "        if channel.id not in channels:\n"
+            "            channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding,\n"
+            "                                                      schemas[schema.id], channel.metadata)\n"
+            "        w.add_message(channels[channel.id], message.log_time, message.data, message.publish_time,\n"
+            "                      message.sequence)\n"
+            "    w.finish()\n"
+        )
+        subprocess.run([python, "-c", trim, str(full), str(recording(case)), ",".join(sorted(CLOSED_LOOP_TOPICS))],
+                       check=True)
+
+
 def diagnose(jetbench, case):
-    cmd = [jetbench, "diagnose", "--model", model_arg(case["model"]), str(SUITE / f"{case['name']}.csv"), "--json"]
+    cmd = [jetbench, "diagnose", "--model", model_arg(case["model"]), str(recording(case)), "--json"]
     start = time.monotonic()
-    out = subprocess.run(cmd, check=True, capture_output=True, text=True)
-    return json.loads(out.stdout), time.monotonic() - start
+    out = subprocess.run(cmd, capture_output=True, text=True)
+    seconds = time.monotonic() - start
+    if out.returncode != 0:
+        return {"error": out.stderr.strip().splitlines()[-1] if out.stderr.strip() else f"exit {out.returncode}"}, seconds
+    return json.loads(out.stdout), seconds
 
 
 def judge(case, result):
-    """Problems with a result, as text (empty when the case passes)."""
-    problems = []
-    truth = dict(parse_effect(e) for e in case["effects"])
+    """Problems with a result, as text (empty when the case passes), and whether it claims physics
+    that is not there."""
+    if "error" in result:
+        return [f"error: {result['error']}"], False
+    truth = dict(parse_spec(e) for e in case.get("effects", []))
+    expected = set(truth) | ({"discrepancy"} if "outside" in case else set())
     found = {e["name"]: e["params"] for e in result["effects"]}
-    if set(truth) != set(found):
-        problems.append(f"found {sorted(found) or 'nothing'}, truth {sorted(truth) or 'nothing'}")
+    problems = []
+    false_claim = bool(set(found) - expected)
+    if set(found) != expected:
+        problems.append(f"found {sorted(found) or 'nothing'}, expected {sorted(expected) or 'nothing'}")
     for name, params in truth.items():
         for key, value in params.items():
             got = found.get(name, {}).get(key)
             if got is not None and abs(got - value) > PARAM_TOLERANCE * abs(value):
                 problems.append(f"{name}.{key} = {got:.4g}, truth {value:.4g}")
+    cause = result.get("cause", "n/a")
+    if cause != expected_cause(case):
+        problems.append(f"cause {cause}, expected {expected_cause(case)}")
     if result["mae_after_n"] > (1 + FLOOR_TOLERANCE) * result["noise_floor_n"]:
         problems.append(f"MAE after {result['mae_after_n']:.3f} N above 1.1 x floor {result['noise_floor_n']:.3f} N")
-    return problems
+    return problems, false_claim
 
 
-def fmt_effects(effects):
-    if not effects:
-        return "none"
-    return "<br>".join(
-        f"{name}: " + ", ".join(f"{k} = {v:.4g}" for k, v in params.items()) for name, params in effects
-    )
+def fmt_truth(case):
+    parts = []
+    for name, params in (parse_spec(e) for e in case.get("effects", [])):
+        parts.append(f"{name}: " + ", ".join(f"{k} = {v:.4g}" for k, v in params.items()))
+    if "outside" in case:
+        name, params = parse_spec(case["outside"])
+        parts.append(f"*{name}* (outside): " + ", ".join(f"{k} = {v:.4g}" for k, v in params.items()))
+    if "plant" in case and case["plant"].startswith("plants/") and "params" in case["plant"]:
+        parts.append(f"parameters off ({case['plant']})")
+    return "<br>".join(parts) or "none"
 
 
 def fmt_found(result):
-    if not result["effects"]:
-        return "none"
+    if "error" in result:
+        return "error"
     parts = []
     for e in result["effects"]:
         values = ", ".join(f"{k} = {v:.4g} ± {e['uncertainty'].get(k, float('nan')):.2g}" for k, v in e["params"].items())
         parts.append(f"{e['name']}: {values}")
-    return "<br>".join(parts)
+    if result.get("refit"):
+        changes = sorted(result["refit"]["change_pct"].items(), key=lambda kv: -abs(kv[1]))[:2]
+        parts.append("refit: " + ", ".join(f"{k} {v:+.1f} %" for k, v in changes))
+    return "<br>".join(parts) or "none"
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--record", action="store_true", help="re-record every case first")
+    parser.add_argument("--record", action="store_true", help="re-record every case first (not closed-loop ones)")
+    parser.add_argument("--closed-loop", action="store_true", help="with --record: the closed-loop cases too")
     parser.add_argument("--jetbench", default=str(ROOT / "target" / "release" / "jetbench"))
     parser.add_argument("--jobs", type=int, default=max(1, min(2, os.cpu_count() or 1)))
+    parser.add_argument("--only", help="comma-separated case names")
+    parser.add_argument("--out", default=str(SUITE / "REPORT.md"))
     args = parser.parse_args()
 
     suite = tomllib.loads((SUITE / "scenarios.toml").read_text())
-    cases = suite["case"]
+    cases = [c for c in suite["case"] if not args.only or c["name"] in args.only.split(",")]
     if args.record:
+        offline = [c for c in cases if "closed_loop" not in c]
         with concurrent.futures.ThreadPoolExecutor(args.jobs) as pool:
-            list(pool.map(lambda c: record(args.jetbench, suite, c), cases))
+            list(pool.map(lambda c: record(args.jetbench, suite, c), offline))
+        if args.closed_loop:
+            for case in (c for c in cases if "closed_loop" in c):
+                record_closed_loop(args.jetbench, suite, case)
         print(f"recorded {len(cases)} cases into {SUITE}", file=sys.stderr)
 
     results = {}
@@ -112,42 +206,55 @@ def main():
             results[name] = future.result()
             print(f"  {name}: {results[name][1]:.1f} s", file=sys.stderr)
 
-    rows, failures = [], 0
+    rows, failures, false_claims, without_physics = [], 0, 0, 0
     for case in cases:
         result, seconds = results[case["name"]]
-        problems = judge(case, result)
+        problems, false_claim = judge(case, result)
         failures += bool(problems)
+        if expected_cause(case) in ("none", "parameters"):
+            without_physics += 1
+            false_claims += false_claim
+        if "error" in result:
+            rows.append(f"| {case['name']} | {case['model']} | {fmt_truth(case)} | error | | | | | | | {seconds:.1f} | "
+                        f"NO: {'; '.join(problems)} |")
+            continue
         before, after, floor = result["mae_before_n"], result["mae_after_n"], result["noise_floor_n"]
-        truth = [parse_effect(e) for e in case["effects"]]
         rows.append(
-            f"| {case['name']} | {case['model']} | {fmt_effects(truth)} | {fmt_found(result)} | "
+            f"| {case['name']} | {case['model']} | {fmt_truth(case)} | {fmt_found(result)} | "
+            f"{result.get('cause', 'n/a')} | "
             f"{before:.3f} ({100 * (before / floor - 1):+.0f} %) | {after:.3f} ({100 * (after / floor - 1):+.1f} %) | "
             f"{floor:.3f} | {result['before']['whiteness']['p_value']:.1g} → {result['after']['whiteness']['p_value']:.2f} | "
+            f"{result.get('noise', {}).get('model', 'n/a')} | "
             f"{seconds:.1f} | {'yes' if not problems else 'NO: ' + '; '.join(problems)} |"
         )
     jobs = f"{args.jobs} cases at a time" if args.jobs > 1 else "one case at a time"
     report = f"""# Concealed-effect scenarios: `jetbench diagnose` blind
 
 Generated by `scripts/scenarios.sh` from [scenarios.toml](scenarios.toml); do not edit by hand.
-Each case is a {suite['duration_s']:.0f} s campaign recorded with `jetbench sim-record` at noise
-variance {suite['noise_var_n2']} N², diagnosed with only the plant's ten-parameter model (the truth
-column is never shown to it). MAE is on the held-out last 30 % of the recording; the
-percentages are relative to the noise floor (the MAE of the noise alone, estimated from
-the data). Whiteness is the Ljung–Box p-value of the residual before → after. Time is
-the wall time of one `jetbench diagnose` run in release mode on this machine ({os.cpu_count()} cores,
-{jobs}).
+Each case is a {suite['duration_s']:.0f} s recording (a campaign recorded with `jetbench sim-record`, physics
+outside the catalogue simulated by `scripts/outside_catalogue.py`, or the live simulated bench in
+closed loop), diagnosed with only the plant's ten-parameter model (the truth column is never shown
+to it). Truth in *italics* is physics outside the catalogue, for which only `discrepancy` may be
+named. MAE is on the held-out last 30 % of the recording; the percentages are relative to the noise
+floor (the MAE of the noise alone, from the noise model the diagnosis estimates from the data).
+Whiteness is the Ljung–Box p-value of the residual prewhitened by that noise model, before → after.
+Time is the wall time of one `jetbench diagnose` run in release mode on this machine
+({os.cpu_count()} cores, {jobs}).
 
-Pass: the effect names are the truth (none where there is none), every parameter within
-{PARAM_TOLERANCE:.0%} of the truth, and validation MAE after within {FLOOR_TOLERANCE:.0%} of the noise floor.
+Pass: the effect names are the truth (none where there is none, only `discrepancy` outside the
+catalogue), every parameter within {PARAM_TOLERANCE:.0%} of the truth, the cause right, and
+validation MAE after within {FLOOR_TOLERANCE:.0%} of the noise floor.
 
-| case | model | truth | found (± 1 standard error) | MAE before, N | MAE after, N | floor, N | whiteness p | time, s | pass |
-|---|---|---|---|---|---|---|---|---|---|
+| case | model | truth | found (± 1 standard error) | cause | MAE before, N | MAE after, N | floor, N | whiteness p | noise model | time, s | pass |
+|---|---|---|---|---|---|---|---|---|---|---|---|
 """ + "\n".join(rows) + f"""
 
-{len(cases) - failures} of {len(cases)} cases pass.
+{len(cases) - failures} of {len(cases)} cases pass; {false_claims} false claim(s) over the {without_physics} cases without
+missing physics.
 """
-    (SUITE / "REPORT.md").write_text(report)
-    print(f"wrote {SUITE / 'REPORT.md'}: {len(cases) - failures} of {len(cases)} cases pass", file=sys.stderr)
+    Path(args.out).write_text(report)
+    print(f"wrote {args.out}: {len(cases) - failures} of {len(cases)} cases pass, {false_claims} false claim(s)",
+          file=sys.stderr)
     return 1 if failures else 0
 
 

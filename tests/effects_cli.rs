@@ -95,3 +95,89 @@ fn bad_effect_specs_are_clear_errors() {
         assert!(!out.exists(), "{spec}: no output written");
     }
 }
+
+#[test]
+fn resonance_and_discrepancy_run_in_simulate_as_in_sim_record() {
+    let p = |x: &PathBuf| x.to_str().unwrap().to_owned();
+    for (i, spec) in [
+        "stand_resonance:frequency_hz=1.5,damping_ratio=0.05",
+        "discrepancy:map_below=1,knot_below_pct=40",
+        "discrepancy:gain_history_per_n=-0.0005,history_time_constant_s=30,B_TT=2e-6",
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let truth = scratch(&format!("new-effect-{i}.csv"));
+        let common = ["sim-record", "--model", "p100-diesel", "--duration", "60", "--seed", "5", "--noise-var", "0"];
+        run_ok(&[&common[..], &["--effect", spec, "--out", &p(&truth)]].concat());
+        let mut file = ModelFile::new(Preset::P100Diesel.params());
+        file.effects = Effects::new([spec.parse().unwrap()]).unwrap();
+        let model = scratch(&format!("new-effect-{i}.toml"));
+        file.save(&model).unwrap();
+        let simulate = |model: &str, name: &str| {
+            let out = scratch(name);
+            run_ok(&["simulate", "--model", model, "--input", &p(&truth), "--out", &p(&out)]);
+            column(&out, "thrust_n")
+        };
+        let measured = column(&truth, "thrust_n");
+        let with_effect = simulate(&p(&model), &format!("sim-new-{i}.csv"));
+        let without = simulate("p100-diesel", &format!("sim-new-nominal-{i}.csv"));
+        let (err_with, err_without) = (mae(&with_effect, &measured), mae(&without, &measured));
+        assert!(err_with < 0.05, "{spec}: the model file reproduces the recording (MAE {err_with:.4} N)");
+        assert!(err_without > 0.1, "{spec}: without it, it does not (MAE {err_without:.4} N)");
+    }
+}
+
+#[test]
+fn sim_record_adds_bench_artefacts_and_refuses_unstable_noise() {
+    let p = |x: &PathBuf| x.to_str().unwrap().to_owned();
+    let common = ["sim-record", "--model", "p100-diesel", "--duration", "60", "--seed", "6"];
+    let (clean, messy) = (scratch("clean.csv"), scratch("messy.csv"));
+    run_ok(&[&common[..], &["--out", &p(&clean)]].concat());
+    let artefacts = ["--noise-ar", "0.6", "--spikes", "0.01", "--drop", "0.02"];
+    run_ok(&[&common[..], &artefacts, &["--out", &p(&messy)]].concat());
+    let (rows, kept) = (column(&clean, "time_s").len(), column(&messy, "time_s").len());
+    let lost = rows - kept;
+    assert!((60..200).contains(&lost), "{lost} of {rows} rows lost at 2 %");
+    // A spike stands out from both neighbours, the same way.
+    let spikes = column(&messy, "thrust_n")
+        .windows(3)
+        .filter(|w| {
+            let (a, b) = (w[1] - w[0], w[1] - w[2]);
+            a.abs() > 12.0 && b.abs() > 12.0 && a.signum() == b.signum()
+        })
+        .count();
+    assert!((20..100).contains(&spikes), "{spikes} spikes at 1 %");
+    let out = scratch("never.csv");
+    for bad in [["--noise-ar", "1.0"], ["--spikes", "2"]] {
+        let (code, _, err) = run(&[&common[..], &bad, &["--out", &p(&out)]].concat());
+        assert!(code != 0 && code != -1 && !err.contains("panicked"), "{bad:?}: {code} {err}");
+        assert!(err.contains("noise_ar") || err.contains("spike"), "{bad:?}: the message names it: {err}");
+    }
+}
+
+#[test]
+fn diagnose_writes_the_model_it_found() {
+    let p = |x: &PathBuf| x.to_str().unwrap().to_owned();
+    let suite = common::repo_root().join("recordings").join("scenarios");
+    // Parameters off: the refitted parameters, no effect.
+    let refitted = scratch("refitted.toml");
+    let params = suite.join("params-p100.csv");
+    run_ok(&["diagnose", "--model", "p100-diesel", &p(&params), "--out", &p(&refitted)]);
+    let file = ModelFile::load(&refitted).unwrap();
+    assert!(file.effects.is_empty(), "no physics: {}", file.effects);
+    assert_ne!(file.model, Preset::P100Diesel.params(), "the parameters are refitted");
+    // A dead band outside the catalogue: a discrepancy that simulate runs.
+    let improved = scratch("dead-band.toml");
+    let recording = suite.join("dead-band-p100.csv");
+    run_ok(&["diagnose", "--model", "p100-diesel", &p(&recording), "--out", &p(&improved)]);
+    let text = std::fs::read_to_string(&improved).unwrap();
+    assert!(text.contains("[effects.discrepancy]") && text.contains("knot_below_pct"), "{text}");
+    let simulated = |model: &str, name: &str| {
+        let out = scratch(name);
+        run_ok(&["simulate", "--model", model, "--input", &p(&recording), "--out", &p(&out)]);
+        mae(&column(&out, "thrust_n"), &column(&out, "measured_n"))
+    };
+    let (with, without) = (simulated(&p(&improved), "dead-band-sim.csv"), simulated("p100-diesel", "preset-sim.csv"));
+    assert!(with < without - 0.05, "the improved model fits better: MAE {with:.3} N vs {without:.3} N");
+}

@@ -5,6 +5,7 @@ pub mod ekf;
 pub mod excite;
 pub mod identify;
 pub mod ls;
+pub mod noise;
 pub mod plot;
 /// Recordings as identification data; the loader lives with the recorder (`jetbench_record::series`).
 pub use jetbench_record::series;

@@ -8,7 +8,7 @@
 
 use jetbench_estim::SavitzkyGolay;
 use jetbench_model::{
-    rk4_step, Engine, Params, Plant, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S, SUBSTEPS,
+    rk4_step, Effects, Params, Plant, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S, SUBSTEPS,
 };
 use serde::Serialize;
 
@@ -46,20 +46,10 @@ impl Dynamics for Plant {
 }
 
 impl Dynamics for Params {
+    /// The ten-parameter engine: a plant without effects, which is [`jetbench_model::Engine`]
+    /// bit for bit.
     fn free_run(&self, initial: State, u_pct: &[f64], out: &mut Vec<f64>) -> Option<f64> {
-        let mut engine = Engine::new(*self, initial);
-        out.clear();
-        out.push(initial.thrust_n);
-        for (k, &u) in u_pct.iter().enumerate().take(u_pct.len().saturating_sub(1)) {
-            match engine.step(u) {
-                Ok(s) => out.push(s.thrust_n),
-                Err(_) => {
-                    out.resize(u_pct.len(), f64::NAN);
-                    return Some((k + 1) as f64 * STEP_S);
-                }
-            }
-        }
-        None
+        Plant::new(*self, Effects::none()).free_run(0.0, initial, u_pct, out)
     }
 }
 
@@ -86,6 +76,45 @@ pub fn free_run_fn(
         out.push(t);
     }
     None
+}
+
+/// A plant free-run over the throttle of a recording or a profile, as `jetbench
+/// simulate` does it: from the state fitted to the first 2 s of measured thrust, or at
+/// rest at the first throttle (effects included) when there is none.
+#[derive(Clone, Debug, PartialEq)]
+pub struct InputRun {
+    /// Simulated measured thrust per row (NaN after a divergence), N.
+    pub thrust_n: Vec<f64>,
+    /// Where the model diverged, s from the first row.
+    pub diverged_at_s: Option<f64>,
+}
+
+/// Runs `plant` over `input`'s throttle (one run: the throttle is held over gaps).
+pub fn simulate_input(plant: &Plant, input: &Series) -> InputRun {
+    let t0_s = input.t_s.first().copied().unwrap_or(0.0);
+    let initial = if input.has_thrust() {
+        fit_initial_state_at(plant, t0_s, &input.thrust_n, &input.u_pct)
+    } else {
+        State { thrust_n: plant.rest_thrust_n(input.u_pct.first().copied().unwrap_or(0.0)), thrust_rate_n_per_s: 0.0 }
+    };
+    let mut thrust_n = Vec::new();
+    let diverged_at_s = plant.free_run(t0_s, initial, &input.u_pct, &mut thrust_n);
+    InputRun { thrust_n, diverged_at_s }
+}
+
+/// Writes `time_s,throttle_pct,thrust_n[,measured_n]` of a simulation over `input`, up
+/// to a divergence.
+pub fn write_simulation_csv<W: std::io::Write>(mut out: W, input: &Series, thrust_n: &[f64]) -> std::io::Result<()> {
+    let measured = input.has_thrust();
+    writeln!(out, "time_s,throttle_pct,thrust_n{}", if measured { ",measured_n" } else { "" })?;
+    for (k, simulated) in thrust_n.iter().enumerate().take_while(|(_, t)| !t.is_nan()) {
+        write!(out, "{:?},{:?},{:?}", input.t_s[k], input.u_pct[k], simulated)?;
+        if measured {
+            write!(out, ",{:?}", input.thrust_n[k])?;
+        }
+        writeln!(out)?;
+    }
+    out.flush()
 }
 
 /// The measurement noise, estimated from the data.
@@ -121,9 +150,14 @@ pub fn noise_floor(data: &[Series]) -> Option<NoiseFloor> {
 
 /// Thrust and thrust rate at the start of `y`, read off a local polynomial fit.
 /// Noisy at the edge (a rate error of tens of N/s is common at σ = 2.6 N); see
-/// [`fit_initial_state`] for the state a free run should start from.
+/// [`fit_initial_state`] for the state a free run should start from. A missing
+/// sample (NaN) in the window falls back to the first sample, at rest.
 pub fn initial_state(y: &[f64]) -> State {
     let window = STATE_WINDOW.min(if y.len() % 2 == 1 { y.len() } else { y.len().saturating_sub(1) });
+    if y[..window].iter().any(|v| !v.is_finite()) {
+        let thrust_n = y.iter().copied().find(|v| v.is_finite()).unwrap_or(0.0);
+        return State { thrust_n, thrust_rate_n_per_s: 0.0 };
+    }
     let fit = SavitzkyGolay::new(window, STATE_ORDER.min(window.saturating_sub(2)))
         .ok()
         .and_then(|sg| Some((sg.apply(&y[..window], 0, STEP_S).ok()?, sg.apply(&y[..window], 1, STEP_S).ok()?)));
@@ -147,17 +181,34 @@ pub fn fit_initial_state(model: &dyn Dynamics, y: &[f64], u: &[f64]) -> State {
 }
 
 /// [`fit_initial_state`] of a run that starts `t0_s` seconds into the recording.
+/// Samples of `y` that are NaN (lost or rejected) are left out of the fit.
 pub fn fit_initial_state_at(model: &dyn Dynamics, t0_s: f64, y: &[f64], u: &[f64]) -> State {
     let n = y.len().min(u.len()).min(INITIAL_FIT_SAMPLES);
-    let mut x = initial_state(y);
+    let edge = initial_state(y);
     if n < 10 {
-        return x;
+        return edge;
     }
     let (mut base, mut dt_run, mut dd_run) = (Vec::new(), Vec::new(), Vec::new());
-    let sse = |sim: &[f64]| -> f64 { sim.iter().zip(y).map(|(s, m)| (s - m).powi(2)).sum() };
+    let sse =
+        |sim: &[f64]| -> f64 { sim.iter().zip(y).filter(|(_, m)| m.is_finite()).map(|(s, m)| (s - m).powi(2)).sum() };
+    // Two starts: the local polynomial's, and at rest at the first samples' mean (the
+    // polynomial's rate at the edge can be tens of N/s off, enough to make a model that
+    // is stiff in Ṫ (K_DD > 0) run away).
+    let first: Vec<f64> = y[..n].iter().copied().filter(|v| v.is_finite()).take(10).collect();
+    let rest = State { thrust_n: first.iter().sum::<f64>() / first.len().max(1) as f64, thrust_rate_n_per_s: 0.0 };
+    let mut best: Option<(f64, State)> = None;
+    for start in [edge, rest] {
+        if model.free_run_at(t0_s, start, &u[..n], &mut base).is_none() {
+            let e = sse(&base);
+            if best.is_none_or(|(b, _)| e < b) {
+                best = Some((e, start));
+            }
+        }
+    }
+    let Some((_, mut x)) = best else { return rest };
     for _ in 0..4 {
         if model.free_run_at(t0_s, x, &u[..n], &mut base).is_some() {
-            return initial_state(y);
+            return x;
         }
         let (ht, hd) = (0.1, 1.0);
         let bumped_t = State { thrust_n: x.thrust_n + ht, ..x };
@@ -169,7 +220,7 @@ pub fn fit_initial_state_at(model: &dyn Dynamics, t0_s: f64, y: &[f64], u: &[f64
         }
         // Normal equations of the 2-parameter linearised problem.
         let (mut a11, mut a12, mut a22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
-        for k in 0..n {
+        for k in (0..n).filter(|&k| y[k].is_finite()) {
             let (j1, j2) = ((dt_run[k] - base[k]) / ht, (dd_run[k] - base[k]) / hd);
             let r = y[k] - base[k];
             a11 += j1 * j1;

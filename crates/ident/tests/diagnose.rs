@@ -1,9 +1,11 @@
 //! `diagnose` in the library: a concealed delay found, fitted and removed; a model
-//! that explains its data left alone; an identified model of clean data left alone.
+//! that explains its data left alone; parameters that are off blamed, not physics;
+//! coloured noise modelled; spikes and lost rows counted; a dead band outside the
+//! catalogue modelled as a discrepancy.
 
-use jetbench_ident::diagnose::{diagnose, Options};
+use jetbench_ident::diagnose::{diagnose, Cause, Options};
 use jetbench_ident::{excite, ls, synth};
-use jetbench_model::{Effect, EffectKind, Effects, ModelFile, Plant, Preset};
+use jetbench_model::{Effect, EffectKind, Effects, ModelFile, Params, Plant, Preset};
 
 fn recording(plant: &Plant, seed: u64) -> jetbench_ident::series::Series {
     synth::record_plant(plant, &excite::campaign(200.0, seed).profile, 7.0, seed + 1).expect("recording")
@@ -44,4 +46,74 @@ fn a_model_that_explains_the_data_gets_nothing() {
     let identified = ls::fit(&data, &ls::LsOptions::default()).unwrap().params;
     let d = diagnose(&ModelFile::new(identified), &data, &Options::default(), &mut |_| {}).unwrap();
     assert!(d.effects.is_empty(), "{}", d.verdict);
+}
+
+fn bench_recording(plant: &Plant, bench: &synth::Bench, seed: u64) -> jetbench_ident::series::Series {
+    synth::record_bench(plant, &excite::campaign(200.0, seed).profile, bench, seed + 1).expect("recording")
+}
+
+#[test]
+fn parameters_that_are_off_are_blamed_not_physics() {
+    let given = Preset::P100Diesel.params();
+    let mut off = given.to_array();
+    off[6] *= 1.045; // B_U
+    off[2] *= 0.95; // K_D
+    let plant = Plant::new(Params::from_array(off), Effects::none());
+    let data = [recording(&plant, 21)];
+    let d = diagnose(&ModelFile::new(given), &data, &Options::default(), &mut |_| {}).unwrap();
+    assert_eq!(d.cause, Cause::Parameters, "{}", d.verdict);
+    assert!(d.effects.is_empty(), "no physics claimed: {}", d.verdict);
+    let refit = d.refit.as_ref().expect("the refitted parameters");
+    assert_eq!(refit.params.len(), 10);
+    assert_ne!(d.improved.model, given);
+    assert!(d.improved.effects.is_empty());
+    assert!(d.mae_before_n > 1.05 * d.noise_floor_n && d.mae_after_n < 1.03 * d.noise_floor_n, "{}", d.verdict);
+    assert!(d.verdict.contains("re-identify"), "{}", d.verdict);
+}
+
+#[test]
+fn coloured_noise_is_modelled_not_called_physics() {
+    let plant = Plant::new(Preset::P220Kerosene.params(), Effects::none());
+    let bench = synth::Bench { noise_var_n2: 9.0, noise_ar: vec![0.7], ..synth::Bench::default() };
+    let data = [bench_recording(&plant, &bench, 23)];
+    let d = diagnose(&ModelFile::new(plant.params), &data, &Options::default(), &mut |_| {}).unwrap();
+    assert_eq!(d.cause, Cause::None, "{}", d.verdict);
+    assert_eq!(d.noise.ar.len(), 1, "{:?}", d.noise);
+    assert!((d.noise.ar[0] - 0.7).abs() < 0.03, "{:?}", d.noise);
+    // The floor is the mean absolute value of the whole noise: 3 N·√(2/π).
+    let floor = 3.0 * (2.0 / std::f64::consts::PI).sqrt();
+    assert!((d.noise_floor_n - floor).abs() < 0.05 * floor, "{} vs {floor}", d.noise_floor_n);
+    assert!(d.mae_after_n < 1.05 * d.noise_floor_n, "{}", d.verdict);
+}
+
+#[test]
+fn spikes_and_lost_rows_are_counted_and_the_delay_still_found() {
+    let delay: Effect = "input_delay:delay_s=0.12".parse().unwrap();
+    let plant = Plant::new(Preset::P100Diesel.params(), Effects::new([delay]).unwrap());
+    let bench =
+        synth::Bench { spike_fraction: 0.003, drop_fraction: 0.02, resolution: true, ..synth::Bench::default() };
+    let data = [bench_recording(&plant, &bench, 25)];
+    let d = diagnose(&ModelFile::new(plant.params), &data, &Options::default(), &mut |_| {}).unwrap();
+    // 20 000 rows: about 60 spikes and 400 rows lost, none of them a reason to split a run.
+    assert!((35..90).contains(&d.noise.outliers_removed), "{:?}", d.noise);
+    assert!((300..500).contains(&d.noise.lost_rows) && d.noise.runs == 1, "{:?}", d.noise);
+    let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
+    assert_eq!(names, ["input_delay"], "{}", d.verdict);
+    assert!((d.effects[0].params["delay_s"] - 0.12).abs() < 0.01, "{:?}", d.effects[0].params);
+    assert!(d.verdict.contains("outlier"), "the outliers are reported: {}", d.verdict);
+}
+
+#[test]
+fn a_dead_band_outside_the_catalogue_is_modelled_as_a_discrepancy() {
+    let band: Effect = "discrepancy:map_below=1,knot_below_pct=38".parse().unwrap();
+    let plant = Plant::new(Preset::P100Diesel.params(), Effects::new([band]).unwrap());
+    let data = [recording(&plant, 27)];
+    let d = diagnose(&ModelFile::new(plant.params), &data, &Options::default(), &mut |_| {}).unwrap();
+    let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
+    assert_eq!(names, ["discrepancy"], "{}", d.verdict);
+    let knot = d.effects[0].params.get("knot_below_pct").copied().unwrap_or(f64::NAN);
+    assert!((knot - 38.0).abs() < 1.5, "{:?}", d.effects[0].params);
+    assert!(d.verdict.contains("dead band"), "{}", d.verdict);
+    assert!(d.improved.effects.get(EffectKind::Discrepancy).is_some());
+    assert!(d.mae_after_n < 1.03 * d.noise_floor_n, "{}", d.verdict);
 }

@@ -1,20 +1,39 @@
 //! Physics the ten-parameter model leaves out (plant.md, "Effects the second-order
-//! model leaves out"), each a small extension with few parameters, and the plant
-//! that simulates the model with them.
+//! model leaves out"), each a small extension with few parameters.
 //!
-//! The effects act on the way in (the throttle the engine follows) or on the way out
-//! (the force the sensor reads), in a fixed physical order:
+//! The effects act on the way in (the throttle the engine follows), in the engine
+//! (extra acceleration) or on the way out (the force the sensor reads), in a fixed
+//! physical order ([`crate::Plant`] simulates them):
 //!
 //! ```text
-//! u ─ input_delay ─ rate_limit ─ actuator_lag ─ v(u)·(1 − gain_drift·t) ─ engine T
-//! T ─ bearing_friction (play band) ─ + sensor_drift bias ─ measured thrust
+//! u ─ input_delay ─ rate_limit ─ actuator_lag ─ v(u)·(1 − gain_drift·t) (+ discrepancy) ─ engine T
+//! T ─ bearing_friction (play band) ─ stand_resonance ─ + sensor_drift bias ─ measured thrust
+//! ```
+//!
+//! Every effect has wide bounds a model file must respect (a typo like `delay_s = 80`
+//! is an error) and a narrower *physical range* with a sign ([`EffectKind::physical`]):
+//! what a bench can have. A fit outside the physical range is evidence that something
+//! is there, not a claim that this physics is.
+//!
+//! ```
+//! use jetbench_model::{Effect, EffectKind};
+//!
+//! let drift: Effect = "sensor_drift:gain=0.03,time_constant_s=40".parse()?;
+//! assert!(drift.unphysical().is_none());
+//! let cooling: Effect = "sensor_drift:gain=-0.03,time_constant_s=1.8".parse()?;
+//! assert!(cooling.unphysical().unwrap().contains("gain"));
+//! assert_eq!(EffectKind::CATALOGUE.len(), 7);
+//! # Ok::<(), jetbench_model::ModelError>(())
 //! ```
 
 use std::collections::BTreeMap;
 use std::fmt;
 use std::str::FromStr;
 
-use crate::{rk4_step, ModelError, Params, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S, SUBSTEPS};
+use crate::discrepancy::{
+    discrepancy_key_active, DISCREPANCY_BOUNDS, DISCREPANCY_DEFAULTS, DISCREPANCY_KEYS, DISCREPANCY_TERMS,
+};
+use crate::ModelError;
 
 /// Which physics an [`Effect`] adds. Names and parameter keys are part of the model-file
 /// and JSON contract.
@@ -32,16 +51,34 @@ pub enum EffectKind {
     GainDrift,
     /// The measured force follows `T` only once they differ by more than `force_n`.
     BearingFriction,
+    /// The sensor reads the frame through a mass-spring: `ẍ = ω²(F − x) − 2ζω·ẋ`.
+    StandResonance,
+    /// Extra acceleration from named terms (see [`crate::discrepancy`]): physics outside
+    /// the catalogue.
+    Discrepancy,
 }
 
 impl EffectKind {
     /// Every kind, in the order of the signal path (and of model files).
-    pub const ALL: [EffectKind; 6] = [
+    pub const ALL: [EffectKind; 8] = [
+        EffectKind::InputDelay,
+        EffectKind::RateLimit,
+        EffectKind::ActuatorLag,
+        EffectKind::GainDrift,
+        EffectKind::Discrepancy,
+        EffectKind::BearingFriction,
+        EffectKind::StandResonance,
+        EffectKind::SensorDrift,
+    ];
+
+    /// The named physics (every kind but the generic [`EffectKind::Discrepancy`]).
+    pub const CATALOGUE: [EffectKind; 7] = [
         EffectKind::InputDelay,
         EffectKind::RateLimit,
         EffectKind::ActuatorLag,
         EffectKind::GainDrift,
         EffectKind::BearingFriction,
+        EffectKind::StandResonance,
         EffectKind::SensorDrift,
     ];
 
@@ -54,6 +91,8 @@ impl EffectKind {
             EffectKind::SensorDrift => "sensor_drift",
             EffectKind::GainDrift => "gain_drift",
             EffectKind::BearingFriction => "bearing_friction",
+            EffectKind::StandResonance => "stand_resonance",
+            EffectKind::Discrepancy => "discrepancy",
         }
     }
 
@@ -66,11 +105,13 @@ impl EffectKind {
             EffectKind::SensorDrift => &["gain", "time_constant_s"],
             EffectKind::GainDrift => &["per_minute"],
             EffectKind::BearingFriction => &["force_n"],
+            EffectKind::StandResonance => &["frequency_hz", "damping_ratio"],
+            EffectKind::Discrepancy => &DISCREPANCY_KEYS,
         }
     }
 
-    /// The range each parameter may take (inclusive), in the order of [`EffectKind::keys`]:
-    /// wide physical bounds, so a typo like `delay_s = 80` is caught.
+    /// The range each parameter may take in a model file (inclusive), in the order of
+    /// [`EffectKind::keys`]: wide, so a typo like `delay_s = 80` is caught.
     pub fn bounds(self) -> &'static [(f64, f64)] {
         match self {
             EffectKind::InputDelay => &[(0.0, 2.0)],
@@ -79,6 +120,46 @@ impl EffectKind {
             EffectKind::SensorDrift => &[(-1.0, 1.0), (0.1, 3600.0)],
             EffectKind::GainDrift => &[(-0.2, 0.2)],
             EffectKind::BearingFriction => &[(0.0, 50.0)],
+            EffectKind::StandResonance => &[(0.05, 200.0), (0.001, 10.0)],
+            EffectKind::Discrepancy => &DISCREPANCY_BOUNDS,
+        }
+    }
+
+    /// What a bench can have (inclusive ranges, in the order of [`EffectKind::keys`]),
+    /// with the sign the physics gives:
+    ///
+    /// - `input_delay`: 5–500 ms (ECU processing and fuel transport, tens of ms).
+    /// - `actuator_lag`: 0.02–2 s (fuel pump, 0.1–0.5 s typical).
+    /// - `rate_limit`: 2–1000 %/s each way (slower than that is no ECU schedule, faster
+    ///   is no limit at 100 Hz).
+    /// - `sensor_drift`: gain 0–0.2 (a sensor that heats reads high under load),
+    ///   time constant 5–1800 s (thermal, never seconds).
+    /// - `gain_drift`: 0–0.05 per minute (a gain that sags over a run).
+    /// - `bearing_friction`: 0–10 N.
+    /// - `stand_resonance`: 0.5–45 Hz (below the 50 Hz Nyquist limit), damping 0.005–0.3
+    ///   (lightly damped: it rings; a heavily damped one is a lag, not a resonance).
+    /// - `discrepancy`: knots within the throttle range 25–100 %, history 2–1800 s,
+    ///   coefficients as in files.
+    pub fn physical(self) -> &'static [(f64, f64)] {
+        match self {
+            EffectKind::InputDelay => &[(0.005, 0.5)],
+            EffectKind::ActuatorLag => &[(0.02, 2.0)],
+            EffectKind::RateLimit => &[(2.0, 1000.0), (2.0, 1000.0)],
+            EffectKind::SensorDrift => &[(0.0, 0.2), (5.0, 1800.0)],
+            EffectKind::GainDrift => &[(0.0, 0.05)],
+            EffectKind::BearingFriction => &[(0.0, 10.0)],
+            EffectKind::StandResonance => &[(0.5, 45.0), (0.005, 0.3)],
+            EffectKind::Discrepancy => &[
+                (-5.0, 5.0),
+                (25.0, 100.0),
+                (-5.0, 5.0),
+                (25.0, 100.0),
+                (-0.1, 0.1),
+                (2.0, 1800.0),
+                (-0.01, 0.01),
+                (-0.01, 0.01),
+                (-0.01, 0.01),
+            ],
         }
     }
 
@@ -93,7 +174,28 @@ impl EffectKind {
                 "fuel pressure or pump voltage sags: the same throttle gives less thrust over the run"
             }
             EffectKind::BearingFriction => "Coulomb friction of the frame's linear bearings: a play band on the force",
+            EffectKind::StandResonance => "frame and sensor form a lightly damped mass-spring: the reading rings",
+            EffectKind::Discrepancy => {
+                "physics outside the catalogue as extra thrust acceleration from named terms (throttle-map hinges, \
+                 gain following thrust history, input gain in T², Ṫ², T·Ṫ)"
+            }
         }
+    }
+
+    /// Every kind with its keys, their bounds and its physics, the discrepancy's terms
+    /// too: the catalogue as a command's help shows it.
+    pub fn catalogue_help() -> String {
+        let mut help = String::new();
+        for kind in Self::ALL {
+            let keys: Vec<String> =
+                kind.keys().iter().zip(kind.bounds()).map(|(key, (lo, hi))| format!("{key}=[{lo}, {hi}]")).collect();
+            help.push_str(&format!("  {}:{}\n      {}\n", kind.name(), keys.join(","), kind.physics()));
+        }
+        help.push_str("  discrepancy terms (each with its shape key; absent terms are 0):\n");
+        for term in DISCREPANCY_TERMS {
+            help.push_str(&format!("      {}: {}\n", DISCREPANCY_KEYS[term.coefficient], term.meaning));
+        }
+        help
     }
 
     /// Comma-separated valid names, for error messages.
@@ -119,11 +221,14 @@ impl FromStr for EffectKind {
     }
 }
 
+/// Most values an effect has (the discrepancy's).
+const MAX_VALUES: usize = DISCREPANCY_KEYS.len();
+
 /// One effect with its parameters.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Effect {
     kind: EffectKind,
-    values: [f64; 2],
+    values: [f64; MAX_VALUES],
 }
 
 impl Effect {
@@ -136,7 +241,7 @@ impl Effect {
                 message: format!("expects {} value(s) ({}), got {}", keys.len(), keys.join(", "), values.len()),
             });
         }
-        let mut stored = [0.0; 2];
+        let mut stored = [0.0; MAX_VALUES];
         for ((key, &(lo, hi)), (slot, &value)) in keys.iter().zip(kind.bounds()).zip(stored.iter_mut().zip(values)) {
             if !(value.is_finite() && (lo..=hi).contains(&value)) {
                 return Err(ModelError::EffectParam {
@@ -154,41 +259,68 @@ impl Effect {
         self.kind
     }
 
-    /// Parameter values in the order of [`EffectKind::keys`].
+    /// Parameter values in the order of [`EffectKind::keys`] (every key, for a
+    /// discrepancy the absent terms as 0).
     pub fn values(&self) -> &[f64] {
         &self.values[..self.kind.keys().len()]
     }
 
-    /// `(key, value)` pairs.
+    /// `(key, value)` pairs that matter: every key, but only the terms present (and
+    /// their shape keys) of a discrepancy.
     pub fn params(&self) -> impl Iterator<Item = (&'static str, f64)> + '_ {
-        self.kind.keys().iter().copied().zip(self.values().iter().copied())
+        let values = self.values();
+        self.kind
+            .keys()
+            .iter()
+            .copied()
+            .zip(values.iter().copied())
+            .enumerate()
+            .filter(move |(i, _)| self.kind != EffectKind::Discrepancy || discrepancy_key_active(values, *i))
+            .map(|(_, kv)| kv)
     }
 
-    /// Reads an effect from its model-file table (every key required, no others).
+    /// `None` when every parameter that matters lies in its physical range
+    /// ([`EffectKind::physical`]); otherwise what does not, in words.
+    pub fn unphysical(&self) -> Option<String> {
+        let problems: Vec<String> = self
+            .params()
+            .filter_map(|(key, value)| {
+                let i = self.kind.keys().iter().position(|k| *k == key)?;
+                let (lo, hi) = self.kind.physical()[i];
+                (!(lo..=hi).contains(&value)).then(|| format!("{key} = {value:.4} outside [{lo}, {hi}]"))
+            })
+            .collect();
+        (!problems.is_empty()).then(|| problems.join(", "))
+    }
+
+    /// Reads an effect from its model-file table (every key required and no others; a
+    /// discrepancy holds only the terms present, each with its shape key).
     pub fn from_table(kind: EffectKind, table: &toml::Table) -> Result<Self, ModelError> {
         let keys = kind.keys();
+        let error = |message: String| ModelError::EffectParam { effect: kind.name(), message };
         if let Some(unknown) = table.keys().find(|k| !keys.contains(&k.as_str())) {
-            return Err(ModelError::EffectParam {
-                effect: kind.name(),
-                message: format!("unknown key `{unknown}`; expected {}", keys.join(", ")),
-            });
+            return Err(error(format!("unknown key `{unknown}`; expected {}", keys.join(", "))));
         }
+        let discrepancy = kind == EffectKind::Discrepancy;
         let mut values = Vec::with_capacity(keys.len());
-        for key in keys {
+        for (i, key) in keys.iter().enumerate() {
             let value = match table.get(*key) {
                 Some(toml::Value::Float(x)) => *x,
                 Some(toml::Value::Integer(i)) => *i as f64,
-                Some(other) => {
-                    return Err(ModelError::EffectParam {
-                        effect: kind.name(),
-                        message: format!("{key} must be a number, not {}", other.type_str()),
-                    })
-                }
-                None => {
-                    return Err(ModelError::EffectParam { effect: kind.name(), message: format!("missing key {key}") })
-                }
+                Some(other) => return Err(error(format!("{key} must be a number, not {}", other.type_str()))),
+                None if discrepancy => DISCREPANCY_DEFAULTS[i],
+                None => return Err(error(format!("missing key {key}"))),
             };
             values.push(value);
+        }
+        if discrepancy {
+            for term in DISCREPANCY_TERMS {
+                if let Some(shape) = term.shape {
+                    if values[term.coefficient] != 0.0 && !table.contains_key(keys[shape]) {
+                        return Err(error(format!("{} needs {}", keys[term.coefficient], keys[shape])));
+                    }
+                }
+            }
         }
         Self::new(kind, &values)
     }
@@ -281,6 +413,11 @@ impl Effects {
         Self { list }
     }
 
+    /// Without the effect of this kind.
+    pub fn without(&self, kind: EffectKind) -> Self {
+        Self { list: self.list.iter().copied().filter(|e| e.kind != kind).collect() }
+    }
+
     /// From the `[effects.<name>]` tables of a model file.
     pub fn from_tables(tables: &BTreeMap<String, toml::Table>) -> Result<Self, ModelError> {
         let mut list = Vec::with_capacity(tables.len());
@@ -308,363 +445,12 @@ impl fmt::Display for Effects {
     }
 }
 
-/// The engine model with its effects: what a bench recording is a measurement of.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Plant {
-    /// The ten coefficients.
-    pub params: Params,
-    /// What the ten coefficients leave out.
-    pub effects: Effects,
-}
-
-/// One 10 ms step of a [`PlantEngine`].
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PlantSample {
-    /// The engine's state after the step.
-    pub state: State,
-    /// The force the sensor reads (before noise), N.
-    pub measured_n: f64,
-    /// The throttle the engine followed at the end of the step, %.
-    pub engine_throttle_pct: f64,
-}
-
-impl Plant {
-    pub fn new(params: Params, effects: Effects) -> Self {
-        Self { params, effects }
-    }
-
-    /// A stepping simulator started at `initial` with every effect at rest for the
-    /// throttle `u0_pct` (delay line full of it, lag settled, sensor bias zero, as just
-    /// after a tare), `t0_s` seconds after the start of the recording.
-    pub fn engine(&self, initial: State, u0_pct: f64, t0_s: f64) -> PlantEngine {
-        PlantEngine::new(self, initial, u0_pct, t0_s, SUBSTEPS)
-    }
-
-    /// Like [`Plant::engine`], integrating with `substeps` RK4 steps per [`STEP_S`]
-    /// (at least 1) instead of 10: a cheaper predictor for a controller, accurate to a
-    /// fraction of a newton on this model with 2.
-    pub fn coarse_engine(&self, initial: State, u0_pct: f64, t0_s: f64, substeps: usize) -> PlantEngine {
-        PlantEngine::new(self, initial, u0_pct, t0_s, substeps.max(1))
-    }
-
-    /// A stepping simulator at rest at the stable equilibrium for `u0_pct`, at time 0.
-    pub fn at_equilibrium(&self, u0_pct: f64) -> PlantEngine {
-        let thrust_n = self.params.stable_equilibrium(u0_pct).unwrap_or(0.0);
-        self.engine(State { thrust_n, thrust_rate_n_per_s: 0.0 }, u0_pct, 0.0)
-    }
-
-    /// Free run: `out[0]` is the measured force at `initial`, `out[k + 1]` follows with
-    /// `u_pct[k]` held for [`STEP_S`]. On divergence the rest is NaN and the time of
-    /// divergence (s from the run start) is returned.
-    pub fn free_run(&self, t0_s: f64, initial: State, u_pct: &[f64], out: &mut Vec<f64>) -> Option<f64> {
-        let mut engine = self.engine(initial, u_pct.first().copied().unwrap_or(0.0), t0_s);
-        out.clear();
-        out.push(engine.measured_n());
-        for (k, &u) in u_pct.iter().enumerate().take(u_pct.len().saturating_sub(1)) {
-            match engine.step(u) {
-                Ok(s) => out.push(s.measured_n),
-                Err(_) => {
-                    out.resize(u_pct.len(), f64::NAN);
-                    return Some((k + 1) as f64 * STEP_S);
-                }
-            }
-        }
-        None
-    }
-}
-
-/// The plant stepped 10 ms at a time (RK4 at 1 kHz, like [`crate::Engine`], which it
-/// reproduces bit for bit when there is no effect).
-#[derive(Debug)]
-pub struct PlantEngine {
-    params: Params,
-    state: State,
-    substeps: usize,
-    t0_s: f64,
-    steps: u64,
-    failed: bool,
-    // Effect parameters, flattened for the inner loop (None: effect absent).
-    delay_s: Option<f64>,
-    rate_limit: Option<(f64, f64)>,
-    lag_alpha: Option<f64>,
-    gain_per_s: f64,
-    play_n: Option<f64>,
-    drift: Option<(f64, f64)>,
-    // Effect states.
-    history: std::collections::VecDeque<f64>,
-    rate_limited_pct: f64,
-    lagged_pct: f64,
-    engine_throttle_pct: f64,
-    frame_n: f64,
-    bias_n: f64,
-}
-
-impl Clone for PlantEngine {
-    fn clone(&self) -> Self {
-        Self { history: self.history.clone(), ..*self }
-    }
-
-    /// Reuses the throttle history's memory: a controller copies its model every cycle.
-    fn clone_from(&mut self, source: &Self) {
-        let mut history = std::mem::take(&mut self.history);
-        history.clone_from(&source.history);
-        *self = Self { history, ..*source };
-    }
-}
-
-impl PlantEngine {
-    fn new(plant: &Plant, initial: State, u0_pct: f64, t0_s: f64, substeps: usize) -> Self {
-        let h = STEP_S / substeps as f64;
-        let fx = plant.effects.get(EffectKind::InputDelay).map(|e| e.values()[0]).filter(|d| *d > 0.0);
-        let history_len = fx.map_or(1, |d| (d / STEP_S).ceil() as usize + 2);
-        Self {
-            params: plant.params,
-            state: initial,
-            substeps,
-            t0_s,
-            steps: 0,
-            failed: false,
-            delay_s: fx,
-            rate_limit: plant.effects.get(EffectKind::RateLimit).map(|e| (e.values()[0] * h, e.values()[1] * h)),
-            lag_alpha: plant
-                .effects
-                .get(EffectKind::ActuatorLag)
-                .map(|e| e.values()[0])
-                .filter(|tau| *tau > 0.0)
-                .map(|tau| 1.0 - (-h / tau).exp()),
-            gain_per_s: plant.effects.get(EffectKind::GainDrift).map_or(0.0, |e| e.values()[0] / 60.0),
-            play_n: plant.effects.get(EffectKind::BearingFriction).map(|e| e.values()[0]),
-            drift: plant
-                .effects
-                .get(EffectKind::SensorDrift)
-                .map(|e| (e.values()[0], 1.0 - (-h / e.values()[1]).exp())),
-            history: std::iter::repeat_n(u0_pct, history_len).collect(),
-            rate_limited_pct: u0_pct,
-            lagged_pct: u0_pct,
-            engine_throttle_pct: u0_pct,
-            frame_n: initial.thrust_n,
-            bias_n: 0.0,
-        }
-    }
-
-    /// The engine's state.
-    pub fn state(&self) -> State {
-        self.state
-    }
-
-    /// The force the sensor reads now (before noise), N.
-    pub fn measured_n(&self) -> f64 {
-        self.frame_n + self.bias_n
-    }
-
-    /// Replaces the engine's thrust and rate, keeping the throttle history and the
-    /// effects' states: how a controller re-anchors its model on a fresh state estimate.
-    /// Clears a divergence.
-    pub fn set_state(&mut self, state: State) {
-        self.state = state;
-        self.frame_n = state.thrust_n;
-        self.failed = false;
-    }
-
-    /// Time since the start of the recording, s.
-    pub fn time_s(&self) -> f64 {
-        self.t0_s + self.steps as f64 * STEP_S
-    }
-
-    /// Advances one [`STEP_S`] with `throttle_pct` commanded; fails like
-    /// [`crate::Engine::step`] on divergence or a non-finite throttle.
-    pub fn step(&mut self, throttle_pct: f64) -> Result<PlantSample, ModelError> {
-        if !throttle_pct.is_finite() {
-            return Err(ModelError::InvalidThrottle { throttle_pct });
-        }
-        if self.failed {
-            return Err(self.diverged(self.time_s()));
-        }
-        let h = STEP_S / self.substeps as f64;
-        if self.delay_s.is_some() {
-            self.history.pop_front();
-            self.history.push_back(throttle_pct);
-        }
-        let p = self.params;
-        let (mut t, mut d) = (self.state.thrust_n, self.state.thrust_rate_n_per_s);
-        for i in 0..self.substeps {
-            // The throttle the engine follows over this substep.
-            let mut u = match self.delay_s {
-                None => throttle_pct,
-                Some(delay) => self.delayed_pct(i as f64 * h - delay, h),
-            };
-            if let Some((up, down)) = self.rate_limit {
-                self.rate_limited_pct += (u - self.rate_limited_pct).clamp(-down, up);
-                u = self.rate_limited_pct;
-            }
-            if let Some(alpha) = self.lag_alpha {
-                self.lagged_pct += (u - self.lagged_pct) * alpha;
-                u = self.lagged_pct;
-            }
-            self.engine_throttle_pct = u;
-            let mut v = p.v(u);
-            if self.gain_per_s != 0.0 {
-                let t_mid = self.t0_s + self.steps as f64 * STEP_S + (i as f64 + 0.5) * h;
-                v *= 1.0 - self.gain_per_s * t_mid;
-            }
-            (t, d) = rk4_step(t, d, h, |t, d| p.f(t, d) + p.g(t, d) * v);
-            if !(t.is_finite() && d.is_finite() && t.abs() <= DIVERGENCE_THRUST_N && d.abs() <= DIVERGENCE_RATE_N_PER_S)
-            {
-                self.failed = true;
-                let at = self.time_s() + (i + 1) as f64 * h;
-                return Err(self.diverged(at));
-            }
-            match self.play_n {
-                Some(play) => self.frame_n = self.frame_n.clamp(t - play, t + play),
-                None => self.frame_n = t,
-            }
-            if let Some((gain, alpha)) = self.drift {
-                self.bias_n += (gain * t - self.bias_n) * alpha;
-            }
-        }
-        self.state = State { thrust_n: t, thrust_rate_n_per_s: d };
-        self.steps += 1;
-        Ok(PlantSample {
-            state: self.state,
-            measured_n: self.measured_n(),
-            engine_throttle_pct: self.engine_throttle_pct,
-        })
-    }
-
-    /// The commanded throttle averaged over `[from_s, from_s + h]`, times relative to
-    /// the start of the current row (negative: earlier rows). Averaging over the
-    /// substep makes the response a smooth function of the delay, which a fit needs.
-    fn delayed_pct(&self, from_s: f64, h: f64) -> f64 {
-        let n = self.history.len() as i64;
-        let row = |j: i64| self.history[(n - 1 + j.clamp(1 - n, 0)) as usize];
-        // Row holding the end of the interval (a tolerance keeps an end exactly on a
-        // row boundary in the earlier row).
-        let j_end = ((from_s + h) / STEP_S - 1e-9).floor().min(0.0) as i64;
-        let boundary_s = j_end as f64 * STEP_S;
-        if from_s < boundary_s {
-            let w = ((boundary_s - from_s) / h).min(1.0);
-            w * row(j_end - 1) + (1.0 - w) * row(j_end)
-        } else {
-            row(j_end)
-        }
-    }
-
-    fn diverged(&self, time_s: f64) -> ModelError {
-        ModelError::Diverged {
-            time_s,
-            thrust_n: self.state.thrust_n,
-            thrust_rate_n_per_s: self.state.thrust_rate_n_per_s,
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{Engine, Preset};
 
     fn effect(s: &str) -> Effect {
         s.parse().unwrap()
-    }
-
-    fn step_input() -> Vec<f64> {
-        (0..1600)
-            .map(|k| {
-                if k < 100 {
-                    30.0
-                } else if k < 800 {
-                    90.0
-                } else {
-                    40.0
-                }
-            })
-            .collect()
-    }
-
-    fn run(plant: &Plant, u: &[f64]) -> Vec<f64> {
-        let initial = State { thrust_n: plant.params.stable_equilibrium(u[0]).unwrap(), thrust_rate_n_per_s: 0.0 };
-        let mut out = Vec::new();
-        assert!(plant.free_run(0.0, initial, u, &mut out).is_none());
-        out
-    }
-
-    #[test]
-    fn without_effects_the_plant_is_the_engine_bit_for_bit() {
-        let p = Preset::P100Diesel.params();
-        let u = step_input();
-        let sim = run(&Plant::new(p, Effects::none()), &u);
-        let mut engine = Engine::at_equilibrium(p, u[0]);
-        for (k, &uk) in u.iter().enumerate().take(u.len() - 1) {
-            assert_eq!(engine.step(uk).unwrap().thrust_n.to_bits(), sim[k + 1].to_bits(), "row {k}");
-        }
-    }
-
-    #[test]
-    fn a_coarse_engine_follows_the_fine_one_and_a_copy_reanchors() {
-        let plant =
-            Plant::new(Preset::P100Diesel.params(), Effects::new([effect("input_delay:delay_s=0.05")]).unwrap());
-        let u = step_input();
-        let mut fine = plant.at_equilibrium(u[0]);
-        let mut coarse = plant.coarse_engine(fine.state(), u[0], 0.0, 2);
-        for &u in &u {
-            let (a, b) = (fine.step(u).unwrap(), coarse.step(u).unwrap());
-            assert!((a.state.thrust_n - b.state.thrust_n).abs() < 0.05, "{:?} vs {:?}", a.state, b.state);
-        }
-        // A copy keeps the throttle history; a new state replaces thrust and rate only.
-        let mut copy = plant.at_equilibrium(25.0);
-        copy.clone_from(&fine);
-        let state = State { thrust_n: 30.0, thrust_rate_n_per_s: 5.0 };
-        copy.set_state(state);
-        fine.set_state(state);
-        for _ in 0..20 {
-            assert_eq!(copy.step(40.0).unwrap(), fine.step(40.0).unwrap());
-        }
-    }
-
-    #[test]
-    fn a_delay_of_whole_rows_shifts_the_response() {
-        let p = Preset::P100Diesel.params();
-        let u = step_input();
-        let nominal = run(&Plant::new(p, Effects::none()), &u);
-        let delayed = run(&Plant::new(p, Effects::new([effect("input_delay:delay_s=0.07")]).unwrap()), &u);
-        for k in 0..u.len() - 7 {
-            assert!((delayed[k + 7] - nominal[k]).abs() < 1e-9, "row {k}: {} vs {}", delayed[k + 7], nominal[k]);
-        }
-    }
-
-    #[test]
-    fn lag_and_rate_limit_slow_the_step_and_friction_holds_a_band() {
-        let p = Preset::P100Diesel.params();
-        let u = step_input();
-        let nominal = run(&Plant::new(p, Effects::none()), &u);
-        for spec in ["actuator_lag:time_constant_s=0.3", "rate_limit:up_pct_per_s=40,down_pct_per_s=80"] {
-            let slow = run(&Plant::new(p, Effects::new([effect(spec)]).unwrap()), &u);
-            assert!(slow[150] < nominal[150] - 1.0, "{spec}: {} vs {}", slow[150], nominal[150]);
-            assert!(
-                (slow[799] - nominal[799]).abs() < 0.5,
-                "{spec} settles to the same thrust: {} vs {}",
-                slow[799],
-                nominal[799]
-            );
-        }
-        let friction = run(&Plant::new(p, Effects::new([effect("bearing_friction:force_n=2")]).unwrap()), &u);
-        let gaps: Vec<f64> = friction.iter().zip(&nominal).map(|(m, t)| m - t).collect();
-        assert!(gaps.iter().all(|g| g.abs() <= 2.0 + 1e-9));
-        assert!((gaps[150] + 2.0).abs() < 1e-9, "rising: the frame trails by the band ({})", gaps[150]);
-        assert!((gaps[850] - 2.0).abs() < 1e-9, "falling: it trails from above ({})", gaps[850]);
-    }
-
-    #[test]
-    fn sensor_drift_settles_to_its_gain_and_gain_drift_sags() {
-        let p = Preset::P100Diesel.params();
-        let u = vec![90.0; 30_000];
-        let nominal = run(&Plant::new(p, Effects::none()), &u);
-        let drift = Effects::new([effect("sensor_drift:gain=0.05,time_constant_s=20")]).unwrap();
-        let warm = run(&Plant::new(p, drift), &u);
-        let bias = warm[29_999] - nominal[29_999];
-        assert!((bias - 0.05 * nominal[29_999]).abs() < 0.01, "{bias}");
-        let sag = run(&Plant::new(p, Effects::new([effect("gain_drift:per_minute=0.01")]).unwrap()), &u);
-        assert!(sag[29_999] < nominal[29_999] - 1.0 && (sag[100] - nominal[100]).abs() < 0.1);
     }
 
     #[test]
@@ -680,11 +466,42 @@ mod tests {
             "input_delay:delay_s=80",
             "rate_limit:up_pct_per_s=60",
             "input_delay:delay_s",
+            "stand_resonance:frequency_hz=3",
+            "discrepancy:map_below=1",
+            "discrepancy:B_TT=0.5",
+            "discrepancy:knot=40",
         ] {
             let err = bad.parse::<Effect>().unwrap_err();
             assert!(!err.to_string().is_empty(), "{bad}");
         }
         let twice = Effects::new([effect("input_delay:delay_s=0.1"), effect("input_delay:delay_s=0.2")]);
         assert!(twice.is_err());
+    }
+
+    #[test]
+    fn a_discrepancy_holds_only_its_terms() {
+        let e = effect("discrepancy:gain_history_per_n=-0.0005,history_time_constant_s=40,B_TT=1e-5");
+        assert_eq!(
+            e.params().collect::<Vec<_>>(),
+            vec![("gain_history_per_n", -0.0005), ("history_time_constant_s", 40.0), ("B_TT", 1e-5)]
+        );
+        assert_eq!(e.values().len(), DISCREPANCY_KEYS.len());
+        assert_eq!(e.to_string().parse::<Effect>().unwrap(), e);
+        assert!(e.unphysical().is_none());
+        let far = effect("discrepancy:map_below=1,knot_below_pct=10");
+        assert!(far.unphysical().unwrap().contains("knot_below_pct"), "a knot below the throttle range");
+    }
+
+    #[test]
+    fn physical_ranges_hold_the_bounds_and_the_sign() {
+        for kind in EffectKind::ALL {
+            assert_eq!(kind.physical().len(), kind.keys().len(), "{kind}");
+            for (&(lo, hi), &(blo, bhi)) in kind.physical().iter().zip(kind.bounds()) {
+                assert!(blo <= lo && lo < hi && hi <= bhi, "{kind}: [{lo}, {hi}] within [{blo}, {bhi}]");
+            }
+        }
+        assert!(effect("gain_drift:per_minute=-0.01").unphysical().is_some(), "a gain that rises");
+        assert!(effect("gain_drift:per_minute=0.01").unphysical().is_none());
+        assert!(effect("stand_resonance:frequency_hz=3,damping_ratio=0.05").unphysical().is_none());
     }
 }

@@ -20,14 +20,16 @@
 //! `Ṫ` in N/s and throttle `u` in %. Identified parameter sets are only locally valid, so
 //! the [`Engine`] reports divergence as [`ModelError::Diverged`] rather than returning NaN.
 
+pub mod discrepancy;
 mod effects;
 mod engine;
 mod error;
 mod file;
 mod params;
+mod plant;
 mod preset;
 
-pub use effects::{Effect, EffectKind, Effects, Plant, PlantEngine, PlantSample};
+pub use effects::{Effect, EffectKind, Effects};
 pub use engine::{
     rk4_step, settling_time_s, simulate, Engine, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N,
     MAX_SETTLING_RUN_S,
@@ -35,6 +37,7 @@ pub use engine::{
 pub use error::ModelError;
 pub use file::{resolve_model, resolve_params, ModelFile};
 pub use params::{AccelPartials, Equilibrium, Params};
+pub use plant::{Plant, PlantEngine, PlantSample};
 pub use preset::Preset;
 
 /// The period of everything on the bench, ns: the model's discretisation step, the

@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 
 use crate::Recording;
 use jetbench_model::STEP_S;
-use jetbench_msgs::channels;
+use jetbench_msgs::{actuation_flags, channels};
 
 /// Largest relative deviation of a step from [`STEP_S`] before the series is split.
 const GAP_FACTOR: f64 = 1.5;
@@ -95,6 +95,21 @@ impl Series {
     /// Checks what every method assumes: finite values, time strictly
     /// increasing, sampled at 100 Hz (gaps allowed, see [`Series::runs`]).
     pub fn check(&self) -> Result<(), DataError> {
+        self.check_values()?;
+        let invalid = |message: String| DataError::Invalid { path: self.name.clone(), message };
+        let median = self.median_period_s();
+        if ((median - STEP_S) / STEP_S).abs() > PERIOD_TOLERANCE {
+            return Err(invalid(format!(
+                "sampled every {:.3} ms; the model is discretised at 10 ms, so resample to 100 Hz (`jetbench \
+                 diagnose` does it for you)",
+                median * 1e3
+            )));
+        }
+        Ok(())
+    }
+
+    /// [`Series::check`] without the sampling rate: finite values, time strictly increasing.
+    pub fn check_values(&self) -> Result<(), DataError> {
         let invalid = |message: String| DataError::Invalid { path: self.name.clone(), message };
         if self.u_pct.len() != self.len() || (self.has_thrust() && self.thrust_n.len() != self.len()) {
             return Err(invalid("columns have different lengths".into()));
@@ -122,20 +137,146 @@ impl Series {
                 )));
             }
         }
-        let mut steps: Vec<f64> = self.t_s.windows(2).map(|w| w[1] - w[0]).collect();
-        steps.sort_by(f64::total_cmp);
-        let median = steps[steps.len() / 2];
-        if ((median - STEP_S) / STEP_S).abs() > PERIOD_TOLERANCE {
-            return Err(invalid(format!(
-                "sampled every {:.3} ms; the model is discretised at 10 ms, so resample to 100 Hz",
-                median * 1e3
-            )));
-        }
         Ok(())
+    }
+
+    /// The median time between rows, s (0 with fewer than two rows).
+    pub fn median_period_s(&self) -> f64 {
+        let mut steps: Vec<f64> = self.t_s.windows(2).map(|w| w[1] - w[0]).collect();
+        if steps.is_empty() {
+            return 0.0;
+        }
+        steps.sort_by(f64::total_cmp);
+        steps[steps.len() / 2]
+    }
+
+    /// This series at the model's 100 Hz, with a note of what was done (`None` when it
+    /// already is):
+    ///
+    /// - faster than 100 Hz: the thrust interpolated at every 10 ms (exactly a sample
+    ///   when the rate is a whole multiple), the throttle averaged over each 10 ms it is
+    ///   held for; no value is made up across a gap;
+    /// - a whole multiple of 10 ms (50 Hz, 25 Hz, ...): the rows as they are, each
+    ///   throttle held over the 10 ms steps until the next row, which a simulation on
+    ///   the 10 ms grid does by itself (see [`Series::grid_steps`]);
+    /// - anything else slower than 100 Hz is refused with what to do.
+    pub fn to_100hz(self) -> Result<(Series, Option<String>), DataError> {
+        let period_s = self.median_period_s();
+        let ratio = period_s / STEP_S;
+        let hz = 1.0 / period_s;
+        if (ratio - 1.0).abs() <= PERIOD_TOLERANCE {
+            return Ok((self, None));
+        }
+        let whole = ratio.round();
+        if ratio > 1.0 && whole >= 2.0 && (ratio - whole).abs() <= PERIOD_TOLERANCE * whole {
+            let note = format!(
+                "{}: sampled every {:.1} ms ({hz:.1} Hz); each throttle is held for {whole:.0} steps of the 10 ms \
+                 model and the thrust compared where it was sampled",
+                self.name,
+                period_s * 1e3
+            );
+            return Ok((self, Some(note)));
+        }
+        if ratio > 1.0 {
+            return Err(DataError::Invalid {
+                path: self.name.clone(),
+                message: format!(
+                    "sampled every {:.2} ms ({hz:.1} Hz): neither 100 Hz, faster, nor a whole multiple of 10 ms, so \
+                     it cannot be put on the model's 10 ms grid without inventing data; resample it to 100 Hz first \
+                     (time_s every 0.01 s, throttle_pct held over each 10 ms, thrust_n interpolated), or record at \
+                     100 Hz or a rate that divides it",
+                    period_s * 1e3
+                ),
+            });
+        }
+        let resampled = self.resample_faster(period_s);
+        let note = format!(
+            "{}: sampled every {:.2} ms ({hz:.0} Hz); resampled to 100 Hz: {} rows (thrust at every 10 ms, \
+             interpolated unless a sample falls on it; throttle averaged over each 10 ms)",
+            resampled.name,
+            period_s * 1e3,
+            resampled.len()
+        );
+        Ok((resampled, Some(note)))
+    }
+
+    /// Resamples a series sampled every `period_s` (< 10 ms) at 100 Hz.
+    fn resample_faster(&self, period_s: f64) -> Series {
+        let gap_s = GAP_FACTOR * period_s;
+        let mut out = Series { name: self.name.clone(), ..Series::default() };
+        let (first, last) = (self.t_s[0], self.t_s[self.len() - 1]);
+        let mut j = 0;
+        for k in 0.. {
+            let t = first + k as f64 * STEP_S;
+            if t > last + 1e-9 {
+                break;
+            }
+            // Row j: the last one at or before t (with a tolerance for rounding in the file).
+            while j + 1 < self.len() && self.t_s[j + 1] <= t + 1e-9 {
+                j += 1;
+            }
+            let on_sample = (self.t_s[j] - t).abs() <= 1e-9;
+            if !on_sample && (j + 1 >= self.len() || self.t_s[j + 1] - self.t_s[j] > gap_s) {
+                continue; // inside a gap: nothing to interpolate from
+            }
+            // Throttle: row i is held from t_i to t_(i+1); average over [t, t + 10 ms).
+            let (mut sum, mut covered, mut i) = (0.0, 0.0, j);
+            while i < self.len() && self.t_s[i] < t + STEP_S - 1e-12 {
+                let from = self.t_s[i].max(t);
+                let to = self.t_s.get(i + 1).map_or(t + STEP_S, |n| n.min(t + STEP_S));
+                if to > from {
+                    sum += self.u_pct[i] * (to - from);
+                    covered += to - from;
+                }
+                i += 1;
+            }
+            out.t_s.push(t);
+            out.u_pct.push(if covered > 0.0 { sum / covered } else { self.u_pct[j] });
+            if self.has_thrust() {
+                let y = if on_sample {
+                    self.thrust_n[j]
+                } else {
+                    let w = (t - self.t_s[j]) / (self.t_s[j + 1] - self.t_s[j]);
+                    self.thrust_n[j] + w * (self.thrust_n[j + 1] - self.thrust_n[j])
+                };
+                out.thrust_n.push(y);
+            }
+        }
+        out
+    }
+
+    /// For each row, how many 10 ms model steps it is after the previous one (0 for
+    /// the first): 1 between consecutive samples, more across lost rows or at a lower
+    /// rate. Robust to jitter and to a clock a little off 100 Hz: each interval is
+    /// rounded on its own.
+    pub fn grid_steps(&self) -> Vec<usize> {
+        std::iter::once(0)
+            .chain(self.t_s.windows(2).map(|w| ((w[1] - w[0]) / STEP_S).round().max(1.0) as usize))
+            .collect()
     }
 
     /// Reads a CSV (`time_s,throttle_pct[,thrust_n]`, extra columns ignored).
     pub fn from_csv<R: Read>(reader: R, name: &str, require_thrust: bool) -> Result<Series, DataError> {
+        let series = Self::parse_csv(reader, name, require_thrust)?;
+        series.check()?;
+        Ok(series)
+    }
+
+    /// Reads a CSV at any uniform rate and brings it to 100 Hz ([`Series::to_100hz`]),
+    /// with a note of what was done.
+    pub fn from_csv_any_rate<R: Read>(
+        reader: R,
+        name: &str,
+        require_thrust: bool,
+    ) -> Result<(Series, Option<String>), DataError> {
+        let series = Self::parse_csv(reader, name, require_thrust)?;
+        series.check_values()?;
+        let (series, note) = series.to_100hz()?;
+        series.check_values()?;
+        Ok((series, note))
+    }
+
+    fn parse_csv<R: Read>(reader: R, name: &str, require_thrust: bool) -> Result<Series, DataError> {
         let invalid = |message: String| DataError::Invalid { path: name.to_owned(), message };
         let mut csv = csv::ReaderBuilder::new().trim(csv::Trim::All).comment(Some(b'#')).from_reader(reader);
         let header = csv.headers().map_err(|e| invalid(format!("cannot read the CSV header: {e}")))?.clone();
@@ -165,12 +306,18 @@ impl Series {
                 series.thrust_n.push(field(c, "thrust_n")?);
             }
         }
-        series.check()?;
         Ok(series)
     }
 
     /// Reads identification data from a recording (see the module docs).
     pub fn from_recording(recording: &Recording, name: &str) -> Result<Series, DataError> {
+        Self::from_recording_noted(recording, name).map(|(series, _)| series)
+    }
+
+    /// [`Series::from_recording`], with a note of the rows left out because the throttle
+    /// the board applied is not known there: the board had not acknowledged the command
+    /// (`UNACKED`) or was silent (`BOARD_SILENT`). They become gaps, as lost rows do.
+    pub fn from_recording_noted(recording: &Recording, name: &str) -> Result<(Series, Option<String>), DataError> {
         let invalid = |message: String| DataError::Invalid { path: name.to_owned(), message };
         let thrust = recording.samples(channels::THRUST);
         let mut actuation = recording.samples(channels::ACTUATION);
@@ -184,16 +331,22 @@ impl Series {
         let mut series = Series { name: name.to_owned(), ..Series::default() };
         let origin_frame = thrust[0].frame_seq;
         let mut next_actuation = 0;
-        let mut applied: Option<f64> = None;
+        let mut applied: Option<(f64, u32)> = None;
+        let mut unknown = 0usize;
         for (k, sample) in thrust.iter().enumerate() {
             // The throttle held until the next sample: the last one published before it.
             let until_ns = thrust.get(k + 1).map_or(sample.stamp_ns + (STEP_S * 1e9) as u64, |next| next.stamp_ns);
             while next_actuation < actuation.len() && actuation[next_actuation].publish_ns < until_ns {
-                applied = Some(actuation[next_actuation].applied_pct);
+                let a = &actuation[next_actuation];
+                applied = Some((a.applied_pct, a.flags));
                 next_actuation += 1;
             }
             // Before the first applied throttle the input is unknown: start after it.
-            let Some(u) = applied else { continue };
+            let Some((u, flags)) = applied else { continue };
+            if flags & (actuation_flags::UNACKED | actuation_flags::BOARD_SILENT) != 0 {
+                unknown += 1;
+                continue;
+            }
             // Time from the sensor's own frame counter: frames are sent every 10 ms,
             // while the receive stamps jitter with the PC's load. A lost frame still
             // shows as a gap.
@@ -206,7 +359,14 @@ impl Series {
             series.thrust_n.push(sample.thrust_n);
         }
         series.check()?;
-        Ok(series)
+        let note = (unknown > 0).then(|| {
+            format!(
+                "{name}: {unknown} row(s) ({:.1} %) left out: the board had not acknowledged the throttle or was \
+                 silent, so what it applied is not known",
+                100.0 * unknown as f64 / thrust.len() as f64
+            )
+        });
+        Ok((series, note))
     }
 
     /// Loads a CSV or MCAP file (told apart by the MCAP magic bytes).
@@ -222,6 +382,21 @@ impl Series {
         } else {
             Series::from_csv(bytes.as_slice(), &name, require_thrust)
         }
+    }
+
+    /// Like [`Series::load`], but a CSV at another uniform rate is brought to 100 Hz
+    /// ([`Series::to_100hz`]) instead of refused; the note says what was done.
+    pub fn load_any_rate(path: &Path, require_thrust: bool) -> Result<(Series, Option<String>), DataError> {
+        let name = path.display().to_string();
+        let bytes = std::fs::read(path).map_err(|source| DataError::Read { path: path.into(), source })?;
+        if bytes.starts_with(mcap_magic()) {
+            let recording = Recording::open(path)?;
+            let (series, note) = Series::from_recording_noted(&recording, &name)?;
+            let truncated = recording.truncated.then(|| format!("{name} is truncated; the data up to its last chunk"));
+            let notes: Vec<String> = truncated.into_iter().chain(note).collect();
+            return Ok((series, (!notes.is_empty()).then(|| notes.join("; "))));
+        }
+        Series::from_csv_any_rate(bytes.as_slice(), &name, require_thrust)
     }
 
     /// Writes `time_s,throttle_pct[,thrust_n]` with the shortest text that reads
@@ -292,6 +467,53 @@ mod tests {
             let e = csv(text).unwrap_err().to_string();
             assert!(e.contains(expected), "{text:?}: {e}");
         }
+    }
+
+    fn rows(period_s: f64, n: usize, thrust: impl Fn(f64) -> f64, throttle: impl Fn(usize) -> f64) -> String {
+        let mut text = String::from("time_s,throttle_pct,thrust_n\n");
+        for k in 0..n {
+            let t = k as f64 * period_s;
+            text.push_str(&format!("{t},{},{}\n", throttle(k), thrust(t)));
+        }
+        text
+    }
+
+    #[test]
+    fn other_rates_are_brought_to_100_hz_with_a_note_or_refused_with_how() {
+        let any = |text: &str| Series::from_csv_any_rate(text.as_bytes(), "r.csv", true);
+        // 100 Hz: as it is, no note.
+        let (s, note) = any(&rows(0.01, 50, |t| t, |_| 30.0)).unwrap();
+        assert!(note.is_none() && s.len() == 50);
+        // 200 Hz: every other sample's thrust, the throttle averaged over each 10 ms.
+        let (s, note) = any(&rows(0.005, 400, |t| 3.0 * t, |k| if k % 2 == 0 { 30.0 } else { 40.0 })).unwrap();
+        assert!(note.unwrap().contains("resampled to 100 Hz"));
+        assert_eq!(s.len(), 200);
+        assert!(s.median_period_s() > 0.00999 && s.median_period_s() < 0.01001);
+        for k in 0..200 {
+            assert!((s.thrust_n[k] - 3.0 * s.t_s[k]).abs() < 1e-9, "row {k}");
+            assert!((s.u_pct[k] - 35.0).abs() < 1e-9, "row {k}: {}", s.u_pct[k]);
+        }
+        s.check().unwrap();
+        // 130 Hz: interpolated, still exact on a straight line.
+        let (s, _) = any(&rows(1.0 / 130.0, 400, |t| 5.0 + 2.0 * t, |_| 50.0)).unwrap();
+        assert!(s.thrust_n.iter().zip(&s.t_s).all(|(y, t)| (y - 5.0 - 2.0 * t).abs() < 1e-9));
+        s.check().unwrap();
+        // 50 Hz: the rows as they are, two model steps apart.
+        let (s, note) = any(&rows(0.02, 100, |t| t, |_| 30.0)).unwrap();
+        assert!(note.unwrap().contains("held for 2 steps"));
+        assert!(s.grid_steps()[1..].iter().all(|&g| g == 2));
+        // 75 Hz: refused, saying how.
+        let e = any(&rows(1.0 / 75.0, 100, |t| t, |_| 30.0)).unwrap_err().to_string();
+        assert!(e.contains("75.0 Hz") && e.contains("resample it to 100 Hz first"), "{e}");
+        // Garbage is still an error.
+        assert!(any("time_s,throttle_pct,thrust_n\n0,25,1\n0.005,25,x\n").is_err());
+    }
+
+    #[test]
+    fn grid_steps_count_lost_rows_through_jitter() {
+        let t = [0.0, 0.0102, 0.0199, 0.0401, 0.05, 0.0899];
+        let s = Series { name: "j".into(), u_pct: vec![25.0; 6], thrust_n: vec![0.0; 6], t_s: t.to_vec() };
+        assert_eq!(s.grid_steps(), vec![0, 1, 1, 2, 1, 4]);
     }
 
     #[test]

@@ -7,9 +7,9 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context};
 use jetbench_ident::excite::{self, MIN_SAMPLES};
-use jetbench_ident::synth;
+use jetbench_ident::synth::{self, Bench};
 use jetbench_ident::validate;
-use jetbench_model::{resolve_model, resolve_params, Effect, EffectKind, State};
+use jetbench_model::{resolve_model, resolve_params, Effect, EffectKind};
 use jetbench_record::series::Series;
 
 /// Arguments of `jetbench simulate`.
@@ -42,45 +42,24 @@ pub fn simulate(args: SimulateArgs) -> anyhow::Result<ExitCode> {
     // Without effects the plant is the ten-parameter engine, bit for bit.
     let plant = resolve_model(&args.model)?.plant();
     let input = Series::load(&args.input, false)?;
-    let t0_s = input.t_s[0];
-    let initial = if input.has_thrust() {
-        validate::fit_initial_state_at(&plant, t0_s, &input.thrust_n, &input.u_pct)
-    } else {
-        State { thrust_n: plant.params.stable_equilibrium(input.u_pct[0]).unwrap_or(0.0), thrust_rate_n_per_s: 0.0 }
-    };
-    let mut thrust = Vec::new();
     if input.runs().len() > 1 {
         eprintln!("warning: the input has gaps in time; it is simulated as one run with the throttle held over them");
     }
-    let diverged = plant.free_run(t0_s, initial, &input.u_pct, &mut thrust);
-    let mut out: Box<dyn Write> = match &args.out {
+    let run = validate::simulate_input(&plant, &input);
+    let out: Box<dyn Write> = match &args.out {
         Some(p) => Box::new(BufWriter::new(File::create(p).with_context(|| format!("cannot create {}", p.display()))?)),
         None => Box::new(std::io::stdout().lock()),
     };
-    let measured = input.has_thrust();
-    writeln!(out, "time_s,throttle_pct,thrust_n{}", if measured { ",measured_n" } else { "" })?;
-    for (k, simulated) in thrust.iter().enumerate().take_while(|(_, t)| !t.is_nan()) {
-        write!(out, "{:?},{:?},{:?}", input.t_s[k], input.u_pct[k], simulated)?;
-        if measured {
-            write!(out, ",{:?}", input.thrust_n[k])?;
-        }
-        writeln!(out)?;
-    }
-    out.flush()?;
-    if let Some(at) = diverged {
+    validate::write_simulation_csv(out, &input, &run.thrust_n)?;
+    if let Some(at) = run.diverged_at_s {
         bail!(
             "the model diverged {at:.2} s into the run (t = {:.2} s); output stops there. The model is only locally \
              valid: check it with `jetbench identify` or keep the throttle where it was identified",
             input.t_s[0] + at
         );
     }
-    if measured {
-        if let Some(s) = validate::score(input.thrust_n.iter().copied().zip(thrust.iter().copied())) {
-            eprintln!(
-                "against the measured thrust: MAE {:.3} N, RMSE {:.3} N, fit {:.1} %",
-                s.mae_n, s.rmse_n, s.fit_pct
-            );
-        }
+    if let Some(s) = validate::score(input.thrust_n.iter().copied().zip(run.thrust_n.iter().copied())) {
+        eprintln!("against the measured thrust: MAE {:.3} N, RMSE {:.3} N, fit {:.1} %", s.mae_n, s.rmse_n, s.fit_pct);
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -160,9 +139,18 @@ pub struct SimRecordArgs {
     /// Length of the generated campaign, s.
     #[arg(long, default_value_t = 300.0, value_name = "SECONDS")]
     duration: f64,
-    /// Measurement noise variance, N² (P100 bench: about 7).
+    /// Measurement noise variance, N² (P100 bench: about 7), coloured or not.
     #[arg(long, default_value_t = 7.0, value_name = "N2")]
     noise_var: f64,
+    /// Coloured sensor noise: AR coefficients, e.g. `0.6` or `1.2,-0.45` (default: white).
+    #[arg(long, value_delimiter = ',', value_name = "PHI,...", allow_hyphen_values = true)]
+    noise_ar: Vec<f64>,
+    /// Fraction of samples hit by a CAN spike of 20-40 N, e.g. 0.002.
+    #[arg(long, default_value_t = 0.0, value_name = "FRACTION")]
+    spikes: f64,
+    /// Fraction of rows lost from the file, e.g. 0.01.
+    #[arg(long, default_value_t = 0.0, value_name = "FRACTION")]
+    drop: f64,
     /// Output CSV (`time_s,throttle_pct,thrust_n`).
     #[arg(long, value_name = "FILE.csv")]
     out: PathBuf,
@@ -172,14 +160,12 @@ pub struct SimRecordArgs {
 fn sim_record_help() -> String {
     let mut help = String::from(
         "Runs the plant from rest at the first throttle (effects at rest there too), measured every 10 ms \
-         with white Gaussian noise, as the simulated bench measures it, much faster than real time.\n\n\
+         with Gaussian noise (white, or AR with --noise-ar), as the simulated bench measures it, at the bench's \
+         resolution (0.01 s, 0.01 %, 0.01 N), much faster than real time. --spikes and --drop add what a \
+         real bench adds: CAN spikes and lost rows.\n\n\
          Effects (--effect NAME:KEY=VALUE,..., or [effects.NAME] with the same keys in a model file):\n",
     );
-    for kind in EffectKind::ALL {
-        let keys: Vec<String> =
-            kind.keys().iter().zip(kind.bounds()).map(|(key, (lo, hi))| format!("{key}=[{lo}, {hi}]")).collect();
-        help.push_str(&format!("  {}:{}\n      {}\n", kind.name(), keys.join(","), kind.physics()));
-    }
+    help.push_str(&EffectKind::catalogue_help());
     help.push_str(
         "\nExamples:\n  \
          jetbench sim-record --model p220-kerosene --seed 3 --out p220.csv\n  \
@@ -204,30 +190,26 @@ pub fn sim_record(args: SimRecordArgs) -> anyhow::Result<ExitCode> {
             excite::campaign(args.duration, args.seed).profile
         }
     };
-    // At the bench's resolution: the board takes the throttle in 0.01 % units and the
-    // sensor reports force in 0.01 N steps (design.md, "Bench protocols").
-    let mut profile = profile;
-    quantize(&mut profile.u_pct, 0.01);
-    quantize(&mut profile.t_s, 0.01);
-    let mut recording = synth::record_plant(&plant, &profile, args.noise_var, args.seed.wrapping_add(0x5eed))?;
-    quantize(&mut recording.thrust_n, 0.01);
+    let bench = Bench {
+        noise_var_n2: args.noise_var,
+        noise_ar: args.noise_ar.clone(),
+        spike_fraction: args.spikes,
+        drop_fraction: args.drop,
+        resolution: true,
+        ..Bench::default()
+    };
+    let recording = synth::record_bench(&plant, &profile, &bench, args.seed.wrapping_add(0x5eed))?;
     write_csv(&recording, &args.out)?;
     println!(
-        "{}: {} samples of {} (effects: {}) with noise variance {} N²",
+        "{}: {} samples of {} (effects: {}) with noise variance {} N²{}",
         args.out.display(),
         recording.len(),
         args.model,
         plant.effects,
-        args.noise_var
+        args.noise_var,
+        if args.noise_ar.is_empty() { String::new() } else { format!(", AR {:?}", args.noise_ar) }
     );
     Ok(ExitCode::SUCCESS)
-}
-
-/// Rounds every value to a multiple of `step`.
-fn quantize(values: &mut [f64], step: f64) {
-    for v in values {
-        *v = (*v / step).round() * step;
-    }
 }
 
 /// Arguments of `jetbench export`.

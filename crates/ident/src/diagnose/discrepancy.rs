@@ -1,192 +1,269 @@
-//! A generic sparse model of what the catalogue may not name: the residual regressed
-//! on a library of candidate terms by sequentially thresholded least squares.
+//! Which terms of the discrepancy library ([`jetbench_model::discrepancy`]) explain
+//! what the current model leaves: a sparse selection on output sensitivities.
 //!
-//! The terms are built from the model's own noise-free simulation (its thrust, rate
-//! and acceleration), the throttle and time, so they carry no measurement noise and
-//! the regression is not biased by errors in its variables. Each term reads as
-//! physics: `dT/dt` is a timing error (the coefficient is a lead in seconds), `T` a
-//! gain error, `sign(dT/dt)` a band that follows the direction of change, `t·T` a
-//! gain that drifts over the run, `T_slow` a bias that follows thrust history.
+//! The terms act inside the engine (extra thrust acceleration), so what they do to
+//! the measured thrust is found by simulation: each term of the library, at each of a
+//! few shapes (a knot every 5 % of throttle within the recorded range, thrust-history
+//! time constants from 5 s to 3 min), is added with a small coefficient and the
+//! change of the simulated output, per unit coefficient, is its sensitivity column.
+//! Linearised around the current model, the residual is then a sparse combination
+//! of columns. Forward selection picks, term by term, the column that lowers the
+//! calibration error most (one shape per term family); each prefix is scored on the
+//! validation samples with the same BIC penalty as every hypothesis (a coefficient,
+//! plus its knot or time constant), and the best prefix is kept only if it beats no
+//! term at all. Its coefficients start the joint nonlinear fit of the hypothesis.
 
+use jetbench_model::discrepancy::{DiscrepancyTerm, DISCREPANCY_DEFAULTS, DISCREPANCY_KEYS, DISCREPANCY_TERMS};
+use jetbench_model::{EffectKind, Effects, Plant};
 use nalgebra::{DMatrix, DVector};
-use serde::Serialize;
 
-use jetbench_model::STEP_S;
+use super::fit::{Fit, Spec};
+use super::problem::{Part, Problem, Sim};
 
-use super::fit::{Part, Problem, Sim};
+/// Most terms a discrepancy takes.
+pub const MAX_TERMS: usize = 4;
+/// Thrust-history time constants tried, s.
+const HISTORY_S: [f64; 5] = [5.0, 12.0, 30.0, 75.0, 180.0];
+/// Spacing of the knots tried, % throttle.
+const KNOT_STEP_PCT: f64 = 5.0;
 
-/// Terms of the library, with the unit of their coefficient.
-const TERMS: [(&str, &str); 10] = [
-    ("1", "N"),
-    ("T", "1"),
-    ("T^2", "1/N"),
-    ("dT/dt", "s"),
-    ("d2T/dt2", "s^2"),
-    ("sign(dT/dt)", "N"),
-    ("u", "N/%"),
-    ("t", "N/min"),
-    ("t*T", "1/min"),
-    ("T_slow", "1"),
-];
-/// Time constant of the slow-thrust term, s.
-const SLOW_S: f64 = 30.0;
-/// Rate at which `sign(dT/dt)` is half way to ±1, N/s.
-const SIGN_SCALE_N_PER_S: f64 = 2.0;
-
-/// One term kept by the sparse regression.
-#[derive(Clone, Debug, Serialize)]
-pub struct Term {
-    pub term: &'static str,
-    pub coefficient: f64,
-    /// Unit of the coefficient.
-    pub unit: &'static str,
-    /// RMS of its contribution to the residual, N.
-    pub rms_n: f64,
+/// One column of the library: a term at one shape.
+#[derive(Clone, Copy, Debug)]
+struct Column {
+    term: DiscrepancyTerm,
+    /// The shape value (knot %, time constant s), when the term has one.
+    shape: Option<f64>,
+    /// Coefficient used to probe the sensitivity (small: the output moves by a fraction of a newton).
+    probe: f64,
 }
 
-/// The sparse discrepancy model of one residual.
-#[derive(Clone, Debug, Serialize)]
-pub struct Discrepancy {
-    /// Terms kept, largest contribution first; empty when nothing stands out.
-    pub terms: Vec<Term>,
-    /// Validation MAE of the model alone, N.
-    pub mae_val_before_n: f64,
-    /// Validation MAE with the discrepancy added to the model's output, N.
-    pub mae_val_after_n: f64,
-}
+impl Column {
+    /// Parameters it costs: the coefficient and its shape.
+    fn cost(&self) -> usize {
+        1 + usize::from(self.shape.is_some())
+    }
 
-impl Discrepancy {
-    /// `r ≈ 0.081·dT/dt − 1.20·sign(dT/dt)`.
-    pub fn equation(&self) -> String {
-        if self.terms.is_empty() {
-            return "r ≈ 0 (no term stands out)".to_owned();
+    fn label(&self) -> String {
+        let key = DISCREPANCY_KEYS[self.term.coefficient];
+        match (self.term.shape, self.shape) {
+            (Some(s), Some(v)) => format!("{key} ({} = {v})", DISCREPANCY_KEYS[s]),
+            _ => key.to_owned(),
         }
-        let parts: Vec<String> = self.terms.iter().map(|t| format!("{:+.4}·{}", t.coefficient, t.term)).collect();
-        format!("r ≈ {}", parts.join(" ").trim_start_matches('+'))
     }
 }
 
-/// Library rows for series `i`, aligned with `rows` (all rows of its runs).
-fn library(problem: &Problem<'_>, sim: &Sim, i: usize, rows: &[usize]) -> Vec<[f64; TERMS.len()]> {
-    let s = &problem.data[i];
-    let mut out = Vec::with_capacity(rows.len());
-    for piece in rows.chunk_by(|a, b| b == &(a + 1)) {
-        let y: Vec<f64> = piece.iter().map(|&k| sim[i][k]).collect();
-        let n = y.len();
-        let diff = |x: &[f64], j: usize| {
-            let (a, b) = (j.saturating_sub(1), (j + 1).min(n - 1));
-            if b > a {
-                (x[b] - x[a]) / ((b - a) as f64 * STEP_S)
-            } else {
-                0.0
-            }
-        };
-        let rate: Vec<f64> = (0..n).map(|j| diff(&y, j)).collect();
-        let alpha = 1.0 - (-STEP_S / SLOW_S).exp();
-        let mut slow = y.first().copied().unwrap_or(0.0);
-        for (j, &k) in piece.iter().enumerate() {
-            slow += (y[j] - slow) * alpha;
-            let t_min = s.t_s[k] / 60.0;
-            out.push([
-                1.0,
-                y[j],
-                y[j] * y[j],
-                rate[j],
-                diff(&rate, j),
-                (rate[j] / SIGN_SCALE_N_PER_S).tanh(),
-                s.u_pct[k],
-                t_min,
-                t_min * y[j],
-                slow,
-            ]);
+/// The terms chosen and where the nonlinear fit starts.
+#[derive(Clone, Debug)]
+pub(crate) struct Selection {
+    /// Every value of the discrepancy effect (chosen coefficients and shapes; the rest 0 or default).
+    pub values: Vec<f64>,
+    /// Which of them are free in the fit.
+    pub free: Vec<usize>,
+    /// Their scales: the change that moves the output by about 1 N RMS.
+    pub scale: Vec<f64>,
+    /// The columns chosen, in words.
+    pub columns: Vec<String>,
+}
+
+fn library(problem: &Problem<'_>, history_max_s: f64) -> Vec<Column> {
+    let mut u: Vec<f64> = problem.runs.iter().flat_map(|r| r.u.iter().copied()).collect();
+    u.sort_by(f64::total_cmp);
+    let q = |f: f64| u.get(((u.len().saturating_sub(1)) as f64 * f) as usize).copied().unwrap_or(50.0);
+    let (lo, hi) = (q(0.05) + 1.0, q(0.95) - 1.0);
+    let knots: Vec<f64> = (5..=20).map(|i| i as f64 * KNOT_STEP_PCT).filter(|k| (lo..=hi).contains(k)).collect();
+    let mut out = Vec::new();
+    for term in DISCREPANCY_TERMS {
+        match term.coefficient {
+            0 | 2 => out.extend(knots.iter().map(|&k| Column { term, shape: Some(k), probe: 0.02 })),
+            4 => out.extend(HISTORY_S.iter().filter(|&&t| t <= history_max_s).map(|&t| Column {
+                term,
+                shape: Some(t),
+                probe: 2e-5,
+            })),
+            7 => out.push(Column { term, shape: None, probe: 1e-7 }),
+            _ => out.push(Column { term, shape: None, probe: 1e-8 }),
         }
     }
     out
 }
 
-/// Fits the sparse discrepancy model of `measured − sim` on the calibration rows and
-/// scores it on the validation rows. `threshold_n`: a term is kept only when its
-/// contribution has at least this RMS.
-pub(crate) fn fit(problem: &Problem<'_>, sim: &Sim, threshold_n: f64) -> Discrepancy {
-    let p = TERMS.len();
-    let (mut rows_cal, mut r_cal) = (Vec::new(), Vec::new());
-    let (mut rows_val, mut r_val) = (Vec::new(), Vec::new());
-    for i in 0..problem.data.len() {
-        let rows: Vec<usize> = problem.rows(i, Part::All).collect();
-        let lib = library(problem, sim, i, &rows);
-        for (&k, theta) in rows.iter().zip(lib) {
-            let r = problem.data[i].thrust_n[k] - sim[i][k];
-            if k < problem.cut[i] {
-                rows_cal.push(theta);
-                r_cal.push(r);
-            } else {
-                rows_val.push(theta);
-                r_val.push(r);
-            }
-        }
-    }
-    let n = rows_cal.len().max(1) as f64;
-    // Column scales: the RMS of each term (its contribution per unit coefficient).
-    let scale: Vec<f64> =
-        (0..p).map(|j| (rows_cal.iter().map(|row| row[j] * row[j]).sum::<f64>() / n).sqrt().max(1e-12)).collect();
-    let mut gram = DMatrix::<f64>::zeros(p, p);
-    let mut rhs = DVector::<f64>::zeros(p);
-    for (row, &r) in rows_cal.iter().zip(&r_cal) {
-        for a in 0..p {
-            let xa = row[a] / scale[a];
-            rhs[a] += xa * r;
-            for b in a..p {
-                gram[(a, b)] += xa * row[b] / scale[b];
-            }
-        }
-    }
-    for a in 0..p {
-        for b in 0..a {
-            gram[(a, b)] = gram[(b, a)];
-        }
-    }
-    gram /= n;
-    rhs /= n;
-    let mut active: Vec<usize> = (0..p).collect();
-    let mut w = vec![0.0; p];
-    for _ in 0..20 {
-        if active.is_empty() {
-            break;
-        }
-        let m = active.len();
-        let sub = DMatrix::from_fn(m, m, |a, b| gram[(active[a], active[b])] + if a == b { 1e-9 } else { 0.0 });
-        let sub_rhs = DVector::from_fn(m, |a, _| rhs[active[a]]);
-        let Some(sol) = sub.cholesky().map(|c| c.solve(&sub_rhs)) else { break };
-        w.fill(0.0);
-        for (a, &j) in active.iter().enumerate() {
-            w[j] = sol[a];
-        }
-        // The contribution of a term is its scaled coefficient (N RMS); the constant
-        // is judged the same way.
-        let kept: Vec<usize> = active.iter().copied().filter(|&j| w[j].abs() >= threshold_n).collect();
-        if kept.len() == active.len() {
-            break;
-        }
-        active = kept;
-    }
-    for (j, wj) in w.iter_mut().enumerate() {
-        if !active.contains(&j) {
-            *wj = 0.0;
-        }
-    }
-    let predict = |row: &[f64; TERMS.len()]| (0..p).map(|j| w[j] * row[j] / scale[j]).sum::<f64>();
-    let mae = |rows: &[[f64; TERMS.len()]], r: &[f64], corrected: bool| {
-        rows.iter().zip(r).map(|(row, &ri)| (ri - if corrected { predict(row) } else { 0.0 }).abs()).sum::<f64>()
-            / r.len().max(1) as f64
-    };
-    let mut terms: Vec<Term> = active
+/// Sensitivity of the simulated output to each column, per run on its grid (NaN where
+/// there is no sample).
+fn sensitivities(
+    problem: &Problem<'_>,
+    fixed: &Effects,
+    current: &Spec,
+    sim: &Sim,
+    columns: &[Column],
+) -> Vec<Option<Vec<Vec<f64>>>> {
+    let mut probe_sim = Sim::new();
+    columns
         .iter()
-        .map(|&j| Term { term: TERMS[j].0, coefficient: w[j] / scale[j], unit: TERMS[j].1, rms_n: w[j].abs() })
-        .collect();
-    terms.sort_by(|a, b| b.rms_n.total_cmp(&a.rms_n));
-    Discrepancy {
-        terms,
-        mae_val_before_n: mae(&rows_val, &r_val, false),
-        mae_val_after_n: mae(&rows_val, &r_val, true),
+        .map(|c| {
+            let mut values = DISCREPANCY_DEFAULTS.to_vec();
+            values[c.term.coefficient] = c.probe;
+            if let (Some(s), Some(v)) = (c.term.shape, c.shape) {
+                values[s] = v;
+            }
+            let spec = current.with(EffectKind::Discrepancy, values);
+            let plant: Plant = spec.plant(fixed)?;
+            problem.simulate(&plant, &spec.states, false, &mut probe_sim).ok()?;
+            Some(
+                problem
+                    .runs
+                    .iter()
+                    .enumerate()
+                    .map(|(i, run)| {
+                        (0..run.y.len())
+                            .map(
+                                |k| {
+                                    if run.y[k].is_finite() {
+                                        (probe_sim[i][k] - sim[i][k]) / c.probe
+                                    } else {
+                                        f64::NAN
+                                    }
+                                },
+                            )
+                            .collect()
+                    })
+                    .collect(),
+            )
+        })
+        .collect()
+}
+
+/// Innovations of `columns` (one vector per run) over `part`, in the order of
+/// [`Problem::innovations`].
+fn whitened(problem: &Problem<'_>, runs: &[Vec<f64>], part: Part) -> Vec<f64> {
+    let mut out = Vec::new();
+    problem.whiten_part(runs, part, &mut out);
+    out
+}
+
+/// Selects discrepancy terms for the residual of `current` (simulated as `sim`).
+/// `None` when no term helps on held-out data (or a discrepancy is already there).
+pub(crate) fn select(problem: &Problem<'_>, fixed: &Effects, current: &Spec, sim: &Sim) -> Option<Selection> {
+    if current.has(EffectKind::Discrepancy) || fixed.get(EffectKind::Discrepancy).is_some() {
+        return None;
     }
+    let columns = library(problem, current.history_max_s);
+    let sens = sensitivities(problem, fixed, current, sim, &columns);
+    let residual: Vec<Vec<f64>> = (0..problem.runs.len()).map(|i| problem.residual(i, sim)).collect();
+    let (r_cal, r_val) =
+        (whitened(problem, &residual, Part::Calibration), whitened(problem, &residual, Part::Validation));
+    // Columns usable: simulated, and as long as the residual (no divergence).
+    let mut usable = Vec::new();
+    let (mut cal, mut val) = (Vec::new(), Vec::new());
+    for (c, s) in sens.iter().enumerate() {
+        let Some(s) = s else { continue };
+        let (sc, sv) = (whitened(problem, s, Part::Calibration), whitened(problem, s, Part::Validation));
+        if sc.len() == r_cal.len() && sv.len() == r_val.len() {
+            usable.push(c);
+            cal.push(sc);
+            val.push(sv);
+        }
+    }
+    let p = usable.len();
+    if p == 0 {
+        return None;
+    }
+    let dot = |x: &[f64], y: &[f64]| -> f64 { x.iter().zip(y).map(|(a, b)| a * b).sum() };
+    let gram = DMatrix::from_fn(p, p, |a, b| dot(&cal[a], &cal[b]));
+    let rhs = DVector::from_fn(p, |a, _| dot(&cal[a], &r_cal));
+    let n_val = r_val.len() as f64;
+    let score = |sse: f64, k: usize| n_val * (sse / n_val).ln() + k as f64 * n_val.ln();
+    let base = score(r_val.iter().map(|x| x * x).sum(), 0);
+
+    let solve = |active: &[usize]| -> Option<DVector<f64>> {
+        let m = active.len();
+        let a = DMatrix::from_fn(m, m, |i, j| gram[(active[i], active[j])] * if i == j { 1.0 + 1e-10 } else { 1.0 });
+        let b = DVector::from_fn(m, |i, _| rhs[active[i]]);
+        a.cholesky().map(|c| c.solve(&b))
+    };
+    let val_sse = |active: &[usize], theta: &DVector<f64>| -> f64 {
+        (0..r_val.len())
+            .map(|row| {
+                let pred: f64 = active.iter().zip(theta.iter()).map(|(&a, t)| val[a][row] * t).sum();
+                (r_val[row] - pred).powi(2)
+            })
+            .sum()
+    };
+    let mut active: Vec<usize> = Vec::new();
+    let mut best: Option<(f64, Vec<usize>, DVector<f64>)> = None;
+    while active.len() < MAX_TERMS {
+        let family_used = |a: usize| active.iter().any(|&b| columns[usable[b]].term == columns[usable[a]].term);
+        let step = (0..p)
+            .filter(|&a| !family_used(a))
+            .filter_map(|a| {
+                let mut trial = active.clone();
+                trial.push(a);
+                let theta = solve(&trial)?;
+                let fitted: f64 = trial.iter().zip(theta.iter()).map(|(&i, t)| rhs[i] * t).sum();
+                Some((fitted, a, trial, theta))
+            })
+            .max_by(|x, y| x.0.total_cmp(&y.0));
+        let Some((_, _, trial, theta)) = step else { break };
+        active = trial;
+        let k: usize = active.iter().map(|&a| columns[usable[a]].cost()).sum();
+        let s = score(val_sse(&active, &theta), k);
+        if best.as_ref().is_none_or(|(b, _, _)| s < *b) {
+            best = Some((s, active.clone(), theta));
+        }
+    }
+    let (s, chosen, theta) = best?;
+    if s >= base {
+        return None;
+    }
+    let mut values = DISCREPANCY_DEFAULTS.to_vec();
+    let mut free = Vec::new();
+    let mut scale = vec![1.0; values.len()];
+    let mut labels = Vec::new();
+    for (&a, &coefficient) in chosen.iter().zip(theta.iter()) {
+        let c = columns[usable[a]];
+        let rms = (cal[a].iter().map(|x| x * x).sum::<f64>() / cal[a].len().max(1) as f64).sqrt();
+        values[c.term.coefficient] = coefficient;
+        scale[c.term.coefficient] = if rms > 0.0 { 1.0 / rms } else { c.probe };
+        free.push(c.term.coefficient);
+        if let (Some(i), Some(v)) = (c.term.shape, c.shape) {
+            values[i] = v;
+            scale[i] = if i == 5 { 0.3 * v } else { KNOT_STEP_PCT };
+            free.push(i);
+        }
+        labels.push(c.label());
+    }
+    free.sort_unstable();
+    Some(Selection { values, free, scale, columns: labels })
+}
+
+/// The term of a fitted discrepancy that does nothing: its shape on the edge of the range
+/// a fit may explore (a time constant gone to its bound is a constant), or its coefficient
+/// within two standard errors of zero; the least significant such term.
+pub(crate) fn idle_term(fit: &Fit) -> Option<DiscrepancyTerm> {
+    let values = fit.spec.values(EffectKind::Discrepancy)?;
+    let errors = fit.stderr.iter().find(|(k, _)| *k == EffectKind::Discrepancy).map(|(_, e)| e.as_slice())?;
+    DISCREPANCY_TERMS
+        .iter()
+        .copied()
+        .filter(|t| fit.spec.discrepancy_free.contains(&t.coefficient))
+        .filter_map(|t| {
+            let z = values[t.coefficient].abs() / errors[t.coefficient];
+            let edge = t.shape.is_some_and(|i| {
+                let (lo, hi) = fit.spec.value_bounds(EffectKind::Discrepancy, i);
+                let tolerance = 1e-3 * fit.spec.discrepancy_scale.get(i).copied().unwrap_or(1.0);
+                values[i] - lo <= tolerance || hi - values[i] <= tolerance
+            });
+            (edge || z.is_nan() || z < 2.0).then_some((if edge { 0.0 } else { z }, t))
+        })
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, t)| t)
+}
+
+/// `spec` without `term` (its coefficient 0, no longer fitted); `None` when it was the
+/// last term.
+pub(crate) fn without_term(spec: &Spec, term: DiscrepancyTerm) -> Option<Spec> {
+    let mut values = spec.values(EffectKind::Discrepancy)?.to_vec();
+    values[term.coefficient] = 0.0;
+    let mut next = spec.with(EffectKind::Discrepancy, values);
+    next.discrepancy_free.retain(|&i| i != term.coefficient && Some(i) != term.shape);
+    (!next.discrepancy_free.is_empty()).then_some(next)
 }

@@ -1,10 +1,18 @@
 //! Where a residual is systematic: the statistics a careful engineer looks at before
 //! blaming any physics.
 //!
-//! Every statistic is pooled over the contiguous runs of every file, so a gap never
-//! pairs samples that were not 10 ms apart. Means are judged with a standard error
-//! corrected for the residual's own correlation (an AR(1) effective sample size), so
-//! a slow systematic error is not mistaken for a huge number of independent samples.
+//! Everything is judged against the sensor's own noise model (an AR process estimated
+//! from the data, [`crate::noise`]), not against white noise, so coloured noise is
+//! not mistaken for physics:
+//!
+//! - whiteness is tested on the innovations (the residual prewhitened by the noise
+//!   model): their autocorrelation against ±1.96/√N and the Ljung–Box statistic;
+//! - a mean over `n` samples is significant against the noise's long-run variance
+//!   `σ_w²/(1 − Σφ)²/n`, the variance the mean of `n` samples of that noise has;
+//! - the spectrum is shown relative to the noise model's own spectrum.
+//!
+//! Statistics are pooled over the runs of every file; lost and rejected samples are
+//! skipped, never paired across.
 
 use std::sync::Arc;
 
@@ -14,7 +22,8 @@ use rustfft::{Fft, FftPlanner};
 use serde::Serialize;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
-use super::fit::{Part, Problem, Sim};
+use super::problem::{Problem, Sim};
+use crate::noise::ArModel;
 
 /// Autocorrelation lags shown (0.5 s).
 pub const ACF_LAGS: usize = 50;
@@ -22,23 +31,27 @@ pub const ACF_LAGS: usize = 50;
 pub const LJUNG_BOX_LAGS: usize = 20;
 /// Significance level of every "significant" in a report.
 pub const ALPHA: f64 = 0.01;
-/// A mean is called systematic beyond this many (correlation-corrected) standard errors.
+/// A mean is called systematic beyond this many standard errors.
 pub const T_SIGNIFICANT: f64 = 4.0;
 /// Cross-correlation lags with the throttle change: from −0.5 s to +2 s.
 const XCORR_LAGS: (i64, i64) = (-50, 200);
+/// Lags of the Bartlett correction of the throttle correlation's bound (1 s).
+const BARTLETT_LAGS: usize = 100;
 /// Samples per Welch segment (10.24 s).
 const WELCH_SEGMENT: usize = 1024;
 /// Block length for locating systematic windows (2 s).
 const WINDOW_BLOCK: usize = 200;
 /// Thrust rate below which the engine is called steady, N/s.
 const STEADY_RATE_N_PER_S: f64 = 2.0;
+/// Longest run of missing samples the spectrum interpolates over.
+const SPECTRUM_FILL: usize = 5;
 
-/// Is the residual white noise?
+/// Are the innovations (the residual prewhitened by the noise model) white?
 #[derive(Clone, Debug, Serialize)]
 pub struct Whiteness {
-    /// Autocorrelation at lags 1..=ACF_LAGS (10 ms each).
+    /// Autocorrelation of the innovations at lags 1..=ACF_LAGS (10 ms each).
     pub acf: Vec<f64>,
-    /// 95 % bound of a white residual's autocorrelation, ±1.96/√N.
+    /// 95 % bound of a white sequence's autocorrelation, ±1.96/√N.
     pub bound: f64,
     /// Lags outside the bound (about 5 % of them for white noise).
     pub outside: usize,
@@ -75,7 +88,7 @@ pub struct ClassMean {
     pub mean_n: f64,
     /// RMS residual, N.
     pub rms_n: f64,
-    /// Mean over its correlation-corrected standard error.
+    /// Mean over its standard error under the noise model.
     pub t_stat: f64,
 }
 
@@ -89,12 +102,12 @@ pub struct Drift {
     pub tenths: Vec<(f64, f64, f64)>,
 }
 
-/// Power spectrum of the residual relative to its white (noise) level.
+/// Power spectrum of the residual relative to the noise model's.
 #[derive(Clone, Debug, Serialize)]
 pub struct Spectrum {
     /// Frequencies, Hz.
     pub freq_hz: Vec<f64>,
-    /// Power over the white level (median power at 10–50 Hz, where only noise is).
+    /// Power over the noise model's power at each frequency.
     pub ratio: Vec<f64>,
     /// Mean ratio in bands: (from Hz, to Hz, ratio).
     pub bands: Vec<(f64, f64, f64)>,
@@ -136,19 +149,53 @@ pub struct Analysis {
     pub findings: Vec<String>,
 }
 
+impl Analysis {
+    /// True when something is located beyond a failed whiteness test: a systematic window,
+    /// a class mean or a drift beyond [`T_SIGNIFICANT`], a throttle correlation, power
+    /// above the noise model's. Without any of these a non-white residual is noise a
+    /// little more coloured than its model, not something left out.
+    pub fn systematic(&self) -> bool {
+        self.findings.len() > 1
+    }
+}
+
+/// One run's residual and what it is compared with, on the grid (NaN: no sample).
+struct RunView {
+    file: usize,
+    r: Vec<f64>,
+    /// Innovations at the run's stride (see [`Problem::whiten`]).
+    w: Vec<f64>,
+    yhat: Vec<f64>,
+    rate: Vec<f64>,
+    du: Vec<f64>,
+    t0_s: f64,
+}
+
+impl RunView {
+    fn t(&self, k: usize) -> f64 {
+        self.t0_s + k as f64 * STEP_S
+    }
+
+    /// (residual, index) of the samples present.
+    fn present(&self) -> impl Iterator<Item = (usize, f64)> + '_ {
+        self.r.iter().copied().enumerate().filter(|(_, r)| r.is_finite())
+    }
+}
+
 /// Analyses `measured − sim` over every run of `problem` (both parts).
-pub(crate) fn analyse(problem: &Problem<'_>, sim: &Sim, sigma_n: f64) -> Analysis {
-    let data = problem.data;
-    // Per-run residual, modelled thrust and its rate, and throttle change.
-    let mut runs: Vec<RunView> = Vec::new();
-    for (i, s) in data.iter().enumerate() {
-        let rows: Vec<usize> = problem.rows(i, Part::All).collect();
-        for piece in rows.chunk_by(|a, b| b == &(a + 1)) {
-            let r: Vec<f64> = piece.iter().map(|&k| s.thrust_n[k] - sim[i][k]).collect();
-            let yhat: Vec<f64> = piece.iter().map(|&k| sim[i][k]).collect();
-            let rate: Vec<f64> = (0..piece.len())
+pub(crate) fn analyse(problem: &Problem<'_>, sim: &Sim) -> Analysis {
+    let ar = problem.ar();
+    let runs: Vec<RunView> = problem
+        .runs
+        .iter()
+        .enumerate()
+        .map(|(i, run)| {
+            let r = problem.residual(i, sim);
+            let yhat = sim[i].clone();
+            let n = yhat.len();
+            let rate = (0..n)
                 .map(|j| {
-                    let (a, b) = (j.saturating_sub(1), (j + 1).min(piece.len() - 1));
+                    let (a, b) = (j.saturating_sub(1), (j + 1).min(n.saturating_sub(1)));
                     if b > a {
                         (yhat[b] - yhat[a]) / ((b - a) as f64 * STEP_S)
                     } else {
@@ -156,25 +203,20 @@ pub(crate) fn analyse(problem: &Problem<'_>, sim: &Sim, sigma_n: f64) -> Analysi
                     }
                 })
                 .collect();
-            // The change of the applied throttle at each row (row k holds u[k] from t[k]).
-            let du: Vec<f64> = piece
-                .iter()
-                .enumerate()
-                .map(|(j, &k)| if j == 0 { 0.0 } else { s.u_pct[k] - s.u_pct[k - 1] })
-                .collect();
-            let t: Vec<f64> = piece.iter().map(|&k| s.t_s[k]).collect();
-            runs.push(RunView { file: i, r, yhat, rate, du, t });
-        }
-    }
-    let n: usize = runs.iter().map(|v| v.r.len()).sum();
-    let all_r = || runs.iter().flat_map(|v| v.r.iter().copied());
+            let du = (0..run.u.len()).map(|k| if k == 0 { 0.0 } else { run.u[k] - run.u[k - 1] }).collect();
+            let w = problem.whiten(i, &r);
+            RunView { file: run.series, r, w, yhat, rate, du, t0_s: run.t0_s }
+        })
+        .collect();
+    let n: usize = runs.iter().map(|v| v.present().count()).sum();
+    let all_r = || runs.iter().flat_map(|v| v.present().map(|(_, r)| r));
     let mean_n = all_r().sum::<f64>() / n.max(1) as f64;
     let rms_n = (all_r().map(|x| x * x).sum::<f64>() / n.max(1) as f64).sqrt();
+    let sigma_n = problem.noise.sigma_n;
     let systematic_rms_n = (rms_n * rms_n - sigma_n * sigma_n).max(0.0).sqrt();
+    // Long-run variance of the noise: the variance of a mean of n samples is this over n.
+    let long_run_var = long_run_variance(ar);
 
-    let whiteness = whiteness(&runs, mean_n, n);
-    let rho1 = whiteness.acf.first().copied().unwrap_or(0.0).clamp(0.0, 0.99);
-    let n_eff_factor = (1.0 - rho1) / (1.0 + rho1);
     let class = |name: String, values: &mut dyn Iterator<Item = f64>| -> ClassMean {
         let (mut sum, mut sq, mut count) = (0.0, 0.0, 0usize);
         for v in values {
@@ -183,8 +225,7 @@ pub(crate) fn analyse(problem: &Problem<'_>, sim: &Sim, sigma_n: f64) -> Analysi
             count += 1;
         }
         let mean = sum / count.max(1) as f64;
-        let var = (sq / count.max(1) as f64 - mean * mean).max(1e-12);
-        let se = (var / (count as f64 * n_eff_factor).max(1.0)).sqrt();
+        let se = (long_run_var / count.max(1) as f64).sqrt();
         ClassMean {
             class: name,
             samples: count,
@@ -193,7 +234,6 @@ pub(crate) fn analyse(problem: &Problem<'_>, sim: &Sim, sigma_n: f64) -> Analysi
             t_stat: mean / se,
         }
     };
-
     let by_direction = [("rising", 1.0), ("falling", -1.0), ("steady", 0.0)]
         .into_iter()
         .map(|(name, sign)| {
@@ -206,7 +246,7 @@ pub(crate) fn analyse(problem: &Problem<'_>, sim: &Sim, sigma_n: f64) -> Analysi
             };
             class(
                 name.to_owned(),
-                &mut runs.iter().flat_map(|v| v.r.iter().zip(&v.rate).filter(|(_, &d)| pick(d)).map(|(r, _)| *r)),
+                &mut runs.iter().flat_map(|v| v.present().filter(|(k, _)| pick(v.rate[*k])).map(|p| p.1)),
             )
         })
         .collect();
@@ -223,50 +263,53 @@ pub(crate) fn analyse(problem: &Problem<'_>, sim: &Sim, sigma_n: f64) -> Analysi
             let inside = |y: f64| y >= lo && (y < hi || (b == 4 && y <= hi));
             class(
                 format!("{lo:.0}–{hi:.0} N"),
-                &mut runs.iter().flat_map(|v| v.r.iter().zip(&v.yhat).filter(|(_, &y)| inside(y)).map(|(r, _)| *r)),
+                &mut runs.iter().flat_map(|v| v.present().filter(|(k, _)| inside(v.yhat[*k])).map(|p| p.1)),
             )
         })
         .collect();
 
-    let drift = drift(&runs, n_eff_factor);
-    let input_correlation = input_correlation(&runs, n);
-    let spectrum = spectrum(&runs);
-    let windows = windows(&runs, sigma_n, n_eff_factor);
     let mut analysis = Analysis {
         samples: n,
         mean_n,
         rms_n,
         systematic_rms_n,
-        whiteness,
-        input_correlation,
+        whiteness: whiteness(&runs),
+        input_correlation: input_correlation(&runs, n),
         by_direction,
         by_thrust,
-        drift,
-        spectrum,
-        windows,
+        drift: drift(&runs, long_run_var),
+        spectrum: spectrum(&runs, ar),
+        windows: windows(&runs, long_run_var),
         findings: Vec::new(),
     };
     analysis.findings = findings(&analysis);
     analysis
 }
 
-struct RunView {
-    file: usize,
-    r: Vec<f64>,
-    yhat: Vec<f64>,
-    rate: Vec<f64>,
-    du: Vec<f64>,
-    t: Vec<f64>,
+/// `σ_w²/(1 − Σφ)²`: the spectral density of the noise at zero frequency, in the
+/// units of a variance (the variance of a mean of `n` samples is this over `n`).
+fn long_run_variance(ar: &ArModel) -> f64 {
+    let sum: f64 = ar.phi.iter().sum();
+    ar.innovation_var / (1.0 - sum).powi(2).max(1e-6)
 }
 
-fn whiteness(runs: &[RunView], mean: f64, n: usize) -> Whiteness {
-    let denom: f64 = runs.iter().flat_map(|v| v.r.iter()).map(|x| (x - mean).powi(2)).sum::<f64>().max(1e-300);
+fn whiteness(runs: &[RunView]) -> Whiteness {
+    let present = || runs.iter().flat_map(|v| v.w.iter().copied().filter(|x| x.is_finite()));
+    let n = present().count();
+    let mean = present().sum::<f64>() / n.max(1) as f64;
+    let denom: f64 = present().map(|x| (x - mean).powi(2)).sum::<f64>().max(1e-300) / n.max(1) as f64;
     let acf: Vec<f64> = (1..=ACF_LAGS)
         .map(|lag| {
-            runs.iter()
-                .map(|v| v.r.iter().zip(v.r.iter().skip(lag)).map(|(a, b)| (a - mean) * (b - mean)).sum::<f64>())
-                .sum::<f64>()
-                / denom
+            let (mut sum, mut pairs) = (0.0, 0usize);
+            for v in runs {
+                for (a, b) in v.w.iter().zip(v.w.iter().skip(lag)) {
+                    if a.is_finite() && b.is_finite() {
+                        sum += (a - mean) * (b - mean);
+                        pairs += 1;
+                    }
+                }
+            }
+            sum / pairs.max(1) as f64 / denom
         })
         .collect();
     let nf = n as f64;
@@ -286,13 +329,12 @@ fn whiteness(runs: &[RunView], mean: f64, n: usize) -> Whiteness {
 }
 
 fn input_correlation(runs: &[RunView], n: usize) -> InputCorrelation {
-    let norm = |f: &dyn Fn(&RunView) -> &Vec<f64>| {
-        let m = runs.iter().flat_map(|v| f(v).iter()).sum::<f64>() / n.max(1) as f64;
-        let ss = runs.iter().flat_map(|v| f(v).iter()).map(|x| (x - m).powi(2)).sum::<f64>();
-        (m, ss.max(1e-300).sqrt())
-    };
-    let (mr, sr) = norm(&|v| &v.r);
-    let (mu, su) = norm(&|v| &v.du);
+    let mr = runs.iter().flat_map(|v| v.present().map(|p| p.1)).sum::<f64>() / n.max(1) as f64;
+    let count_du: usize = runs.iter().map(|v| v.du.len()).sum();
+    let mu = runs.iter().flat_map(|v| v.du.iter()).sum::<f64>() / count_du.max(1) as f64;
+    let sr = runs.iter().flat_map(|v| v.present().map(|p| (p.1 - mr).powi(2))).sum::<f64>().max(1e-300).sqrt();
+    // Δu over the samples present, so both norms count the same pairs.
+    let su = runs.iter().flat_map(|v| v.present().map(|(k, _)| (v.du[k] - mu).powi(2))).sum::<f64>().max(1e-300).sqrt();
     let lags: Vec<i64> = (XCORR_LAGS.0..=XCORR_LAGS.1).collect();
     let values: Vec<f64> = lags
         .iter()
@@ -302,8 +344,9 @@ fn input_correlation(runs: &[RunView], n: usize) -> InputCorrelation {
                 let len = v.r.len() as i64;
                 for k in lag.max(0)..len.min(len + lag) {
                     let j = k - lag;
-                    if (0..len).contains(&j) {
-                        sum += (v.r[k as usize] - mr) * (v.du[j as usize] - mu);
+                    let r = v.r[k as usize];
+                    if r.is_finite() && (0..len).contains(&j) {
+                        sum += (r - mr) * (v.du[j as usize] - mu);
                     }
                 }
             }
@@ -312,23 +355,41 @@ fn input_correlation(runs: &[RunView], n: usize) -> InputCorrelation {
         .collect();
     let (peak_index, peak) =
         values.iter().copied().enumerate().max_by(|a, b| a.1.abs().total_cmp(&b.1.abs())).unwrap_or((0, 0.0));
+    // Bartlett: a cross-correlation of two autocorrelated series varies more than 1/N,
+    // by 1 + 2·Σ ρ_r(k)·ρ_Δu(k) (ramps make Δu correlated, coloured noise makes r so).
+    let acf = |f: &dyn Fn(&RunView) -> &Vec<f64>, lag: usize, mean: f64, ss: f64| -> f64 {
+        let mut sum = 0.0;
+        for v in runs {
+            let x = f(v);
+            for (a, b) in x.iter().zip(x.iter().skip(lag)) {
+                if a.is_finite() && b.is_finite() {
+                    sum += (a - mean) * (b - mean);
+                }
+            }
+        }
+        sum / ss
+    };
+    let factor = 1.0
+        + 2.0
+            * (1..=BARTLETT_LAGS)
+                .map(|k| acf(&|v| &v.r, k, mr, sr * sr) * acf(&|v| &v.du, k, mu, su * su))
+                .sum::<f64>();
     InputCorrelation {
         lags_s: lags.iter().map(|&l| l as f64 * STEP_S).collect(),
-        bound: 1.96 / (n as f64).sqrt(),
+        bound: 1.96 * (factor.max(1.0) / n as f64).sqrt(),
         peak_lag_s: lags[peak_index] as f64 * STEP_S,
         peak,
         values,
     }
 }
 
-fn drift(runs: &[RunView], n_eff_factor: f64) -> Drift {
-    let pairs = || runs.iter().flat_map(|v| v.t.iter().copied().zip(v.r.iter().copied()));
+fn drift(runs: &[RunView], long_run_var: f64) -> Drift {
+    let pairs = || runs.iter().flat_map(|v| v.present().map(|(k, r)| (v.t(k), r)));
     let n = pairs().count().max(1) as f64;
     let (mt, mr) = (pairs().map(|p| p.0).sum::<f64>() / n, pairs().map(|p| p.1).sum::<f64>() / n);
     let stt = pairs().map(|(t, _)| (t - mt).powi(2)).sum::<f64>().max(1e-12);
     let slope = pairs().map(|(t, r)| (t - mt) * (r - mr)).sum::<f64>() / stt;
-    let resid_var = pairs().map(|(t, r)| (r - mr - slope * (t - mt)).powi(2)).sum::<f64>() / (n - 2.0).max(1.0);
-    let se = (resid_var / stt / n_eff_factor.max(1e-3)).sqrt();
+    let se = (long_run_var / stt).sqrt();
     let (t_first, t_last) = pairs().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), (t, _)| (a.min(t), b.max(t)));
     let width = (t_last - t_first) / 10.0;
     let tenths = (0..10)
@@ -343,26 +404,53 @@ fn drift(runs: &[RunView], n_eff_factor: f64) -> Drift {
     Drift { slope_n_per_min: slope * 60.0, t_stat: slope / se, tenths }
 }
 
-fn spectrum(runs: &[RunView]) -> Spectrum {
+/// Stretches of the residual with short holes filled by linear interpolation.
+fn filled_pieces(r: &[f64]) -> Vec<Vec<f64>> {
+    let mut pieces = Vec::new();
+    let mut current: Vec<f64> = Vec::new();
+    let mut k = 0;
+    while k < r.len() {
+        if r[k].is_finite() {
+            current.push(r[k]);
+            k += 1;
+            continue;
+        }
+        let hole = r[k..].iter().take_while(|x| !x.is_finite()).count();
+        let next = r.get(k + hole).copied();
+        match (current.last().copied(), next) {
+            (Some(a), Some(b)) if hole <= SPECTRUM_FILL => {
+                current.extend((1..=hole).map(|j| a + (b - a) * j as f64 / (hole + 1) as f64));
+            }
+            _ => pieces.push(std::mem::take(&mut current)),
+        }
+        k += hole;
+    }
+    pieces.push(current);
+    pieces.retain(|p| !p.is_empty());
+    pieces
+}
+
+fn spectrum(runs: &[RunView], ar: &ArModel) -> Spectrum {
     let fft: Arc<dyn Fft<f64>> = FftPlanner::new().plan_fft_forward(WELCH_SEGMENT);
     let window: Vec<f64> = (0..WELCH_SEGMENT)
         .map(|i| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * i as f64 / WELCH_SEGMENT as f64).cos())
         .collect();
+    let window_power: f64 = window.iter().map(|w| w * w).sum();
     let bins = WELCH_SEGMENT / 2 + 1;
     let mut psd = vec![0.0; bins];
     let mut segments = 0usize;
     let mut buffer = vec![Complex::new(0.0, 0.0); WELCH_SEGMENT];
-    for v in runs {
+    for piece in runs.iter().flat_map(|v| filled_pieces(&v.r)) {
         let mut start = 0;
-        while start + WELCH_SEGMENT <= v.r.len() {
-            let seg = &v.r[start..start + WELCH_SEGMENT];
+        while start + WELCH_SEGMENT <= piece.len() {
+            let seg = &piece[start..start + WELCH_SEGMENT];
             let mean = seg.iter().sum::<f64>() / WELCH_SEGMENT as f64;
             for (b, (x, w)) in buffer.iter_mut().zip(seg.iter().zip(&window)) {
                 *b = Complex::new((x - mean) * w, 0.0);
             }
             fft.process(&mut buffer);
             for (p, c) in psd.iter_mut().zip(&buffer) {
-                *p += c.norm_sqr();
+                *p += c.norm_sqr() / window_power;
             }
             segments += 1;
             start += WELCH_SEGMENT / 2;
@@ -378,12 +466,17 @@ fn spectrum(runs: &[RunView]) -> Spectrum {
             peak_ratio: f64::NAN,
         };
     }
-    let mut high: Vec<f64> =
-        freq_hz.iter().zip(&psd).filter(|(f, _)| (10.0..=50.0).contains(*f)).map(|(_, p)| *p).collect();
-    high.sort_by(f64::total_cmp);
-    // The median of a χ²₂-distributed periodogram average is close to its mean for many segments.
-    let white = high.get(high.len() / 2).copied().unwrap_or(1.0).max(1e-300);
-    let ratio: Vec<f64> = psd.iter().map(|p| p / white).collect();
+    // The noise model's power at each bin, in the same units (|FFT|²/Σw² → variance per bin).
+    let noise_power = |f: f64| -> f64 {
+        let omega = 2.0 * std::f64::consts::PI * f * STEP_S;
+        let a = ar
+            .phi
+            .iter()
+            .enumerate()
+            .fold(Complex::new(1.0, 0.0), |acc, (i, p)| acc - Complex::from_polar(*p, -omega * (i + 1) as f64));
+        ar.innovation_var / a.norm_sqr()
+    };
+    let ratio: Vec<f64> = psd.iter().zip(&freq_hz).map(|(p, f)| p / segments as f64 / noise_power(*f)).collect();
     let band = |lo: f64, hi: f64| {
         let v: Vec<f64> = freq_hz.iter().zip(&ratio).filter(|(f, _)| **f > lo && **f <= hi).map(|(_, r)| *r).collect();
         (lo, hi, v.iter().sum::<f64>() / v.len().max(1) as f64)
@@ -399,21 +492,24 @@ fn spectrum(runs: &[RunView]) -> Spectrum {
     Spectrum { freq_hz, ratio, bands, peak_hz, peak_ratio }
 }
 
-fn windows(runs: &[RunView], sigma_n: f64, n_eff_factor: f64) -> Vec<Window> {
-    let se = sigma_n / (WINDOW_BLOCK as f64 * n_eff_factor.max(1e-3)).sqrt().max(1.0);
+fn windows(runs: &[RunView], long_run_var: f64) -> Vec<Window> {
     let mut found: Vec<Window> = Vec::new();
     for v in runs {
-        let mut current: Option<(usize, usize, f64)> = None; // (first block, last block, sign)
         let blocks = v.r.len() / WINDOW_BLOCK;
-        let mean = |b: usize| v.r[b * WINDOW_BLOCK..(b + 1) * WINDOW_BLOCK].iter().sum::<f64>() / WINDOW_BLOCK as f64;
+        let stats = |a: usize, b: usize| -> (f64, usize) {
+            let (sum, count) =
+                v.r[a..b].iter().filter(|x| x.is_finite()).fold((0.0, 0usize), |(s, c), x| (s + x, c + 1));
+            (sum / count.max(1) as f64, count)
+        };
+        let mut current: Option<(usize, usize, f64)> = None; // (first block, last block, sign)
         let close = |c: (usize, usize, f64), found: &mut Vec<Window>| {
             let (a, b) = (c.0 * WINDOW_BLOCK, (c.1 + 1) * WINDOW_BLOCK);
-            let m = v.r[a..b].iter().sum::<f64>() / (b - a) as f64;
-            found.push(Window { file: v.file, start_s: v.t[a], end_s: v.t[b - 1] + STEP_S, mean_n: m });
+            found.push(Window { file: v.file, start_s: v.t(a), end_s: v.t(b - 1) + STEP_S, mean_n: stats(a, b).0 });
         };
         for b in 0..blocks {
-            let m = mean(b);
-            let flagged = m.abs() > T_SIGNIFICANT * se;
+            let (m, count) = stats(b * WINDOW_BLOCK, (b + 1) * WINDOW_BLOCK);
+            let se = (long_run_var / count.max(1) as f64).sqrt();
+            let flagged = count > WINDOW_BLOCK / 2 && m.abs() > T_SIGNIFICANT * se;
             match (current, flagged) {
                 (Some(c), true) if c.2 == m.signum() && c.1 + 1 == b => current = Some((c.0, b, c.2)),
                 (Some(c), true) => {
@@ -442,32 +538,29 @@ fn findings(a: &Analysis) -> Vec<String> {
     let w = &a.whiteness;
     if w.white {
         out.push(format!(
-            "residual is white: Ljung–Box Q({LJUNG_BOX_LAGS}) = {:.1}, p = {:.2}; {} of {ACF_LAGS} autocorrelations \
-             outside ±{:.3}",
+            "residual is white under the noise model: Ljung–Box Q({LJUNG_BOX_LAGS}) = {:.1}, p = {:.2}; {} of \
+             {ACF_LAGS} autocorrelations outside ±{:.3}",
             w.ljung_box_q, w.p_value, w.outside, w.bound
         ));
         return out;
     }
     out.push(format!(
-        "residual is not white: lag-1 autocorrelation {:.3} (white: within ±{:.3}), Ljung–Box Q({LJUNG_BOX_LAGS}) = \
-         {:.0}, p = {:.1e}; systematic part {:.2} N RMS",
+        "residual is not white under the noise model: lag-1 autocorrelation of the innovations {:.3} (white: \
+         within ±{:.3}), Ljung–Box Q({LJUNG_BOX_LAGS}) = {:.0}, p = {:.1e}; systematic part {:.2} N RMS",
         w.acf[0], w.bound, w.ljung_box_q, w.p_value, a.systematic_rms_n
     ));
-    let systematic: Vec<String> = a
-        .by_direction
-        .iter()
-        .filter(|c| c.t_stat.abs() > T_SIGNIFICANT)
-        .map(|c| format!("{} {:+.2} N", c.class, c.mean_n))
-        .collect();
-    if !systematic.is_empty() {
-        out.push(format!("mean residual by direction of change: {}", systematic.join(", ")));
+    let systematic = |classes: &[ClassMean]| -> Vec<String> {
+        classes
+            .iter()
+            .filter(|c| c.t_stat.abs() > T_SIGNIFICANT)
+            .map(|c| format!("{} {:+.2} N", c.class, c.mean_n))
+            .collect()
+    };
+    let directions = systematic(&a.by_direction);
+    if !directions.is_empty() {
+        out.push(format!("mean residual by direction of change: {}", directions.join(", ")));
     }
-    let ops: Vec<String> = a
-        .by_thrust
-        .iter()
-        .filter(|c| c.t_stat.abs() > T_SIGNIFICANT)
-        .map(|c| format!("{} {:+.2} N", c.class, c.mean_n))
-        .collect();
+    let ops = systematic(&a.by_thrust);
     if !ops.is_empty() {
         out.push(format!("mean residual by operating point: {}", ops.join(", ")));
     }
@@ -486,12 +579,12 @@ fn findings(a: &Analysis) -> Vec<String> {
     }
     if let Some(&(lo, hi, ratio)) = a.spectrum.bands.iter().max_by(|p, q| p.2.total_cmp(&q.2)) {
         if ratio > 2.0 {
-            out.push(format!("residual power is concentrated at {lo}–{hi} Hz ({ratio:.1}× the white level)"));
+            out.push(format!("residual power is concentrated at {lo}–{hi} Hz ({ratio:.1}× the noise model's)"));
         }
     }
     if a.spectrum.peak_ratio > 20.0 {
         out.push(format!(
-            "spectral peak at {:.2} Hz ({:.0}× white): a resonance?",
+            "spectral peak at {:.2} Hz ({:.0}× the noise model's): a resonance?",
             a.spectrum.peak_hz, a.spectrum.peak_ratio
         ));
     }

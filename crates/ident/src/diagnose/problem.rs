@@ -1,0 +1,412 @@
+//! The data a diagnosis works on: recordings on the model's 10 ms grid, with what a
+//! bench does to them (lost rows, spikes, coloured noise) accounted for.
+//!
+//! - **Gaps.** Rows are placed on the 10 ms grid by the time between them. A run
+//!   carries on through a gap of up to [`MAX_HELD_GAP_S`] with the last throttle held
+//!   (the convention of every recording: a row's throttle holds until the next row),
+//!   so a lost row costs one comparison, not a restart. Longer gaps split runs.
+//! - **Outliers.** A sample further than [`OUTLIER_Z`] robust standard deviations
+//!   from the median of its neighbours (a CAN spike, a garbled frame) is left out of
+//!   every comparison and counted; the simulation runs on through it.
+//! - **Noise.** The sensor noise is modelled as an AR process from the data alone
+//!   ([`crate::noise::estimate`]). Fits and scores use its innovations (the residual
+//!   prewhitened), the likelihood of coloured noise.
+//!
+//! Every candidate model is simulated over each whole run from the state fitted to
+//! its first two seconds, as a bench engineer would replay a recording through a
+//! simulator: no measurement corrects it. Parameters are fitted on the calibration
+//! samples (the first part of each file) and judged on the validation samples (the
+//! rest). A run is never restarted at the split, because the slow states some
+//! effects add (a sensor bias, a sagging gain) are known only by running through the
+//! recording from its start.
+
+use std::ops::Range;
+
+use jetbench_model::{Plant, State, STEP_S};
+use serde::Serialize;
+
+use crate::noise::{self, ArModel, NoiseEstimate};
+use crate::series::Series;
+use crate::validate::fit_initial_state_at;
+use crate::IdentError;
+
+/// Longest gap a run is simulated through with the throttle held, s.
+pub const MAX_HELD_GAP_S: f64 = 1.0;
+/// A sample this many robust standard deviations from its neighbours' median is an outlier.
+pub const OUTLIER_Z: f64 = 5.5;
+/// Neighbours on each side in the outlier test's median.
+const OUTLIER_HALF_WINDOW: usize = 5;
+/// RK4 steps per 10 ms in every simulation of a diagnosis: within 0.005 N of the
+/// reference 1 kHz integration on every effect, ten times cheaper.
+pub const SUBSTEPS: usize = 1;
+
+/// Which samples a sum runs over.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Part {
+    Calibration,
+    Validation,
+}
+
+/// One run of consecutive rows, on the 10 ms grid.
+#[derive(Clone, Debug)]
+pub(crate) struct Run {
+    pub series: usize,
+    /// The recording's rows in the run.
+    pub rows: Range<usize>,
+    /// Grid index of each row, from the run's first.
+    pub grid: Vec<usize>,
+    /// Throttle on the grid (held over lost rows), %.
+    pub u: Vec<f64>,
+    /// Measured thrust on the grid: NaN where a row is lost or an outlier, N.
+    pub y: Vec<f64>,
+    /// First grid index of the validation part (`y.len()` when the run has none).
+    pub cut: usize,
+    /// Grid steps between the run's samples (1 at 100 Hz, 2 for a 50 Hz file): the
+    /// spacing the noise model and the prewhitening work at.
+    pub stride: usize,
+    pub t0_s: f64,
+    pub initial: State,
+}
+
+impl Run {
+    fn in_part(&self, k: usize, part: Part) -> bool {
+        match part {
+            Part::Calibration => k < self.cut,
+            Part::Validation => k >= self.cut,
+        }
+    }
+}
+
+/// A sample left out as an outlier.
+#[derive(Clone, Debug, Serialize)]
+pub struct Outlier {
+    /// Which file (index in the order given).
+    pub file: usize,
+    pub t_s: f64,
+    /// Its distance from its neighbours' median, N.
+    pub deviation_n: f64,
+}
+
+/// What the data was like, and what was done about it.
+#[derive(Clone, Debug, Serialize)]
+pub struct DataReport {
+    /// The sensor noise model (AR, from the data alone).
+    pub model: String,
+    pub ar: Vec<f64>,
+    /// Standard deviation of the noise, and of its innovations, N.
+    pub sigma_n: f64,
+    pub innovation_sigma_n: f64,
+    /// The noise floor: the mean absolute value of the noise (Gaussian), N.
+    pub floor_n: f64,
+    /// Samples left out as outliers, and the first of them.
+    pub outliers_removed: usize,
+    pub outliers: Vec<Outlier>,
+    /// Rows missing inside runs (simulated through with the throttle held).
+    pub gaps: usize,
+    pub lost_rows: usize,
+    /// Gaps longer than [`MAX_HELD_GAP_S`], where a run ends and the next starts afresh.
+    pub run_splits: usize,
+    pub runs: usize,
+    /// Notes from loading (another sampling rate, ...).
+    pub notes: Vec<String>,
+    /// True when nothing explained the residual and the noise model (and the floor) were
+    /// refitted on it: the data's second differences miss a noise's slow parts.
+    pub from_residual: bool,
+    /// The floor from the data alone, before that, N.
+    pub floor_from_data_n: f64,
+}
+
+/// Recordings split into calibration and validation samples.
+#[derive(Clone)]
+pub(crate) struct Problem<'a> {
+    pub data: &'a [Series],
+    pub runs: Vec<Run>,
+    /// Per series: the first validation row.
+    pub cut: Vec<usize>,
+    pub n_cal: usize,
+    pub n_val: usize,
+    pub noise: NoiseEstimate,
+    pub report: DataReport,
+}
+
+/// Simulated measured thrust per run, on its grid.
+pub(crate) type Sim = Vec<Vec<f64>>;
+
+impl<'a> Problem<'a> {
+    /// Puts `data` on the grid, rejects outliers, estimates the noise, splits each file
+    /// at `1 − holdout` of its duration and fits each run's initial state under `nominal`.
+    pub fn new(data: &'a [Series], nominal: &Plant, holdout: f64) -> Result<Self, IdentError> {
+        let mut runs = Vec::new();
+        let mut cut = Vec::with_capacity(data.len());
+        let (mut gaps, mut lost_rows, mut run_splits) = (0, 0, 0);
+        for (i, s) in data.iter().enumerate() {
+            let (first, last) = (s.t_s[0], s.t_s[s.len() - 1]);
+            let split_s = first + (1.0 - holdout) * (last - first);
+            cut.push(s.t_s.partition_point(|&t| t < split_s));
+            let steps = s.grid_steps();
+            let max_steps = (MAX_HELD_GAP_S / STEP_S).round() as usize;
+            // The file's own spacing (2 steps for 50 Hz): only more than that is a gap.
+            let mut sorted: Vec<usize> = steps[1..].to_vec();
+            sorted.sort_unstable();
+            let spacing = sorted.get(sorted.len() / 2).copied().unwrap_or(1).max(1);
+            let mut start = 0;
+            for k in 1..=s.len() {
+                if k < s.len() && steps[k] <= max_steps {
+                    if steps[k] > spacing {
+                        gaps += 1;
+                        lost_rows += steps[k].div_ceil(spacing) - 1;
+                    }
+                    continue;
+                }
+                if k < s.len() {
+                    run_splits += 1;
+                }
+                if k - start >= 3 {
+                    runs.push(Self::run(s, i, start..k, &steps, cut[i]));
+                }
+                start = k;
+            }
+        }
+        let outliers = reject_outliers(&mut runs);
+        let noise =
+            noise::estimate(&runs.iter().map(|r| r.y.iter().copied().step_by(r.stride).collect()).collect::<Vec<_>>())
+                .ok_or_else(|| IdentError::TooLittleData("too few samples to estimate the sensor noise".into()))?;
+        let count = |part: Part| -> usize {
+            runs.iter()
+                .map(|r| r.y.iter().enumerate().filter(|(k, y)| y.is_finite() && r.in_part(*k, part)).count())
+                .sum()
+        };
+        let (n_cal, n_val) = (count(Part::Calibration), count(Part::Validation));
+        if n_cal < 1000 || n_val < 500 {
+            return Err(IdentError::TooLittleData(format!(
+                "{n_cal} calibration and {n_val} validation samples; a diagnosis needs at least 1000 and 500 \
+                 (a few minutes of data; typical recordings are 300 s)"
+            )));
+        }
+        let report = DataReport {
+            model: noise.model.describe(),
+            ar: noise.model.phi.clone(),
+            sigma_n: noise.sigma_n,
+            innovation_sigma_n: noise.model.innovation_var.sqrt(),
+            floor_n: noise.mae_n,
+            outliers_removed: outliers.len(),
+            outliers: outliers.into_iter().take(20).collect(),
+            gaps,
+            lost_rows,
+            run_splits,
+            runs: runs.len(),
+            notes: Vec::new(),
+            from_residual: false,
+            floor_from_data_n: noise.mae_n,
+        };
+        let mut problem = Self { data, runs, cut, n_cal, n_val, noise, report };
+        let states = problem.initial_states(nominal);
+        for (run, state) in problem.runs.iter_mut().zip(states) {
+            run.initial = state;
+        }
+        Ok(problem)
+    }
+
+    fn run(s: &Series, series: usize, rows: Range<usize>, steps: &[usize], cut_row: usize) -> Run {
+        let mut grid = Vec::with_capacity(rows.len());
+        let mut at = 0;
+        for k in rows.clone() {
+            if k > rows.start {
+                at += steps[k];
+            }
+            grid.push(at);
+        }
+        let len = at + 1;
+        let (mut u, mut y) = (vec![0.0; len], vec![f64::NAN; len]);
+        for (j, k) in rows.clone().enumerate() {
+            let end = grid.get(j + 1).copied().unwrap_or(len);
+            u[grid[j]..end].fill(s.u_pct[k]);
+            y[grid[j]] = s.thrust_n[k];
+        }
+        let cut = rows.clone().position(|k| k >= cut_row).map_or(len, |j| grid[j]);
+        let mut gaps: Vec<usize> = grid.windows(2).map(|w| w[1] - w[0]).collect();
+        gaps.sort_unstable();
+        let stride = gaps.get(gaps.len() / 2).copied().unwrap_or(1).max(1);
+        Run { series, t0_s: s.t_s[rows.start], rows, grid, u, y, cut, stride, initial: State::default() }
+    }
+
+    /// Each run's initial state fitted to its first two seconds under `plant`.
+    pub fn initial_states(&self, plant: &Plant) -> Vec<State> {
+        self.runs.iter().map(|run| fit_initial_state_at(plant, run.t0_s, &run.y, &run.u)).collect()
+    }
+
+    /// The longest run, s.
+    pub fn longest_run_s(&self) -> f64 {
+        self.runs.iter().map(|r| r.u.len() as f64 * STEP_S).fold(0.0, f64::max)
+    }
+
+    /// The initial states fitted under the given model.
+    pub fn given_states(&self) -> Vec<State> {
+        self.runs.iter().map(|run| run.initial).collect()
+    }
+
+    /// This problem with the noise model refitted on the residual of `sim` (see
+    /// [`noise::fit_to_series`]), when that can be done.
+    pub fn with_noise_from(&self, sim: &Sim) -> Option<Self> {
+        let residuals: Vec<Vec<f64>> = (0..self.runs.len())
+            .map(|i| self.residual(i, sim).into_iter().step_by(self.runs[i].stride).collect())
+            .collect();
+        let model = noise::fit_to_series(&residuals)?;
+        let mut refined = self.clone();
+        let sigma_n = model.marginal_var().sqrt();
+        refined.noise = NoiseEstimate {
+            sigma_n,
+            mae_n: sigma_n * (2.0 / std::f64::consts::PI).sqrt(),
+            contrasts: self.noise.contrasts,
+            bic: Vec::new(),
+            model,
+        };
+        let report = &mut refined.report;
+        report.model = format!("{} (from the residual)", refined.noise.model.describe());
+        report.ar = refined.noise.model.phi.clone();
+        report.sigma_n = sigma_n;
+        report.innovation_sigma_n = refined.noise.model.innovation_var.sqrt();
+        report.floor_n = refined.noise.mae_n;
+        report.from_residual = true;
+        Some(refined)
+    }
+
+    /// The noise model fits and scores use.
+    pub fn ar(&self) -> &ArModel {
+        &self.noise.model
+    }
+
+    /// Simulates `plant` over every run from `states` (only up to the split when
+    /// `calibration_only`). `Err` carries (series, time s) of a divergence.
+    pub fn simulate(
+        &self,
+        plant: &Plant,
+        states: &[State],
+        calibration_only: bool,
+        out: &mut Sim,
+    ) -> Result<(), (usize, f64)> {
+        out.resize_with(self.runs.len(), Vec::new);
+        let mut failure = None;
+        for ((run, sim), &initial) in self.runs.iter().zip(out.iter_mut()).zip(states) {
+            let end = if calibration_only { run.cut.min(run.u.len()) } else { run.u.len() };
+            if end == 0 {
+                sim.clear();
+                continue;
+            }
+            if let Some(at) = plant.free_run_with(SUBSTEPS, run.t0_s, initial, &run.u[..end], sim) {
+                failure.get_or_insert((run.series, run.t0_s + at));
+            }
+        }
+        failure.map_or(Ok(()), Err)
+    }
+
+    /// Residual `y − ŷ` of run `i` on its grid (NaN where there is no sample or no simulation).
+    pub fn residual(&self, i: usize, sim: &Sim) -> Vec<f64> {
+        let run = &self.runs[i];
+        (0..run.y.len()).map(|k| run.y[k] - sim[i].get(k).copied().unwrap_or(f64::NAN)).collect()
+    }
+
+    /// The innovations of `x` (a grid vector of run `i`, NaN where there is no sample)
+    /// under the noise model, at the run's stride: element `j` belongs to grid index
+    /// `j·stride`, NaN where a sample it needs is missing.
+    pub fn whiten(&self, i: usize, x: &[f64]) -> Vec<f64> {
+        let strided: Vec<f64> = x.iter().copied().step_by(self.runs[i].stride).collect();
+        (0..strided.len()).map(|j| self.ar().innovation(&strided, j).unwrap_or(f64::NAN)).collect()
+    }
+
+    /// Innovations of grid vectors `x` (one per run) over `part`, in a fixed order.
+    pub fn whiten_part(&self, x: &[Vec<f64>], part: Part, out: &mut Vec<f64>) {
+        out.clear();
+        for (i, run) in self.runs.iter().enumerate() {
+            let w = self.whiten(i, &x[i]);
+            out.extend(
+                w.iter().enumerate().filter(|(j, w)| w.is_finite() && run.in_part(j * run.stride, part)).map(|p| *p.1),
+            );
+        }
+    }
+
+    /// Innovations (prewhitened residuals) over `part`, in a fixed order.
+    pub fn innovations(&self, sim: &Sim, part: Part, out: &mut Vec<f64>) {
+        let residuals: Vec<Vec<f64>> = (0..self.runs.len()).map(|i| self.residual(i, sim)).collect();
+        self.whiten_part(&residuals, part, out);
+    }
+
+    /// Sum of squared innovations over `part`, and how many.
+    pub fn sse(&self, sim: &Sim, part: Part) -> (f64, usize) {
+        let mut w = Vec::new();
+        self.innovations(sim, part, &mut w);
+        let sse = w.iter().map(|v| v * v).sum::<f64>();
+        (if sse.is_finite() { sse } else { f64::INFINITY }, w.len())
+    }
+
+    /// (measured, simulated) over the samples of `part`.
+    pub fn pairs<'s>(&'s self, sim: &'s Sim, part: Part) -> impl Iterator<Item = (f64, f64)> + Clone + 's {
+        self.runs.iter().zip(sim).flat_map(move |(run, m)| {
+            (0..run.y.len())
+                .filter(move |&k| run.y[k].is_finite() && run.in_part(k, part))
+                .map(move |k| (run.y[k], m.get(k).copied().unwrap_or(f64::NAN)))
+        })
+    }
+
+    /// Mean absolute error over `part` (infinite when the simulation is missing).
+    pub fn mae(&self, sim: &Sim, part: Part) -> f64 {
+        let (sum, n) = self.pairs(sim, part).fold((0.0, 0usize), |(a, n), (y, m)| (a + (y - m).abs(), n + 1));
+        let mae = sum / n.max(1) as f64;
+        if mae.is_finite() {
+            mae
+        } else {
+            f64::INFINITY
+        }
+    }
+
+    /// A simulation on the rows of each recording (NaN where there is none), for plots.
+    pub fn per_row(&self, sim: &Sim) -> Vec<Vec<f64>> {
+        let mut out: Vec<Vec<f64>> = self.data.iter().map(|s| vec![f64::NAN; s.len()]).collect();
+        for (run, m) in self.runs.iter().zip(sim) {
+            for (j, k) in run.rows.clone().enumerate() {
+                out[run.series][k] = m.get(run.grid[j]).copied().unwrap_or(f64::NAN);
+            }
+        }
+        out
+    }
+}
+
+/// Marks samples far from their neighbours' median as missing; returns them.
+fn reject_outliers(runs: &mut [Run]) -> Vec<Outlier> {
+    let mut deviations: Vec<Vec<f64>> = Vec::with_capacity(runs.len());
+    for run in runs.iter() {
+        let y = &run.y;
+        let mut window = Vec::with_capacity(2 * OUTLIER_HALF_WINDOW + 1);
+        deviations.push(
+            (0..y.len())
+                .map(|k| {
+                    if !y[k].is_finite() {
+                        return f64::NAN;
+                    }
+                    window.clear();
+                    let lo = k.saturating_sub(OUTLIER_HALF_WINDOW);
+                    window.extend(y[lo..(k + OUTLIER_HALF_WINDOW + 1).min(y.len())].iter().filter(|v| v.is_finite()));
+                    window.sort_by(f64::total_cmp);
+                    y[k] - window[window.len() / 2]
+                })
+                .collect(),
+        );
+    }
+    let mut abs: Vec<f64> = deviations.iter().flatten().filter(|d| d.is_finite()).map(|d| d.abs()).collect();
+    if abs.is_empty() {
+        return Vec::new();
+    }
+    let mid = abs.len() / 2;
+    let (_, median, _) = abs.select_nth_unstable_by(mid, f64::total_cmp);
+    let scale = 1.4826 * *median;
+    let mut outliers = Vec::new();
+    for (run, dev) in runs.iter_mut().zip(&deviations) {
+        for (k, d) in dev.iter().enumerate() {
+            if d.abs() > OUTLIER_Z * scale && scale > 0.0 {
+                run.y[k] = f64::NAN;
+                outliers.push(Outlier { file: run.series, t_s: run.t0_s + k as f64 * STEP_S, deviation_n: *d });
+            }
+        }
+    }
+    outliers
+}

@@ -1,0 +1,614 @@
+//! A diagnosis in words, as JSON, as plots and as a model file: what a bench engineer
+//! reads and what other tools take.
+//!
+//! ```no_run
+//! # use jetbench_ident::diagnose::{diagnose, report, Options};
+//! # use jetbench_model::resolve_model;
+//! # let model = resolve_model("p100-diesel")?;
+//! # let data = vec![jetbench_ident::series::Series::load("run.csv".as_ref(), true)?];
+//! let d = diagnose(&model, &data, &Options::default(), &mut |_| {})?;
+//! eprintln!("{}", report::text(&d, "p100-diesel"));
+//! println!("{}", serde_json::to_string_pretty(&report::to_json(&d))?);
+//! report::plots(&d, &data, "plots".as_ref())?;
+//! std::fs::write("improved.toml", report::model_file(&d, "p100-diesel", &["run.csv".into()]))?;
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::Path;
+
+use jetbench_model::discrepancy::DISCREPANCY_KEYS;
+use jetbench_model::{Effect, EffectKind, ModelFile, Params, Plant, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
+use serde_json::json;
+
+use super::fit::Fit;
+use super::residual::Analysis;
+use super::{named, Cause, Diagnosis, FoundEffect, Kept, Refit, REFIT};
+use crate::plot::{write_fit_plot, write_line_plot, FitPlot, LinePlot, PlotError};
+use crate::series::Series;
+
+/// The fitted values (and standard errors) of one hypothesis by key: the ten
+/// parameters for [`REFIT`], the effect's keys that matter otherwise.
+pub(crate) fn own_params(fit: &Fit, name: &str) -> (BTreeMap<&'static str, f64>, BTreeMap<&'static str, f64>) {
+    if name == REFIT {
+        let errors = Params::NAMES.iter().copied().zip(fit.param_stderr).collect();
+        return (named(&fit.spec.params), errors);
+    }
+    let Ok(kind) = name.parse::<EffectKind>() else { return Default::default() };
+    let (Some(values), Some((_, errors))) = (fit.spec.values(kind), fit.stderr.iter().find(|(k, _)| *k == kind)) else {
+        return Default::default();
+    };
+    let Ok(effect) = Effect::new(kind, values) else { return Default::default() };
+    let index = |key: &str| kind.keys().iter().position(|k| *k == key).unwrap_or(0);
+    let params: BTreeMap<&'static str, f64> = effect.params().collect();
+    let uncertainty = params.keys().map(|k| (*k, errors[index(k)])).collect();
+    (params, uncertainty)
+}
+
+/// The effects and the refit of the final model, with their evidence in words.
+pub(crate) fn found(
+    fit: &Fit,
+    given: &ModelFile,
+    kept: Vec<Kept>,
+    before: &Analysis,
+) -> (Vec<FoundEffect>, Option<Refit>) {
+    let mut effects = Vec::new();
+    let mut refit = None;
+    for Kept { name, mut evidence } in kept {
+        let (params, uncertainty) = own_params(fit, name);
+        if name == REFIT {
+            let change_pct = named(&given.model)
+                .into_iter()
+                .map(|(k, g)| (k, if g != 0.0 { 100.0 * (params[k] - g) / g.abs() } else { f64::NAN }))
+                .collect::<BTreeMap<_, _>>();
+            evidence.summary = explain_refit(&named(&given.model), &uncertainty, &params);
+            refit = Some(Refit { params, uncertainty, change_pct, evidence });
+            continue;
+        }
+        let Ok(kind) = name.parse::<EffectKind>() else { continue };
+        evidence.summary = if kind == EffectKind::Discrepancy {
+            explain_discrepancy(fit, given, &params, &uncertainty)
+        } else {
+            explain(kind, &params, &uncertainty, before)
+        };
+        effects.push(FoundEffect { name: kind.name(), params, uncertainty, evidence });
+    }
+    (effects, refit)
+}
+
+/// `0.081 ± 0.006`, with as many decimals as the uncertainty needs.
+fn pm(value: f64, error: f64) -> String {
+    let decimals = if error.is_finite() && error > 0.0 { (-error.log10().floor()).clamp(0.0, 6.0) as usize } else { 3 };
+    if error.is_finite() {
+        format!("{value:.decimals$} ± {error:.decimals$}")
+    } else {
+        format!("{value:.decimals$}")
+    }
+}
+
+/// One sentence per catalogue effect: what the residual showed, the physics, the values.
+fn explain(
+    kind: EffectKind,
+    params: &BTreeMap<&'static str, f64>,
+    errors: &BTreeMap<&'static str, f64>,
+    before: &Analysis,
+) -> String {
+    let get = |key: &str| (params.get(key).copied().unwrap_or(f64::NAN), errors.get(key).copied().unwrap_or(f64::NAN));
+    let direction = |class: &str| before.by_direction.iter().find(|c| c.class == class).map_or(0.0, |c| c.mean_n);
+    match kind {
+        EffectKind::InputDelay => {
+            let (d, de) = get("delay_s");
+            format!(
+                "Residual follows the throttle {:.0} ms later, rising ({:+.2} N) and falling ({:+.2} N) alike: input \
+                 delay left out. Modelled: {} s.",
+                d * 1000.0,
+                direction("rising"),
+                direction("falling"),
+                pm(d, de)
+            )
+        }
+        EffectKind::ActuatorLag => format!(
+            "Residual is largest right after fast throttle changes and smeared in time, unlike a pure delay: \
+             actuator (fuel-pump) lag left out. Modelled: time constant {} s.",
+            pm(get("time_constant_s").0, get("time_constant_s").1)
+        ),
+        EffectKind::RateLimit => {
+            let ((up, upe), (down, downe)) = (get("up_pct_per_s"), get("down_pct_per_s"));
+            format!(
+                "Residual only on large fast throttle changes, its sign following the direction of change: the \
+                 ECU's rate limit left out. Modelled: up {} %/s, down {} %/s.",
+                pm(up, upe),
+                pm(down, downe)
+            )
+        }
+        EffectKind::SensorDrift => {
+            let ((g, ge), (t, te)) = (get("gain"), get("time_constant_s"));
+            let spread = if te.is_finite() && te > 0.3 * t {
+                " (the data pins the bias down better than its time constant)"
+            } else {
+                ""
+            };
+            format!(
+                "Slow offset that follows the thrust history (it lingers at idle after high thrust): the force \
+                 sensor drifts as it heats. Modelled: bias gain {} of thrust, time constant {} s{spread}.",
+                pm(g, ge),
+                pm(t, te)
+            )
+        }
+        EffectKind::GainDrift => {
+            let (p, pe) = get("per_minute");
+            format!(
+                "The same throttle gives less thrust as the run goes on (residual slope {:+.3} N/min): gain drift \
+                 left out. Modelled: {} %/min.",
+                before.drift.slope_n_per_min,
+                pm(p * 100.0, pe * 100.0)
+            )
+        }
+        EffectKind::BearingFriction => {
+            let (f, fe) = get("force_n");
+            format!(
+                "Measured force trails the thrust by a constant band whose sign follows the direction of change \
+                 (rising {:+.2} N, falling {:+.2} N): bearing friction left out. Modelled: play band ± {} N.",
+                direction("rising"),
+                direction("falling"),
+                pm(f, fe)
+            )
+        }
+        EffectKind::StandResonance => {
+            let ((f, fe), (z, ze)) = (get("frequency_hz"), get("damping_ratio"));
+            format!(
+                "The reading rings after fast thrust changes (residual spectrum peak at {:.2} Hz, {:.0}× the noise): \
+                 the stand and sensor resonate. Modelled: {} Hz, damping ratio {}.",
+                before.spectrum.peak_hz,
+                before.spectrum.peak_ratio,
+                pm(f, fe),
+                pm(z, ze)
+            )
+        }
+        EffectKind::Discrepancy => String::new(),
+    }
+}
+
+fn explain_refit(
+    given: &BTreeMap<&'static str, f64>,
+    errors: &BTreeMap<&'static str, f64>,
+    params: &BTreeMap<&'static str, f64>,
+) -> String {
+    // The changes the data is surest of, in standard errors; a relative change means
+    // little for a coefficient near zero.
+    let mut changes: Vec<(&str, f64, f64)> = params
+        .iter()
+        .filter_map(|(k, v)| {
+            let (g, e) = (given[k], errors.get(k).copied().unwrap_or(f64::NAN));
+            let z = (v - g) / e;
+            (z.is_finite() && z.abs() >= 3.0).then_some((*k, v - g, z))
+        })
+        .collect();
+    changes.sort_by(|a, b| b.2.abs().total_cmp(&a.2.abs()));
+    let text: Vec<String> = changes
+        .iter()
+        .take(4)
+        .map(|(k, d, z)| {
+            let g = given[k];
+            let relative = if g.abs() > 1e-12 { format!(" ({:+.1} %)", 100.0 * d / g.abs()) } else { String::new() };
+            format!("{k} {g:.4} → {:.4}{relative}, {:.0} standard errors", g + d, z.abs())
+        })
+        .collect();
+    format!(
+        "The ten parameters refitted on the calibration part explain the residual on held-out data; the surest \
+         changes: {}.",
+        if text.is_empty() { "none beyond 3 standard errors (they move together)".to_owned() } else { text.join(", ") }
+    )
+}
+
+/// The discrepancy in bench words: each term, where it acts and how large, from the
+/// fitted plant with and without it.
+fn explain_discrepancy(
+    fit: &Fit,
+    given: &ModelFile,
+    params: &BTreeMap<&'static str, f64>,
+    errors: &BTreeMap<&'static str, f64>,
+) -> String {
+    let get = |key: &str| params.get(key).copied().unwrap_or(0.0);
+    let mut parts = Vec::new();
+    let (below, knot_below) = (get(DISCREPANCY_KEYS[0]), get(DISCREPANCY_KEYS[1]));
+    if below != 0.0 {
+        parts.push(if (0.8..=1.2).contains(&below) {
+            format!(
+                "below {knot_below:.1} % throttle the thrust no longer follows the throttle: the engine runs as if \
+                 at {knot_below:.1} % (a dead band at the bottom of the ECU's throttle map, flattened {:.0} %)",
+                100.0 * below
+            )
+        } else {
+            format!(
+                "below {knot_below:.1} % throttle the throttle map is {:.0} % {} than the model's",
+                100.0 * below.abs(),
+                if below > 0.0 { "flatter" } else { "steeper" }
+            )
+        });
+    }
+    let (above, knot_above) = (get(DISCREPANCY_KEYS[2]), get(DISCREPANCY_KEYS[3]));
+    if above != 0.0 {
+        parts.push(if (-1.2..=-0.8).contains(&above) {
+            format!("above {knot_above:.1} % more throttle gives no more thrust (the throttle map saturates)")
+        } else {
+            format!(
+                "above {knot_above:.1} % throttle the throttle map is {:.0} % {} than the model's",
+                100.0 * above.abs(),
+                if above < 0.0 { "flatter" } else { "steeper" }
+            )
+        });
+    }
+    let (history, tau) = (get(DISCREPANCY_KEYS[4]), get(DISCREPANCY_KEYS[5]));
+    if history != 0.0 {
+        parts.push(format!(
+            "the input gain follows the thrust history (time constant {tau:.0} s): {:+.2} % per 10 N held{}",
+            1000.0 * history,
+            if history < 0.0 { ", a gain that sags as the engine heat-soaks" } else { "" }
+        ));
+    }
+    let gains: Vec<String> = DISCREPANCY_KEYS[6..]
+        .iter()
+        .filter(|k| get(k) != 0.0)
+        .map(|k| format!("{k} = {}", pm(get(k), errors.get(k).copied().unwrap_or(f64::NAN))))
+        .collect();
+    if !gains.is_empty() {
+        parts.push(format!(
+            "the input gain depends on thrust and its rate beyond B_U + B_T·T + B_D·Ṫ ({}, as in the later \
+             iRonCub jet model)",
+            gains.join(", ")
+        ));
+    }
+    // How large: the thrust at rest with and without it, over the throttle range.
+    let with = fit.spec.plant(&given.effects);
+    let without = fit.spec.without(EffectKind::Discrepancy).plant(&given.effects);
+    let size = with.zip(without).map(|(with, without): (Plant, Plant)| {
+        (0..=15)
+            .map(|i| THROTTLE_MIN_PCT + i as f64 * (THROTTLE_MAX_PCT - THROTTLE_MIN_PCT) / 15.0)
+            .map(|u| (u, with.rest_thrust_n(u) - without.rest_thrust_n(u)))
+            .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+    });
+    let size = match size.flatten() {
+        Some((u, d)) if d.abs() >= 0.05 => format!("; at rest the largest change is {d:+.1} N, at {u:.0} % throttle"),
+        _ => String::new(),
+    };
+    format!(
+        "Outside the catalogue: {}{size}. Modelled as a discrepancy: {}.",
+        parts.join("; "),
+        params.iter().map(|(k, v)| format!("{k} = {v:.4}")).collect::<Vec<_>>().join(", ")
+    )
+}
+
+/// What the diagnosis blames.
+pub(crate) fn cause(d: &Diagnosis) -> Cause {
+    if !d.effects.is_empty() {
+        Cause::MissingPhysics
+    } else if d.refit.is_some() {
+        Cause::Parameters
+    } else if (d.after.whiteness.white || !d.after.systematic()) && d.mae_after_n <= 1.1 * d.noise_floor_n {
+        Cause::None
+    } else {
+        Cause::Unexplained
+    }
+}
+
+/// What was done to the data, in one sentence (empty when nothing was).
+fn data_note(d: &Diagnosis) -> String {
+    let n = &d.noise;
+    let mut parts = Vec::new();
+    if n.outliers_removed > 0 {
+        parts.push(format!("{} outlier sample(s) left out", n.outliers_removed));
+    }
+    if n.gaps > 0 {
+        parts.push(format!("{} gap(s) ({} rows lost) simulated through with the throttle held", n.gaps, n.lost_rows));
+    }
+    if n.run_splits > 0 {
+        parts.push(format!("{} long gap(s) split the runs", n.run_splits));
+    }
+    if n.from_residual {
+        parts.push(format!(
+            "the noise has slow parts its second differences do not show: modelled on the residual as {} (σ {:.2} \
+             N; floor {:.2} N, {:.2} N from the data alone)",
+            n.model, n.sigma_n, n.floor_n, n.floor_from_data_n
+        ));
+    } else if !n.ar.is_empty() {
+        parts.push(format!("sensor noise coloured, {} (σ {:.2} N)", n.model, n.sigma_n));
+    }
+    parts.extend(n.notes.iter().cloned());
+    if parts.is_empty() {
+        String::new()
+    } else {
+        format!(" Data: {}.", parts.join("; "))
+    }
+}
+
+/// The verdict: what to do, in words.
+pub(crate) fn verdict(d: &Diagnosis) -> String {
+    let floor = d.noise_floor_n;
+    let (before, after) = (&d.before.whiteness, &d.after.whiteness);
+    let mae = format!("Validation MAE {:.2} N → {:.2} N (noise floor {:.2} N)", d.mae_before_n, d.mae_after_n, floor);
+    let whiteness =
+        format!("residual whiteness (Ljung–Box under the noise model) p {:.1e} → {:.2}", before.p_value, after.p_value);
+    let remains = || -> String {
+        if after.white && d.mae_after_n <= 1.1 * floor {
+            " The residual is now noise.".to_owned()
+        } else {
+            let what: Vec<&str> = d.after.findings.iter().skip(1).map(String::as_str).collect();
+            format!(
+                " Something remains that no hypothesis explains on held-out data{}.",
+                if what.is_empty() { String::new() } else { format!(": {}", what.join("; ")) }
+            )
+        }
+    };
+    let best = d.rounds.first().and_then(|r| r.candidates.first());
+    let text = match d.cause {
+        Cause::None => format!(
+            "Nothing left out: {} and no hypothesis improves the held-out fit{}. {mae}: the model explains the \
+             recording.",
+            if after.white {
+                format!("the residual is white under the noise model (Ljung–Box p = {:.2})", after.p_value)
+            } else {
+                format!(
+                    "the residual shows no systematic pattern (its whiteness under the noise model, Ljung–Box p = \
+                     {:.1e}, fails only as noise a little more coloured than modelled does)",
+                    after.p_value
+                )
+            },
+            best.map_or(String::new(), |c| format!(
+                " (best candidate {}: validation MAE {:.3} N)",
+                c.name, c.mae_val_n
+            ))
+        ),
+        Cause::Parameters => format!(
+            "The parameters are off, not the physics: re-identify. {} No effect improves on the refitted model. \
+             {mae}; {whiteness}.{}",
+            d.refit.as_ref().map_or(String::new(), |r| r.evidence.summary.clone()),
+            remains()
+        ),
+        Cause::MissingPhysics => {
+            let mut text: Vec<String> = d.effects.iter().map(|e| e.evidence.summary.clone()).collect();
+            for e in d.effects.iter().filter(|e| e.evidence.ambiguous) {
+                if let Some((other, _)) = e.evidence.runner_up {
+                    text.push(format!("({} and {other} fit almost equally well at this noise level.)", e.name));
+                }
+            }
+            if let Some(r) = &d.refit {
+                text.push(format!("The parameters were off too and are refitted jointly: {}", r.evidence.summary));
+            }
+            format!("{} {mae}; {whiteness}.{}", text.join(" "), remains())
+        }
+        Cause::Unexplained => {
+            let why = d.rounds.last().map_or(String::new(), |r| format!(" ({})", r.reason));
+            let what: Vec<&str> = d.before.findings.iter().map(String::as_str).collect();
+            format!(
+                "Unexplained: the residual is systematic but no hypothesis explains it on held-out data{why}. What \
+                 remains: {}. {mae}.",
+                what.join("; ")
+            )
+        }
+    };
+    format!("{text}{}", data_note(d))
+}
+
+/// The JSON contract: `cause`, `effects[{name, params, evidence}]`, `refit`, `noise`,
+/// `mae_before_n`, `mae_after_n`, `noise_floor_n`, `verdict`, plus the details
+/// (curves for plots left out).
+pub fn to_json(d: &Diagnosis) -> serde_json::Value {
+    let mut value = serde_json::to_value(d).unwrap_or_else(|e| json!({ "error": e.to_string() }));
+    if let Some(obj) = value.as_object_mut() {
+        for part in ["before", "after"] {
+            if let Some(a) = obj.get_mut(part).and_then(|a| a.as_object_mut()) {
+                if let Some(s) = a.get_mut("spectrum").and_then(|s| s.as_object_mut()) {
+                    s.remove("freq_hz");
+                    s.remove("ratio");
+                }
+                if let Some(x) = a.get_mut("input_correlation").and_then(|s| s.as_object_mut()) {
+                    x.remove("lags_s");
+                    x.remove("values");
+                }
+            }
+        }
+    }
+    value
+}
+
+/// The human report: data, findings, every round's hypotheses, the verdict.
+pub fn text(d: &Diagnosis, model: &str) -> String {
+    let mut out = String::new();
+    let n = &d.noise;
+    let _ = writeln!(
+        out,
+        "model {model}: {} calibration + {} validation samples; noise {} σ {:.2} N, floor (MAE) {:.2} N; {} \
+         outlier(s) left out, {} gap(s), {} run(s)",
+        d.calibration_samples,
+        d.validation_samples,
+        n.model,
+        n.sigma_n,
+        d.noise_floor_n,
+        n.outliers_removed,
+        n.gaps,
+        n.runs
+    );
+    for note in &n.notes {
+        let _ = writeln!(out, "note: {note}");
+    }
+    let _ = writeln!(out, "\nlocate (residual of the model as given):");
+    for f in &d.before.findings {
+        let _ = writeln!(out, "  - {f}");
+    }
+    for (i, round) in d.rounds.iter().enumerate() {
+        if round.phase == "choice" {
+            let _ = writeln!(out, "\nchoice: {}", round.reason);
+            continue;
+        }
+        let _ = writeln!(
+            out,
+            "\nround {} ({}; validation MAE {:.3} N): hypotheses, best first",
+            i + 1,
+            round.phase,
+            round.mae_val_n
+        );
+        for c in &round.candidates {
+            let params: Vec<String> = if c.name == REFIT {
+                vec![format!("({} parameters)", c.params.len())]
+            } else {
+                c.params
+                    .iter()
+                    .map(|(k, v)| format!("{k}={v:.4}±{:.4}", c.uncertainty.get(k).copied().unwrap_or(f64::NAN)))
+                    .collect()
+            };
+            let _ = writeln!(
+                out,
+                "  {:<17} score {:>9}  MAE {:.3} N  {}{}{}",
+                c.name,
+                c.score_gain.map_or("-".to_owned(), |g| format!("{g:+.1}")),
+                c.mae_val_n,
+                params.join(" "),
+                c.unphysical.as_ref().map_or(String::new(), |u| format!("  [unphysical: {u}]"))
+                    + &c.note.as_ref().map_or(String::new(), |n| format!("  ({n})")),
+                if round.accepted == Some(c.name) { "  <- kept" } else { "" }
+            );
+        }
+        let _ = writeln!(out, "  => {}", round.reason);
+    }
+    for note in &d.dropped {
+        let _ = writeln!(out, "dropped {note}");
+    }
+    let _ = writeln!(out, "\nafter:");
+    for f in &d.after.findings {
+        let _ = writeln!(out, "  - {f}");
+    }
+    let _ = writeln!(
+        out,
+        "\ncause: {}; validation MAE {:.3} N -> {:.3} N, fit {:.1} % -> {:.1} % (noise floor {:.3} N)\n\n{}",
+        serde_json::to_value(d.cause).ok().and_then(|v| v.as_str().map(str::to_owned)).unwrap_or_default(),
+        d.mae_before_n,
+        d.mae_after_n,
+        d.fit_before_pct,
+        d.fit_after_pct,
+        d.noise_floor_n,
+        d.verdict
+    );
+    out
+}
+
+/// The improved model as a file: refitted parameters and the effects, with a header
+/// saying where it came from.
+pub fn model_file(d: &Diagnosis, model: &str, files: &[String]) -> String {
+    let mut text = format!(
+        "# {model} as improved by `jetbench diagnose` on {} (cause: {})\n# validation MAE {:.3} N -> {:.3} N \
+         (noise floor {:.3} N)\n",
+        files.join(", "),
+        serde_json::to_value(d.cause).ok().and_then(|v| v.as_str().map(str::to_owned)).unwrap_or_default(),
+        d.mae_before_n,
+        d.mae_after_n,
+        d.noise_floor_n
+    );
+    if d.refit.is_some() {
+        text.push_str("# [model]: the ten parameters re-identified from the recording\n");
+    }
+    text.push_str(&d.improved.to_toml_string());
+    text
+}
+
+/// Per file: recording vs the model as given and as improved, split and systematic
+/// windows marked; the innovations' autocorrelation, the throttle correlation and the
+/// spectrum, before and after. Returns how many files were written.
+pub fn plots(d: &Diagnosis, data: &[Series], dir: &Path) -> Result<usize, PlotError> {
+    let mut written = 0;
+    let improved = if d.effects.is_empty() && d.refit.is_none() {
+        "nothing added".to_owned()
+    } else {
+        let mut names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
+        if d.refit.is_some() {
+            names.insert(0, "refitted parameters");
+        }
+        names.join(" + ")
+    };
+    for (i, s) in data.iter().enumerate() {
+        let labels: Vec<String> =
+            d.before.windows.iter().filter(|w| w.file == i).map(|w| format!("{:+.1} N", w.mean_n)).collect();
+        let windows: Vec<(f64, f64, &str)> = d
+            .before
+            .windows
+            .iter()
+            .filter(|w| w.file == i)
+            .zip(&labels)
+            .map(|(w, l)| (w.start_s, w.end_s, l.as_str()))
+            .collect();
+        let title = format!(
+            "{}: model as given (MAE {:.2} N) and with {improved} (MAE {:.2} N), floor {:.2} N",
+            s.name, d.mae_before_n, d.mae_after_n, d.noise_floor_n
+        );
+        let fig = FitPlot {
+            title: &title,
+            t_s: &s.t_s,
+            measured_n: &s.thrust_n,
+            models: &[("as given", &d.sim_before[i]), ("improved", &d.sim_after[i])],
+            split_s: s.t_s.get(d.cut[i]).copied(),
+            windows: &windows,
+        };
+        written += write_fit_plot(dir, &format!("diagnose-fit-{i}"), &fig)?.len();
+    }
+    let lags: Vec<f64> = (1..=d.before.whiteness.acf.len()).map(|k| k as f64 * 0.01).collect();
+    let (b, a) = (&d.before, &d.after);
+    let bounds = |x: f64| vec![(x, "+95 %"), (-x, "-95 %")];
+    let figures = [
+        BeforeAfter {
+            stem: "diagnose-acf",
+            title: "autocorrelation of the residual prewhitened by the noise model (white stays within the bounds)",
+            x_label: "lag (s)",
+            y_label: "autocorrelation",
+            before: (&lags, &b.whiteness.acf),
+            after: (&lags, &a.whiteness.acf),
+            hlines: bounds(b.whiteness.bound),
+            log_y: false,
+        },
+        BeforeAfter {
+            stem: "diagnose-input-correlation",
+            title: "residual vs earlier throttle changes",
+            x_label: "lag (s)",
+            y_label: "correlation",
+            before: (&b.input_correlation.lags_s, &b.input_correlation.values),
+            after: (&a.input_correlation.lags_s, &a.input_correlation.values),
+            hlines: bounds(b.input_correlation.bound),
+            log_y: false,
+        },
+        BeforeAfter {
+            stem: "diagnose-spectrum",
+            title: "residual power over the noise model's",
+            x_label: "frequency (Hz)",
+            y_label: "power / noise model",
+            before: (&b.spectrum.freq_hz, &b.spectrum.ratio),
+            after: (&a.spectrum.freq_hz, &a.spectrum.ratio),
+            hlines: vec![(1.0, "noise")],
+            log_y: true,
+        },
+    ];
+    for f in figures {
+        let series = [("as given", f.before.0, f.before.1), ("improved", f.after.0, f.after.1)];
+        let plot = LinePlot {
+            title: f.title,
+            x_label: f.x_label,
+            y_label: f.y_label,
+            series: &series,
+            hlines: &f.hlines,
+            log_y: f.log_y,
+        };
+        written += write_line_plot(dir, f.stem, &plot)?.len();
+    }
+    Ok(written)
+}
+
+/// One residual statistic drawn before and after the diagnosis, as `(x, y)` slices.
+struct BeforeAfter<'a> {
+    stem: &'a str,
+    title: &'a str,
+    x_label: &'a str,
+    y_label: &'a str,
+    before: (&'a [f64], &'a [f64]),
+    after: (&'a [f64], &'a [f64]),
+    hlines: Vec<(f64, &'a str)>,
+    log_y: bool,
+}
