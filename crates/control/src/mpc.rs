@@ -522,7 +522,7 @@ mod tests {
         for k in 0..steps {
             let t_s = k as f64 * STEP_S;
             let state = engine.state();
-            let out = mpc.step(state.thrust_n, state.thrust_rate_n_per_s, t_s, &profile).unwrap();
+            let out = mpc.step(state, t_s, &profile).unwrap();
             engine.step(out.command.throttle_pct).unwrap();
             sum += (profile.at(t_s).thrust_n - state.thrust_n).abs();
         }

@@ -117,7 +117,7 @@ fn run(specs: &[&str], gate_chi2: f64) -> Outcome {
                 error_sum += (truth.thrust_n - reference.thrust_n).abs();
                 actuator.on_command(&command)
             }
-            None => actuator.on_missed(),
+            None => actuator.on_missed(now_ns),
         };
         estimation.set_applied(applied.applied_pct);
         throttle = Some(applied.applied_pct);
