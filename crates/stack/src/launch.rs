@@ -72,6 +72,33 @@ pub struct UpOptions {
     pub zenoh: Option<String>,
 }
 
+/// File name start of the config a launcher derives from its command line.
+const DERIVED_PREFIX: &str = "jetbench-up-";
+
+/// Where this launcher writes the config it derives from its command line (in
+/// the temporary folder, named by its pid), once the derived configs of
+/// launchers that were killed (SIGKILL leaves them behind) are removed.
+pub fn derived_config_path() -> PathBuf {
+    if let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) {
+        for entry in entries.flatten() {
+            let name = entry.file_name();
+            let pid =
+                name.to_str().and_then(|n| n.strip_prefix(DERIVED_PREFIX)?.strip_suffix(".toml")?.parse::<i32>().ok());
+            if pid.is_some_and(|pid| !process_exists(pid)) {
+                let _ = std::fs::remove_file(entry.path());
+            }
+        }
+    }
+    std::env::temp_dir().join(format!("{DERIVED_PREFIX}{}.toml", std::process::id()))
+}
+
+/// Whether process `pid` exists (one of another user's counts).
+fn process_exists(pid: i32) -> bool {
+    // SAFETY: kill(pid, 0) sends nothing; it only asks whether the process exists.
+    let answered = unsafe { libc::kill(pid, 0) } == 0;
+    answered || std::io::Error::last_os_error().raw_os_error() != Some(libc::ESRCH)
+}
+
 /// Start order: the recorder first so it sees every sample, then consumers
 /// before producers, and the simulated bench (when `simulated`), which clocks the loop, last.
 pub fn start_order(record: bool, simulated: bool) -> Vec<ServiceId> {

@@ -123,24 +123,6 @@ fn model_spec(spec: &str) -> String {
     std::path::absolute(spec).map_or_else(|_| spec.to_string(), |p| p.display().to_string())
 }
 
-/// File name start of the config a launcher derives from its command line.
-const DERIVED_PREFIX: &str = "jetbench-up-";
-
-/// A launcher killed (SIGKILL) leaves its derived config behind: removed by the next.
-fn remove_derived_configs_of_dead_launchers() {
-    let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else { return };
-    for entry in entries.flatten() {
-        let name = entry.file_name();
-        let pid =
-            name.to_str().and_then(|n| n.strip_prefix(DERIVED_PREFIX)?.strip_suffix(".toml")?.parse::<i32>().ok());
-        // SAFETY: kill(pid, 0) only asks whether the process exists.
-        let gone = |pid| unsafe { libc::kill(pid, 0) } != 0 && std::io::Error::last_os_error().raw_os_error() == Some(libc::ESRCH);
-        if pid.is_some_and(gone) {
-            let _ = std::fs::remove_file(entry.path());
-        }
-    }
-}
-
 pub fn run(args: UpArgs) -> anyhow::Result<ExitCode> {
     // Check the config here so a typo is reported once, not by six services.
     let mut checked = BenchConfig::load_or_default(args.config.as_deref())?;
@@ -179,8 +161,7 @@ pub fn run(args: UpArgs) -> anyhow::Result<ExitCode> {
         let text = toml::to_string(&checked).context("cannot write the derived bench config")?;
         // Check it as the services will read it (this also loads models and profiles).
         BenchConfig::from_toml_str(&text, "the command-line options", None)?;
-        remove_derived_configs_of_dead_launchers();
-        let path = std::env::temp_dir().join(format!("{DERIVED_PREFIX}{}.toml", std::process::id()));
+        let path = jetbench_stack::launch::derived_config_path();
         std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
         derived = Some(path.clone());
         Some(path)
