@@ -12,6 +12,9 @@ use crate::{BenchChannels, ViewerError};
 /// Where the viewer listens unless told otherwise: this machine only.
 pub const DEFAULT_ADDR: &str = "127.0.0.1:8765";
 
+/// How long [`FoxgloveServer::stop`] waits for the clients to take their close.
+pub const STOP_WAIT: std::time::Duration = std::time::Duration::from_secs(1);
+
 /// How the server is set up.
 #[derive(Clone, Debug)]
 pub struct ServerOptions {
@@ -132,10 +135,19 @@ impl FoxgloveServer {
         }
     }
 
-    /// Closes every connection and waits until they are closed (once; later calls do nothing).
+    /// Closes every connection and waits until they are closed, at most
+    /// [`STOP_WAIT`]: a client that never reads cannot take its close, and
+    /// its connection goes with the process (once; later calls do nothing).
     pub fn stop(&mut self) {
-        if let Some(handle) = self.handle.take() {
-            handle.stop().wait_blocking();
+        let Some(handle) = self.handle.take() else { return };
+        let shutdown = handle.stop();
+        let (done, closed) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            shutdown.wait_blocking();
+            let _ = done.send(());
+        });
+        if closed.recv_timeout(STOP_WAIT).is_err() {
+            tracing::warn!("a Foxglove client did not take its close within {STOP_WAIT:?}; its connection is dropped");
         }
     }
 }
