@@ -163,6 +163,11 @@ board, and three receives and three publishes on the bus. Its hops cost several 
 Zenoh bridge (`--zenoh`) running, and four clients attached: a Foxglove client reading every channel, one that
 subscribes to every channel and never reads again, one that reads and tears its connection down mid-stream, and a
 Zenoh subscriber of every channel. Both services read the bus through polled subscribers on their own 10 ms clock.
+Under `--rt` the viewer and the bridge run on the core of the simulated devices and the recorder (`[rt] cpus`), off
+the control chain's core, and so do the clients, which stand for another computer (pinned by `jetbench latency`).
+Before that placement, with the viewer, the bridge and the clients free to run on the control core, the same
+measurement counted 4 deadline misses in 6034 cycles (0 without the control room): their threads and their network
+work on that core delayed the chain.
 
 {control_room(rt)}
 

@@ -2,12 +2,16 @@
 //! Node packages @foxglove/ws-protocol, ws and @foxglove/rosmsg2-serialization
 //! (tests/clients/foxglove_client.mjs, installed by scripts/nodeenv.sh).
 //!
-//! While a client decodes /bench/thrust and /bench/state live, a second one
-//! connects and never reads, and a third tears its connection down
-//! mid-stream; the run must not notice. Hangs are caught by watchdogs; no
+//! The acceptance run (`jetbench up --sim --duration 20 --record --foxglove
+//! --zenoh`): while a client decodes /bench/thrust and /bench/state live, a
+//! second one connects and never reads, a third tears its connection down
+//! mid-stream, and the Python Zenoh subscriber (PyPI eclipse-zenoh) takes
+//! every channel from the bridge; the run must not notice, and what both
+//! decoded is what was recorded. Hangs are caught by watchdogs; no
 //! test asserts a runtime.
 
 use std::path::Path;
+use std::process::Command;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use jetbench_msgs::{channels, Sample, ServiceId, StateEstimate, Thrust};
@@ -17,8 +21,8 @@ use serde_json::Value;
 mod clients;
 mod common;
 
-use clients::{compare_with_recording, foxglove_client, free_port, node_env};
-use common::{scratch, spawn_up_with, wait_for_line, wait_with_watchdog};
+use clients::{compare_with_recording, foxglove_client, free_port, node_env, Process};
+use common::{python, repo_root, scratch, spawn_up_with, wait_for_line, wait_with_watchdog};
 
 const SUITE: &str = "fox";
 
@@ -62,8 +66,10 @@ fn a_foxglove_client_sees_the_live_bench_as_recorded_and_bad_clients_change_noth
     let listen = format!("127.0.0.1:{port}");
     let record = scratch(SUITE, "live.mcap");
     let started_unix_ns = SystemTime::now().duration_since(UNIX_EPOCH).expect("after 1970").as_nanos() as u64;
-    // The acceptance command: the viewer is a service of the set.
-    let (mut up, stdout, stderr) = spawn_up_with(common::jetbench(SUITE), 20, &record, &["--foxglove", &listen]);
+    // The acceptance command: the viewer and the bridge are services of the set.
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let (mut up, stdout, stderr) =
+        spawn_up_with(common::jetbench(SUITE), 20, &record, &["--foxglove", &listen, "--zenoh", &endpoint]);
     if let Err(seen) = wait_for_line(&stdout, "services ready", Duration::from_secs(60)) {
         let _ = up.kill();
         panic!(
@@ -79,6 +85,15 @@ fn a_foxglove_client_sees_the_live_bench_as_recorded_and_bad_clients_change_noth
     let all = ["/bench/thrust", "/bench/state", "/bench/health", "/bench/command", "/bench/actuation", "/sim/truth"];
     let stalled = foxglove_client(&env, &url, &all, &["--behave", "stall"]);
     let dropper = foxglove_client(&env, &url, &all, &["--behave", "drop", "--drop-after-s", "5"]);
+    let zenoh_path = scratch(SUITE, "zenoh-subscriber.json");
+    let mut command = Command::new(python());
+    command
+        .arg(repo_root().join("tests/clients/zenoh_subscriber.py"))
+        .args(["--connect", &endpoint, "--namespace", &clients::namespace(SUITE), "--out"])
+        .arg(&zenoh_path)
+        .arg("--recording")
+        .arg(&record);
+    let subscriber = Process::start(command, "subscribed", "the Python Zenoh subscriber");
 
     let status = wait_with_watchdog(&mut up, Duration::from_secs(120), "jetbench up");
     let log: Vec<String> = stdout.try_iter().chain(stderr.try_iter()).collect();
@@ -86,6 +101,8 @@ fn a_foxglove_client_sees_the_live_bench_as_recorded_and_bad_clients_change_noth
     let (_, reader_log) = reader.stop();
     stalled.kill();
     dropper.kill();
+    let (subscriber_ok, subscriber_log) = subscriber.stop();
+    assert!(subscriber_ok, "the Python Zenoh subscriber failed:\n{subscriber_log}");
 
     let recording = Recording::open(&record).expect("read the run's recording");
     // Dated when it happened: the first log time is the wall clock at the start.
@@ -99,6 +116,12 @@ fn a_foxglove_client_sees_the_live_bench_as_recorded_and_bad_clients_change_noth
     let thrust = assert_received_as_recorded::<Thrust>(&got, &recording, channels::THRUST);
     let state = assert_received_as_recorded::<StateEstimate>(&got, &recording, channels::STATE);
     eprintln!("the client decoded {thrust} thrust and {state} state samples, all equal to the recording");
+    // The Zenoh subscriber of the same run: every channel at rate, as recorded.
+    let zenoh: Value = serde_json::from_str(&std::fs::read_to_string(&zenoh_path).expect("the subscriber's JSON"))
+        .expect("JSON");
+    assert_eq!(zenoh["errors"], serde_json::json!([]), "payloads that did not decode");
+    let failures = clients::compare_every_channel(&recording, &zenoh);
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
 
     // The loop ran as always: every sample of the control path, no gap.
     for gaps in [

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use std::sync::Mutex;
 use std::time::Duration;
 
-use jetbench_msgs::{channels, visit_channels, Channel, ChannelVisitor, Sample};
+use jetbench_msgs::channels;
 use jetbench_record::clock::LogClock;
 use jetbench_record::Recording;
 use serde_json::Value;
@@ -17,42 +17,11 @@ use serde_json::Value;
 mod clients;
 mod common;
 
-use clients::{compare_with_recording, free_port, in_netns, Process, TwoHosts};
+use clients::{free_port, in_netns, Process, TwoHosts};
 use common::{python, repo_root, scratch};
 
 /// One run at a time: each has the machine's cores to itself.
 static RUN: Mutex<()> = Mutex::new(());
-
-/// Every channel: at least 95 % of the samples published while the subscriber
-/// was connected decoded, each equal to the recording.
-struct CompareAll<'a> {
-    recording: &'a Recording,
-    got: &'a Value,
-    failures: Vec<String>,
-}
-
-impl ChannelVisitor for CompareAll<'_> {
-    fn visit<T: Sample>(&mut self, channel: Channel<T>) {
-        let decoded = self.got["messages"][channel.topic()].as_array().cloned().unwrap_or_default();
-        let (matched, published, failures) = compare_with_recording(self.recording, channel, &decoded);
-        let recorded = self.recording.samples(channel).len();
-        self.failures.extend(failures);
-        eprintln!(
-            "{:<18} {matched:>6} of {published:>6} samples published while connected received and equal",
-            channel.topic()
-        );
-        if (matched as f64) < 0.95 * published as f64 || (recorded > 0 && published * 2 < recorded) {
-            self.failures.push(format!(
-                "{}: {matched} of the {published} samples published while connected arrived ({recorded} recorded)",
-                channel.name
-            ));
-        }
-        let encoding = format!("application/cdr;{}", T::schema_name());
-        if recorded > 0 && self.got["encodings"][channel.topic()] != encoding.as_str() {
-            self.failures.push(format!("{}: encoding {}", channel.name, self.got["encodings"][channel.topic()]));
-        }
-    }
-}
 
 /// `jetbench up --sim --record RECORD --zenoh ENDPOINT` for `duration_s`, in
 /// network namespace `netns` (the bench's host), started and ready.
@@ -110,9 +79,8 @@ fn a_python_subscriber_on_another_host_receives_every_channel_as_recorded() {
     let text = std::fs::read_to_string(&got_path).expect("the subscriber wrote its JSON");
     let got: Value = serde_json::from_str(&text).expect("JSON");
     assert_eq!(got["errors"], serde_json::json!([]), "payloads that did not decode");
-    let mut compare = CompareAll { recording: &recording, got: &got, failures: Vec::new() };
-    visit_channels(&mut compare);
-    assert!(compare.failures.is_empty(), "{}", compare.failures.join("\n"));
+    let failures = clients::compare_every_channel(&recording, &got);
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
 #[test]

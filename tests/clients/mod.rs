@@ -13,7 +13,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
 
-use jetbench_msgs::{RosType, Sample};
+use jetbench_msgs::{visit_channels, Channel, ChannelVisitor, RosType, Sample};
 use jetbench_record::Recording;
 use serde_json::Value;
 
@@ -271,4 +271,43 @@ pub fn compare_with_recording<T: Sample>(
 fn widen(spans: &mut HashMap<u32, (u64, u64)>, stream: u32, seq: u64) {
     let span = spans.entry(stream).or_insert((seq, seq));
     *span = (span.0.min(seq), span.1.max(seq));
+}
+
+/// Every channel: at least 95 % of the samples published while the subscriber
+/// was connected decoded, each equal to the recording.
+struct CompareAll<'a> {
+    recording: &'a Recording,
+    got: &'a Value,
+    failures: Vec<String>,
+}
+
+impl ChannelVisitor for CompareAll<'_> {
+    fn visit<T: Sample>(&mut self, channel: Channel<T>) {
+        let decoded = self.got["messages"][channel.topic()].as_array().cloned().unwrap_or_default();
+        let (matched, published, failures) = compare_with_recording(self.recording, channel, &decoded);
+        let recorded = self.recording.samples(channel).len();
+        self.failures.extend(failures);
+        eprintln!(
+            "{:<18} {matched:>6} of {published:>6} samples published while connected received and equal",
+            channel.topic()
+        );
+        if (matched as f64) < 0.95 * published as f64 || (recorded > 0 && published * 2 < recorded) {
+            self.failures.push(format!(
+                "{}: {matched} of the {published} samples published while connected arrived ({recorded} recorded)",
+                channel.name
+            ));
+        }
+        let encoding = format!("application/cdr;{}", T::schema_name());
+        if recorded > 0 && self.got["encodings"][channel.topic()] != encoding.as_str() {
+            self.failures.push(format!("{}: encoding {}", channel.name, self.got["encodings"][channel.topic()]));
+        }
+    }
+}
+
+/// What the Zenoh subscriber decoded (its JSON), against the recording, every
+/// channel: the failures, none when every channel holds.
+pub fn compare_every_channel(recording: &Recording, got: &Value) -> Vec<String> {
+    let mut compare = CompareAll { recording, got, failures: Vec::new() };
+    visit_channels(&mut compare);
+    compare.failures
 }

@@ -263,13 +263,14 @@ impl Room {
         vec!["--foxglove".into(), self.foxglove.to_string(), "--zenoh".into(), self.zenoh.clone()]
     }
 
-    /// The clients, connecting as soon as the services are up.
-    fn attach(&self) -> ControlRoom {
+    /// The clients, connecting as soon as the services are up, on `cpus`.
+    fn attach(&self, cpus: Vec<usize>) -> ControlRoom {
         let endpoint = self.zenoh.parse().expect("a tcp/HOST:PORT endpoint made here");
         ControlRoom::attach(
             self.foxglove,
             endpoint,
             jetbench_bus::namespace_name().unwrap_or_else(|_| "default".into()),
+            cpus,
         )
     }
 }
@@ -396,7 +397,9 @@ pub fn run_campaign(options: &CampaignOptions, progress: &mut dyn Progress) -> R
                     source,
                 })?;
                 let args = room.up_args();
-                let attached = room.attach();
+                // Under --rt, the clients (another computer) where the viewer runs.
+                let cpus = if options.rt { config.rt.cpus.viewer.clone().unwrap_or_default() } else { Vec::new() };
+                let attached = room.attach(cpus);
                 run_pipeline(options, &path, transport, segment_s, &what, &args, progress)?;
                 Some(attached.finish())
             } else {

@@ -66,17 +66,33 @@ enum ClientResult {
 
 impl ControlRoom {
     /// Starts the clients of a service set that serves Foxglove at `foxglove`
-    /// and Zenoh at `zenoh`, in bus namespace `namespace`.
-    pub fn attach(foxglove: SocketAddr, zenoh: Endpoint, namespace: String) -> ControlRoom {
+    /// and Zenoh at `zenoh`, in bus namespace `namespace`. With `cpus`, each
+    /// client (and every thread it starts) runs only there: the clients stand
+    /// for another computer, so they are kept off the control chain's core.
+    pub fn attach(foxglove: SocketAddr, zenoh: Endpoint, namespace: String, cpus: Vec<usize>) -> ControlRoom {
         let stop = Arc::new(AtomicBool::new(false));
         let read = Arc::new(AtomicU64::new(0));
         let mut threads = Vec::new();
+        let pin = move || {
+            let request = jetbench_stack::rt::RtRequest { cpus: cpus.clone(), ..Default::default() };
+            move || {
+                for refused in jetbench_stack::rt::apply(&request).refused {
+                    tracing::warn!("control-room client: {refused}");
+                }
+            }
+        };
         for behaviour in [Behaviour::Read, Behaviour::Stall, Behaviour::Drop] {
-            let (stop, read) = (Arc::clone(&stop), Arc::clone(&read));
-            threads.push(std::thread::spawn(move || foxglove_client(foxglove, behaviour, &stop, &read)));
+            let (stop, read, pin) = (Arc::clone(&stop), Arc::clone(&read), pin());
+            threads.push(std::thread::spawn(move || {
+                pin();
+                foxglove_client(foxglove, behaviour, &stop, &read)
+            }));
         }
-        let flag = Arc::clone(&stop);
-        threads.push(std::thread::spawn(move || zenoh_client(&zenoh, &namespace, &flag)));
+        let (flag, pin) = (Arc::clone(&stop), pin());
+        threads.push(std::thread::spawn(move || {
+            pin();
+            zenoh_client(&zenoh, &namespace, &flag)
+        }));
         ControlRoom { stop, read, threads }
     }
 

@@ -434,7 +434,9 @@ impl Default for RtSection {
             },
             ecu_priority: 45,
             // The control chain on one core, so each hand-over wakes a process on the
-            // core it runs on; the simulated devices and the recorder on the other.
+            // core it runs on; the simulated devices and every reader of the bus
+            // (recorder, viewer, bridge: their threads, sockets and network work)
+            // on the other.
             cpus: PerService {
                 sim_bench: vec![0],
                 sensing: vec![1],
@@ -442,8 +444,8 @@ impl Default for RtSection {
                 control: vec![1],
                 actuation: vec![1],
                 recorder: vec![0],
-                viewer: None,
-                bridge: None,
+                viewer: Some(vec![0]),
+                bridge: Some(vec![0]),
             },
         }
     }
