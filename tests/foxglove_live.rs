@@ -117,8 +117,8 @@ fn a_foxglove_client_sees_the_live_bench_as_recorded_and_bad_clients_change_noth
     let state = assert_received_as_recorded::<StateEstimate>(&got, &recording, channels::STATE);
     eprintln!("the client decoded {thrust} thrust and {state} state samples, all equal to the recording");
     // The Zenoh subscriber of the same run: every channel at rate, as recorded.
-    let zenoh: Value = serde_json::from_str(&std::fs::read_to_string(&zenoh_path).expect("the subscriber's JSON"))
-        .expect("JSON");
+    let zenoh: Value =
+        serde_json::from_str(&std::fs::read_to_string(&zenoh_path).expect("the subscriber's JSON")).expect("JSON");
     assert_eq!(zenoh["errors"], serde_json::json!([]), "payloads that did not decode");
     let failures = clients::compare_every_channel(&recording, &zenoh);
     assert!(failures.is_empty(), "{}", failures.join("\n"));
