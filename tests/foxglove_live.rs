@@ -11,7 +11,6 @@
 //! test asserts a runtime.
 
 use std::path::Path;
-use std::process::Command;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use jetbench_msgs::{channels, Sample, ServiceId, StateEstimate, Thrust};
@@ -21,8 +20,8 @@ use serde_json::Value;
 mod clients;
 mod common;
 
-use clients::{compare_with_recording, foxglove_client, free_port, node_env, Process};
-use common::{python, repo_root, scratch, spawn_up_with, wait_for_line, wait_with_watchdog};
+use clients::{compare_with_recording, foxglove_client, free_port, node_env};
+use common::{scratch, spawn_up_with, wait_for_line, wait_with_watchdog};
 
 const SUITE: &str = "fox";
 
@@ -86,14 +85,7 @@ fn a_foxglove_client_sees_the_live_bench_as_recorded_and_bad_clients_change_noth
     let stalled = foxglove_client(&env, &url, &all, &["--behave", "stall"]);
     let dropper = foxglove_client(&env, &url, &all, &["--behave", "drop", "--drop-after-s", "5"]);
     let zenoh_path = scratch(SUITE, "zenoh-subscriber.json");
-    let mut command = Command::new(python());
-    command
-        .arg(repo_root().join("tests/clients/zenoh_subscriber.py"))
-        .args(["--connect", &endpoint, "--namespace", &clients::namespace(SUITE), "--out"])
-        .arg(&zenoh_path)
-        .arg("--recording")
-        .arg(&record);
-    let subscriber = Process::start(command, "subscribed", "the Python Zenoh subscriber");
+    let subscriber = clients::zenoh_subscriber(None, &endpoint, SUITE, &zenoh_path, &record);
 
     let status = wait_with_watchdog(&mut up, Duration::from_secs(120), "jetbench up");
     let log: Vec<String> = stdout.try_iter().chain(stderr.try_iter()).collect();

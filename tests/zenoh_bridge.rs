@@ -18,7 +18,7 @@ mod clients;
 mod common;
 
 use clients::{free_port, in_netns, Process, TwoHosts};
-use common::{python, repo_root, scratch};
+use common::scratch;
 
 /// One run at a time: each has the machine's cores to itself.
 static RUN: Mutex<()> = Mutex::new(());
@@ -44,7 +44,6 @@ fn up_with_bridge(
 fn a_python_subscriber_on_another_host_receives_every_channel_as_recorded() {
     let _run = RUN.lock().unwrap_or_else(|e| e.into_inner());
     const SUITE: &str = "zpy";
-    let python = python();
     let hosts = TwoHosts::create();
     let (bench_ns, control_ns, bench_ip) = match &hosts {
         Ok(h) => {
@@ -61,14 +60,7 @@ fn a_python_subscriber_on_another_host_receives_every_channel_as_recorded() {
     // The acceptance command: the bridge is a service of the set.
     let up = up_with_bridge(SUITE, bench_ns, &endpoint, 10, &record);
     let got_path = scratch(SUITE, "python-subscriber.json");
-    let mut command = in_netns(control_ns, &python);
-    command
-        .arg(repo_root().join("tests/clients/zenoh_subscriber.py"))
-        .args(["--connect", &endpoint, "--namespace", &clients::namespace(SUITE), "--out"])
-        .arg(&got_path)
-        .arg("--recording")
-        .arg(&record);
-    let subscriber = Process::start(command, "subscribed", "the Python Zenoh subscriber");
+    let subscriber = clients::zenoh_subscriber(control_ns, &endpoint, SUITE, &got_path, &record);
     let (up_ok, up_log) = up.wait(Duration::from_secs(100));
     assert!(up_ok, "jetbench up --zenoh failed:\n{up_log}");
     let (subscriber_ok, subscriber_log) = subscriber.stop();

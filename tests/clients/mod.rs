@@ -311,3 +311,18 @@ pub fn compare_every_channel(recording: &Recording, got: &Value) -> Vec<String> 
     visit_channels(&mut compare);
     compare.failures
 }
+
+/// The Python Zenoh subscriber (tests/clients/zenoh_subscriber.py), in network
+/// namespace `netns` (this host's with `None`), connected to `endpoint` for
+/// suite `suite`'s bus namespace; it writes what it decoded to `out`, judged
+/// against `recording` once the run is over. Started and subscribed.
+pub fn zenoh_subscriber(netns: Option<&str>, endpoint: &str, suite: &str, out: &Path, recording: &Path) -> Process {
+    let mut command = in_netns(netns, &crate::common::python());
+    command
+        .arg(repo_root().join("tests/clients/zenoh_subscriber.py"))
+        .args(["--connect", endpoint, "--namespace", &namespace(suite), "--out"])
+        .arg(out)
+        .arg("--recording")
+        .arg(recording);
+    Process::start(command, "subscribed", "the Python Zenoh subscriber")
+}
