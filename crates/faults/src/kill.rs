@@ -259,7 +259,11 @@ fn safe_state(trial: &mut KillTrial, recording: &Recording, kill_ns: u64, log: &
         }
         Victim::Launcher => match later.clone().find(|a| a.flags & actuation_flags::DISARMED != 0) {
             Some(last) => trial.time_to_safe_ms = Some(after_ms(last.publish_ns)),
-            None => trial.problems.push("no acknowledged disarm in the recording".into()),
+            None => trial.problems.push(format!(
+                "no acknowledged disarm in the recording; actuation's last sample: {:?}; its log: {:?}",
+                actuation.last(),
+                log.lines().filter(|l| l.contains("actuation")).rev().take(4).collect::<Vec<_>>()
+            )),
         },
         Victim::Recorder => {
             if !recording.truncated {

@@ -43,6 +43,9 @@ use crate::{Acknowledgement, DeviceError, ThrottleOutput};
 /// How long a write waits for the board's acknowledgement before the cycle
 /// goes on without it (a late ack is still read, and counted, next cycle).
 pub const ACK_WAIT: Duration = Duration::from_millis(4);
+/// How long [`ThrottleOutput::stop`] keeps sending the disarm until it is
+/// acknowledged: the board's own watchdog idles the engine after 100 ms.
+pub const DISARM_WAIT: Duration = Duration::from_millis(100);
 /// Cycles (board writes, ECU polls) without an answer after which the
 /// device is reported silent and its port is reopened.
 pub const SILENT_AFTER: u32 = 3;
@@ -450,9 +453,21 @@ impl ThrottleOutput for ThrottleBoard {
     }
 
     fn stop(&mut self) {
-        let seq = self.take_seq();
-        if self.send(&Frame::Disarm { seq }) {
-            self.wait_for_ack(seq, (self.clock)());
+        // The disarm is the last frame: nothing waits on it, so it is sent
+        // again until acknowledged, for as long as the board's own watchdog
+        // would take to idle the engine anyway (a set stopping all at once
+        // keeps both ends busy for a few milliseconds).
+        let until_ns = (self.clock)() + DISARM_WAIT.as_nanos() as u64;
+        loop {
+            let seq = self.take_seq();
+            let sent_ns = (self.clock)();
+            if !self.send(&Frame::Disarm { seq }) || self.wait_for_ack(seq, sent_ns) {
+                break;
+            }
+            // A late ack of an earlier disarm says the same.
+            if self.last_ack.is_some_and(|a| !a.armed) || (self.clock)() >= until_ns {
+                break;
+            }
         }
         self.port = None;
     }

@@ -163,3 +163,25 @@ fn a_missing_port_is_silent_not_an_error() {
     assert!(driver.link_error().is_some_and(|e| !e.is_empty()));
     assert!(driver.write(f64::NAN).is_err() && driver.write(101.0).is_err(), "invalid values are errors");
 }
+
+#[test]
+fn the_disarm_is_sent_again_until_a_busy_board_acknowledges_it() {
+    let board = PtyBoard::spawn(&link("board-disarm"), clock).expect("emulated board on a pty");
+    let mut driver = ThrottleBoard::new(board.link(), 115_200, clock);
+    while driver.unacked_writes() > 0 || board.output_pct(clock()).is_none() {
+        driver.write(40.0).expect("the board answers");
+    }
+    // The board hears nothing for 30 ms, as when the whole set stops at once
+    // and both ends wait for a core: the first disarms are lost.
+    board.set_silent(true);
+    std::thread::scope(|s| {
+        s.spawn(|| {
+            std::thread::sleep(Duration::from_millis(30));
+            board.set_silent(false);
+        });
+        driver.stop();
+    });
+    let ack = driver.acknowledged().expect("an acknowledgement");
+    assert!(!ack.armed, "the disarm was acknowledged: {ack:?}");
+    assert!(!board.firmware().is_armed(), "the board is disarmed");
+}

@@ -14,10 +14,14 @@ use super::{Context, Schedule, Service, ServiceError, Setup};
 use crate::clock::PERIOD;
 
 /// At the end, a reader takes what is still coming until the bus has been
-/// quiet this long ...
+/// quiet this long (the launcher stops readers last) ...
 const QUIET: Duration = Duration::from_millis(50);
+/// ... or this long when the launcher died and every service stops at once:
+/// actuation's last sample comes after the board's disarm, which it retries
+/// for up to 100 ms, on a machine busy with the whole set stopping ...
+const QUIET_ORPHANED: Duration = Duration::from_millis(400);
 /// ... but no longer than this.
-const LAST_SAMPLES_WAIT: Duration = Duration::from_secs(1);
+const LAST_SAMPLES_WAIT: Duration = Duration::from_secs(2);
 
 /// A reader of every channel; [`Reader`] runs it as a service.
 pub trait ChannelReader: Sized {
@@ -67,9 +71,10 @@ impl<R: ChannelReader> Service for Reader<R> {
     }
 
     fn stop(&mut self, _inputs: &(), ctx: &mut Context<'_>) -> Result<(), ServiceError> {
+        let quiet = if super::launcher_gone() { QUIET_ORPHANED } else { QUIET };
         let start = Instant::now();
         let mut last_sample = start;
-        while last_sample.elapsed() < QUIET && start.elapsed() < LAST_SAMPLES_WAIT {
+        while last_sample.elapsed() < quiet && start.elapsed() < LAST_SAMPLES_WAIT {
             if self.0.pump(ctx)? > 0 {
                 last_sample = Instant::now();
             }
