@@ -5,7 +5,9 @@
 //! The safe state of each death:
 //! - sensing, estimation, control (upstream of actuation): actuation commands
 //!   idle after its missed cycles (3) and the board acknowledges it
-//!   (`IDLE_FALLBACK`, acknowledged at 25 %);
+//!   (`IDLE_FALLBACK`, acknowledged at 25 %, on that sample or, when the
+//!   board answered after the cycle's wait, a later one within the board's
+//!   own 100 ms watchdog); the time is to the acknowledgement;
 //! - sim-bench: the sensor and the board die with it; actuation idles for
 //!   lack of commands (no board is left to acknowledge);
 //! - actuation: the board's own 100 ms watchdog idles the engine (`sim/truth`
@@ -28,6 +30,8 @@ use crate::{Bench, FaultsError};
 const IDLE_PCT: f64 = jetbench_model::THROTTLE_MIN_PCT;
 /// Cycles without a command after which actuation idles (`[actuation] idle_after_missed_cycles`).
 pub const IDLE_AFTER_CYCLES: u32 = 3;
+/// The board's own watchdog, ms: it idles the engine this long after its last valid frame.
+pub const WATCHDOG_MS: u64 = 100;
 /// The bound on the board watchdog's idle, ms: its 100 ms and two 10 ms engine steps.
 pub const WATCHDOG_BOUND_MS: f64 = 120.0;
 
@@ -71,7 +75,7 @@ impl Victim {
     pub fn safe_state(self) -> &'static str {
         match self {
             Victim::Sensing | Victim::Estimation | Victim::Control => {
-                "actuation at idle after its missed cycles, acknowledged by the board"
+                "actuation at idle after its missed cycles, acknowledged by the board (time: to the acknowledgement)"
             }
             Victim::SimBench => "actuation at idle for lack of commands (the board died with sim-bench)",
             Victim::Actuation => "the board's own 100 ms watchdog idles the engine (sim/truth)",
@@ -237,10 +241,25 @@ fn safe_state(trial: &mut KillTrial, recording: &Recording, kill_ns: u64, log: &
                     .problems
                     .push(format!("idle after {} missed cycles, not {IDLE_AFTER_CYCLES}", idle.missed_cycles));
             }
-            let acknowledged = idle.flags & (actuation_flags::UNACKED | actuation_flags::BOARD_SILENT) == 0
-                && idle.applied_pct == IDLE_PCT;
-            if trial.victim != Victim::SimBench && !acknowledged {
-                trial.problems.push(format!("the board did not acknowledge the idle command: {idle:?}"));
+            // The engine is safe once the board has applied idle: on the idle
+            // command's own sample, or, when the board answered after the
+            // cycle's 4 ms wait, on a later one (a late acknowledgement), but
+            // before the board's own watchdog would have idled it anyway.
+            let acknowledged = actuation
+                .iter()
+                .filter(|a| a.publish_ns >= idle.publish_ns)
+                .take_while(|a| a.publish_ns - idle.publish_ns <= WATCHDOG_MS * 1_000_000)
+                .find(|a| {
+                    a.flags & (actuation_flags::UNACKED | actuation_flags::BOARD_SILENT) == 0
+                        && a.applied_pct == IDLE_PCT
+                });
+            match acknowledged {
+                // The board died with sim-bench: nothing can acknowledge.
+                _ if trial.victim == Victim::SimBench => {}
+                Some(ack) => trial.time_to_safe_ms = Some(after_ms(ack.publish_ns)),
+                None => trial
+                    .problems
+                    .push(format!("the board did not acknowledge the idle command within {WATCHDOG_MS} ms: {idle:?}")),
             }
         }
         Victim::Actuation => {
