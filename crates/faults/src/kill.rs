@@ -20,6 +20,7 @@
 use std::fmt;
 use std::time::{Duration, Instant};
 
+use jetbench_io::board::WATCHDOG_NS;
 use jetbench_msgs::{actuation_flags, channels};
 use jetbench_record::{seq_gaps, Recording};
 
@@ -30,10 +31,8 @@ use crate::{Bench, FaultsError};
 const IDLE_PCT: f64 = jetbench_model::THROTTLE_MIN_PCT;
 /// Cycles without a command after which actuation idles (`[actuation] idle_after_missed_cycles`).
 pub const IDLE_AFTER_CYCLES: u32 = 3;
-/// The board's own watchdog, ms: it idles the engine this long after its last valid frame.
-pub const WATCHDOG_MS: u64 = 100;
-/// The bound on the board watchdog's idle, ms: its 100 ms and two 10 ms engine steps.
-pub const WATCHDOG_BOUND_MS: f64 = 120.0;
+/// The bound on the board watchdog's idle, ms: the watchdog and two engine steps.
+pub const WATCHDOG_BOUND_MS: f64 = (WATCHDOG_NS as f64 + 2.0 * jetbench_model::STEP_S * 1e9) * 1e-6;
 
 /// A process of the set.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -248,7 +247,7 @@ fn safe_state(trial: &mut KillTrial, recording: &Recording, kill_ns: u64, log: &
             let acknowledged = actuation
                 .iter()
                 .filter(|a| a.publish_ns >= idle.publish_ns)
-                .take_while(|a| a.publish_ns - idle.publish_ns <= WATCHDOG_MS * 1_000_000)
+                .take_while(|a| a.publish_ns - idle.publish_ns <= WATCHDOG_NS)
                 .find(|a| {
                     a.flags & (actuation_flags::UNACKED | actuation_flags::BOARD_SILENT) == 0
                         && a.applied_pct == IDLE_PCT
@@ -257,9 +256,10 @@ fn safe_state(trial: &mut KillTrial, recording: &Recording, kill_ns: u64, log: &
                 // The board died with sim-bench: nothing can acknowledge.
                 _ if trial.victim == Victim::SimBench => {}
                 Some(ack) => trial.time_to_safe_ms = Some(after_ms(ack.publish_ns)),
-                None => trial
-                    .problems
-                    .push(format!("the board did not acknowledge the idle command within {WATCHDOG_MS} ms: {idle:?}")),
+                None => trial.problems.push(format!(
+                    "the board did not acknowledge the idle command within {} ms: {idle:?}",
+                    WATCHDOG_NS / 1_000_000
+                )),
             }
         }
         Victim::Actuation => {

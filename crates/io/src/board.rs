@@ -41,6 +41,8 @@ pub const MAX_PAYLOAD: usize = 32;
 pub const OVERHEAD: usize = 5;
 /// The longest frame on the wire.
 pub const MAX_FRAME: usize = MAX_PAYLOAD + OVERHEAD;
+/// The board drops to idle when no valid frame arrives for this long (its own watchdog).
+pub const WATCHDOG_NS: u64 = 100_000_000;
 
 /// Frame type codes.
 pub mod kind {

@@ -35,8 +35,6 @@ use crate::board::{self, board_flags, BoardStatus, Deframer, Frame, Throttle};
 use crate::ecu::{self, EcuReading};
 use crate::DeviceError;
 
-/// The board drops to idle when no valid frame arrives for this long.
-pub const BOARD_WATCHDOG_NS: u64 = 100_000_000;
 /// The board reports its status this often.
 pub const STATUS_PERIOD_NS: u64 = 100_000_000;
 
@@ -45,7 +43,7 @@ pub const STATUS_PERIOD_NS: u64 = 100_000_000;
 ///
 /// It applies only valid set-throttle frames while armed, acknowledges every
 /// valid command with its sequence number and the throttle it now outputs,
-/// and idles by itself ([`BOARD_WATCHDOG_NS`]) when valid frames stop.
+/// and idles by itself ([`board::WATCHDOG_NS`]) when valid frames stop.
 #[derive(Clone, Debug, Default)]
 pub struct BoardFirmware {
     deframer: Deframer,
@@ -122,7 +120,7 @@ impl BoardFirmware {
             // Nothing but the partial is buffered; whatever it still holds is handled with the next bytes.
             self.receive(&[], now_ns, replies, |_, _| {});
         }
-        let expired = self.last_valid_ns.is_none_or(|t| now_ns.saturating_sub(t) > BOARD_WATCHDOG_NS);
+        let expired = self.last_valid_ns.is_none_or(|t| now_ns.saturating_sub(t) > board::WATCHDOG_NS);
         if expired && !self.idle {
             self.idle = true;
             if self.last_valid_ns.is_some() {
@@ -138,7 +136,7 @@ impl BoardFirmware {
     /// The throttle the board drives at `now_ns`; `None` while disarmed or
     /// idling for lack of valid frames.
     pub fn output(&self, now_ns: u64) -> Option<Throttle> {
-        let fresh = self.last_valid_ns.is_some_and(|t| now_ns.saturating_sub(t) <= BOARD_WATCHDOG_NS);
+        let fresh = self.last_valid_ns.is_some_and(|t| now_ns.saturating_sub(t) <= board::WATCHDOG_NS);
         (self.armed && fresh).then_some(self.throttle)
     }
 

@@ -44,8 +44,8 @@ use crate::{Acknowledgement, DeviceError, ThrottleOutput};
 /// goes on without it (a late ack is still read, and counted, next cycle).
 pub const ACK_WAIT: Duration = Duration::from_millis(4);
 /// How long [`ThrottleOutput::stop`] keeps sending the disarm until it is
-/// acknowledged: the board's own watchdog idles the engine after 100 ms.
-pub const DISARM_WAIT: Duration = Duration::from_millis(100);
+/// acknowledged: as long as the board's own watchdog takes to idle the engine.
+pub const DISARM_WAIT: Duration = Duration::from_nanos(board::WATCHDOG_NS);
 /// Cycles (board writes, ECU polls) without an answer after which the
 /// device is reported silent and its port is reopened.
 pub const SILENT_AFTER: u32 = 3;

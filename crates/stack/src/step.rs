@@ -412,7 +412,7 @@ pub struct BoardEmulator {
 
 impl BoardEmulator {
     /// The board's own watchdog, as on the real board.
-    pub const WATCHDOG_NS: u64 = jetbench_io::emulate::BOARD_WATCHDOG_NS;
+    pub const WATCHDOG_NS: u64 = jetbench_io::board::WATCHDOG_NS;
 
     pub fn new() -> Self {
         BoardEmulator { throttle_pct: THROTTLE_MIN_PCT, last_frame_ns: None }
