@@ -32,13 +32,15 @@ impl Default for FblGains {
 /// Feedback linearisation:
 ///
 /// ```text
-/// v = (T̈_d + kp·(T_d − T) + kd·(Ṫ_d − Ṫ) + ki·∫(T_d − T) − f(T, Ṫ)) / g(T, Ṫ)
+/// v = (T̈_d + kp·(T_d − T) + kd·(Ṫ_d − Ṫ) + ki·∫(T_d − T) − f(T, Ṫ) − d) / g(T, Ṫ)
 /// u = smallest non-negative root of u + B_UU·u² = v, clamped to [25, 100] %
 /// ```
 ///
 /// When `g ≈ 0` the throttle goes to the limit in the direction the thrust must move;
 /// when `v` has no root, to the throttle in range whose `g·v(u)` comes closest to the
-/// acceleration asked for. The command is never NaN. The integral (off with the study's
+/// acceleration asked for. `d` is the disturbance the observer estimates (the acceleration
+/// the model does not explain, [`Fbl::step_with_disturbance`]); 0 in the study's law.
+/// The command is never NaN. The integral (off with the study's
 /// gains) stops while the throttle is held at a limit the error pushes against, so it
 /// does not wind up in saturation. Each call is one [`STEP_S`] of control.
 #[derive(Clone, Debug, PartialEq)]
@@ -72,7 +74,19 @@ impl Fbl {
     /// Throttle for the current state estimate and reference. Non-finite inputs return
     /// [`ControlError::NonFiniteInput`].
     pub fn step(&mut self, state: State, reference: &Reference) -> Result<Command, ControlError> {
+        self.step_with_disturbance(state, 0.0, reference)
+    }
+
+    /// [`Fbl::step`] cancelling `disturbance_n_per_s2` too: the acceleration the state
+    /// estimate carries beyond the model's. A non-finite disturbance counts as 0.
+    pub fn step_with_disturbance(
+        &mut self,
+        state: State,
+        disturbance_n_per_s2: f64,
+        reference: &Reference,
+    ) -> Result<Command, ControlError> {
         crate::check_step(self.invalid, state, reference)?;
+        let disturbance = if disturbance_n_per_s2.is_finite() { disturbance_n_per_s2 } else { 0.0 };
         let State { thrust_n, thrust_rate_n_per_s } = state;
         let error_n = reference.thrust_n - thrust_n;
         let integral_ns = self.integral_ns + error_n * STEP_S;
@@ -81,7 +95,7 @@ impl Fbl {
             + self.gains.kd * (reference.thrust_rate_n_per_s - thrust_rate_n_per_s)
             + self.gains.ki * integral_ns;
         // What g·v must supply on top of the drift, N/s².
-        let needed = accel_wanted - self.params.f(thrust_n, thrust_rate_n_per_s);
+        let needed = accel_wanted - self.params.f(thrust_n, thrust_rate_n_per_s) - disturbance;
         let g = self.params.g(thrust_n, thrust_rate_n_per_s);
         let command = throttle_for_accel(&self.params, needed, g, error_n > 0.0);
         if !winds_up(&command, error_n) {

@@ -3,7 +3,7 @@
 use std::fmt;
 use std::str::FromStr;
 
-use jetbench_model::{EffectKind, Plant, PlantEngine, State, STEP_S};
+use jetbench_model::{EffectKind, Params, Plant, PlantEngine, State, STEP_S};
 use serde::{Deserialize, Serialize};
 
 use crate::mpc::PREDICTION_SUBSTEPS;
@@ -185,9 +185,27 @@ impl Law {
         self.kind
     }
 
+    /// The ten parameters of the controller's model.
+    pub fn params(&self) -> &Params {
+        self.shaper.params()
+    }
+
     /// Throttle for the state estimate at `t_s` seconds into `profile`. Each call is one
     /// 10 ms cycle.
     pub fn step(&mut self, state: State, t_s: f64, profile: &Profile) -> Result<LawOutput, ControlError> {
+        self.step_with_disturbance(state, 0.0, t_s, profile)
+    }
+
+    /// [`Law::step`] with the observer's disturbance estimate, N/s²: FBL cancels it
+    /// ([`Fbl::step_with_disturbance`]); SMC's switching term and the MPC's correction
+    /// towards the estimate absorb model error their own way and do not use it.
+    pub fn step_with_disturbance(
+        &mut self,
+        state: State,
+        disturbance_n_per_s2: f64,
+        t_s: f64,
+        profile: &Profile,
+    ) -> Result<LawOutput, ControlError> {
         let reference = profile.at(t_s);
         if !self.started && state.thrust_n.is_finite() && state.thrust_rate_n_per_s.is_finite() {
             // At rest: an observer's first rate estimates are still settling.
@@ -206,7 +224,7 @@ impl Law {
                 };
                 let shaped = self.shaper.step(&profile.at(t_s + lead_s));
                 let command = match inner {
-                    Inner::Fbl(fbl) => fbl.step(at, &shaped)?,
+                    Inner::Fbl(fbl) => fbl.step_with_disturbance(at, disturbance_n_per_s2, &shaped)?,
                     Inner::Smc(smc) => smc.step(at, &shaped)?,
                     Inner::Mpc(_) => unreachable!("handled above"),
                 };

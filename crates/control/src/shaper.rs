@@ -57,6 +57,11 @@ impl ReferenceShaper {
         Self { params, settings, range_n, state: None }
     }
 
+    /// The model it shapes for.
+    pub fn params(&self) -> &Params {
+        &self.params
+    }
+
     /// The settings.
     pub fn settings(&self) -> &ShaperSettings {
         &self.settings

@@ -17,14 +17,16 @@
 //! # Ok::<(), jetbench_estim::EstimError>(())
 //! ```
 //!
-//! The bench measures only thrust; the controllers need `[T, Ṫ]`. The filter uses the
+//! The bench measures only thrust; the controllers need `[T, Ṫ]`, and FBL the
+//! disturbance `d`: the acceleration the model does not explain. The filter uses the
 //! discretisation of plant.md at `Δt = STEP_S`:
 //!
 //! ```text
-//! T[k+1] = T + Ṫ·Δt + T̈·Δt²/2,   Ṫ[k+1] = Ṫ + T̈·Δt,   T̈ = f(T, Ṫ) + g(T, Ṫ)·v(u),   y = T
+//! T[k+1] = T + Ṫ·Δt + T̈·Δt²/2,   Ṫ[k+1] = Ṫ + T̈·Δt,   T̈ = f(T, Ṫ) + g(T, Ṫ)·v(u) + d,   d[k+1] = d,   y = T
 //! ```
 //!
-//! with an analytic Jacobian and white unmodelled acceleration as process noise. Each
+//! with an analytic Jacobian, white unmodelled acceleration as process noise, and `d` a
+//! random walk (`disturbance_drift_n_per_s2`; 0 keeps it at 0: the 2-state filter). Each
 //! measurement passes a [`gate`] first: a spike (chi-square test on the innovation) or a
 //! stuck sensor (the same reading over and over) is not used, and the estimate says so.
 //!

@@ -240,3 +240,21 @@ fn a_stuck_sensor_is_flagged_after_ten_identical_readings_and_a_real_jump_restar
     assert_eq!(observer.gated().restarts, 1);
     assert!(verdicts[6..].iter().all(|v| *v == Verdict::Accepted), "{verdicts:?}");
 }
+
+#[test]
+fn the_disturbance_state_takes_up_a_constant_model_error_and_is_exactly_zero_when_off() {
+    let truth = Preset::P100Diesel.params();
+    let run = simulate_run(truth, 60.0, 23);
+    // The model's constant acceleration is 5 N/s² too high: the disturbance learns -5.
+    let mut model = truth;
+    model.c += 5.0;
+    let on =
+        ObserverConfig { accel_noise_n_per_s2: 10.0, disturbance_drift_n_per_s2: 1.5, ..ObserverConfig::default() };
+    let (estimates, _) = observe(&run, model, on);
+    let late: Vec<f64> = estimates[3000..].iter().map(|e| e.disturbance_n_per_s2).collect();
+    let mean = late.iter().sum::<f64>() / late.len() as f64;
+    assert!((mean + 5.0).abs() < 1.5, "disturbance {mean:.2} N/s² for a model 5 N/s² off");
+    // Off, the disturbance is 0 at every step and the acceleration is the model's alone.
+    let (off, _) = observe(&run, model, ObserverConfig::default());
+    assert!(off.iter().all(|e| e.disturbance_n_per_s2 == 0.0));
+}

@@ -192,7 +192,9 @@ sample! {
         pub source_seq: u64,
         pub thrust_n: f64,
         pub thrust_rate_n_per_s: f64,
-        /// Model acceleration at the estimate, N/s².
+        /// Estimated acceleration, N/s²: the model's at the estimate and
+        /// `input_throttle_pct`, plus the estimator's disturbance (the part the model
+        /// does not explain; 0 when the disturbance state is off).
         pub thrust_accel_n_per_s2: f64,
         /// Throttle the prediction step assumed was applied, %.
         pub input_throttle_pct: f64,

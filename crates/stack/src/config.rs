@@ -251,6 +251,8 @@ impl SensorSection {
 pub struct EstimatorSection {
     pub measurement_var_n2: f64,
     pub accel_noise_n_per_s2: f64,
+    /// Drift of the disturbance state over one second, N/s² (0: no disturbance state).
+    pub disturbance_drift_n_per_s2: f64,
     /// A measurement whose normalised innovation squared exceeds this is rejected
     /// (chi-square, one degree of freedom; 25 = five standard deviations).
     pub gate_chi2: f64,
@@ -265,6 +267,7 @@ impl Default for EstimatorSection {
         EstimatorSection {
             measurement_var_n2: d.measurement_var_n2,
             accel_noise_n_per_s2: d.accel_noise_n_per_s2,
+            disturbance_drift_n_per_s2: d.disturbance_drift_n_per_s2,
             gate_chi2: d.gate.chi2_threshold,
             stuck_after_samples: d.gate.stuck_after_samples,
         }
@@ -277,6 +280,7 @@ impl EstimatorSection {
         jetbench_estim::ObserverConfig {
             measurement_var_n2: self.measurement_var_n2,
             accel_noise_n_per_s2: self.accel_noise_n_per_s2,
+            disturbance_drift_n_per_s2: self.disturbance_drift_n_per_s2,
             gate: jetbench_estim::GateConfig {
                 chi2_threshold: self.gate_chi2,
                 stuck_after_samples: self.stuck_after_samples,
@@ -586,6 +590,12 @@ impl BenchConfig {
             if !(v.is_finite() && v > 0.0) {
                 return Err(invalid(format!("{key} = {v} must be a positive number")));
             }
+        }
+        let drift = self.estimator.disturbance_drift_n_per_s2;
+        if !(drift.is_finite() && drift >= 0.0) {
+            return Err(invalid(format!(
+                "[estimator] disturbance_drift_n_per_s2 = {drift} must be finite and >= 0 (0 turns the disturbance state off)"
+            )));
         }
         for (key, v) in [("[control.fbl] ki", self.control.fbl.ki), ("[control.smc] beta", self.control.smc.beta)] {
             if !(v.is_finite() && v >= 0.0) {

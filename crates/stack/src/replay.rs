@@ -122,6 +122,8 @@ impl EstimatorSetup {
         // files, which may be gone, and the plant, which replay does not need.
         let config: BenchConfig = toml::from_str(text)
             .map_err(|e| ReplayError::BadMetadata { key: KEY_CONFIG, message: e.to_string().trim_end().into() })?;
+        // A config recorded before the disturbance state has no key for it and gets
+        // the default, 0: the filter those runs had.
         let observer = config.estimator.observer_config();
         if let Some(model) = meta.get(KEY_MODEL_TOML) {
             let file = ModelFile::from_toml_str(model)

@@ -188,6 +188,20 @@ impl Estimation {
     }
 }
 
+/// The estimator's disturbance, recovered from a state estimate: its acceleration
+/// less what `model` explains at the estimate and the throttle it assumed (the
+/// estimator's model is the controller's, so this is its disturbance state, and
+/// exactly 0 when that state is off). 0 when not finite.
+pub fn disturbance(model: &Params, state: &StateEstimate) -> f64 {
+    let d =
+        state.thrust_accel_n_per_s2 - model.accel(state.thrust_n, state.thrust_rate_n_per_s, state.input_throttle_pct);
+    if d.is_finite() {
+        d
+    } else {
+        0.0
+    }
+}
+
 /// How the control step computes the throttle.
 #[derive(Debug)]
 pub enum ControlLaw {
@@ -238,7 +252,12 @@ impl Control {
         let (r, c, controller, fallback, solve_s) = match &mut self.law {
             ControlLaw::Closed(law) => {
                 let estimate = State::new(state.thrust_n, state.thrust_rate_n_per_s);
-                let out = law.step(estimate, profile_time_s, &self.profile)?;
+                let out = law.step_with_disturbance(
+                    estimate,
+                    disturbance(law.params(), state),
+                    profile_time_s,
+                    &self.profile,
+                )?;
                 let code = law.kind().code();
                 (out.reference, out.command, code, out.fallback, out.solve_s)
             }

@@ -7,7 +7,7 @@ use super::{Context, Input, Service, ServiceError, Setup};
 use crate::clock::INPUT_DEADLINE;
 use crate::step;
 
-/// Estimation: the EKF of `[T, Ṫ]` ([`step::Estimation`]) on every thrust
+/// Estimation: the EKF of `[T, Ṫ, d]` ([`step::Estimation`]) on every thrust
 /// sample, predicting with the throttle the board last acknowledged.
 pub struct Estimation {
     step: step::Estimation,
