@@ -195,3 +195,23 @@ fn default_gains_are_the_study_gains() {
     assert_eq!(parsed, FblGains { ki: 1.0, ..FblGains::default() });
     assert!(toml::from_str::<FblGains>("kp = 4.0\nkd = 4.0\nkj = 1.0\n").is_err());
 }
+
+#[test]
+fn the_disturbance_is_cancelled_like_the_drift_and_zero_changes_nothing() {
+    let params = Preset::P100Diesel.params();
+    let state = State::new(40.0, 12.0);
+    let reference = Reference { thrust_n: 45.0, thrust_rate_n_per_s: 5.0, thrust_accel_n_per_s2: 0.0 };
+    let plain = Fbl::new(params, FblGains::default()).step(state, &reference).unwrap();
+    let zero = Fbl::new(params, FblGains::default()).step_with_disturbance(state, 0.0, &reference).unwrap();
+    assert_eq!(plain, zero, "a zero disturbance changes nothing, bit for bit");
+    // A disturbance of 8 N/s² is cancelled as a model whose constant drift c is 8 higher.
+    let disturbed = Fbl::new(params, FblGains::default()).step_with_disturbance(state, 8.0, &reference).unwrap();
+    let mut shifted = params;
+    shifted.c += 8.0;
+    let expected = Fbl::new(shifted, FblGains::default()).step(state, &reference).unwrap();
+    assert!((disturbed.throttle_pct - expected.throttle_pct).abs() < 1e-9, "{disturbed:?} vs {expected:?}");
+    assert!(disturbed.throttle_pct < plain.throttle_pct, "an accelerating disturbance asks for less throttle");
+    // A non-finite disturbance counts as none.
+    let nan = Fbl::new(params, FblGains::default()).step_with_disturbance(state, f64::NAN, &reference).unwrap();
+    assert_eq!(nan, plain);
+}
