@@ -591,13 +591,11 @@ impl BenchConfig {
                 return Err(invalid(format!("{key} = {v} must be a positive number")));
             }
         }
-        let drift = self.estimator.disturbance_drift_n_per_s2;
-        if !(drift.is_finite() && drift >= 0.0) {
-            return Err(invalid(format!(
-                "[estimator] disturbance_drift_n_per_s2 = {drift} must be finite and >= 0 (0 turns the disturbance state off)"
-            )));
-        }
-        for (key, v) in [("[control.fbl] ki", self.control.fbl.ki), ("[control.smc] beta", self.control.smc.beta)] {
+        for (key, v) in [
+            ("[estimator] disturbance_drift_n_per_s2", self.estimator.disturbance_drift_n_per_s2),
+            ("[control.fbl] ki", self.control.fbl.ki),
+            ("[control.smc] beta", self.control.smc.beta),
+        ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(invalid(format!("{key} = {v} must be a number >= 0")));
             }
