@@ -3,7 +3,7 @@
 use std::fmt;
 use std::str::FromStr;
 
-use jetbench_model::{EffectKind, Params, Plant, PlantEngine, State, STEP_S};
+use jetbench_model::{Params, Plant, PlantEngine, State, STEP_S};
 use serde::{Deserialize, Serialize};
 
 use crate::mpc::PREDICTION_SUBSTEPS;
@@ -251,7 +251,7 @@ struct DelayPredictor {
 impl DelayPredictor {
     /// `None` when the model has no input delay.
     fn new(plant: &Plant) -> Option<Self> {
-        let delay_s = plant.effects.get(EffectKind::InputDelay)?.values()[0];
+        let delay_s = plant.effects.input_delay_s();
         let steps = (delay_s / STEP_S - 1e-9).ceil().max(0.0) as usize;
         (steps > 0).then(|| Self { plant: plant.clone(), steps, shadow: None, scratch: None, last_pct: 0.0 })
     }

@@ -3,6 +3,7 @@
 use jetbench_model::{Params, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S};
 use nalgebra::{Matrix3, Vector3};
 
+use crate::delay::{ThrottleHistory, MAX_INPUT_DELAY_S};
 use crate::gate::{Gate, GateConfig, Verdict};
 
 type Mat3 = Matrix3<f64>;
@@ -54,6 +55,11 @@ pub struct ObserverConfig {
     /// state and FBL cancels it. 0 turns the state off: the disturbance stays 0 and the
     /// filter is the plain 2-state EKF of `[T, Ṫ]`, bit for bit.
     pub disturbance_drift_n_per_s2: f64,
+    /// The model's input delay, s (its `input_delay` effect; 0: none): the engine
+    /// follows the throttle applied that long ago, so the filter predicts with that one.
+    /// At most [`MAX_INPUT_DELAY_S`]. At 0 the filter predicts with the throttle just
+    /// applied, bit for bit as before delays were modelled.
+    pub input_delay_s: f64,
     /// Thrust variance right after the first measurement, N².
     pub initial_thrust_var_n2: f64,
     /// Thrust-rate variance right after the first measurement, (N/s)².
@@ -67,14 +73,15 @@ impl Default for ObserverConfig {
     /// a filter that assumes little of the model. With the study's P100 sets (off by 4-7
     /// N) on simulated diesel data it keeps the worst thrust error near 4-5 N on full
     /// steps, while the rate stays far smoother than a first difference. 10 N/s² with a
-    /// disturbance drift of 1.5 N/s² is the calm alternative for a model without an
-    /// unmodelled delay: one measurement then moves the FBL throttle by under 1 %
-    /// (crates/stack/tests/injected.rs; the trade in crates/estim/README.md).
+    /// disturbance drift of 1.5 N/s² is the calm tuning of the bench: one measurement
+    /// then moves the FBL throttle by under 1 % (crates/stack/tests/injected.rs; the
+    /// trade in crates/estim/README.md). No input delay.
     fn default() -> Self {
         Self {
             measurement_var_n2: 7.0,
             accel_noise_n_per_s2: 200.0,
             disturbance_drift_n_per_s2: 0.0,
+            input_delay_s: 0.0,
             initial_thrust_var_n2: 7.0,
             initial_rate_var: 1.0e4,
             gate: GateConfig::default(),
@@ -92,6 +99,13 @@ impl ObserverConfig {
             ("initial_thrust_var_n2", self.initial_thrust_var_n2, false),
             ("initial_rate_var", self.initial_rate_var, false),
         ];
+        if !(0.0..=MAX_INPUT_DELAY_S).contains(&self.input_delay_s) {
+            return Err(EstimError::InvalidConfig {
+                name: "input_delay_s",
+                value: self.input_delay_s,
+                requirement: "in [0, 2] s",
+            });
+        }
         for (name, value, strictly_positive) in checks {
             let ok = value.is_finite() && if strictly_positive { value > 0.0 } else { value >= 0.0 };
             if !ok {
@@ -114,13 +128,19 @@ pub struct Estimate {
     /// Estimated thrust rate, N/s.
     pub thrust_rate_n_per_s: f64,
     /// Estimated acceleration: the model's `f + g·v` at the estimate and the last
-    /// throttle, plus the disturbance, N/s².
+    /// throttle applied, plus the disturbance, N/s² (with an input delay the engine
+    /// still follows an earlier throttle: this is the acceleration once it follows
+    /// the last one).
     pub thrust_accel_n_per_s2: f64,
     /// The disturbance: acceleration the model does not explain, estimated, N/s² (0 with
     /// [`ObserverConfig::disturbance_drift_n_per_s2`] = 0).
     pub disturbance_n_per_s2: f64,
     /// Measurement minus predicted thrust, N (0 on the first sample).
     pub innovation_n: f64,
+    /// The throttle the prediction assumed the engine followed: the one applied an
+    /// input delay ago ([`ObserverConfig::input_delay_s`]; with none, the one just
+    /// applied), %.
+    pub engine_throttle_pct: f64,
     /// Variance of the thrust estimate, N².
     pub thrust_var_n2: f64,
     /// Variance of the rate estimate, (N/s)².
@@ -129,7 +149,8 @@ pub struct Estimate {
     pub verdict: Verdict,
 }
 
-/// EKF of `[T, Ṫ, d]` at [`STEP_S`], `d` the disturbance ([`ObserverConfig`]). Fixed-size algebra only, so a step never allocates;
+/// EKF of `[T, Ṫ, d]` at [`STEP_S`], `d` the disturbance ([`ObserverConfig`]), predicting
+/// through the model's input delay. Fixed-size algebra only, so a step never allocates;
 /// plain `f64` arithmetic in a fixed order, so equal inputs give bit-identical outputs.
 #[derive(Clone, Debug)]
 pub struct ThrustObserver {
@@ -143,6 +164,8 @@ pub struct ThrustObserver {
     fallbacks: u64,
     gate: Gate,
     gated: Gated,
+    /// The throttles in flight to the engine (`None` without an input delay).
+    delayed: Option<ThrottleHistory>,
 }
 
 impl ThrustObserver {
@@ -171,11 +194,13 @@ impl ThrustObserver {
             fallbacks: 0,
             gate: Gate::default(),
             gated: Gated::default(),
+            delayed: (config.input_delay_s > 0.0).then(|| ThrottleHistory::new(config.input_delay_s)),
         }
     }
 
     /// One 10 ms cycle: predict over the last interval with `throttle_pct`, the throttle
-    /// that was applied during it, then correct with `thrust_meas_n`.
+    /// that was applied during it (or, with an input delay, the one applied that long
+    /// before), then correct with `thrust_meas_n`.
     ///
     /// The first call initialises the thrust from the measurement (rate 0). A non-finite
     /// input returns [`EstimError::NonFiniteInput`] and changes nothing. A measurement the
@@ -194,14 +219,15 @@ impl ThrustObserver {
         if !throttle_pct.is_finite() {
             return Err(EstimError::NonFiniteInput { what: "throttle", value: throttle_pct });
         }
+        let engine_pct = self.delayed.as_mut().map_or(throttle_pct, |history| history.push(throttle_pct));
         let Some((x, p)) = self.state else {
             let (x, p) = self.initial(thrust_meas_n);
             self.state = Some((x, p));
             self.gate.first(thrust_meas_n);
-            return Ok(self.estimate(&x, &p, throttle_pct, 0.0, Verdict::Accepted));
+            return Ok(self.estimate(&x, &p, [throttle_pct, engine_pct], 0.0, Verdict::Accepted));
         };
 
-        let (x_pred, f) = match self.predict(&x, throttle_pct) {
+        let (x_pred, f) = match self.predict(&x, engine_pct) {
             Some(prediction) => prediction,
             None => {
                 self.fallbacks += 1;
@@ -247,7 +273,7 @@ impl ThrustObserver {
             (x0, p0, 0.0)
         };
         self.state = Some((x_new, p_new));
-        Ok(self.estimate(&x_new, &p_new, throttle_pct, innovation_n, verdict))
+        Ok(self.estimate(&x_new, &p_new, [throttle_pct, engine_pct], innovation_n, verdict))
     }
 
     /// Forgets the estimate and the fallback count; the next step initialises again.
@@ -256,6 +282,9 @@ impl ThrustObserver {
         self.fallbacks = 0;
         self.gate = Gate::default();
         self.gated = Gated::default();
+        if let Some(history) = self.delayed.as_mut() {
+            history.clear();
+        }
     }
 
     /// Steps whose model prediction was unusable and replaced by a constant-rate one.
@@ -309,14 +338,24 @@ impl ThrustObserver {
         usable.then_some((x_pred, f))
     }
 
-    fn estimate(&self, x: &Vec3, p: &Mat3, throttle_pct: f64, innovation_n: f64, verdict: Verdict) -> Estimate {
-        let accel = self.params.accel(x[0], x[1], throttle_pct) + x[2];
+    /// The estimate at `x`, `p`; `[applied, engine]`: the throttle just applied and the
+    /// one the engine followed.
+    fn estimate(
+        &self,
+        x: &Vec3,
+        p: &Mat3,
+        [applied_pct, engine_pct]: [f64; 2],
+        innovation_n: f64,
+        verdict: Verdict,
+    ) -> Estimate {
+        let accel = self.params.accel(x[0], x[1], applied_pct) + x[2];
         Estimate {
             thrust_n: x[0],
             thrust_rate_n_per_s: x[1],
             thrust_accel_n_per_s2: if accel.is_finite() { accel } else { 0.0 },
             disturbance_n_per_s2: x[2],
             innovation_n,
+            engine_throttle_pct: engine_pct,
             thrust_var_n2: p[(0, 0)],
             thrust_rate_var: p[(1, 1)],
             verdict,

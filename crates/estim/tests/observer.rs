@@ -2,9 +2,9 @@
 
 mod common;
 
-use common::{rms, simulate_run, Run, NOISE_VAR_N2};
+use common::{rms, simulate_plant_run, simulate_run, Run, NOISE_VAR_N2};
 use jetbench_estim::{EstimError, Estimate, Gated, ObserverConfig, ThrustObserver, Verdict};
-use jetbench_model::{Params, Preset, STEP_S};
+use jetbench_model::{Effects, Params, Plant, Preset, STEP_S};
 
 /// Skip the first second, while the filter converges from its initial guess.
 const SKIP: usize = 100;
@@ -257,4 +257,40 @@ fn the_disturbance_state_takes_up_a_constant_model_error_and_is_exactly_zero_whe
     // Off, the disturbance is 0 at every step and the acceleration is the model's alone.
     let (off, _) = observe(&run, model, ObserverConfig::default());
     assert!(off.iter().all(|e| e.disturbance_n_per_s2 == 0.0));
+}
+
+#[test]
+fn an_observer_that_knows_the_input_delay_tracks_a_delayed_engine_and_one_that_does_not_lags() {
+    let params = Preset::P100Diesel.params();
+    // 115 ms: eleven and a half cycles, so the fraction is used too.
+    let plant = Plant::new(params, Effects::new(["input_delay:delay_s=0.115".parse().unwrap()]).unwrap());
+    let run = simulate_plant_run(&plant, 60.0, 29);
+    let calm =
+        ObserverConfig { accel_noise_n_per_s2: 10.0, disturbance_drift_n_per_s2: 1.5, ..ObserverConfig::default() };
+    let (knows, _) = observe(&run, params, ObserverConfig { input_delay_s: 0.115, ..calm });
+    let (ignores, _) = observe(&run, params, calm);
+    let (knows_rms, knows_rate, fd_rms) = errors(&run, &knows);
+    let (ignores_rms, ignores_rate, _) = errors(&run, &ignores);
+    println!("thrust rms: knows the delay {knows_rms:.2} N, ignores it {ignores_rms:.2} N; rate {knows_rate:.1} / {ignores_rate:.1} N/s");
+    assert!(knows_rms < 1.0, "thrust rms {knows_rms} N with the delay modelled");
+    assert!(knows_rate < fd_rms / 3.0, "rate rms {knows_rate} N/s");
+    assert!(knows_rms < 0.6 * ignores_rms, "{knows_rms} N against {ignores_rms} N without the delay");
+    assert!(knows_rate < 0.6 * ignores_rate, "{knows_rate} N/s against {ignores_rate} N/s without the delay");
+    // The throttle the prediction assumed is the one applied 11.5 cycles back.
+    let k = 1000;
+    let expected = 0.5 * run.throttle_pct[k - 11] + 0.5 * run.throttle_pct[k - 12];
+    assert_eq!(knows[k].engine_throttle_pct, expected);
+    assert!(ignores.iter().zip(&run.throttle_pct).all(|(e, &u)| e.engine_throttle_pct == u));
+}
+
+#[test]
+fn an_input_delay_out_of_range_is_a_config_error() {
+    for delay_s in [-0.01, 2.5, f64::NAN] {
+        let config = ObserverConfig { input_delay_s: delay_s, ..ObserverConfig::default() };
+        let mut observer = ThrustObserver::new(Preset::P100Diesel.params(), config);
+        match observer.step(30.0, 50.0) {
+            Err(EstimError::InvalidConfig { name: "input_delay_s", .. }) => {}
+            other => panic!("delay {delay_s}: {other:?}"),
+        }
+    }
 }

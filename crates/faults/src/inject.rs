@@ -10,6 +10,8 @@ use jetbench_control::recorded::{recording_metrics, ThrustSource};
 use jetbench_control::MetricsOptions;
 use jetbench_msgs::{channels, sim_faults, state_flags, visit_channels, Channel, ChannelVisitor, Sample};
 use jetbench_record::Recording;
+use jetbench_stack::replay::{recorded_config, replay_with_alternatives, EstimatorSource, InputRule};
+use jetbench_stack::step::Control;
 
 use crate::set::run_to_end;
 use crate::{p50_max, Bench, FaultsError};
@@ -31,6 +33,11 @@ pub struct BadData {
     /// Tracking MAE (true thrust against the reference), N; and of the same run without faults.
     pub mae_n: f64,
     pub baseline_mae_n: f64,
+    /// What each spike did to the throttle, % (p50, max): the recorded command at the
+    /// spike against the command the same controller, with the same history, computes
+    /// from the estimate the clean reading would have given ([`spike_effects`]); or why
+    /// the recording cannot say.
+    pub spike_effect: SpikeEffect,
     /// |throttle step| of the command computed at a spike, % (p50, max), and at
     /// every other cycle (p50, max): the loop's own movement.
     pub step_at_spike_pct: (f64, f64),
@@ -46,6 +53,30 @@ pub struct BadData {
     pub silent_frames: usize,
     pub idled_in_silence: bool,
     pub problems: Vec<String>,
+}
+
+/// What the spikes of a run did to the commanded throttle ([`spike_effects`]).
+#[derive(Clone, Debug, PartialEq)]
+pub enum SpikeEffect {
+    /// p50 and max over the spikes, %.
+    Measured { p50_pct: f64, max_pct: f64 },
+    /// Why the recording cannot say (no spike, or a loop it does not reproduce).
+    Unknown(String),
+}
+
+impl Default for SpikeEffect {
+    fn default() -> Self {
+        SpikeEffect::Unknown("not measured".into())
+    }
+}
+
+impl std::fmt::Display for SpikeEffect {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SpikeEffect::Measured { p50_pct, max_pct } => write!(f, "{p50_pct:.2} / {max_pct:.2}"),
+            SpikeEffect::Unknown(why) => write!(f, "unknown: {why}"),
+        }
+    }
 }
 
 /// Runs `jetbench up --sim --inject SPEC...` for `duration_s` (and, with
@@ -125,6 +156,19 @@ pub fn judge(recording: &Recording) -> BadData {
         }
     }
     out.step_at_spike_pct = p50_max(&at_spike);
+    let spike_sizes: HashMap<u64, f64> = truth
+        .iter()
+        .filter(|t| t.faults == sim_faults::SPIKE && spike_frames.binary_search(&t.seq).is_ok())
+        .map(|t| (t.seq, t.injected_n))
+        .collect();
+    out.spike_effect = match spike_effects(recording, &spike_sizes) {
+        Ok(effects) if effects.is_empty() => SpikeEffect::Unknown("no spike reached the controller".into()),
+        Ok(effects) => {
+            let (p50_pct, max_pct) = p50_max(&effects);
+            SpikeEffect::Measured { p50_pct, max_pct }
+        }
+        Err(why) => SpikeEffect::Unknown(why),
+    };
     out.step_elsewhere_pct = p50_max(&elsewhere);
 
     let first_stuck = truth.iter().find(|t| t.faults & sim_faults::STUCK != 0).map(|t| t.seq);
@@ -153,9 +197,78 @@ pub fn judge(recording: &Recording) -> BadData {
     out
 }
 
+/// How much each spike moved the commanded throttle, %, in the order of the
+/// spikes: `spike_sizes` maps a sensor frame to what was added to its thrust
+/// reading (`sim/truth`'s `injected_n`).
+///
+/// The estimator is replayed on the recording (it must reproduce the recorded
+/// estimates bit for bit, else nothing is claimed), and at each spike it is also
+/// given the clean reading: the spiked reading less the spike (on the simulated
+/// bench's identity calibration). The controller is replayed too, from the
+/// recording's config on the estimates it was given (the commands name them); at
+/// a spike it must reproduce the recorded command bit for bit, and the effect is
+/// the distance from that command to the one computed from the clean estimate.
+pub fn spike_effects(recording: &Recording, spike_sizes: &HashMap<u64, f64>) -> Result<Vec<f64>, String> {
+    let (outcome, clean) =
+        replay_with_alternatives(recording, EstimatorSource::Recorded, InputRule::RecordedState, |t| {
+            spike_sizes.get(&t.frame_seq).map(|size| t.thrust_n - size)
+        })
+        .map_err(|e| format!("the estimator cannot be replayed: {e}"))?;
+    if !outcome.report.is_identical() {
+        return Err(format!(
+            "the replayed estimates differ from the recorded ones ({:?})",
+            outcome.report.first_difference
+        ));
+    }
+    if clean.len() != spike_sizes.len() {
+        return Err(format!("{} spikes, {} of them replayed", spike_sizes.len(), clean.len()));
+    }
+    let config = recorded_config(recording).map_err(|e| e.to_string())?;
+    let states: HashMap<u64, jetbench_msgs::StateEstimate> =
+        recording.samples(channels::STATE).into_iter().map(|s| (s.seq, s)).collect();
+    let commands = recording.samples(channels::COMMAND);
+    // The estimates the controller computed its commands from, in its order.
+    let seen: Vec<(&jetbench_msgs::StateEstimate, &jetbench_msgs::Command)> =
+        commands.iter().filter_map(|c| states.get(&c.source_seq).map(|s| (s, c))).collect();
+    let mut effects = Vec::with_capacity(clean.len());
+    for alternative in &clean {
+        // An estimate the controller never computed from (its queue overflowed) had no effect.
+        let Some(at) = seen.iter().position(|(s, _)| s.seq == alternative.seq) else { continue };
+        // A controller with the same history; `Law` holds solver state that is not
+        // cloned, so each spike replays the run up to it (FBL: microseconds a cycle).
+        let replayed = |last: &jetbench_msgs::StateEstimate| -> Result<f64, String> {
+            let law = config.control_law().map_err(|e| format!("the recorded controller: {e}"))?;
+            let mut control = Control::with_law(law, config.reference.clone());
+            for (s, _) in &seen[..at] {
+                control.step(s).map_err(|e| e.to_string())?;
+            }
+            Ok(control.step(last).map_err(|e| e.to_string())?.1.throttle_pct)
+        };
+        let (state, command) = seen[at];
+        let recomputed = replayed(state)?;
+        if recomputed.to_bits() != command.throttle_pct.to_bits() {
+            return Err(format!(
+                "the controller does not reproduce its recorded command at state {} ({recomputed} % against {} %)",
+                state.seq, command.throttle_pct
+            ));
+        }
+        effects.push((command.throttle_pct - replayed(alternative)?).abs());
+    }
+    Ok(effects)
+}
+
 fn judge_bounds(out: &mut BadData, stuck_injected: bool) {
     if out.spikes_rejected != out.spikes {
         out.problems.push(format!("{} of {} spikes rejected", out.spikes_rejected, out.spikes));
+    }
+    match &out.spike_effect {
+        SpikeEffect::Measured { max_pct, .. } if *max_pct >= 1.0 => {
+            out.problems.push(format!("a spike moved the throttle by {max_pct:.2} %"))
+        }
+        SpikeEffect::Unknown(why) if out.spikes > 0 => {
+            out.problems.push(format!("what a spike did to the throttle is unknown: {why}"))
+        }
+        _ => {}
     }
     // After a stuck sensor or a silence, the first fresh reading may rightly
     // fail the gate; with spikes alone, nothing but a spike may.

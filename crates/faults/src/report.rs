@@ -381,12 +381,12 @@ impl Campaign {
             return Ok(());
         }
         writeln!(md, "\n## Bad sensor data in the live loop\n")?;
-        writeln!(md, "| `--inject` | run (s) | spikes rejected | other rejections | tracking MAE (N), without faults | throttle step at a spike p50 / max (%) | every other step p50 / max (%) | stuck flagged after (s) | NaN frames reaching the bus | non-finite samples recorded | idle while silent |")?;
-        writeln!(md, "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---|")?;
+        writeln!(md, "| `--inject` | run (s) | spikes rejected | other rejections | tracking MAE (N), without faults | a spike's effect on the throttle p50 / max (%) | throttle step at a spike p50 / max (%) | every other step p50 / max (%) | stuck flagged after (s) | NaN frames reaching the bus | non-finite samples recorded | idle while silent |")?;
+        writeln!(md, "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---|")?;
         for b in &self.bad_data {
             writeln!(
                 md,
-                "| `{}` | {:.0} | {}/{} | {} | {} | {:.2} / {:.2} | {:.2} / {:.2} | {} | {}/{} | {} | {} |",
+                "| `{}` | {:.0} | {}/{} | {} | {} | {} | {:.2} / {:.2} | {:.2} / {:.2} | {} | {}/{} | {} | {} |",
                 b.inject.join(" "),
                 b.duration_s,
                 b.spikes_rejected,
@@ -402,6 +402,7 @@ impl Campaign {
                         100.0 * (b.mae_n / b.baseline_mae_n - 1.0)
                     )
                 },
+                b.spike_effect,
                 b.step_at_spike_pct.0,
                 b.step_at_spike_pct.1,
                 b.step_elsewhere_pct.0,
@@ -422,9 +423,12 @@ impl Campaign {
         writeln!(
             md,
             "\nReproduce: `jetbench up --sim --duration 32 --record bad.mcap --inject {}`, or `jetbench faults --only \
-             inject`. The throttle step at a spike is that of the controller's own loop: a rejected measurement \
-             leaves the estimate at the prediction whatever the spike's size (`crates/stack/tests/injected.rs` \
-             measures a spike's effect against the same loop fed the clean reading).",
+             inject`. A spike's effect is measured on the recording: the estimator and the controller are replayed \
+             (each must reproduce its recorded output bit for bit), and at each spike the command is computed again \
+             from the clean reading (the reading less the spike `sim/truth` records); the effect is the distance \
+             between the two commands. The throttle step at a spike is the loop's own step in that cycle, reference \
+             transitions included; a rejected measurement leaves the estimate at the prediction whatever the \
+             spike's size.",
             ALL_KINDS.join(" --inject ")
         )
     }

@@ -392,6 +392,12 @@ impl Effects {
         self.list.iter().find(|e| e.kind == kind)
     }
 
+    /// The input delay, s: what the engine's throttle lags the applied one by (0 without
+    /// an `input_delay` effect).
+    pub fn input_delay_s(&self) -> f64 {
+        self.get(EffectKind::InputDelay).map_or(0.0, |e| e.values()[0])
+    }
+
     /// Effects in signal-path order.
     pub fn iter(&self) -> impl Iterator<Item = &Effect> {
         self.list.iter()

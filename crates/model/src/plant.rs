@@ -280,7 +280,7 @@ impl PlantEngine {
         let h = STEP_S / substeps as f64;
         let tick_s = STEP_S / SUBSTEPS as f64;
         let values = |kind: EffectKind| plant.effects.get(kind).map(|e| e.values());
-        let delay_s = values(EffectKind::InputDelay).map(|v| v[0]).filter(|d| *d > 0.0);
+        let delay_s = Some(plant.effects.input_delay_s()).filter(|d| *d > 0.0);
         let history_len = delay_s.map_or(1, |d| (d / STEP_S).ceil() as usize + 2);
         let p = plant.params;
         Self {

@@ -196,7 +196,9 @@ sample! {
         /// `input_throttle_pct`, plus the estimator's disturbance (the part the model
         /// does not explain; 0 when the disturbance state is off).
         pub thrust_accel_n_per_s2: f64,
-        /// Throttle the prediction step assumed was applied, %.
+        /// Throttle the prediction step assumed was applied, %. With a model input
+        /// delay the engine follows the one applied that long before: the estimator
+        /// keeps the throttles in flight and predicts with that one.
         pub input_throttle_pct: f64,
         /// Measurement minus prediction, N.
         pub innovation_n: f64,

@@ -3,7 +3,8 @@
 //!
 //! `cargo run --release -p jetbench-stack --example closed_loop -- mpc p100-diesel p100-diesel steps 27`
 //! (controller, plant, controller model, profile, seconds; `noshape` as a sixth argument
-//! turns reference shaping off). `JETBENCH_SEED` picks the sensor noise draw (default 3).
+//! turns reference shaping off). `JETBENCH_SEED` picks the sensor noise draw (default 3),
+//! `JETBENCH_ESTIMATOR="accel_noise,disturbance_drift"` the estimator's tuning.
 
 use jetbench_control::{tracking_metrics, Controller, MetricsOptions, Profile, ThrottleLimit, TrackingSample};
 use jetbench_msgs::command_flags;
@@ -24,6 +25,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let v: Vec<f64> = smc.split(',').map(str::parse).collect::<Result<_, _>>()?;
         config.control.smc = jetbench_control::SmcGains { a1: v[0], beta: v[1], k: v[2] };
     }
+    // The estimator's tuning: JETBENCH_ESTIMATOR="accel_noise,disturbance_drift" (N/s²).
+    if let Ok(e) = std::env::var("JETBENCH_ESTIMATOR") {
+        let v: Vec<f64> = e.split(',').map(str::parse).collect::<Result<_, _>>()?;
+        (config.estimator.accel_noise_n_per_s2, config.estimator.disturbance_drift_n_per_s2) = (v[0], v[1]);
+    }
     if let Ok(v) = std::env::var("JETBENCH_NOISE_VAR") {
         config.plant.noise_var_n2 = v.parse()?;
     }
@@ -36,7 +42,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if let Ok(w) = std::env::var("JETBENCH_MPC_MOVE_WEIGHT") {
         config.control.mpc.move_weight = w.parse()?;
     }
-    let params = config.model_params()?;
+    let (params, observer) = config.estimator()?;
     let idle = params.stable_equilibrium(25.0).unwrap_or(0.0);
     let max = params.stable_equilibrium(100.0).unwrap_or(100.0);
     config.reference = Profile::builtin(&arg(3, "steps"), idle, max).ok_or("unknown profile")?;
@@ -50,7 +56,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         25.0,
     );
     let mut sensing = Sensing::new(&config.sensor)?;
-    let mut estimation = Estimation::new(params, config.estimator.observer_config());
+    let mut estimation = Estimation::new(params, observer);
     let mut control = Control::with_law(config.control_law()?, config.reference.clone());
     let mut actuator = Actuator::new(3);
     let mut throttle = None;

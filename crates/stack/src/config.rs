@@ -275,12 +275,15 @@ impl Default for EstimatorSection {
 }
 
 impl EstimatorSection {
-    pub fn observer_config(&self) -> jetbench_estim::ObserverConfig {
+    /// The observer of these settings on a model whose input delay is `input_delay_s`
+    /// (the model's, not a setting: [`BenchConfig::estimator`] takes it from `[model]`).
+    pub fn observer_config(&self, input_delay_s: f64) -> jetbench_estim::ObserverConfig {
         let d = jetbench_estim::ObserverConfig::default();
         jetbench_estim::ObserverConfig {
             measurement_var_n2: self.measurement_var_n2,
             accel_noise_n_per_s2: self.accel_noise_n_per_s2,
             disturbance_drift_n_per_s2: self.disturbance_drift_n_per_s2,
+            input_delay_s,
             gate: jetbench_estim::GateConfig {
                 chi2_threshold: self.gate_chi2,
                 stuck_after_samples: self.stuck_after_samples,
@@ -694,6 +697,13 @@ impl BenchConfig {
     /// Parameters the estimator and controller use.
     pub fn model_params(&self) -> Result<Params, jetbench_model::ModelError> {
         jetbench_model::resolve_params(&self.model.model)
+    }
+
+    /// The estimator: the parameters of `[model] model`, the `[estimator]` settings, and
+    /// the model's input delay, which the filter predicts through.
+    pub fn estimator(&self) -> Result<(Params, jetbench_estim::ObserverConfig), jetbench_model::ModelError> {
+        let model = jetbench_model::resolve_model(&self.model.model)?;
+        Ok((model.model, self.estimator.observer_config(model.effects.input_delay_s())))
     }
 
     /// The control law `[control]` chooses, on the controller's model.

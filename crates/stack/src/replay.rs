@@ -30,8 +30,9 @@
 //! rejects as spikes or a stuck sensor depends on nothing else), and a
 //! recording holds all three:
 //! - the configuration: the recorder's `jetbench` metadata record holds the
-//!   bench config (`config`) and the resolved model parameters (`model_toml`,
-//!   which parse back bit for bit), so a model file deleted since does not matter;
+//!   bench config (`config`) and the resolved model (`model_toml`: parameters,
+//!   which parse back bit for bit, and effects, whose input delay the filter
+//!   predicts through), so a model file deleted since does not matter;
 //! - which thrust samples: exactly those with a recorded state whose
 //!   `source_seq` is their `seq`; the others (the estimator started late, or its
 //!   queue overflowed) are skipped and counted;
@@ -109,27 +110,27 @@ pub struct EstimatorSetup {
 impl EstimatorSetup {
     /// The estimator of a bench config, as the estimation service builds it.
     pub fn from_config(config: &BenchConfig) -> Result<Self, ModelError> {
-        Ok(EstimatorSetup { params: config.model_params()?, observer: config.estimator.observer_config() })
+        let (params, observer) = config.estimator()?;
+        Ok(EstimatorSetup { params, observer })
     }
 
     /// The estimator recorded with a run: `[estimator]` from the recorded
     /// config, the model from `model_toml` when present, else the config's
     /// `[model] model` resolved now (older recordings).
     pub fn from_recording(recording: &Recording) -> Result<(Self, EstimatorOrigin), ReplayError> {
-        let meta = recording.metadata.get(RUN).ok_or(ReplayError::NoMetadata)?;
-        let text = meta.get(KEY_CONFIG).filter(|t| !t.trim().is_empty()).ok_or(ReplayError::NoMetadata)?;
-        // Parsed without `BenchConfig::validate`: that resolves the model
-        // files, which may be gone, and the plant, which replay does not need.
-        let config: BenchConfig = toml::from_str(text)
-            .map_err(|e| ReplayError::BadMetadata { key: KEY_CONFIG, message: e.to_string().trim_end().into() })?;
+        let config = recorded_config(recording)?;
+        let meta = &recording.metadata[RUN];
         // A config recorded before the disturbance state has no key for it and gets
-        // the default, 0: the filter those runs had.
-        let observer = config.estimator.observer_config();
+        // the default, 0: the filter those runs had. The input delay is the recorded
+        // model's: recorders before the estimator modelled it stored the parameters
+        // alone, and older ones no model, so their filters had none.
         if let Some(model) = meta.get(KEY_MODEL_TOML) {
             let file = ModelFile::from_toml_str(model)
                 .map_err(|e| ReplayError::BadMetadata { key: KEY_MODEL_TOML, message: e.to_string() })?;
+            let observer = config.estimator.observer_config(file.effects.input_delay_s());
             return Ok((EstimatorSetup { params: file.model, observer }, EstimatorOrigin::RecordedModel));
         }
+        let observer = config.estimator.observer_config(0.0);
         let spec = config.model.model.clone();
         match config.model_params() {
             Ok(params) => Ok((EstimatorSetup { params, observer }, EstimatorOrigin::RecordedSpec(spec))),
@@ -138,11 +139,22 @@ impl EstimatorSetup {
     }
 }
 
-/// The resolved estimator model of `config` as model-file TOML, which
+/// The bench config a recording was made with (its `jetbench` metadata), parsed
+/// without [`BenchConfig::validate`]: that resolves the model files, which may be
+/// gone since, and the plant, which an offline reader does not need.
+pub fn recorded_config(recording: &Recording) -> Result<BenchConfig, ReplayError> {
+    let meta = recording.metadata.get(RUN).ok_or(ReplayError::NoMetadata)?;
+    let text = meta.get(KEY_CONFIG).filter(|t| !t.trim().is_empty()).ok_or(ReplayError::NoMetadata)?;
+    toml::from_str(text)
+        .map_err(|e| ReplayError::BadMetadata { key: KEY_CONFIG, message: e.to_string().trim_end().into() })
+}
+
+/// The resolved estimator model of `config` (parameters and effects: the filter
+/// predicts through its input delay) as model-file TOML, which
 /// [`ModelFile::from_toml_str`] parses back bit for bit: what the recorder
 /// stores under [`KEY_MODEL_TOML`].
 pub fn model_toml(config: &BenchConfig) -> Result<String, ModelError> {
-    Ok(ModelFile::new(config.model_params()?).to_toml_string())
+    Ok(jetbench_model::resolve_model(&config.model.model)?.to_toml_string())
 }
 
 /// What the recorder says about a run of `config` ([`jetbench_record::meta`]):
@@ -328,6 +340,20 @@ pub struct ReplayOutcome {
 /// Allocates once up front (compact indices of the samples and the output);
 /// the per-sample loop only pushes into the preallocated output.
 pub fn replay(recording: &Recording, source: EstimatorSource, inputs: InputRule) -> Result<ReplayOutcome, ReplayError> {
+    replay_with_alternatives(recording, source, inputs, |_| None).map(|(outcome, _)| outcome)
+}
+
+/// [`replay`], and for each thrust sample for which `instead` gives another reading
+/// (N), the estimate the filter would have made from that reading in the state it was
+/// in: the counterfactual of one measurement (a spike against the clean reading). The
+/// alternatives never enter the replay; each is stamped and numbered like the
+/// estimate it stands beside.
+pub fn replay_with_alternatives(
+    recording: &Recording,
+    source: EstimatorSource,
+    inputs: InputRule,
+    instead: impl Fn(&Thrust) -> Option<f64>,
+) -> Result<(ReplayOutcome, Vec<StateEstimate>), ReplayError> {
     let (setup, origin) = match source {
         EstimatorSource::Recorded => EstimatorSetup::from_recording(recording)?,
         EstimatorSource::Given(setup) => (setup, EstimatorOrigin::Given),
@@ -364,6 +390,7 @@ pub fn replay(recording: &Recording, source: EstimatorSource, inputs: InputRule)
     let mut states = StateLookup { index: &index.states, next: 0 };
     let mut actuation = ActuationCursor { samples: &index.actuation, next: 0 };
     let mut matched_states = 0;
+    let mut alternatives = Vec::new();
 
     for &thrust_message in &index.thrust {
         // Indexed only when it decodes, so this skips nothing.
@@ -388,6 +415,13 @@ pub fn replay(recording: &Recording, source: EstimatorSource, inputs: InputRule)
             }
         }
         report.replayed += 1;
+        if let Some(thrust_n) = instead(&thrust) {
+            if let Ok(mut alternative) = estimation.clone().step(&Thrust { thrust_n, ..thrust }) {
+                (alternative.seq, alternative.publish_ns) =
+                    recorded.map_or((estimates.len() as u64, 0), |s| (s.seq, s.publish_ns));
+                alternatives.push(alternative);
+            }
+        }
         let mut estimate = match estimation.step(&thrust) {
             Ok(e) => e,
             Err(e @ (EstimError::InvalidConfig { .. } | EstimError::InvalidParams { .. })) => {
@@ -426,7 +460,7 @@ pub fn replay(recording: &Recording, source: EstimatorSource, inputs: InputRule)
         estimates.push(ReplayedEstimate { thrust_message, estimate });
     }
     report.states_without_thrust = index.states.len().saturating_sub(matched_states);
-    Ok(ReplayOutcome { estimates, report })
+    Ok((ReplayOutcome { estimates, report }, alternatives))
 }
 
 /// |a - b|, with a NaN on one side only as an infinite difference.
@@ -627,7 +661,7 @@ mod tests {
             25.0,
         );
         let mut sensing = Sensing::new(&config.sensor).unwrap();
-        let mut estimation = Estimation::new(params, config.estimator.observer_config());
+        let mut estimation = Estimation::new(params, config.estimator.observer_config(0.0));
         let mut messages = Vec::new();
         let mut frame = None;
         let mut state_seq = 0;
@@ -822,6 +856,31 @@ mod tests {
         let (setup, origin) = EstimatorSetup::from_recording(&recording).unwrap();
         assert_eq!(origin, EstimatorOrigin::RecordedModel);
         assert_eq!(setup, EstimatorSetup::from_config(&config).unwrap());
+    }
+
+    #[test]
+    fn a_model_with_an_input_delay_travels_with_the_recording_and_replays_bit_for_bit() {
+        let dir = std::env::temp_dir().join(format!("jetbench-replay-delay-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let model = dir.join("delayed.toml");
+        let delayed = jetbench_model::ModelFile {
+            model: jetbench_model::Preset::P100Diesel.params(),
+            effects: jetbench_model::Effects::new(["input_delay:delay_s=0.115".parse().unwrap()]).unwrap(),
+        };
+        delayed.save(&model).unwrap();
+        let mut config = config();
+        (config.plant.model, config.model.model) = (model.display().to_string(), model.display().to_string());
+        let recording = synthetic_recording(&config, 400).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+
+        let (setup, origin) = EstimatorSetup::from_recording(&recording).unwrap();
+        assert_eq!((origin, setup.observer.input_delay_s), (EstimatorOrigin::RecordedModel, 0.115));
+        let r = replay(&recording, EstimatorSource::Recorded, InputRule::Auto).unwrap().report;
+        assert!(r.is_identical() && r.compared == 400, "{r:?}");
+        // The delay is used: the same estimator without it gives other estimates.
+        let without = EstimatorSetup { observer: ObserverConfig { input_delay_s: 0.0, ..setup.observer }, ..setup };
+        let r = replay(&recording, EstimatorSource::Given(without), InputRule::Auto).unwrap().report;
+        assert!(r.identical < 400, "{r:?}");
     }
 
     #[test]

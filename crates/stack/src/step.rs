@@ -694,7 +694,7 @@ mod tests {
         let config = crate::config::BenchConfig::default_sim().unwrap();
         let mut sim = SimBench::new(&plant, SimForceSensor::new(7.0, [0.0; 6], 3).unwrap(), 25.0);
         let mut sensing = Sensing::new(&config.sensor).unwrap();
-        let mut estimation = Estimation::new(params, config.estimator.observer_config());
+        let mut estimation = Estimation::new(params, config.estimator.observer_config(0.0));
         let law = Law::new(kind, &plant, &LawSettings::default()).unwrap();
         let mut control = Control::new(law, config.reference.clone());
         let mut actuator = Actuator::new(3);

@@ -53,14 +53,14 @@ pub enum SyntheticError {
 /// first cycle with none: `INPUT_ASSUMED`), as a live run does.
 pub fn synthetic_recording(config: &BenchConfig, cycles: usize) -> Result<Recording, SyntheticError> {
     const T0_NS: u64 = 1_000_000_000;
-    let model = config.model_params()?;
     let mut sim = SimBench::new(&config.plant()?, config.plant.sensor()?, config.plant.initial_throttle_pct);
     let mut sensing = Sensing::new(&config.sensor).map_err(|e| SyntheticError::Step {
         cycle: 0,
         service: "sensing",
         message: e.to_string(),
     })?;
-    let mut estimation = Estimation::new(model, config.estimator.observer_config());
+    let (model, observer) = config.estimator()?;
+    let mut estimation = Estimation::new(model, observer);
     let mut control = Control::with_law(config.control_law()?, config.reference.clone());
     let mut actuator = Actuator::new(config.actuation.idle_after_missed_cycles);
 

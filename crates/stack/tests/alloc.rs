@@ -136,7 +136,7 @@ impl Loop {
         });
         let mut config = BenchConfig::default_sim().expect("built-in config");
         config.control.controller = kind;
-        let params = config.model_params().expect("model");
+        let (params, observer) = config.estimator().expect("model");
         let idle = params.stable_equilibrium(25.0).expect("idle");
         let max = params.stable_equilibrium(100.0).expect("max");
         // The steps profile saturates the throttle both ways, so every branch of
@@ -169,7 +169,7 @@ impl Loop {
             sensor,
             source,
             sensing: Sensing::new(&config.sensor).expect("sensing"),
-            estimation: Estimation::new(params, config.estimator.observer_config()),
+            estimation: Estimation::new(params, observer),
             control: Control::with_law(config.control_law().expect("law"), profile),
             actuator: Actuator::new(3),
             board: ThrottleBoard::new(&link, 115_200, clock),

@@ -30,9 +30,10 @@ the live estimator never processed are skipped and counted. Without bench/state 
 --inputs actuation) the throttle is the last bench/actuation whose publish_ns <= the thrust \
 sample's stamp_ns.
 
-The estimator's model comes from the recording's `jetbench` metadata (the resolved model \
-parameters, so a model file deleted since does not matter). --config replaces it, and the \
-replay is then not expected to match the recording bit for bit.
+The estimator's model comes from the recording's `jetbench` metadata (the resolved model: \
+its parameters, and the input delay the filter predicts through, so a model file deleted \
+since does not matter). --config replaces it, and the replay is then not expected to match \
+the recording bit for bit.
 
 Exit status:
   0  every replayed estimate equals its recorded bench/state bit for bit

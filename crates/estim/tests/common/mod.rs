@@ -1,6 +1,6 @@
 //! Simulated bench data shared by the observer tests.
 
-use jetbench_model::{Engine, Params, State, STEP_S};
+use jetbench_model::{Effects, Params, Plant, State, STEP_S};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -31,9 +31,14 @@ pub fn throttle_profile_pct(t_s: f64) -> f64 {
 
 /// Simulates `params` for `duration_s` from rest at 40 % and adds seeded Gaussian noise.
 pub fn simulate_run(params: Params, duration_s: f64, seed: u64) -> Run {
+    simulate_plant_run(&Plant::new(params, Effects::none()), duration_s, seed)
+}
+
+/// [`simulate_run`] of a plant with effects (without any, the same run bit for bit).
+pub fn simulate_plant_run(plant: &Plant, duration_s: f64, seed: u64) -> Run {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let noise = Normal::new(0.0, NOISE_VAR_N2.sqrt()).unwrap();
-    let mut engine = Engine::at_equilibrium(params, throttle_profile_pct(0.0));
+    let mut engine = plant.at_equilibrium(throttle_profile_pct(0.0));
     let steps = (duration_s / STEP_S).round() as usize;
     let mut run = Run {
         throttle_pct: vec![throttle_profile_pct(0.0)],
@@ -42,7 +47,7 @@ pub fn simulate_run(params: Params, duration_s: f64, seed: u64) -> Run {
     };
     for k in 0..steps {
         let u = throttle_profile_pct(k as f64 * STEP_S);
-        let s = engine.step(u).unwrap();
+        let s = engine.step(u).unwrap().state;
         run.throttle_pct.push(u);
         run.truth.push(s);
         run.thrust_meas_n.push(s.thrust_n + noise.sample(&mut rng));

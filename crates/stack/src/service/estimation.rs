@@ -27,7 +27,10 @@ impl Service for Estimation {
         let estimation = Estimation {
             actuation: bus.polled_subscriber(channels::ACTUATION, 16)?,
             state: bus.publisher(channels::STATE)?,
-            step: step::Estimation::new(setup.config.model_params()?, setup.config.estimator.observer_config()),
+            step: {
+                let (model, observer) = setup.config.estimator()?;
+                step::Estimation::new(model, observer)
+            },
         };
         Ok((estimation, thrust))
     }
