@@ -46,10 +46,11 @@ fn command_after(params: Params, config: &BenchConfig, history: &[StateEstimate]
     control.step(state).expect("control").1.throttle_pct
 }
 
-/// The estimator's calm tuning: low white process noise and a disturbance state.
-fn calm(config: &mut BenchConfig) {
-    config.estimator.accel_noise_n_per_s2 = 10.0;
-    config.estimator.disturbance_drift_n_per_s2 = 1.5;
+/// The estimator's loose tuning (the bench config's before the estimator modelled the
+/// input delay): high white process noise, no disturbance state.
+fn loose(config: &mut BenchConfig) {
+    config.estimator.accel_noise_n_per_s2 = 150.0;
+    config.estimator.disturbance_drift_n_per_s2 = 0.0;
 }
 
 fn run(specs: &[&str], gate_chi2: f64, tune: fn(&mut BenchConfig)) -> Outcome {
@@ -62,7 +63,7 @@ fn run(specs: &[&str], gate_chi2: f64, tune: fn(&mut BenchConfig)) -> Outcome {
     let mut sim = SimBench::new(&plant, SimForceSensor::new(7.0, [0.0; 6], 3).expect("sensor"), 25.0);
     let mut faulty = FaultySensor::new(plan.clone());
     let mut sensing = Sensing::new(&config.sensor).expect("sensing").with_faults(plan);
-    let mut estimation = Estimation::new(params, config.estimator.observer_config());
+    let mut estimation = Estimation::new(params, config.estimator.observer_config(0.0));
     let mut control = Control::new(law(params), config.reference.clone());
     let mut actuator = Actuator::new(3);
     let mut throttle = None;
@@ -177,18 +178,23 @@ fn spike_experiment(name: &str, tune: fn(&mut BenchConfig)) -> ([f64; 3], [f64; 
 }
 
 #[test]
-fn spikes_are_rejected_and_never_reach_the_throttle() {
-    let (_, [ungated_p50, ..]) = spike_experiment("bench config", |_| {});
-    assert!(ungated_p50 > 5.0, "ungated, a 30 N spike moved the throttle by only {ungated_p50:.2} % (median)");
+fn spikes_are_rejected_and_a_rejected_spike_moves_the_throttle_under_one_percent() {
+    // The bench config's calm tuning (crates/estim/README.md): the model and the
+    // disturbance state carry the estimate, so the one measurement a spike takes away
+    // counts for little.
+    let ([.., effect_max], [ungated_p50, ..]) = spike_experiment("bench config", |_| {});
+    assert!(effect_max < 1.0, "a spike moved the throttle by {effect_max:.2} %");
+    assert!(ungated_p50 > 1.0, "ungated, a 30 N spike moved the throttle by only {ungated_p50:.2} % (median)");
 }
 
 #[test]
-fn with_the_calm_estimator_a_rejected_spike_moves_the_throttle_under_one_percent() {
-    // The calm tuning (crates/estim/README.md): the model and the disturbance state carry
-    // the estimate, so the one measurement a spike takes away counts for little.
-    let ([.., effect_max], [ungated_p50, ..]) = spike_experiment("calm estimator", calm);
-    assert!(effect_max < 1.0, "a spike moved the throttle by {effect_max:.2} %");
-    assert!(ungated_p50 > 1.0, "ungated, a 30 N spike moved the throttle by only {ungated_p50:.2} % (median)");
+fn with_the_loose_estimator_spikes_are_rejected_but_each_lost_measurement_moves_the_throttle_more() {
+    // With high process noise every measurement moves the estimate, and so the throttle:
+    // the spike's value still never reaches it, but losing one measurement does.
+    let ([.., effect_max], [ungated_p50, ..]) = spike_experiment("loose estimator", loose);
+    let ([.., calm_max], _) = spike_experiment("bench config", |_| {});
+    assert!(effect_max > calm_max, "loose {effect_max:.2} % against calm {calm_max:.2} %");
+    assert!(ungated_p50 > 5.0, "ungated, a 30 N spike moved the throttle by only {ungated_p50:.2} % (median)");
 }
 
 #[test]
