@@ -1,47 +1,8 @@
 //! Heap allocations in a control cycle: none after start-up, but for the one Clarabel
 //! makes in each QP solve.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-
 use jetbench_control::{Controller, Law, LawSettings, Profile};
 use jetbench_model::{Effects, Plant, Preset, STEP_S};
-
-/// Counts the allocations the current thread makes while counting is on.
-struct Counting;
-
-thread_local! {
-    static COUNTING: Cell<bool> = const { Cell::new(false) };
-    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
-}
-
-// SAFETY: forwards every call to the system allocator unchanged; the counters are
-// thread-local cells with const initialisers, which never allocate.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if COUNTING.with(Cell::get) {
-            ALLOCATIONS.with(|n| n.set(n.get() + 1));
-        }
-        // SAFETY: the caller's contract is passed on as it is.
-        unsafe { System.alloc(layout) }
-    }
-
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: as above.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if COUNTING.with(Cell::get) {
-            ALLOCATIONS.with(|n| n.set(n.get() + 1));
-        }
-        // SAFETY: as above.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
-#[global_allocator]
-static ALLOCATOR: Counting = Counting;
 
 /// Allocations in cycles 100..1100 of `kind` tracking the built-in steps on `plant`, per
 /// cycle; the first 100 cycles are start-up (the MPC builds its model copies and solver).
@@ -52,15 +13,20 @@ fn allocations_per_cycle(kind: Controller, plant: &Plant) -> f64 {
             .unwrap();
     let mut law = Law::new(kind, plant, &LawSettings::default()).expect("a feedback law");
     let mut engine = plant.at_equilibrium(25.0);
+    let mut allocations = 0;
     for k in 0..1100 {
         let state = engine.state();
-        COUNTING.with(|c| c.set(k >= 100));
-        let out = law.step(state, k as f64 * STEP_S, &profile).unwrap();
-        COUNTING.with(|c| c.set(false));
+        let mut out = None;
+        // This thread's allocations only.
+        let counted = allocation_counter::measure(|| out = Some(law.step(state, k as f64 * STEP_S, &profile)));
+        let out = out.expect("the law ran").unwrap();
+        if k >= 100 {
+            allocations += counted.count_total;
+        }
         assert!(!out.fallback, "{kind} fell back at cycle {k}");
         engine.step(out.command.throttle_pct).unwrap();
     }
-    ALLOCATIONS.with(|n| n.replace(0)) as f64 / 1000.0
+    allocations as f64 / 1000.0
 }
 
 #[test]

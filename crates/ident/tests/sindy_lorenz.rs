@@ -1,40 +1,8 @@
 //! Peer check against PySINDy's documented Lorenz result, and the no-allocation promise of
 //! the evaluation paths used in hot loops.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-
 use jetbench_estim::SavitzkyGolay;
 use jetbench_ident::sindy::{finite_difference, fit, PolynomialLibrary, SindyModel, StlsqOptions};
-
-/// Counts allocations per thread, so tests running in parallel do not see each other's.
-struct Counting;
-
-thread_local! {
-    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
-}
-
-fn allocations() -> usize {
-    ALLOCATIONS.with(Cell::get)
-}
-
-// SAFETY: forwards to the system allocator unchanged, only counting calls.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        // `try_with`: the counter may already be gone while a thread shuts down.
-        let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
-        // SAFETY: same contract as the caller's.
-        unsafe { System.alloc(layout) }
-    }
-
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: same contract as the caller's.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
 
 const DT_S: f64 = 0.002;
 
@@ -109,15 +77,16 @@ fn evaluation_paths_do_not_allocate() {
     let mut rhs = [0.0; 3];
     let mut smoothed = vec![0.0; signal.len()];
 
-    let before = allocations();
-    for k in 0..100 {
-        let p = [k as f64 * 0.1, 1.0, -2.0];
-        model.eval_into(&p, &mut rhs);
-        library.eval_into(&p, &mut terms);
-        sg.apply_into(&signal, k % 3, 0.01, &mut smoothed).unwrap();
-    }
-    let after = allocations();
-    assert_eq!(after - before, 0, "allocations in eval_into / apply_into");
+    // This thread's allocations only: tests run in parallel.
+    let allocations = allocation_counter::measure(|| {
+        for k in 0..100 {
+            let p = [k as f64 * 0.1, 1.0, -2.0];
+            model.eval_into(&p, &mut rhs);
+            library.eval_into(&p, &mut terms);
+            sg.apply_into(&signal, k % 3, 0.01, &mut smoothed).unwrap();
+        }
+    });
+    assert_eq!(allocations.count_total, 0, "allocations in eval_into / apply_into");
     // x' = σ(y − x) at the last point.
     assert!((rhs[0] - 10.0 * (1.0 - 9.9)).abs() < 0.01, "{rhs:?}");
     assert!(terms.iter().all(|t| t.is_finite()) && smoothed.iter().all(|s| s.is_finite()));

@@ -1,11 +1,11 @@
 //! The per-cycle work of every service allocates nothing after start-up.
 //!
-//! A counting global allocator counts the allocations made on the test's own
-//! thread while the services' step code runs cycle after cycle (after a
-//! warm-up that lets buffers reach their working size): the step structs of
-//! the simulated bench, sensing, estimation, every control law and actuation,
-//! the CAN codec between sim-bench and sensing, and the throttle board's frame
-//! codec. A heap allocation in a 100 Hz loop is a system call waiting to
+//! A counting global allocator (`allocation-counter`) counts the allocations
+//! made on the test's own thread while the services' step code runs cycle
+//! after cycle (after a warm-up that lets buffers reach their working size):
+//! the step structs of the simulated bench, sensing, estimation, every control
+//! law and actuation, the CAN codec between sim-bench and sensing, and the
+//! throttle board's frame codec. A heap allocation in a 100 Hz loop is a system call waiting to
 //! happen at the worst moment; this test keeps them out of our code.
 //!
 //! Two libraries allocate inside calls we cannot avoid, and the test pins them
@@ -13,9 +13,6 @@
 //! sample (so one per publish), and Clarabel 0.11, one per QP solve (the MPC's
 //! Gauss-Newton passes). Both come from the allocator's thread cache, not the
 //! kernel, once the process runs.
-
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 
 use std::time::Duration;
 
@@ -29,51 +26,9 @@ use jetbench_msgs::{Actuation, Channel, Command, StateEstimate, Thrust};
 use jetbench_stack::config::BenchConfig;
 use jetbench_stack::step::{Actuator, Control, Estimation, Sensing, SimBench, SimForceSensor};
 
-struct Counting;
-
-thread_local! {
-    static COUNTING: Cell<bool> = const { Cell::new(false) };
-    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
-}
-
-fn note() {
-    // `try_with`: the allocator also runs while thread-locals are torn down.
-    let _ = COUNTING.try_with(|on| {
-        if on.get() {
-            let _ = ALLOCATIONS.try_with(|n| n.set(n.get() + 1));
-        }
-    });
-}
-
-// SAFETY: forwards every call to the system allocator unchanged.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        note();
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        note();
-        unsafe { System.alloc_zeroed(layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        note();
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-}
-
-#[global_allocator]
-static ALLOCATOR: Counting = Counting;
-
 /// Allocations made on this thread by `f`.
 fn allocations(f: impl FnOnce()) -> u64 {
-    ALLOCATIONS.with(|n| n.set(0));
-    COUNTING.with(|on| on.set(true));
-    f();
-    COUNTING.with(|on| on.set(false));
-    ALLOCATIONS.with(Cell::get)
+    allocation_counter::measure(f).count_total
 }
 
 /// The whole loop in one thread, as the services run it, through the real
@@ -205,10 +160,9 @@ impl Loop {
 
     /// Runs one stage of the cycle, adding its allocations to its count.
     fn stage<R>(&mut self, index: usize, f: impl FnOnce(&mut Self) -> R) -> R {
-        let before = ALLOCATIONS.with(Cell::get);
-        let r = f(self);
-        self.counts[index] += ALLOCATIONS.with(Cell::get) - before;
-        r
+        let mut r = None;
+        self.counts[index] += allocations(|| r = Some(f(self)));
+        r.expect("the stage ran")
     }
 
     fn actuator_output(&self) -> f64 {
