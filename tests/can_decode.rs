@@ -9,6 +9,8 @@
 //! fixed seed); a test checks it is up to date. Regenerate it with
 //! `JETBENCH_REGENERATE=1 cargo test --release -p jetbench --test can_decode`.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Duration;

@@ -6,6 +6,8 @@
 //!
 //! Real processes; hangs are caught by a watchdog; no runtime is asserted.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use std::path::PathBuf;
 use std::process::Command;
 use std::time::{Duration, Instant};

@@ -2,6 +2,8 @@
 //! `jetbench up --sim --controller ... --model ... --plant ... --profile ...` with real
 //! processes, scored by `jetbench metrics`; and the mistakes a user can make doing it.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 

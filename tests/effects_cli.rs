@@ -2,6 +2,8 @@
 //! plant with the effect, `jetbench simulate` of a model file with the same
 //! `[effects.*]` table reproduces it, and bad effect specs are clear errors.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use std::path::PathBuf;
 use std::time::Duration;
 

@@ -86,7 +86,7 @@ fn a_recorder_killed_mid_run_loses_under_a_second_and_recovers() {
     let _alone = ALONE.lock().unwrap_or_else(|e| e.into_inner());
     // After 10 s, and long enough for diagnose, one of the readers (17 s of data).
     let crash =
-        recorder_crash(&bench(), jetbench_faults::report::READERS_CRASH_AT_S, true).expect("the experiment runs");
+        recorder_crash(&bench(), jetbench_faults::campaign::READERS_CRASH_AT_S, true).expect("the experiment runs");
     println!(
         "recorder killed at {:.1} s: {:.3} s of data before the kill missing; recover exit {:?}, {} of {} messages; \
          Python: {:?}",

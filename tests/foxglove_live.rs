@@ -10,6 +10,8 @@
 //! decoded is what was recorded. Hangs are caught by watchdogs; no
 //! test asserts a runtime.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use std::path::Path;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 

@@ -6,6 +6,8 @@
 //! recorded by the real recorder. Hangs are caught by a watchdog; no test
 //! asserts a runtime.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 

@@ -1,6 +1,8 @@
 //! `jetbench metrics` end to end: a recorded simulated run, a written recording with two
 //! controllers and known errors, and bad input.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::time::Duration;

@@ -12,6 +12,8 @@
 //! truncated file, a rate that cannot be resampled, a model that diverges on the recorded
 //! input.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 mod common;
 
 use std::collections::BTreeMap;

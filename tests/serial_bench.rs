@@ -4,6 +4,8 @@
 //! corrupted command, and the rejections show in the board's counters.
 //! Hangs are caught by a watchdog; no test asserts a runtime.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use std::io::Write;
 use std::os::unix::fs::OpenOptionsExt;
 use std::path::PathBuf;

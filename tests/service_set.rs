@@ -6,6 +6,8 @@
 //! each has the machine's cores to itself.
 //! Hangs are caught by a watchdog; no test asserts a runtime.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitStatus};
 use std::sync::Mutex;
@@ -161,7 +163,7 @@ fn up_records_a_complete_closed_loop_run() {
         assert_eq!(samples_start_at_zero, 0, "the recording must start with each publisher's first sample");
     }
     // Every service a recorded run of the simulated bench starts.
-    for id in jetbench_stack::launch::start_order(true, true) {
+    for id in jetbench_stack::runtime::launch::start_order(true, true) {
         let h = health_of(&recording, id);
         assert!(h.len() > 100, "{} published {} heartbeats", id.name(), h.len());
         assert_eq!(seq_gaps(&h), 0, "{} heartbeats have gaps", id.name());

@@ -3,7 +3,7 @@
 
 use std::process::ExitCode;
 
-use jetbench_stack::service::{run, RunOptions, Service};
+use jetbench_stack::runtime::{run, RunOptions, Service};
 
 /// Sets up logging to stderr (`RUST_LOG` overrides the `info` default).
 pub fn init_logging() {
@@ -56,7 +56,7 @@ pub fn service_main<S: Service>(about: &'static str) -> ExitCode {
         Err(e) => {
             tracing::error!("{e:#}");
             eprintln!("jetbench-{name}: error: {e:#}");
-            jetbench_stack::service::announce_failure(&format_args!("{e:#}"));
+            jetbench_stack::runtime::announce_failure(&format_args!("{e:#}"));
             ExitCode::FAILURE
         }
     }

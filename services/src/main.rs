@@ -4,7 +4,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::bail;
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 mod cmd;
 
@@ -76,13 +76,13 @@ enum Cmd {
     /// Example: jetbench metrics run.mcap --json
     Metrics(cmd::metrics::MetricsArgs),
     /// Free-run simulation of a model from a throttle profile or a recording's throttle.
-    Simulate(cmd::model::SimulateArgs),
+    Simulate(cmd::simulate::SimulateArgs),
     /// Generate an identification campaign (throttle profile) to play open loop.
-    Excite(cmd::model::ExciteArgs),
+    Excite(cmd::excite::ExciteArgs),
     /// Record a simulated plant driven by a campaign, with sensor noise, faster than real time.
-    SimRecord(cmd::model::SimRecordArgs),
+    SimRecord(cmd::sim_record::SimRecordArgs),
     /// Write a recording's identification data (time, applied throttle, thrust) as CSV.
-    Export(cmd::model::ExportArgs),
+    Export(cmd::export::ExportArgs),
     /// Decode a force-sensor candump log (`candump -l`) into CSV on stdout; rejections by kind on stderr.
     ///
     /// Example: jetbench can-decode recordings/can/sensor-example.log > forces.csv
@@ -107,7 +107,7 @@ enum Cmd {
     /// The set for minutes under load: memory per process over time, lost samples, misses.
     ///
     /// Example: jetbench soak --minutes 30 --load all
-    Soak(cmd::faults::SoakArgs),
+    Soak(cmd::soak::SoakArgs),
     /// Serve a recording to Foxglove at its recorded pace, like `ros2 bag play`.
     ///
     /// Example: jetbench play run.mcap --foxglove 127.0.0.1:8765 --rate 2 --loop
@@ -132,8 +132,38 @@ fn main() -> ExitCode {
     }
 }
 
+/// The commands as `jetbench --help` lists them, by what they are for.
+const GROUPS: &[(&str, &[&str])] = &[
+    ("Run the bench", &["up", "tare", "record"]),
+    ("Watch it", &["list", "echo", "hz", "play"]),
+    ("Offline analysis", &["info", "recover", "replay", "identify", "diagnose", "metrics", "export", "can-decode"]),
+    ("Experiments", &["excite", "simulate", "sim-record", "latency", "faults", "soak"]),
+];
+
+/// The CLI, its top-level help listing the commands in [`GROUPS`] (each with
+/// the one-line summary of its own doc comment) instead of one flat list.
+fn command() -> clap::Command {
+    use std::fmt::Write;
+    let cmd = Cli::command();
+    let mut groups = String::new();
+    for (heading, names) in GROUPS {
+        let _ = writeln!(groups, "{heading}:");
+        for name in *names {
+            let about =
+                cmd.find_subcommand(name).and_then(|c| c.get_about()).map(|a| a.to_string()).unwrap_or_default();
+            let _ = writeln!(groups, "  {name:<12} {about}");
+        }
+        groups.push('\n');
+    }
+    let _ = write!(groups, "`jetbench help COMMAND` or `jetbench COMMAND --help` for a command's options.");
+    cmd.help_template(
+        "{about-with-newline}\n{usage-heading} {usage}\n\n{before-help}\n\nOptions:\n{options}{after-help}",
+    )
+    .before_help(groups)
+}
+
 fn run() -> anyhow::Result<ExitCode> {
-    let cli = Cli::parse();
+    let cli = Cli::from_arg_matches(&command().get_matches())?;
     jetbench_bus::namespace()?;
     match cli.command {
         Cmd::Up(args) => cmd::up::run(args),
@@ -154,17 +184,46 @@ fn run() -> anyhow::Result<ExitCode> {
         Cmd::Identify(args) => cmd::identify::run(args),
         Cmd::Diagnose(args) => cmd::diagnose::run(args),
         Cmd::Metrics(args) => cmd::metrics::run(args),
-        Cmd::Simulate(args) => cmd::model::simulate(args),
-        Cmd::Excite(args) => cmd::model::excite(args),
-        Cmd::SimRecord(args) => cmd::model::sim_record(args),
-        Cmd::Export(args) => cmd::model::export(args),
+        Cmd::Simulate(args) => cmd::simulate::run(args),
+        Cmd::Excite(args) => cmd::excite::run(args),
+        Cmd::SimRecord(args) => cmd::sim_record::run(args),
+        Cmd::Export(args) => cmd::export::run(args),
         Cmd::CanDecode(args) => cmd::can_decode::run(args),
         Cmd::Tare(args) => cmd::tare::run(args),
         Cmd::LatencyStage(args) => cmd::latency_stage::run(args),
         Cmd::Latency(args) => cmd::latency::run(args),
         Cmd::Play(args) => cmd::play::run(args),
         Cmd::Faults(args) => cmd::faults::run(args),
-        Cmd::Soak(args) => cmd::faults::soak(args),
+        Cmd::Soak(args) => cmd::soak::run(args),
         Cmd::LatencyLoad(args) => cmd::latency::run_load(args),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every command the CLI has is listed in exactly one group, and every listed name is a command.
+    #[test]
+    fn every_command_is_in_one_group() {
+        let cmd = Cli::command();
+        let listed: Vec<&str> = GROUPS.iter().flat_map(|(_, names)| names.iter().copied()).collect();
+        for sub in cmd.get_subcommands().filter(|c| !c.is_hide_set()) {
+            let n = listed.iter().filter(|&&l| l == sub.get_name()).count();
+            assert_eq!(n, 1, "`{}` is listed {n} times in GROUPS", sub.get_name());
+        }
+        for name in &listed {
+            assert!(cmd.find_subcommand(name).is_some_and(|c| !c.is_hide_set()), "`{name}` is not a command");
+        }
+    }
+
+    #[test]
+    fn help_groups_the_commands() {
+        let help = command().render_help().to_string();
+        for (heading, names) in GROUPS {
+            assert!(help.contains(&format!("{heading}:")), "{help}");
+            assert!(help.contains(&format!("  {:<12} ", names[0])), "{help}");
+        }
+        assert!(help.contains("Identify the engine model from recordings"), "{help}");
     }
 }

@@ -4,6 +4,8 @@
 //! processes; two network namespaces joined by a veth pair; and the check that
 //! what a client decoded is what the run recorded.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 // Each test binary uses a subset of these helpers.
 #![allow(dead_code)]
 

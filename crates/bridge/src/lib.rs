@@ -25,6 +25,7 @@
 //!
 //! Sessions are configured explicitly: peer mode, only the endpoints given,
 //! no multicast scouting and no gossip, so nothing connects that was not asked to.
+#![doc = include_str!("../README.md")]
 
 mod publish;
 mod remote;

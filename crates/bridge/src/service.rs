@@ -2,7 +2,7 @@
 //! by the runtime's one runner as a reader of every channel.
 
 use jetbench_msgs::ServiceId;
-use jetbench_stack::service::{ChannelReader, Context, ServiceError, Setup};
+use jetbench_stack::runtime::{ChannelReader, Context, ServiceError, Setup};
 
 use crate::{Bridge, BridgeError, Endpoint, DEFAULT_ENDPOINT};
 

@@ -38,6 +38,7 @@
 //! that chooses between them), [`bell`] (doorbells), `wait` (the wait loop),
 //! `port` (typed publishers and subscribers), [`tap`] (every channel, read as
 //! the recorder reads it) and [`error`] (one error enum per operation).
+#![doc = include_str!("../README.md")]
 
 pub mod access;
 pub mod bell;

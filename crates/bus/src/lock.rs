@@ -108,9 +108,13 @@ impl NamespaceLock {
     /// it before starting them.
     pub fn inherit(&self) -> io::Result<()> {
         let fd = self.file.as_raw_fd();
-        // SAFETY: F_GETFD/F_SETFD on a descriptor this value owns.
+        // SAFETY: F_GETFD on a descriptor this value owns.
         let flags = unsafe { libc::fcntl(fd, libc::F_GETFD) };
-        if flags < 0 || unsafe { libc::fcntl(fd, libc::F_SETFD, flags & !libc::FD_CLOEXEC) } < 0 {
+        if flags < 0 {
+            return Err(io::Error::last_os_error());
+        }
+        // SAFETY: F_SETFD on the same descriptor, with its own flags less FD_CLOEXEC.
+        if unsafe { libc::fcntl(fd, libc::F_SETFD, flags & !libc::FD_CLOEXEC) } < 0 {
             return Err(io::Error::last_os_error());
         }
         Ok(())

@@ -4,7 +4,7 @@ use jetbench_model::{Params, State, STEP_S, THROTTLE_MAX_PCT};
 use serde::{Deserialize, Serialize};
 
 use crate::throttle::throttle_for_accel;
-use crate::{Command, ControlError, Reference};
+use crate::{ControlError, Reference, ThrottleCommand};
 
 /// Below this `|g|` (N/s² per unit of `v`) the throttle barely moves the acceleration, so
 /// dividing by `g` would only amplify noise; the controller saturates instead.
@@ -73,7 +73,7 @@ impl Fbl {
 
     /// Throttle for the current state estimate and reference. Non-finite inputs return
     /// [`ControlError::NonFiniteInput`].
-    pub fn step(&mut self, state: State, reference: &Reference) -> Result<Command, ControlError> {
+    pub fn step(&mut self, state: State, reference: &Reference) -> Result<ThrottleCommand, ControlError> {
         self.step_with_disturbance(state, 0.0, reference)
     }
 
@@ -84,7 +84,7 @@ impl Fbl {
         state: State,
         disturbance_n_per_s2: f64,
         reference: &Reference,
-    ) -> Result<Command, ControlError> {
+    ) -> Result<ThrottleCommand, ControlError> {
         crate::check_step(self.invalid, state, reference)?;
         let disturbance = if disturbance_n_per_s2.is_finite() { disturbance_n_per_s2 } else { 0.0 };
         let State { thrust_n, thrust_rate_n_per_s } = state;
@@ -107,6 +107,6 @@ impl Fbl {
 
 /// True when integrating `error_n` would push further against the limit the command is
 /// held at (conditional-integration anti-windup).
-pub(crate) fn winds_up(command: &Command, error_n: f64) -> bool {
+pub(crate) fn winds_up(command: &ThrottleCommand, error_n: f64) -> bool {
     command.saturated && ((command.throttle_pct >= THROTTLE_MAX_PCT) == (error_n > 0.0))
 }

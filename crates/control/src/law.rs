@@ -9,13 +9,13 @@ use serde::{Deserialize, Serialize};
 use crate::mpc::PREDICTION_SUBSTEPS;
 use crate::throttle::resting_throttle;
 use crate::{
-    Command, ControlError, Fbl, FblGains, Mpc, MpcSettings, Profile, Reference, ReferenceShaper, ShaperSettings, Smc,
-    SmcGains,
+    ControlError, Fbl, FblGains, Mpc, MpcSettings, Profile, Reference, ReferenceShaper, ShaperSettings, Smc, SmcGains,
+    ThrottleCommand,
 };
 
 /// The law that computes the throttle: the one enum of the bench config
 /// (`[control] controller`), the command line (`--controller`) and the wire
-/// (`Command::controller` carries [`Controller::code`]).
+/// (`jetbench_msgs::Command::controller` carries [`Controller::code`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Deserialize, Serialize)]
 #[serde(rename_all = "kebab-case")]
 #[repr(u32)]
@@ -47,7 +47,7 @@ impl Controller {
         }
     }
 
-    /// Its code on the wire (`Command::controller`).
+    /// Its code on the wire (`jetbench_msgs::Command::controller`).
     pub const fn code(self) -> u32 {
         self as u32
     }
@@ -105,7 +105,7 @@ pub struct LawOutput {
     /// The profile's reference now: what the bench is asked to track.
     pub reference: Reference,
     /// The command.
-    pub command: Command,
+    pub command: ThrottleCommand,
     /// True when the chosen law failed this cycle and FBL computed the command.
     pub fallback: bool,
     /// Time the law took to compute, s (the MPC's optimisation; 0 for FBL and SMC).

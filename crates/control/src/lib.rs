@@ -25,6 +25,7 @@
 //! gets a consistent `[T_d, Ṫ_d, T̈_d]`, a replay reproduces them exactly, and the MPC can
 //! look ahead. Every controller is a plain `step` function; [`Law`] picks one from the
 //! bench config; wiring it to sensors and the ECU is the service's job.
+#![doc = include_str!("../README.md")]
 
 use jetbench_model::State;
 
@@ -50,7 +51,7 @@ pub use mpc::{Mpc, MpcOutput, MpcSettings};
 pub use profile::{Profile, ProfileSpec, Reference, Segment, BUILTIN_PROFILES};
 pub use shaper::{ReferenceShaper, ShaperSettings};
 pub use smc::{Smc, SmcGains};
-pub use throttle::{clamp_throttle, throttle_for_virtual, Command};
+pub use throttle::{clamp_throttle, throttle_for_virtual, ThrottleCommand};
 
 /// The first gain or model parameter that is NaN or infinite, as the error every step of
 /// a controller built with it returns.

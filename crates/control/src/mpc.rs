@@ -8,7 +8,7 @@ use jetbench_model::{Params, Plant, PlantEngine, State, STEP_S, THROTTLE_MAX_PCT
 use serde::{Deserialize, Serialize};
 
 use crate::throttle::{clamp_throttle, resting_throttle};
-use crate::{Command, ControlError, Fbl, FblGains, Profile};
+use crate::{ControlError, Fbl, FblGains, Profile, ThrottleCommand};
 
 /// Settings of the [`Mpc`].
 #[derive(Clone, Copy, Debug, PartialEq, Deserialize, Serialize)]
@@ -95,7 +95,7 @@ impl MpcSettings {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MpcOutput {
     /// The command applied.
-    pub command: Command,
+    pub command: ThrottleCommand,
     /// True when the optimisation failed this cycle and FBL computed the command.
     pub fallback: bool,
     /// Time the cycle's optimisation took, s.
@@ -251,7 +251,7 @@ impl Mpc {
             Some(u_pct) => {
                 let throttle_pct = clamp_throttle(u_pct);
                 let at_limit = throttle_pct <= THROTTLE_MIN_PCT + 1e-6 || throttle_pct >= THROTTLE_MAX_PCT - 1e-6;
-                let command = Command {
+                let command = ThrottleCommand {
                     throttle_pct,
                     unclamped_pct: u_pct,
                     virtual_input: self.plant.params.v(throttle_pct),

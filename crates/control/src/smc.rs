@@ -4,7 +4,7 @@ use jetbench_model::{Params, State};
 use serde::{Deserialize, Serialize};
 
 use crate::throttle::{at_limit, throttle_for_virtual};
-use crate::{Command, ControlError, Reference, MIN_INPUT_GAIN};
+use crate::{ControlError, Reference, ThrottleCommand, MIN_INPUT_GAIN};
 
 /// Gains of the sliding-mode law.
 #[derive(Clone, Copy, Debug, PartialEq, Deserialize, Serialize)]
@@ -61,7 +61,7 @@ impl Smc {
     }
 
     /// Throttle for the current state estimate and reference.
-    pub fn step(&mut self, state: State, reference: &Reference) -> Result<Command, ControlError> {
+    pub fn step(&mut self, state: State, reference: &Reference) -> Result<ThrottleCommand, ControlError> {
         crate::check_step(self.invalid, state, reference)?;
         let State { thrust_n, thrust_rate_n_per_s } = state;
         let rate_error = thrust_rate_n_per_s - reference.thrust_rate_n_per_s;

@@ -4,7 +4,7 @@ use jetbench_model::{Params, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
 
 /// One controller output.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
-pub struct Command {
+pub struct ThrottleCommand {
     /// Throttle to apply, %, always within `[THROTTLE_MIN_PCT, THROTTLE_MAX_PCT]`.
     pub throttle_pct: f64,
     /// Throttle the law asked for before clamping, %; when it had no answer (no root,
@@ -28,20 +28,25 @@ pub fn clamp_throttle(u_pct: f64) -> f64 {
 }
 
 /// The command at a throttle limit: the maximum when the thrust must rise.
-pub fn at_limit(params: &Params, more_thrust: bool) -> Command {
+pub fn at_limit(params: &Params, more_thrust: bool) -> ThrottleCommand {
     let throttle_pct = if more_thrust { THROTTLE_MAX_PCT } else { THROTTLE_MIN_PCT };
-    Command { throttle_pct, unclamped_pct: throttle_pct, virtual_input: params.v(throttle_pct), saturated: true }
+    ThrottleCommand {
+        throttle_pct,
+        unclamped_pct: throttle_pct,
+        virtual_input: params.v(throttle_pct),
+        saturated: true,
+    }
 }
 
 /// Throttle for the virtual input `v`: the positive root of `u + B_UU·u² = v`, clamped
 /// to the ECU range. When `v` has no root (below the map's range, or beyond the peak of
 /// `v(u)` when `B_UU < 0`), the throttle in range whose `v(u)` comes closest; ties go to
 /// the lower throttle. `v` must be finite.
-pub fn throttle_for_virtual(params: &Params, v: f64) -> Command {
+pub fn throttle_for_virtual(params: &Params, v: f64) -> ThrottleCommand {
     match params.invert_v(v) {
         Some(u_pct) => {
             let throttle_pct = clamp_throttle(u_pct);
-            Command { throttle_pct, unclamped_pct: u_pct, virtual_input: v, saturated: throttle_pct != u_pct }
+            ThrottleCommand { throttle_pct, unclamped_pct: u_pct, virtual_input: v, saturated: throttle_pct != u_pct }
         }
         None => {
             let b = params.b_uu;
@@ -51,14 +56,14 @@ pub fn throttle_for_virtual(params: &Params, v: f64) -> Command {
                 .map(|u| (u, (params.v(u) - v).abs()))
                 .fold((THROTTLE_MIN_PCT, f64::INFINITY), |best, (u, gap)| if gap < best.1 { (u, gap) } else { best })
                 .0;
-            Command { throttle_pct, unclamped_pct: throttle_pct, virtual_input: v, saturated: true }
+            ThrottleCommand { throttle_pct, unclamped_pct: throttle_pct, virtual_input: v, saturated: true }
         }
     }
 }
 
 /// Throttle that makes `g·v(u)` supply `needed` N/s² on top of the drift `f`. When `g ≈ 0`
 /// or the numbers overflow, the limit in the direction `fallback_up` says.
-pub fn throttle_for_accel(params: &Params, needed: f64, g: f64, fallback_up: bool) -> Command {
+pub fn throttle_for_accel(params: &Params, needed: f64, g: f64, fallback_up: bool) -> ThrottleCommand {
     if !needed.is_finite() || !g.is_finite() {
         return at_limit(params, fallback_up);
     }

@@ -1,6 +1,8 @@
 //! Heap allocations in a control cycle: none after start-up, but for the one Clarabel
 //! makes in each QP solve.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use jetbench_control::{Controller, Law, LawSettings, Profile};
 use jetbench_model::{Effects, Plant, Preset, STEP_S};
 

@@ -1,5 +1,7 @@
 //! FBL, SMC and MPC on the model itself: limits, steady state, saturation, delay, failure.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use jetbench_control::{
     tracking_metrics, ControlError, Controller, FblGains, Law, LawSettings, MetricsOptions, Mpc, MpcSettings, Profile,
     ProfileSpec, Reference, ReferenceShaper, ShaperSettings, Smc, SmcGains, ThrottleLimit, TrackingMetrics,

@@ -1,5 +1,7 @@
 //! Tracking metrics on synthetic runs with known answers.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use jetbench_control::{
     tracking_metrics, MetricsError, MetricsOptions, Profile, ProfileSpec, ThrottleLimit, TrackingMetrics,
     TrackingSample,

@@ -1,5 +1,7 @@
 //! Reference profiles: derivatives, smoothing, repetition, frequency, config parsing.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use jetbench_control::{ControlError, Profile, ProfileSpec, Reference};
 use serde::Deserialize;
 

@@ -30,16 +30,12 @@
 //! a model input delay (`input_delay_s`) `u` is the throttle applied that long ago. Each
 //! measurement passes a [`gate`] first: a spike (chi-square test on the innovation) or a
 //! stuck sensor (the same reading over and over) is not used, and the estimate says so.
-//!
-//! [`SavitzkyGolay`] smooths and differentiates whole recordings offline (thrust rate and
-//! acceleration for identification), with scipy's `savgol_filter` edge handling.
+#![doc = include_str!("../README.md")]
 
 mod delay;
 pub mod gate;
 mod observer;
-mod savgol;
 
 pub use delay::MAX_INPUT_DELAY_S;
 pub use gate::{GateConfig, Verdict};
 pub use observer::{EstimError, Estimate, Gated, ObserverConfig, ThrustObserver};
-pub use savgol::{SavGolError, SavitzkyGolay};

@@ -1,5 +1,7 @@
 //! Observer accuracy, input rejection, fallbacks and determinism.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 mod common;
 
 use common::{rms, simulate_plant_run, simulate_run, Run, NOISE_VAR_N2};

@@ -10,8 +10,8 @@ use jetbench_control::recorded::{recording_metrics, ThrustSource};
 use jetbench_control::MetricsOptions;
 use jetbench_msgs::{channels, sim_faults, state_flags, visit_channels, Channel, ChannelVisitor, Sample};
 use jetbench_record::Recording;
+use jetbench_stack::control::ControlStep;
 use jetbench_stack::replay::{recorded_config, replay_with_alternatives, EstimatorSource, InputRule};
-use jetbench_stack::step::Control;
 
 use crate::set::run_to_end;
 use crate::{p50_max, Bench, FaultsError};
@@ -238,7 +238,7 @@ pub fn spike_effects(recording: &Recording, spike_sizes: &HashMap<u64, f64>) -> 
         // cloned, so each spike replays the run up to it (FBL: microseconds a cycle).
         let replayed = |last: &jetbench_msgs::StateEstimate| -> Result<f64, String> {
             let law = config.control_law().map_err(|e| format!("the recorded controller: {e}"))?;
-            let mut control = Control::with_law(law, config.reference.clone());
+            let mut control = ControlStep::with_law(law, config.reference.clone());
             for (s, _) in &seen[..at] {
                 control.step(s).map_err(|e| e.to_string())?;
             }

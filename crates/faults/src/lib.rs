@@ -14,7 +14,8 @@
 //! - [`set`]: a running set, a second set in the same namespace, and who may
 //!   read its files;
 //! - [`soak`]: the set for minutes under load, its memory over time;
-//! - [`report`]: the campaign and its report.
+//! - [`campaign`]: the campaign runner, every fault at random moments;
+//! - [`report`]: its report.
 //!
 //! ```no_run
 //! use jetbench_faults::kill::{kill_trial, Victim};
@@ -27,12 +28,14 @@
 //! # Ok(())
 //! # }
 //! ```
+#![doc = include_str!("../README.md")]
 
 use std::cell::Cell;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
+pub mod campaign;
 pub mod inject;
 pub mod kill;
 pub mod recorder;

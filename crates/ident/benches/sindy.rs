@@ -8,8 +8,8 @@
 use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use jetbench_estim::SavitzkyGolay;
 use jetbench_ident::sindy::{fit, PolynomialLibrary, StlsqOptions};
+use jetbench_ident::SavitzkyGolay;
 use jetbench_model::Preset;
 
 const SAMPLES: usize = 30_000;

@@ -33,8 +33,8 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{anyhow, bail, ensure, Context, Result};
-use jetbench_estim::SavitzkyGolay;
 use jetbench_ident::sindy::{self, PolynomialLibrary, SindyModel, StlsqOptions};
+use jetbench_ident::SavitzkyGolay;
 use serde_json::{json, Map, Value};
 
 const USAGE: &str = "usage: sindy_csv FILE.csv --vars A,B [--inputs U] [--degree 2] [--threshold 0.1] [--alpha 0.05] \

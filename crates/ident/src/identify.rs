@@ -3,7 +3,7 @@
 
 use std::time::Instant;
 
-use jetbench_estim::SavitzkyGolay;
+use crate::SavitzkyGolay;
 use jetbench_model::{settling_time_s, Engine, Params, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
 use serde::Serialize;
 use serde_json::{Map, Value};
@@ -339,7 +339,7 @@ fn verdict(results: &[MethodResult], best: Option<Method>, noise: &NoiseFloor) -
 /// none of it that way). So every library column is averaged with the same
 /// weights (the Peano kernel of the derivative filter) before the regression.
 pub fn fit_sindy(data: &[Series], options: &SindyOptions) -> Result<JetSindy, IdentError> {
-    let err = |e: jetbench_estim::SavGolError| IdentError::Options(format!("SINDy derivatives: {e}"));
+    let err = |e: crate::SavGolError| IdentError::Options(format!("SINDy derivatives: {e}"));
     let sg = SavitzkyGolay::new(options.window, options.order).map_err(err)?;
     let (accel_w, knots) = ls::centred_kernel(options.window, options.order)
         .ok_or_else(|| IdentError::Options(format!("SINDy: window {} too short", options.window)))?;

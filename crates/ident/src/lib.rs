@@ -1,4 +1,8 @@
 //! Offline identification of the engine model from recordings.
+//!
+//! [`SavitzkyGolay`] smooths and differentiates whole recordings (thrust rate and
+//! acceleration for LS and SINDy), with scipy's `savgol_filter` edge handling.
+#![doc = include_str!("../README.md")]
 
 pub mod diagnose;
 pub mod ekf;
@@ -6,10 +10,12 @@ pub mod excite;
 pub mod identify;
 pub mod ls;
 pub mod noise;
-pub mod plot;
+pub mod savgol;
 /// Recordings as identification data; the loader lives with the recorder (`jetbench_record::series`).
 pub use jetbench_record::series;
+pub use savgol::{SavGolError, SavitzkyGolay};
 pub mod sindy;
+pub mod spd;
 pub mod synth;
 pub mod validate;
 

@@ -15,8 +15,10 @@
 //!   against their range (errors in the regressors bias least squares).
 
 use jetbench_model::{Params, STEP_S};
-use nalgebra::{DMatrix, SMatrix, SVector};
+use nalgebra::{DMatrix, DVector, SMatrix, SVector};
 use serde::Serialize;
+
+use crate::spd::SpdSolver;
 
 use crate::series::Series;
 use crate::IdentError;
@@ -87,15 +89,11 @@ impl Normal {
         }
         let a = m.transpose() * self.gram * m;
         let r = m.transpose() * self.rhs;
-        // Scale to unit diagonal: the regressors differ by orders of magnitude.
-        let d = SVector::<f64, 9>::from_fn(|i, _| 1.0 / a[(i, i)].max(f64::MIN_POSITIVE).sqrt());
-        let scaled = SMatrix::<f64, 9, 9>::from_fn(|i, j| a[(i, j)] * d[i] * d[j]);
-        let rs = r.component_mul(&d);
-        let z = match scaled.cholesky() {
-            Some(c) => c.solve(&rs),
-            None => scaled.svd(true, true).solve(&rs, 1e-12).ok()?,
-        };
-        let theta = z.component_mul(&d);
+        // The regressors differ by orders of magnitude: the solver scales to a unit diagonal.
+        let solver = SpdSolver::new(DMatrix::from_iterator(9, 9, a.iter().copied()))?;
+        let theta = SVector::<f64, 9>::from_iterator(
+            solver.solve(&DVector::from_iterator(9, r.iter().copied())).iter().copied(),
+        );
         let sse = self.yy - 2.0 * theta.dot(&r) + (theta.transpose() * a * theta)[(0, 0)];
         theta.iter().all(|x| x.is_finite()).then_some((theta, sse))
     }

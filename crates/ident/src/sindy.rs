@@ -55,12 +55,9 @@
 
 use std::collections::HashMap;
 
-use nalgebra::{Cholesky, DMatrix, DMatrixView, DVector, DVectorView, Dyn, SVD};
+use nalgebra::{DMatrix, DMatrixView, DVector, DVectorView};
 
-/// Relative size, on the unit-diagonal scaled Gram matrix, below which a Cholesky pivot or
-/// singular value counts as zero: directions where `Θ`'s columns are collinear to about
-/// `1e-6` (the Gram matrix squares that).
-const RANK_TOL: f64 = 1e-12;
+use crate::spd::SpdSolver;
 
 /// Iterative-refinement steps on the final least-squares refit; one usually reaches the
 /// accuracy of a QR solve, the second covers condition numbers near the Cholesky limit.
@@ -742,49 +739,6 @@ fn scatter(w: &DVector<f64>, idx: &[usize], out: &mut DVector<f64>) {
     out.fill(0.0);
     for (&j, &wj) in idx.iter().zip(w.iter()) {
         out[j] = wj;
-    }
-}
-
-/// Solver for a symmetric positive semi-definite system `M·w = b` (a Gram matrix, maybe with
-/// a ridge): `M` is scaled to a unit diagonal (`D·M·D`, `D = diag(M)^-½`), which makes the
-/// Cholesky pivots a direct measure of near-singularity, and factorised by Cholesky, or by an
-/// SVD pseudo-inverse when a pivot falls below [`RANK_TOL`].
-struct SpdSolver {
-    scale: DVector<f64>,
-    factor: Factor,
-}
-
-enum Factor {
-    Cholesky(Cholesky<f64, Dyn>),
-    PseudoInverse(DMatrix<f64>),
-}
-
-impl SpdSolver {
-    fn new(m: DMatrix<f64>) -> Option<Self> {
-        // A zero diagonal entry is a zero column; scale 1 leaves it to the pseudo-inverse.
-        let scale = m.diagonal().map(|d| if d > 0.0 { d.sqrt().recip() } else { 1.0 });
-        let k = scale.len();
-        let scaled = DMatrix::from_fn(k, k, |i, j| m[(i, j)] * scale[i] * scale[j]);
-        let cholesky = Cholesky::new(scaled.clone())
-            .filter(|c| c.l_dirty().diagonal().iter().all(|l| l * l > RANK_TOL && l.is_finite()));
-        let factor = match cholesky {
-            Some(c) => Factor::Cholesky(c),
-            None => {
-                let svd = SVD::try_new(scaled, true, true, f64::EPSILON, 10_000)?;
-                let tol = RANK_TOL * svd.singular_values.max();
-                Factor::PseudoInverse(svd.pseudo_inverse(tol).ok()?)
-            }
-        };
-        Some(Self { scale, factor })
-    }
-
-    fn solve(&self, b: &DVector<f64>) -> DVector<f64> {
-        let scaled = b.component_mul(&self.scale);
-        let w = match &self.factor {
-            Factor::Cholesky(c) => c.solve(&scaled),
-            Factor::PseudoInverse(p) => p * scaled,
-        };
-        w.component_mul(&self.scale)
     }
 }
 

@@ -6,7 +6,7 @@
 //! includes the measurement noise, so the best any model can do is the noise floor:
 //! the mean absolute value of the noise, estimated from the data itself.
 
-use jetbench_estim::SavitzkyGolay;
+use crate::SavitzkyGolay;
 use jetbench_model::{
     rk4_step, Effects, Params, Plant, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S, SUBSTEPS,
 };

@@ -1,6 +1,8 @@
 //! Identification on synthetic recordings of plants in and outside the model
 //! structure: the acceptance figures of LS and EKF against the noise floor.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use jetbench_ident::excite::campaign;
 use jetbench_ident::identify::{hold_out, identify, Method, Options, POOR_FIT_RATIO};
 use jetbench_ident::series::Series;

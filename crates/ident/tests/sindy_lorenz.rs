@@ -1,8 +1,10 @@
 //! Peer check against PySINDy's documented Lorenz result, and the no-allocation promise of
 //! the evaluation paths used in hot loops.
 
-use jetbench_estim::SavitzkyGolay;
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use jetbench_ident::sindy::{finite_difference, fit, PolynomialLibrary, SindyModel, StlsqOptions};
+use jetbench_ident::SavitzkyGolay;
 
 const DT_S: f64 = 0.002;
 

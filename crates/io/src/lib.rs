@@ -20,6 +20,7 @@
 //! # Ok(())
 //! # }
 //! ```
+#![doc = include_str!("../README.md")]
 
 pub mod board;
 pub mod calib;

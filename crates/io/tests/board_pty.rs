@@ -3,6 +3,8 @@
 //! goes silent and comes back. No mocks: the same driver opens the pty's
 //! link path as it opens /dev/ttyUSB0 at the bench.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use std::path::PathBuf;
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};

@@ -5,6 +5,8 @@
 //! `2 × readings + rejected == inputs`.
 //! Iterations and time are printed (`--nocapture`), never asserted.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use std::time::Instant;
 
 use jetbench_io::can::{CanFrame, Codec, FrameDecoder, RejectKind, CAN_FRAME_BYTES};

@@ -1,6 +1,8 @@
 //! Property tests: every valid sensor frame survives encode → decode, as
 //! frames, as `struct can_frame` bytes and as candump lines.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use jetbench_io::can::{CanFrame, Codec, FrameDecoder, PartKind, SensorPart};
 use jetbench_io::candump::{format_line, parse_line, CandumpDecoder, Timestamp};
 use proptest::prelude::*;

@@ -4,6 +4,8 @@
 //! a vanished socket are exercised; hangs are bounded by loop limits, and no
 //! test asserts a runtime.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use std::os::unix::net::UnixDatagram;
 use std::time::Duration;
 

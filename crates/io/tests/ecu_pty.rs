@@ -1,6 +1,8 @@
 //! The ECU poller against the emulated ECU over a real pseudo-terminal pair:
 //! poll rate, garbage lines, an ECU that goes silent and comes back.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use std::path::PathBuf;
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};

@@ -28,8 +28,8 @@ use std::time::{Duration, Instant};
 use jetbench_bus::Transport;
 use jetbench_record::Recording;
 use jetbench_stack::config::{BenchConfig, ConfigError, Devices};
-use jetbench_stack::rt::RtOutcome;
-use jetbench_stack::supervise::describe_exit;
+use jetbench_stack::runtime::rt::RtOutcome;
+use jetbench_stack::runtime::supervise::describe_exit;
 use serde::Serialize;
 
 use crate::chain::{run_chain, stage_rt_requests, ChainError, ChainOptions, ChainRun, HOPS as FLOOR_HOPS};
@@ -491,7 +491,7 @@ fn probe_rt(config: &BenchConfig) -> Vec<String> {
     let mut refused: Vec<String> = Vec::new();
     for id in jetbench_msgs::ServiceId::ALL {
         let Some(request) = config.rt.request(id, true) else { continue };
-        let outcome: RtOutcome = jetbench_stack::rt::probe(&request);
+        let outcome: RtOutcome = jetbench_stack::runtime::rt::probe(&request);
         for r in &outcome.refused {
             add_once(&mut refused, r);
         }

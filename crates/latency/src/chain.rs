@@ -48,10 +48,10 @@ use std::time::{Duration, Instant};
 
 use jetbench_bus::stop_requested;
 use jetbench_msgs::ServiceId;
-use jetbench_stack::clock::PERIOD;
 use jetbench_stack::config::RtSection;
-use jetbench_stack::rt::{RtOutcome, RtRequest};
-use jetbench_stack::supervise::{describe_exit, SpawnOptions, StopOrder, Supervisor};
+use jetbench_stack::runtime::clock::PERIOD;
+use jetbench_stack::runtime::rt::{RtOutcome, RtRequest};
+use jetbench_stack::runtime::supervise::{describe_exit, SpawnOptions, StopOrder, Supervisor};
 
 mod stage;
 

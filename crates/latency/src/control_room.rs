@@ -74,9 +74,9 @@ impl ControlRoom {
         let read = Arc::new(AtomicU64::new(0));
         let mut threads = Vec::new();
         let pin = move || {
-            let request = jetbench_stack::rt::RtRequest { cpus: cpus.clone(), ..Default::default() };
+            let request = jetbench_stack::runtime::rt::RtRequest { cpus: cpus.clone(), ..Default::default() };
             move || {
-                for refused in jetbench_stack::rt::apply(&request).refused {
+                for refused in jetbench_stack::runtime::rt::apply(&request).refused {
                     tracing::warn!("control-room client: {refused}");
                 }
             }

@@ -24,6 +24,7 @@
 //! # Ok(())
 //! # }
 //! ```
+#![doc = include_str!("../README.md")]
 
 pub mod campaign;
 pub mod chain;

@@ -78,7 +78,7 @@ impl Load {
     /// Starts `kind` on every core; `exe` is the jetbench binary, whose
     /// hidden `latency-load` command runs [`run_builtin`].
     pub fn start(kind: LoadKind, exe: &Path) -> Result<Load, LoadError> {
-        let cpus = jetbench_stack::rt::online_cpus().to_string();
+        let cpus = jetbench_stack::runtime::rt::online_cpus().to_string();
         let (program, args): (String, Vec<String>) = match kind {
             LoadKind::None => return Ok(Load { child: None, description: "none".into() }),
             _ if stress_ng_installed() => {

@@ -23,7 +23,7 @@ use jetbench_msgs::{actuation_flags, channels, Sample, ServiceId};
 use jetbench_record::{seq_gaps, Recording};
 use serde::Serialize;
 
-use jetbench_stack::clock::PERIOD_NS;
+use jetbench_stack::runtime::clock::PERIOD_NS;
 
 /// The hops of the control path, in order.
 pub const HOPS: [&str; 4] = ["sensing", "estimation", "control", "actuation"];

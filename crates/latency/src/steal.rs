@@ -53,7 +53,7 @@ impl StealSampler {
                 while !flag.load(std::sync::atomic::Ordering::Relaxed) {
                     if let Some(now) = steal_ms_per_cpu() {
                         if timeline.points.last().is_none_or(|p| p.1 != now) {
-                            timeline.points.push((jetbench_stack::clock::monotonic_ns(), now));
+                            timeline.points.push((jetbench_stack::runtime::clock::monotonic_ns(), now));
                         }
                     }
                     std::thread::sleep(StealTimeline::EVERY);

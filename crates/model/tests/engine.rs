@@ -1,5 +1,7 @@
 //! The simulator: stepping, divergence handling, step responses.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use jetbench_model::{settling_time_s, simulate, Engine, ModelError, Preset, State, DIVERGENCE_THRUST_N, STEP_S};
 
 fn run(engine: &mut Engine, throttle_pct: f64, duration_s: f64) -> Result<Vec<State>, ModelError> {

@@ -1,5 +1,7 @@
 //! Model files, presets and model specs.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use std::path::PathBuf;
 
 use jetbench_model::{resolve_params, EffectKind, ModelError, ModelFile, Params, Preset};

@@ -24,6 +24,7 @@
 //!   frame was received; downstream samples copy it from their input, so the
 //!   end-to-end latency of any sample is `publish_ns - stamp_ns`.
 //! - `source_seq` is the `seq` of the input sample a sample was computed from.
+#![doc = include_str!("../README.md")]
 
 mod schema;
 

@@ -1,5 +1,7 @@
 //! Every sample type is laid out exactly as CDR encodes its schema text.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use jetbench_msgs::{
     cdr_layout, channel_names, parse_schema, visit_channels, Channel, ChannelVisitor, Sample, CDR_HEADER,
 };
@@ -44,6 +46,7 @@ impl ChannelVisitor for LayoutCheck {
             self.failures.push(format!("{}: fields not ordered by decreasing size: {sizes:?}", T::NAME));
         }
         // The iceoryx2 type name is the recorded schema name.
+        // SAFETY: `type_name` only reads the name the sample type's `#[type_name]` declares.
         let type_name = unsafe { <T as iceoryx2::prelude::ZeroCopySend>::type_name() };
         if type_name != T::schema_name() {
             self.failures.push(format!("{}: type_name {type_name:?} != {:?}", T::NAME, T::schema_name()));

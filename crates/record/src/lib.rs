@@ -21,6 +21,7 @@
 //! # Ok(())
 //! # }
 //! ```
+#![doc = include_str!("../README.md")]
 
 pub mod clock;
 pub mod meta;

@@ -1,5 +1,7 @@
 //! Writing and reading recordings, including files cut off mid-write.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use jetbench_msgs::{channels, Command, Sample, Thrust};
 use jetbench_record::recover::recover;
 use jetbench_record::{seq_gaps, spawn_writer, McapWriter, RawRecord, RecordError, Recording};

@@ -8,8 +8,12 @@
 
 use jetbench_control::{tracking_metrics, Controller, MetricsOptions, Profile, ThrottleLimit, TrackingSample};
 use jetbench_msgs::command_flags;
+use jetbench_stack::actuation::ActuationStep;
 use jetbench_stack::config::BenchConfig;
-use jetbench_stack::step::{Actuator, Control, Estimation, Sensing, SimBench, SimForceSensor};
+use jetbench_stack::control::ControlStep;
+use jetbench_stack::estimation::EstimationStep;
+use jetbench_stack::sensing::SensingStep;
+use jetbench_stack::sim_bench::{SimBenchStep, SimForceSensor};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -50,15 +54,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     // The sensor noise seed: JETBENCH_SEED, so a result can be checked against other draws.
     let seed: u64 = std::env::var("JETBENCH_SEED").map_or(Ok(3), |s| s.parse())?;
-    let mut sim = SimBench::new(
+    let mut sim = SimBenchStep::new(
         &config.plant()?,
         SimForceSensor::new(config.plant.noise_var_n2, config.plant.sensor_zero, seed)?,
         25.0,
     );
-    let mut sensing = Sensing::new(&config.sensor)?;
-    let mut estimation = Estimation::new(params, observer);
-    let mut control = Control::with_law(config.control_law()?, config.reference.clone());
-    let mut actuator = Actuator::new(3);
+    let mut sensing = SensingStep::new(&config.sensor)?;
+    let mut estimation = EstimationStep::new(params, observer);
+    let mut control = ControlStep::with_law(config.control_law()?, config.reference.clone());
+    let mut actuator = ActuationStep::new(3);
     let mut throttle = None;
     let mut samples = Vec::new();
     for k in 0..(seconds * 100.0) as u64 {

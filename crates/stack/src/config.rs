@@ -119,8 +119,8 @@ impl PlantSection {
     }
 
     /// The simulated force sensor of this plant: its noise, its zero offset, its seed.
-    pub fn sensor(&self) -> Result<crate::step::SimForceSensor, crate::step::SimError> {
-        crate::step::SimForceSensor::new(self.noise_var_n2, self.sensor_zero, self.seed)
+    pub fn sensor(&self) -> Result<crate::sim_bench::SimForceSensor, crate::sim_bench::SimError> {
+        crate::sim_bench::SimForceSensor::new(self.noise_var_n2, self.sensor_zero, self.seed)
     }
 }
 
@@ -496,12 +496,12 @@ impl RtSection {
     /// off (neither `enabled` nor `force`).
     /// A service with neither a priority nor CPUs (the viewer, the bridge, unless
     /// configured) asks for nothing.
-    pub fn request(&self, id: ServiceId, force: bool) -> Option<crate::rt::RtRequest> {
+    pub fn request(&self, id: ServiceId, force: bool) -> Option<crate::runtime::rt::RtRequest> {
         let (priority, cpus) = (self.priority.get(id).copied(), self.cpus.get(id).cloned().unwrap_or_default());
         (self.enabled || force)
             .then_some(())
             .filter(|()| priority.is_some() || !cpus.is_empty())
-            .map(|()| crate::rt::RtRequest { priority, cpus, lock_memory: self.lock_memory })
+            .map(|()| crate::runtime::rt::RtRequest { priority, cpus, lock_memory: self.lock_memory })
     }
 
     fn validate(&self) -> Result<(), String> {
@@ -707,13 +707,13 @@ impl BenchConfig {
     }
 
     /// The control law `[control]` chooses, on the controller's model.
-    pub fn control_law(&self) -> Result<crate::step::ControlLaw, ControlSetupError> {
+    pub fn control_law(&self) -> Result<crate::control::ControlLaw, ControlSetupError> {
         Ok(match self.control.controller {
-            Controller::OpenLoop => crate::step::ControlLaw::OpenLoop {
+            Controller::OpenLoop => crate::control::ControlLaw::OpenLoop {
                 throttle_pct: self.throttle_profile()?,
                 model: self.model_params()?,
             },
-            kind => crate::step::ControlLaw::Closed(Box::new(Law::new(
+            kind => crate::control::ControlLaw::Closed(Box::new(Law::new(
                 kind,
                 &self.control_plant()?,
                 &self.control.law_settings(),

@@ -17,7 +17,7 @@
 //! applies spikes, stuck readings and silences to what its sensor sends
 //! ([`FaultySensor`]). A NaN cannot travel in the sensor's CAN frames (16-bit
 //! integers), so `nan` enters where a NaN could come from at a bench, the
-//! reading sensing decodes, before calibration ([`crate::step::Sensing::with_faults`]).
+//! reading sensing decodes, before calibration ([`crate::sensing::SensingStep::with_faults`]).
 //! Every injected frame is marked in `sim/truth` (`faults`, `injected_n`) for
 //! evaluation; no service on the control path sees that channel.
 //!
@@ -37,7 +37,7 @@ use std::str::FromStr;
 use jetbench_io::ForceReading;
 use jetbench_msgs::sim_faults;
 
-use crate::clock::PERIOD_NS;
+use crate::runtime::clock::PERIOD_NS;
 
 /// Why a fault specification was refused.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]

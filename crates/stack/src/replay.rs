@@ -62,7 +62,7 @@ use jetbench_record::meta::{RunMetadata, KEY_CONFIG, KEY_MODEL_TOML, REPLAY, RUN
 use jetbench_record::{McapWriter, RecordError, RecordedMessage, Recording};
 
 use crate::config::BenchConfig;
-use crate::step::Estimation;
+use crate::estimation::EstimationStep;
 
 /// Why a recording cannot be replayed.
 #[derive(Debug, thiserror::Error)]
@@ -369,7 +369,7 @@ pub fn replay_with_alternatives(
         InputRule::RecordedState if index.states.is_empty() => return Err(ReplayError::NoStates),
         rule => rule,
     };
-    let mut estimation = Estimation::new(setup.params, setup.observer);
+    let mut estimation = EstimationStep::new(setup.params, setup.observer);
     let mut report = ReplayReport {
         estimator: origin,
         inputs,
@@ -636,7 +636,8 @@ pub fn write_replayed(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::step::{Sensing, SimBench, SimForceSensor};
+    use crate::sensing::SensingStep;
+    use crate::sim_bench::{SimBenchStep, SimForceSensor};
     use crate::synthetic::synthetic_recording;
     use jetbench_model::THROTTLE_MIN_PCT;
 
@@ -655,13 +656,13 @@ mod tests {
     fn raced_recording(cycles: u64) -> Recording {
         let config = config();
         let params = config.model_params().unwrap();
-        let mut sim = SimBench::new(
+        let mut sim = SimBenchStep::new(
             &jetbench_model::Plant::new(params, jetbench_model::Effects::none()),
             SimForceSensor::new(7.0, [0.0; 6], 11).unwrap(),
             25.0,
         );
-        let mut sensing = Sensing::new(&config.sensor).unwrap();
-        let mut estimation = Estimation::new(params, config.estimator.observer_config(0.0));
+        let mut sensing = SensingStep::new(&config.sensor).unwrap();
+        let mut estimation = EstimationStep::new(params, config.estimator.observer_config(0.0));
         let mut messages = Vec::new();
         let mut frame = None;
         let mut state_seq = 0;

@@ -18,10 +18,14 @@ use jetbench_msgs::channels;
 use jetbench_record::meta::RunMetadata;
 use jetbench_record::{RecordedMessage, Recording};
 
-use crate::clock::PERIOD_NS;
+use crate::actuation::ActuationStep;
 use crate::config::BenchConfig;
+use crate::control::ControlStep;
+use crate::estimation::EstimationStep;
 use crate::replay::run_metadata;
-use crate::step::{Actuator, Control, Estimation, Sensing, SimBench, SimError};
+use crate::runtime::clock::PERIOD_NS;
+use crate::sensing::SensingStep;
+use crate::sim_bench::{SimBenchStep, SimError};
 
 /// Why [`synthetic_recording`] failed.
 #[derive(Debug, thiserror::Error)]
@@ -53,16 +57,16 @@ pub enum SyntheticError {
 /// first cycle with none: `INPUT_ASSUMED`), as a live run does.
 pub fn synthetic_recording(config: &BenchConfig, cycles: usize) -> Result<Recording, SyntheticError> {
     const T0_NS: u64 = 1_000_000_000;
-    let mut sim = SimBench::new(&config.plant()?, config.plant.sensor()?, config.plant.initial_throttle_pct);
-    let mut sensing = Sensing::new(&config.sensor).map_err(|e| SyntheticError::Step {
+    let mut sim = SimBenchStep::new(&config.plant()?, config.plant.sensor()?, config.plant.initial_throttle_pct);
+    let mut sensing = SensingStep::new(&config.sensor).map_err(|e| SyntheticError::Step {
         cycle: 0,
         service: "sensing",
         message: e.to_string(),
     })?;
     let (model, observer) = config.estimator()?;
-    let mut estimation = Estimation::new(model, observer);
-    let mut control = Control::with_law(config.control_law()?, config.reference.clone());
-    let mut actuator = Actuator::new(config.actuation.idle_after_missed_cycles);
+    let mut estimation = EstimationStep::new(model, observer);
+    let mut control = ControlStep::with_law(config.control_law()?, config.reference.clone());
+    let mut actuator = ActuationStep::new(config.actuation.idle_after_missed_cycles);
 
     let step_error = |cycle: usize, service: &'static str, e: &dyn std::fmt::Display| SyntheticError::Step {
         cycle,
@@ -100,4 +104,58 @@ pub fn synthetic_recording(config: &BenchConfig, cycles: usize) -> Result<Record
         ..run_metadata(config)?
     };
     Ok(Recording { messages, truncated: false, metadata: [run.record()].into() })
+}
+
+#[cfg(test)]
+mod tests {
+    use jetbench_control::{Controller, Law, LawSettings};
+    use jetbench_model::{Effects, Plant, Preset};
+
+    use crate::actuation::ActuationStep;
+    use crate::control::ControlStep;
+    use crate::estimation::EstimationStep;
+    use crate::sensing::SensingStep;
+    use crate::sim_bench::{SimBenchStep, SimForceSensor};
+
+    /// The whole loop on the model, with the same step code the services run:
+    /// sim-bench -> sensing -> estimation -> control -> actuation -> sim-bench.
+    #[test]
+    fn closed_loop_tracks_the_reference_with_every_law() {
+        for kind in Controller::LAWS {
+            closed_loop_tracks_the_reference(kind);
+        }
+    }
+
+    fn closed_loop_tracks_the_reference(kind: Controller) {
+        let params = Preset::P100Diesel.params();
+        let plant = Plant::new(params, Effects::none());
+        let config = crate::config::BenchConfig::default_sim().unwrap();
+        let mut sim = SimBenchStep::new(&plant, SimForceSensor::new(7.0, [0.0; 6], 3).unwrap(), 25.0);
+        let mut sensing = SensingStep::new(&config.sensor).unwrap();
+        let mut estimation = EstimationStep::new(params, config.estimator.observer_config(0.0));
+        let law = Law::new(kind, &plant, &LawSettings::default()).unwrap();
+        let mut control = ControlStep::new(law, config.reference.clone());
+        let mut actuator = ActuationStep::new(3);
+        let mut throttle = None;
+        let mut errors = Vec::new();
+        let steps = 3000; // 30 s
+        for k in 0..steps {
+            let now_ns = k * 10_000_000;
+            let (reading, truth) = sim.step(now_ns, throttle).unwrap();
+            let thrust = sensing.step(&reading, now_ns).unwrap();
+            let state = estimation.step(&thrust).unwrap();
+            let (reference, command) = control.step(&state).unwrap();
+            let applied = actuator.on_command(&command);
+            estimation.set_applied(applied.applied_pct);
+            throttle = Some(applied.applied_pct);
+            if k >= steps / 2 {
+                errors.push((truth.thrust_n - reference.thrust_n).abs());
+            }
+        }
+        errors.sort_by(f64::total_cmp);
+        let median = errors[errors.len() / 2];
+        let (lo, hi) = config.reference.span_n();
+        assert!(median < 0.05 * (hi - lo), "{kind}: median error {median:.2} N over span {:.1} N", hi - lo);
+        assert_eq!(control.fallbacks(), 0, "{kind}");
+    }
 }

@@ -4,7 +4,7 @@
 //! At the bench the live sensor is read on its CAN interface; the engine must
 //! be off and nothing may touch the stand. With the simulated bench "at rest"
 //! means the engine off and zero load: a simulated sensor ([`RestingSensor`],
-//! the bench's [`SimForceSensor`](crate::step::SimForceSensor) reading zero thrust) sends `[plant]
+//! the bench's [`SimForceSensor`](crate::sim_bench::SimForceSensor) reading zero thrust) sends `[plant]
 //! sensor_zero` plus sensor noise as real CAN frames over a private userspace
 //! bus, and the offsets are read back through the same codec and calibration as
 //! sensing uses.
@@ -28,9 +28,9 @@ use jetbench_io::can::source::{CanForceSink, CanForceSource, CanInterface};
 use jetbench_io::can::RejectCounts;
 use jetbench_io::{DeviceError, ForceSink, ForceSource};
 
-use crate::clock::PERIOD;
 use crate::config::{bus_namespace, BenchConfig, ConfigError, Devices};
-use crate::step::SimError;
+use crate::runtime::clock::PERIOD;
+use crate::sim_bench::SimError;
 
 /// Why a tare failed.
 #[derive(Debug, thiserror::Error)]

@@ -23,8 +23,12 @@ use jetbench_io::emulate::PtyBoard;
 use jetbench_io::serial::ThrottleBoard;
 use jetbench_io::{ForceSink, ForceSource, ThrottleOutput};
 use jetbench_msgs::{Actuation, Channel, Command, StateEstimate, Thrust};
+use jetbench_stack::actuation::ActuationStep;
 use jetbench_stack::config::BenchConfig;
-use jetbench_stack::step::{Actuator, Control, Estimation, Sensing, SimBench, SimForceSensor};
+use jetbench_stack::control::ControlStep;
+use jetbench_stack::estimation::EstimationStep;
+use jetbench_stack::sensing::SensingStep;
+use jetbench_stack::sim_bench::{SimBenchStep, SimForceSensor};
 
 /// Allocations made on this thread by `f`.
 fn allocations(f: impl FnOnce()) -> u64 {
@@ -37,13 +41,13 @@ fn allocations(f: impl FnOnce()) -> u64 {
 /// driver over a pty to the emulated board (whose own thread is not counted:
 /// it is a device, not a service).
 struct Loop {
-    sim: SimBench,
+    sim: SimBenchStep,
     sensor: CanForceSink,
     source: CanForceSource,
-    sensing: Sensing,
-    estimation: Estimation,
-    control: Control,
-    actuator: Actuator,
+    sensing: SensingStep,
+    estimation: EstimationStep,
+    control: ControlStep,
+    actuator: ActuationStep,
     board: ThrottleBoard,
     _emulator: PtyBoard,
     bus: Buses,
@@ -79,7 +83,7 @@ fn hand_over<T: jetbench_msgs::Sample>(ports: &mut (Publisher<T>, Subscriber<T>)
 }
 
 fn clock() -> u64 {
-    jetbench_stack::clock::monotonic_ns()
+    jetbench_stack::runtime::clock::monotonic_ns()
 }
 
 impl Loop {
@@ -116,17 +120,17 @@ impl Loop {
             _bus: bus,
         };
         Loop {
-            sim: SimBench::new(
+            sim: SimBenchStep::new(
                 &config.plant().expect("plant"),
                 SimForceSensor::new(config.plant.noise_var_n2, config.plant.sensor_zero, 5).expect("sensor"),
                 25.0,
             ),
             sensor,
             source,
-            sensing: Sensing::new(&config.sensor).expect("sensing"),
-            estimation: Estimation::new(params, observer),
-            control: Control::with_law(config.control_law().expect("law"), profile),
-            actuator: Actuator::new(3),
+            sensing: SensingStep::new(&config.sensor).expect("sensing"),
+            estimation: EstimationStep::new(params, observer),
+            control: ControlStep::with_law(config.control_law().expect("law"), profile),
+            actuator: ActuationStep::new(3),
             board: ThrottleBoard::new(&link, 115_200, clock),
             _emulator: emulator,
             bus: buses,

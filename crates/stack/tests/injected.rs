@@ -9,9 +9,13 @@
 use jetbench_control::{Law, LawSettings};
 use jetbench_model::{Effects, Params, Plant, Preset};
 use jetbench_msgs::{sim_faults, state_flags, StateEstimate};
+use jetbench_stack::actuation::ActuationStep;
 use jetbench_stack::config::BenchConfig;
+use jetbench_stack::control::ControlStep;
+use jetbench_stack::estimation::EstimationStep;
 use jetbench_stack::inject::{FaultPlan, FaultySensor};
-use jetbench_stack::step::{Actuator, Control, Estimation, Sensing, SimBench, SimForceSensor};
+use jetbench_stack::sensing::SensingStep;
+use jetbench_stack::sim_bench::{SimBenchStep, SimForceSensor};
 
 /// What a 30 s closed-loop run with injected faults gave.
 struct Outcome {
@@ -39,7 +43,7 @@ fn law(params: Params) -> Law {
 
 /// The command a fresh controller with `history` computes from `state`.
 fn command_after(params: Params, config: &BenchConfig, history: &[StateEstimate], state: &StateEstimate) -> f64 {
-    let mut control = Control::new(law(params), config.reference.clone());
+    let mut control = ControlStep::new(law(params), config.reference.clone());
     for s in history {
         control.step(s).expect("control");
     }
@@ -60,12 +64,12 @@ fn run(specs: &[&str], gate_chi2: f64, tune: fn(&mut BenchConfig)) -> Outcome {
     config.estimator.gate_chi2 = gate_chi2;
     tune(&mut config);
     let plan = FaultPlan::parse(specs).expect("plan");
-    let mut sim = SimBench::new(&plant, SimForceSensor::new(7.0, [0.0; 6], 3).expect("sensor"), 25.0);
+    let mut sim = SimBenchStep::new(&plant, SimForceSensor::new(7.0, [0.0; 6], 3).expect("sensor"), 25.0);
     let mut faulty = FaultySensor::new(plan.clone());
-    let mut sensing = Sensing::new(&config.sensor).expect("sensing").with_faults(plan);
-    let mut estimation = Estimation::new(params, config.estimator.observer_config(0.0));
-    let mut control = Control::new(law(params), config.reference.clone());
-    let mut actuator = Actuator::new(3);
+    let mut sensing = SensingStep::new(&config.sensor).expect("sensing").with_faults(plan);
+    let mut estimation = EstimationStep::new(params, config.estimator.observer_config(0.0));
+    let mut control = ControlStep::new(law(params), config.reference.clone());
+    let mut actuator = ActuationStep::new(3);
     let mut throttle = None;
     let mut history: Vec<StateEstimate> = Vec::new();
     let mut out = Outcome {

@@ -15,7 +15,7 @@
 //! let mut view = LiveView::open(&bus, server)?;
 //! while !jetbench_bus::stop_requested() {
 //!     view.pump()?; // everything published since the last call, to every subscribed client
-//!     std::thread::sleep(jetbench_stack::clock::PERIOD); // once a bench cycle, like the recorder
+//!     std::thread::sleep(jetbench_stack::runtime::clock::PERIOD); // once a bench cycle, like the recorder
 //! }
 //! eprint!("{}", view.report());
 //! # Ok(())
@@ -28,6 +28,7 @@
 //! bounded backlog ([`ServerOptions::backlog`]) and drops the oldest messages
 //! of a client that does not keep up; the bus queues in front of it are
 //! bounded too, and what they lose is counted ([`LiveReport`]).
+#![doc = include_str!("../README.md")]
 
 mod channels;
 mod live;

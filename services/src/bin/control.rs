@@ -3,5 +3,5 @@
 //! Started by `jetbench up`; see `jetbench-control --help`.
 
 fn main() -> std::process::ExitCode {
-    jetbench::service_main::<jetbench_stack::service::Control>("Control service: reference profile and control law (FBL, SMC or MPC), bench/state in, bench/reference and bench/command out.")
+    jetbench::service_main::<jetbench_stack::control::ControlService>("Control service: reference profile and control law (FBL, SMC or MPC), bench/state in, bench/reference and bench/command out.")
 }

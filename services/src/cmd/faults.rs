@@ -1,13 +1,11 @@
-//! `jetbench faults` and `jetbench soak`: glue over [`jetbench_faults`].
+//! `jetbench faults`: the fault campaign, glue over [`jetbench_faults`].
 
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Duration;
 
 use anyhow::Context;
-use jetbench_faults::report::{Options, Part};
+use jetbench_faults::campaign::{Options, Part};
 use jetbench_faults::Bench;
-use jetbench_latency::load::LoadKind;
 
 /// Arguments of `jetbench faults`.
 #[derive(clap::Args)]
@@ -39,24 +37,8 @@ pub struct FaultsArgs {
     python: Option<PathBuf>,
 }
 
-/// Arguments of `jetbench soak`.
-#[derive(clap::Args)]
-pub struct SoakArgs {
-    /// How long, minutes.
-    #[arg(long, default_value_t = 30.0)]
-    minutes: f64,
-    /// Background load: none, cpu, all (computation, memory traffic and file I/O).
-    #[arg(long, default_value = "all")]
-    load: LoadKind,
-    /// Sample every process's memory every this many seconds.
-    #[arg(long, default_value_t = 10.0)]
-    every: f64,
-    /// Run the set with its real-time settings (`jetbench up --rt`), as a bench under load should.
-    #[arg(long)]
-    rt: bool,
-}
-
-fn bench(python: Option<PathBuf>) -> anyhow::Result<Bench> {
+/// The runner of faults and soak: this `jetbench` binary, a scratch folder.
+pub(super) fn bench(python: Option<PathBuf>) -> anyhow::Result<Bench> {
     let exe = std::env::current_exe().context("cannot locate the jetbench binary")?;
     let scratch = std::env::temp_dir().join(format!("jetbench-faults-{}", std::process::id()));
     let mut bench = Bench::new(exe, "faults", scratch)?;
@@ -65,7 +47,7 @@ fn bench(python: Option<PathBuf>) -> anyhow::Result<Bench> {
 }
 
 fn machine() -> String {
-    let cpus = jetbench_stack::rt::online_cpus();
+    let cpus = jetbench_stack::runtime::rt::online_cpus();
     let kernel = std::fs::read_to_string("/proc/sys/kernel/osrelease").unwrap_or_default();
     format!("{cpus} CPUs, Linux {}", kernel.trim())
 }
@@ -74,7 +56,7 @@ pub fn run(args: FaultsArgs) -> anyhow::Result<ExitCode> {
     let bench = bench(args.python)?;
     let options =
         Options { repeat: args.repeat.max(1), seed: args.seed, spike_seconds: args.spike_seconds, only: args.only };
-    let campaign = jetbench_faults::report::run(&bench, &options, &mut |what| eprintln!("faults: {what}"));
+    let campaign = jetbench_faults::campaign::run(&bench, &options, &mut |what| eprintln!("faults: {what}"));
     let report = campaign.markdown(&machine());
     match &args.report {
         Some(path) => {
@@ -89,14 +71,4 @@ pub fn run(args: FaultsArgs) -> anyhow::Result<ExitCode> {
     }
     let _ = std::fs::remove_dir_all(bench.scratch_dir());
     Ok(if problems.is_empty() { ExitCode::SUCCESS } else { ExitCode::FAILURE })
-}
-
-pub fn soak(args: SoakArgs) -> anyhow::Result<ExitCode> {
-    anyhow::ensure!(args.minutes > 0.0 && args.every > 0.0, "--minutes and --every must be positive");
-    let bench = bench(None)?;
-    let every = Duration::from_secs_f64(args.every);
-    let soak = jetbench_faults::soak::soak(&bench, args.minutes, args.load, args.rt, every)?;
-    print!("{soak}");
-    let _ = std::fs::remove_dir_all(bench.scratch_dir());
-    Ok(if soak.exit_ok { ExitCode::SUCCESS } else { ExitCode::FAILURE })
 }

@@ -8,7 +8,7 @@ use anyhow::{bail, Context};
 use clap::ValueEnum;
 use indicatif::{ProgressBar, ProgressStyle};
 use jetbench_ident::identify::{self, Method, Report};
-use jetbench_ident::plot::{write_fit_plot, FitPlot};
+use jetbench_plot::{write_fit_plot, FitPlot};
 use jetbench_record::series::Series;
 
 /// Which methods to run.

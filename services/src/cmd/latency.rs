@@ -159,10 +159,10 @@ fn write_plot(plot: &Path, campaign: &Campaign) -> anyhow::Result<Vec<PathBuf>> 
         })
         .collect();
     let refs: Vec<(&str, &[f64], &[f64])> = series.iter().map(|(n, x, y)| (*n, &x[..], &y[..])).collect();
-    Ok(jetbench_ident::plot::write_line_plot(
+    Ok(jetbench_plot::write_line_plot(
         dir,
         stem,
-        &jetbench_ident::plot::LinePlot {
+        &jetbench_plot::LinePlot {
             title: "Control path latency: sensor frame to board write (3 process hops)",
             x_label: "latency (µs); the last bin holds everything beyond",
             y_label: "cycles",

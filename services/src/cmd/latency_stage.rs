@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use jetbench_latency::chain::{inherited_fd, run_stage, StageOptions};
-use jetbench_stack::rt::RtRequest;
+use jetbench_stack::runtime::rt::RtRequest;
 
 #[derive(clap::Args)]
 pub struct LatencyStageArgs {

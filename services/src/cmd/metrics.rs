@@ -7,7 +7,7 @@ use std::process::ExitCode;
 use anyhow::{bail, Context};
 use jetbench_control::recorded::{recording_metrics, RecordingMetrics, ThrustSource};
 use jetbench_control::{MetricsOptions, TrackingSample};
-use jetbench_ident::plot::{write_line_plot, LinePlot};
+use jetbench_plot::{write_line_plot, LinePlot};
 use jetbench_record::Recording;
 use serde_json::{json, Value};
 

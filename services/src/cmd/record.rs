@@ -8,7 +8,8 @@ use std::time::Duration;
 
 use anyhow::{bail, Context};
 use jetbench_bridge::{record_remote, Endpoint, RemoteBench};
-use jetbench_stack::service::{run, Reader, Recorder, RunOptions};
+use jetbench_stack::recorder::RecorderService;
+use jetbench_stack::runtime::{run, Reader, RunOptions};
 
 /// Options of `jetbench record`.
 #[derive(clap::Args)]
@@ -57,7 +58,7 @@ pub fn run_record(args: RecordArgs) -> anyhow::Result<ExitCode> {
                 });
             }
             let options = RunOptions { config: args.config, output: Some(args.out.clone()), ..RunOptions::default() };
-            run::<Reader<Recorder>>(&options).context("recording this machine's bus")?;
+            run::<Reader<RecorderService>>(&options).context("recording this machine's bus")?;
         }
     }
     super::info::print_summary(&args.out)?;

@@ -7,7 +7,7 @@ use std::time::Duration;
 use anyhow::{bail, Context};
 use jetbench_control::{Controller, BUILTIN_PROFILES};
 use jetbench_stack::config::{BenchConfig, Devices};
-use jetbench_stack::launch::{up, UpOptions};
+use jetbench_stack::runtime::launch::{up, UpOptions};
 
 fn bin_dir() -> anyhow::Result<PathBuf> {
     if let Some(dir) = std::env::var_os("JETBENCH_BIN_DIR") {
@@ -161,7 +161,7 @@ pub fn run(args: UpArgs) -> anyhow::Result<ExitCode> {
         let text = toml::to_string(&checked).context("cannot write the derived bench config")?;
         // Check it as the services will read it (this also loads models and profiles).
         BenchConfig::from_toml_str(&text, "the command-line options", None)?;
-        let path = jetbench_stack::launch::derived_config_path();
+        let path = jetbench_stack::runtime::launch::derived_config_path();
         std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
         derived = Some(path.clone());
         Some(path)

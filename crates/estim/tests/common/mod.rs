@@ -1,5 +1,7 @@
 //! Simulated bench data shared by the observer tests.
 
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
+
 use jetbench_model::{Effects, Params, Plant, State, STEP_S};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;

@@ -25,8 +25,8 @@ use serde_json::json;
 use super::fit::Fit;
 use super::residual::Analysis;
 use super::{named, Cause, Diagnosis, FoundEffect, Kept, Refit, REFIT};
-use crate::plot::{write_fit_plot, write_line_plot, FitPlot, LinePlot, PlotError};
 use crate::series::Series;
+use jetbench_plot::{write_fit_plot, write_line_plot, FitPlot, LinePlot, PlotError};
 
 /// The fitted values (and standard errors) of one hypothesis by key: the ten
 /// parameters for [`REFIT`], the effect's keys that matter otherwise.

@@ -12,8 +12,8 @@ use std::time::Duration;
 
 use jetbench_bus::{stop_requested, OpenError};
 
-use jetbench_stack::clock::{monotonic_ns, STALL};
-use jetbench_stack::rt::RtRequest;
+use jetbench_stack::runtime::clock::{monotonic_ns, STALL};
+use jetbench_stack::runtime::rt::RtRequest;
 
 use super::{StageRecord, DONE, GO, READY, RT, STAGES};
 
@@ -94,7 +94,7 @@ pub fn run_stage(options: StageOptions) -> Result<(), StageError> {
         return Err(StageError::NoSuchStage(stage));
     }
     jetbench_bus::install_signal_flag()?;
-    let outcome = rt.as_ref().map(jetbench_stack::rt::apply).unwrap_or_default();
+    let outcome = rt.as_ref().map(jetbench_stack::runtime::rt::apply).unwrap_or_default();
     let needs = |fd: Option<OwnedFd>, needed: bool, what| match (fd, needed) {
         (Some(fd), true) => Ok(Some(fd)),
         (None, true) => Err(StageError::MissingFd { stage, what }),
@@ -115,7 +115,7 @@ pub fn run_stage(options: StageOptions) -> Result<(), StageError> {
     for refused in &outcome.refused {
         say(&format!("{RT} refused {refused}"));
     }
-    let (policy, priority) = jetbench_stack::rt::current_policy();
+    let (policy, priority) = jetbench_stack::runtime::rt::current_policy();
     say(&format!("{RT} policy {policy} {priority}"));
     let end = stage_run.eventfd(input, output)?;
     stage_run.results.flush()?;

@@ -108,6 +108,7 @@ pub fn probe(request: &RtRequest) -> RtOutcome {
     if request.lock_memory {
         // SAFETY: mlockall/munlockall have no memory-safety preconditions.
         if unsafe { libc::mlockall(libc::MCL_CURRENT) } == 0 {
+            // SAFETY: as above; undoes the probe's lock.
             unsafe { libc::munlockall() };
             outcome.applied.insert(0, "memory locked".into());
         } else {

@@ -1,5 +1,5 @@
 //! The launcher behind `jetbench up`: starts the service processes in
-//! dependency order ([`crate::supervise`]), waits until each is ready, shows a
+//! dependency order ([`crate::runtime::supervise`]), waits until each is ready, shows a
 //! live status line, and stops them all in order at the end, on Ctrl-C/SIGTERM,
 //! or when one dies.
 
@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use jetbench_bus::{Bus, BusError, Flow, Subscriber};
 use jetbench_msgs::{channels, Health, Sample, ServiceId};
 
-use crate::supervise::{describe_exit, SpawnOptions, StopOrder, Supervisor};
+use crate::runtime::supervise::{describe_exit, SpawnOptions, StopOrder, Supervisor};
 
 /// How long a service may take to create its ports.
 const READY_TIMEOUT: Duration = Duration::from_secs(20);
@@ -191,7 +191,7 @@ impl Services {
         while let Some((i, line)) = next {
             if line.trim() == "ready" {
                 ready.push(self.ids[i]);
-            } else if let Some(why) = line.strip_prefix(crate::service::FAILED_PREFIX) {
+            } else if let Some(why) = line.strip_prefix(crate::runtime::FAILED_PREFIX) {
                 self.failures[i] = Some(why.to_string());
             } else {
                 println!("{}: {line}", self.ids[i].name());
@@ -240,6 +240,16 @@ impl Services {
     }
 }
 
+/// Samples seen on each control-path channel since the launcher started.
+#[derive(Clone, Copy, Debug, Default)]
+struct ChannelCounts {
+    thrust: u64,
+    state: u64,
+    reference: u64,
+    command: u64,
+    actuation: u64,
+}
+
 /// Live counts for the status line. Its subscribers are polled on the
 /// launcher's 20 ms tick, so their queues never fill: a full queue would make
 /// every publish on the control path take back its oldest sample.
@@ -250,9 +260,9 @@ struct Status {
     command: Subscriber<jetbench_msgs::Command>,
     actuation: Subscriber<jetbench_msgs::Actuation>,
     health: Subscriber<Health>,
-    counts: [u64; 5],
+    counts: ChannelCounts,
     /// `counts` when the last line was printed.
-    printed: [u64; 5],
+    printed: ChannelCounts,
     /// Deadline misses by service id (ids start at 1).
     misses: [u64; ServiceId::ALL.len() + 1],
     last_thrust_n: f64,
@@ -273,8 +283,8 @@ impl Status {
             command: bus.polled_subscriber(channels::COMMAND, Self::DEPTH)?,
             actuation: bus.polled_subscriber(channels::ACTUATION, Self::DEPTH)?,
             health: bus.polled_subscriber(channels::HEALTH, 8 * Self::DEPTH)?,
-            counts: [0; 5],
-            printed: [0; 5],
+            counts: ChannelCounts::default(),
+            printed: ChannelCounts::default(),
             misses: [0; ServiceId::ALL.len() + 1],
             last_thrust_n: f64::NAN,
             last_reference_n: f64::NAN,
@@ -292,11 +302,11 @@ impl Status {
 
     /// Takes everything queued since the last tick.
     fn drain(&mut self) -> Result<(), BusError> {
-        Self::drain_one(&self.thrust, &mut self.counts[0], |_| {})?;
-        Self::drain_one(&self.state, &mut self.counts[1], |s| self.last_thrust_n = s.thrust_n)?;
-        Self::drain_one(&self.reference, &mut self.counts[2], |r| self.last_reference_n = r.thrust_n)?;
-        Self::drain_one(&self.command, &mut self.counts[3], |_| {})?;
-        Self::drain_one(&self.actuation, &mut self.counts[4], |a| self.last_throttle_pct = a.applied_pct)?;
+        Self::drain_one(&self.thrust, &mut self.counts.thrust, |_| {})?;
+        Self::drain_one(&self.state, &mut self.counts.state, |s| self.last_thrust_n = s.thrust_n)?;
+        Self::drain_one(&self.reference, &mut self.counts.reference, |r| self.last_reference_n = r.thrust_n)?;
+        Self::drain_one(&self.command, &mut self.counts.command, |_| {})?;
+        Self::drain_one(&self.actuation, &mut self.counts.actuation, |a| self.last_throttle_pct = a.applied_pct)?;
         while let Some(h) = self.health.try_recv()? {
             if let Some(slot) = self.misses.get_mut(h.service_id as usize) {
                 *slot = h.deadline_misses;
@@ -309,15 +319,15 @@ impl Status {
     fn line(&mut self, elapsed: Duration, window: Duration) -> String {
         let before = std::mem::replace(&mut self.printed, self.counts);
         let secs = window.as_secs_f64().max(1e-3);
-        let rate = |i: usize| (self.counts[i] - before[i]) as f64 / secs;
+        let rate = |count: fn(&ChannelCounts) -> u64| (count(&self.counts) - count(&before)) as f64 / secs;
         format!(
             "{:>6.1} s | Hz thrust {:>5.1} state {:>5.1} ref {:>5.1} cmd {:>5.1} act {:>5.1} | T {:>6.1} N ref {:>6.1} N u {:>5.1} % | misses {}",
             elapsed.as_secs_f64(),
-            rate(0),
-            rate(1),
-            rate(2),
-            rate(3),
-            rate(4),
+            rate(|c| c.thrust),
+            rate(|c| c.state),
+            rate(|c| c.reference),
+            rate(|c| c.command),
+            rate(|c| c.actuation),
             self.last_thrust_n,
             self.last_reference_n,
             self.last_throttle_pct,

@@ -1,8 +1,8 @@
-//! Plots of identification results, written as PNG (for reports and quick looks) and SVG (for zooming and
+//! Plots of measured and modelled series, written as PNG (for reports and quick looks) and SVG (for zooming and
 //! papers).
 //!
 //! ```
-//! use jetbench_ident::plot::{write_fit_plot, FitPlot};
+//! use jetbench_plot::{write_fit_plot, FitPlot};
 //!
 //! let t_s: Vec<f64> = (0..1000).map(|i| i as f64 * 0.01).collect();
 //! let measured_n: Vec<f64> = t_s.iter().map(|t| 40.0 * (1.0 - (-t).exp())).collect();
@@ -21,7 +21,7 @@
 //!     },
 //! )?;
 //! assert_eq!(files, [dir.join("first_order.png"), dir.join("first_order.svg")]);
-//! # Ok::<(), jetbench_ident::plot::PlotError>(())
+//! # Ok::<(), jetbench_plot::PlotError>(())
 //! ```
 //!
 //! Rendering uses `plotters` with its pure-Rust bitmap and SVG backends. Text in the PNG is rasterised with
@@ -33,6 +33,7 @@
 //! sample are kept ([`decimate_min_max`]), which draws the same picture as the full series (spikes survive)
 //! at a few thousand points instead of tens of thousands. Non-finite samples are never drawn: they split a
 //! line into separate pieces, so a diverged simulation shows as a gap.
+#![doc = include_str!("../README.md")]
 
 use std::io;
 use std::path::{Path, PathBuf};

@@ -5,17 +5,17 @@ use jetbench_io::serial::{EcuPoller, ThrottleBoard, SILENT_AFTER};
 use jetbench_io::ThrottleOutput;
 use jetbench_msgs::{actuation_flags, channels, Command, EcuTelemetry, ServiceId};
 
-use super::{Context, Input, Service, ServiceError, Setup};
-use crate::clock::{monotonic_ns, COMMAND_DEADLINE};
-use crate::step::Actuator;
+use super::ActuationStep;
+use crate::runtime::clock::{monotonic_ns, COMMAND_DEADLINE};
+use crate::runtime::{Context, Input, Service, ServiceError, Setup};
 
-/// Actuation: applies each command ([`Actuator`]); without fresh commands it
+/// Actuation: applies each command ([`ActuationStep`]); without fresh commands it
 /// holds, then idles after the configured cycles. The board and the ECU are
 /// serial devices opened by path (sim-bench's ptys with `devices = "sim"`); the
 /// ECU is polled on its own thread and its samples are published here without
 /// waiting.
-pub struct Actuation {
-    step: Actuator,
+pub struct ActuationService {
+    step: ActuationStep,
     board: ThrottleBoard,
     ecu: EcuPoller,
     actuation: Publisher<jetbench_msgs::Actuation>,
@@ -24,7 +24,7 @@ pub struct Actuation {
     was_idle: bool,
 }
 
-impl Service for Actuation {
+impl Service for ActuationService {
     const ID: ServiceId = ServiceId::Actuation;
     type Inputs = Input<Command>;
 
@@ -38,14 +38,14 @@ impl Service for Actuation {
         if config.rt.enabled {
             // It inherited actuation's priority, the highest of the control path.
             let priority = config.rt.ecu_priority;
-            match ecu.pthread().map(|t| crate::rt::set_thread_fifo(t, priority)) {
+            match ecu.pthread().map(|t| crate::runtime::rt::set_thread_fifo(t, priority)) {
                 Some(Ok(())) => tracing::info!("ECU poller at SCHED_FIFO {priority}"),
                 Some(Err(e)) => tracing::warn!("cannot set the ECU poller to SCHED_FIFO {priority}: {e}"),
                 None => {}
             }
         }
-        let actuation = Actuation {
-            step: Actuator::new(config.actuation.idle_after_missed_cycles),
+        let actuation = ActuationService {
+            step: ActuationStep::new(config.actuation.idle_after_missed_cycles),
             board,
             ecu,
             actuation: bus.publisher(channels::ACTUATION)?,

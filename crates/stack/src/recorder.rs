@@ -6,16 +6,16 @@ use jetbench_record::clock::ClockOrigin;
 use jetbench_record::meta::RunMetadata;
 use jetbench_record::{spawn_writer, RawRecord, RecordError, WriterHandle};
 
-use super::{ChannelReader, Context, ServiceError, Setup};
-use crate::clock::realtime_ns;
 use crate::config::OnRecordError;
+use crate::runtime::clock::realtime_ns;
+use crate::runtime::{ChannelReader, Context, ServiceError, Setup};
 
-/// The recorder (run as [`Reader<Recorder>`](super::Reader)): every channel read
+/// The recorder (run as [`Reader<RecorderService>`](crate::runtime::Reader)): every channel read
 /// by a polled subscriber on the recorder's own clock ([`Tap`]), handed to a writer thread through a bounded queue that
 /// never waits on the disk. `log_time` is the wall clock at receive (viewers
 /// date the run when it happened); the samples keep their monotonic stamps,
 /// which are also the messages' `publish_time`.
-pub struct Recorder {
+pub struct RecorderService {
     tap: Tap,
     /// `None` once finished, or once writing failed and the run goes on without it.
     writer: Option<WriterHandle>,
@@ -53,7 +53,7 @@ fn drain(tap: &Tap, writer: &mut WriterHandle) -> Result<usize, ServiceError> {
     failure.map_or(Ok(taken), |e| Err(e.into()))
 }
 
-impl ChannelReader for Recorder {
+impl ChannelReader for RecorderService {
     const ID: ServiceId = ServiceId::Recorder;
 
     fn open(setup: &Setup<'_>) -> Result<Self, ServiceError> {
@@ -72,7 +72,7 @@ impl ChannelReader for Recorder {
         let writer = spawn_writer(path, setup.config.recorder.queue, vec![run.record()])?;
         tracing::info!("recording {} channels to {}", tap.counts().len(), path.display());
         let on_error = setup.config.recorder.on_error;
-        Ok(Recorder { tap, writer: Some(writer), on_error, failed: None })
+        Ok(RecorderService { tap, writer: Some(writer), on_error, failed: None })
     }
 
     fn pump(&mut self, ctx: &mut Context<'_>) -> Result<usize, ServiceError> {

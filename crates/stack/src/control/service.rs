@@ -3,18 +3,18 @@
 use jetbench_bus::{Publisher, Wake};
 use jetbench_msgs::{channels, command_flags, Command, Reference, ServiceId, StateEstimate};
 
-use super::{Context, Input, Service, ServiceError, Setup};
-use crate::clock::INPUT_DEADLINE;
-use crate::step::{self, ControlLaw};
+use super::{ControlLaw, ControlStep};
+use crate::runtime::clock::INPUT_DEADLINE;
+use crate::runtime::{Context, Input, Service, ServiceError, Setup};
 
-/// Control: the reference profile and the law ([`step::Control`]) on every state estimate.
-pub struct Control {
-    step: step::Control,
+/// Control: the reference profile and the law ([`ControlStep`]) on every state estimate.
+pub struct ControlService {
+    step: ControlStep,
     reference: Publisher<Reference>,
     command: Publisher<Command>,
 }
 
-impl Service for Control {
+impl Service for ControlService {
     const ID: ServiceId = ServiceId::Control;
     type Inputs = Input<StateEstimate>;
 
@@ -29,8 +29,8 @@ impl Service for Control {
                 throttle_pct.len() as f64 * jetbench_model::STEP_S
             ),
         }
-        let control = Control {
-            step: step::Control::with_law(law, config.reference.clone()),
+        let control = ControlService {
+            step: ControlStep::with_law(law, config.reference.clone()),
             reference: bus.publisher(channels::REFERENCE)?,
             command: bus.publisher(channels::COMMAND)?,
         };

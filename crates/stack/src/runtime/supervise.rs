@@ -8,7 +8,7 @@
 //! ([`Supervisor::next_line`]), which speaks its protocol over it (`ready`, ...).
 //!
 //! ```no_run
-//! use jetbench_stack::supervise::{Supervisor, StopOrder};
+//! use jetbench_stack::runtime::supervise::{Supervisor, StopOrder};
 //! use std::process::Command;
 //! use std::time::Duration;
 //!

@@ -3,7 +3,7 @@
 use jetbench_bus::{Bus, BusError, Publisher};
 use jetbench_msgs::{channels, health_flags, Health, ServiceId};
 
-use crate::clock::PERIOD_NS;
+use crate::runtime::clock::PERIOD_NS;
 
 /// Counts a service's cycles, misses and errors, and publishes them.
 pub struct HealthReporter {

@@ -3,33 +3,33 @@
 use jetbench_bus::{Publisher, Subscriber, Wake};
 use jetbench_msgs::{channels, state_flags, Actuation, ServiceId, StateEstimate, Thrust};
 
-use super::{Context, Input, Service, ServiceError, Setup};
-use crate::clock::INPUT_DEADLINE;
-use crate::step;
+use super::EstimationStep;
+use crate::runtime::clock::INPUT_DEADLINE;
+use crate::runtime::{Context, Input, Service, ServiceError, Setup};
 
-/// Estimation: the EKF of `[T, Ṫ, d]` ([`step::Estimation`]) on every thrust
+/// Estimation: the EKF of `[T, Ṫ, d]` ([`EstimationStep`]) on every thrust
 /// sample, predicting with the throttle the board last acknowledged.
-pub struct Estimation {
-    step: step::Estimation,
+pub struct EstimationService {
+    step: EstimationStep,
     /// Read with each thrust sample, never woken by: an actuation sample
     /// arrives mid-cycle and has nothing to start.
     actuation: Subscriber<Actuation>,
     state: Publisher<StateEstimate>,
 }
 
-impl Service for Estimation {
+impl Service for EstimationService {
     const ID: ServiceId = ServiceId::Estimation;
     type Inputs = Input<Thrust>;
 
     fn new(setup: &Setup<'_>) -> Result<(Self, Self::Inputs), ServiceError> {
         let bus = setup.bus;
         let thrust = Input::new(bus.subscriber(channels::THRUST, 16)?, INPUT_DEADLINE);
-        let estimation = Estimation {
+        let estimation = EstimationService {
             actuation: bus.polled_subscriber(channels::ACTUATION, 16)?,
             state: bus.publisher(channels::STATE)?,
             step: {
                 let (model, observer) = setup.config.estimator()?;
-                step::Estimation::new(model, observer)
+                EstimationStep::new(model, observer)
             },
         };
         Ok((estimation, thrust))

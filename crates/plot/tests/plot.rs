@@ -1,13 +1,15 @@
 //! Plot files: both formats written with the requested size and text; bad input is an error, odd data
 //! (NaN, infinities, single points, huge series) is drawn without panicking.
 //!
-//! The files land in `$TMPDIR/jetbench-ident-plot-tests/<test>/` and are kept for a look after the run.
+//! The files land in `$TMPDIR/jetbench-plot-tests/<test>/` and are kept for a look after the run.
+
+#![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
 
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{self, RecvTimeoutError};
 use std::time::{Duration, Instant};
 
-use jetbench_ident::plot::{
+use jetbench_plot::{
     decimate_min_max, write_fit_plot, write_line_plot, FitPlot, LinePlot, PlotError, FIT_PLOT_SIZE_PX,
     LINE_PLOT_SIZE_PX,
 };
@@ -16,7 +18,7 @@ const PNG_SIGNATURE: [u8; 8] = [0x89, b'P', b'N', b'G', b'\r', b'\n', 0x1a, b'\n
 
 /// A fresh output directory per test, so tests can run in parallel.
 fn out_dir(test: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join("jetbench-ident-plot-tests").join(test);
+    let dir = std::env::temp_dir().join("jetbench-plot-tests").join(test);
     let _ = std::fs::remove_dir_all(&dir);
     dir
 }

@@ -9,22 +9,22 @@ use jetbench_io::emulate::{EcuModel, PtyBoard, PtyEcu};
 use jetbench_io::ForceSink;
 use jetbench_msgs::{channels, ServiceId, SimTruth};
 
-use super::{Context, Schedule, Service, ServiceError, Setup};
-use crate::clock::{monotonic_ns, PERIOD, STALL};
+use super::SimBenchStep;
 use crate::config::{sim_port_link, Devices};
 use crate::inject::FaultySensor;
-use crate::step;
+use crate::runtime::clock::{monotonic_ns, PERIOD, STALL};
+use crate::runtime::{Context, Schedule, Service, ServiceError, Setup};
 
 /// File that, while it exists, unplugs sim-bench's force sensor (it stops
 /// sending frames): `touch` it to test the silent-sensor path, remove it and
 /// the frames come back. In the run's sim folder (`config::sim_port_link`).
 pub const SENSOR_UNPLUGGED_FILE: &str = "sensor-unplugged";
 
-/// Sim-bench: the engine ([`step::SimBench`]) stepped on its own clock, its
+/// Sim-bench: the engine ([`SimBenchStep`]) stepped on its own clock, its
 /// force sensor sending real CAN frames, the throttle board and the ECU each
 /// on its own pty pair, published where actuation opens them.
-pub struct SimBench {
-    sim: step::SimBench,
+pub struct SimBenchService {
+    sim: SimBenchStep,
     /// Injected faults between the sensor and its frames (`--inject`).
     faults: FaultySensor,
     /// Frames injected with each fault, by [`jetbench_msgs::sim_faults`] bit.
@@ -38,7 +38,7 @@ pub struct SimBench {
     next: Instant,
 }
 
-impl Service for SimBench {
+impl Service for SimBenchService {
     const ID: ServiceId = ServiceId::SimBench;
     type Inputs = ();
 
@@ -47,7 +47,7 @@ impl Service for SimBench {
         if config.bench.devices != Devices::Sim {
             return Err(ServiceError::Setup("sim-bench runs only with [bench] devices = \"sim\"".into()));
         }
-        let sim = step::SimBench::new(&config.plant()?, config.plant.sensor()?, config.plant.initial_throttle_pct);
+        let sim = SimBenchStep::new(&config.plant()?, config.plant.sensor()?, config.plant.initial_throttle_pct);
         let plan = config.plant.faults().map_err(|e| ServiceError::Setup(e.to_string()))?;
         if !plan.is_empty() {
             tracing::warn!("injecting sensor faults: {plan}");
@@ -65,7 +65,7 @@ impl Service for SimBench {
         let ecu_model = EcuModel::settled(0.0, config.plant.initial_throttle_pct);
         let ecu = PtyEcu::spawn(&config.ecu_port(), ecu_model.reading())?;
         tracing::info!("throttle board on {}, ECU on {}", board.link().display(), ecu.link().display());
-        let bench = SimBench {
+        let bench = SimBenchService {
             sim,
             faults: FaultySensor::new(plan),
             injected: [0; 4],
@@ -132,7 +132,7 @@ impl Service for SimBench {
 /// own watchdog (100 ms) and a few cycles.
 const RUN_DOWN: Duration = Duration::from_millis(300);
 
-impl SimBench {
+impl SimBenchService {
     /// One 10 ms step of the bench, at its scheduled time.
     fn tick(&mut self, ctx: &mut Context<'_>) -> Result<(), ServiceError> {
         let start_ns = ctx.woke();

@@ -1,7 +1,7 @@
 //! Savitzky–Golay smoothing and differentiation of uniformly sampled signals.
 //!
 //! ```
-//! use jetbench_estim::SavitzkyGolay;
+//! use jetbench_ident::SavitzkyGolay;
 //!
 //! // 100 Hz thrust samples of T(t) = 3·t² N: the fit is exact for polynomials up to the order.
 //! let dt_s = 0.01;
@@ -11,7 +11,7 @@
 //! let accel = sg.apply(&thrust_n, 2, dt_s)?; // N/s²
 //! assert!((rate[0] - 0.0).abs() < 1e-9 && (rate[150] - 9.0).abs() < 1e-9);
 //! assert!(accel.iter().all(|a| (a - 6.0).abs() < 1e-9));
-//! # Ok::<(), jetbench_estim::SavGolError>(())
+//! # Ok::<(), jetbench_ident::SavGolError>(())
 //! ```
 //!
 //! Each output sample is the `deriv`-th derivative, at that sample, of the least-squares

@@ -3,8 +3,8 @@
 //! A service is a [`Service`]: created with its devices and bus ports
 //! ([`Service::new`]), started ([`Service::start`]), woken cycle after cycle
 //! ([`Service::process`]) and stopped ([`Service::stop`]), the lifecycle of a
-//! copper-rs task. It holds its step logic (a plain struct of [`crate::step`]
-//! that never touches IPC) and wires it to the bus; it never opens the bus,
+//! copper-rs task. It holds its algorithm (a plain `…Step` struct beside it,
+//! e.g. [`crate::estimation::EstimationStep`], that never touches IPC) and wires it to the bus; it never opens the bus,
 //! announces itself, keeps its heartbeat or logs a rejection itself: [`run`]
 //! does that for every service alike.
 //!
@@ -18,8 +18,8 @@
 //! ```no_run
 //! use jetbench_bus::Wake;
 //! use jetbench_msgs::{channels, ServiceId, StateEstimate};
-//! use jetbench_stack::clock::INPUT_DEADLINE;
-//! use jetbench_stack::service::{run, Context, Input, RunOptions, Service, ServiceError, Setup};
+//! use jetbench_stack::runtime::clock::INPUT_DEADLINE;
+//! use jetbench_stack::runtime::{run, Context, Input, RunOptions, Service, ServiceError, Setup};
 //!
 //! /// Counts state estimates, one heartbeat per estimate.
 //! struct Counter(u64);
@@ -58,26 +58,19 @@ use jetbench_io::DeviceError;
 use jetbench_msgs::{Sample, ServiceId};
 use jetbench_record::RecordError;
 
-use crate::clock::monotonic_ns;
 use crate::config::{BenchConfig, ConfigError};
-use crate::health::HealthReporter;
-use crate::step::SimError;
+use crate::runtime::clock::monotonic_ns;
+use crate::runtime::health::HealthReporter;
+use crate::sim_bench::SimError;
 
-mod actuation;
-mod control;
-mod estimation;
+pub mod clock;
+pub mod health;
+pub mod launch;
 mod reader;
-mod recorder;
-mod sensing;
-mod sim_bench;
+pub mod rt;
+pub mod supervise;
 
-pub use actuation::Actuation;
-pub use control::Control;
-pub use estimation::Estimation;
 pub use reader::{ChannelReader, Reader};
-pub use recorder::{ChannelReport, Recorder, RecorderReport};
-pub use sensing::Sensing;
-pub use sim_bench::{SimBench, SENSOR_UNPLUGGED_FILE};
 
 /// Why a service stopped with an error.
 #[derive(Debug, thiserror::Error)]
@@ -393,7 +386,7 @@ pub fn run<S: Service>(options: &RunOptions) -> Result<(), ServiceError> {
     // `--rt` is `[rt] enabled = true` for this run: the service's own threads follow it.
     config.rt.enabled |= options.rt;
     if let Some(request) = config.rt.request(S::ID, false) {
-        crate::rt::apply(&request).log(S::ID.name());
+        crate::runtime::rt::apply(&request).log(S::ID.name());
     }
     let bus = Bus::open(S::ID.name())?;
     let setup =

@@ -11,7 +11,7 @@ use jetbench_bus::Wake;
 use jetbench_msgs::ServiceId;
 
 use super::{Context, Schedule, Service, ServiceError, Setup};
-use crate::clock::PERIOD;
+use crate::runtime::clock::PERIOD;
 
 /// At the end, a reader takes what is still coming until the bus has been
 /// quiet this long (the launcher stops readers last) ...

@@ -6,23 +6,23 @@ use jetbench_io::can::RejectCounts;
 use jetbench_io::ForceSource;
 use jetbench_msgs::{channels, ServiceId, Thrust};
 
-use super::{log_rejection, Context, Schedule, Service, ServiceError, Setup};
-use crate::clock::INPUT_DEADLINE;
-use crate::step;
+use super::SensingStep;
+use crate::runtime::clock::INPUT_DEADLINE;
+use crate::runtime::{log_rejection, Context, Schedule, Service, ServiceError, Setup};
 
 /// Sensing: calibrates each force reading into a thrust sample
-/// ([`step::Sensing`]). A sensor silent for one input deadline is reported in
+/// ([`SensingStep`]). A sensor silent for one input deadline is reported in
 /// `bench/health` (input overdue) every deadline until it is back; the first
 /// sample after it carries `SENSOR_RESUMED`. The link reopens by itself.
-pub struct Sensing {
-    step: step::Sensing,
+pub struct SensingService {
+    step: SensingStep,
     source: CanForceSource,
     thrust: Publisher<Thrust>,
     /// The frame rejections already counted and logged.
     seen: RejectCounts,
 }
 
-impl Service for Sensing {
+impl Service for SensingService {
     const ID: ServiceId = ServiceId::Sensing;
     type Inputs = ();
 
@@ -33,13 +33,13 @@ impl Service for Sensing {
         let codec = config.sensor.codec().map_err(|e| ServiceError::Setup(e.to_string()))?;
         let source = CanForceSource::open(&interface, codec)?;
         tracing::info!("reading {}", source.describe());
-        let mut step = step::Sensing::new(&config.sensor).map_err(|e| ServiceError::Setup(format!("[sensor] {e}")))?;
+        let mut step = SensingStep::new(&config.sensor).map_err(|e| ServiceError::Setup(format!("[sensor] {e}")))?;
         if config.bench.devices == crate::config::Devices::Sim {
             // The simulated bench's injected driver faults (`--inject nan:...`).
             step = step.with_faults(config.plant.faults().map_err(|e| ServiceError::Setup(e.to_string()))?);
         }
         let thrust = setup.bus.publisher(channels::THRUST)?;
-        Ok((Sensing { step, source, thrust, seen: RejectCounts::default() }, ()))
+        Ok((SensingService { step, source, thrust, seen: RejectCounts::default() }, ()))
     }
 
     fn schedule(&self) -> Schedule {

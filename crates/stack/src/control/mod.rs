@@ -1,0 +1,12 @@
+//! Control: `bench/state` in, `bench/command` and `bench/reference` out.
+//!
+//! - [`ControlStep`] (`step.rs`), the algorithm: the reference profile and the
+//!   law (`jetbench_control::Law`: FBL, SMC or MPC), or a throttle profile played
+//!   open loop ([`ControlLaw`]); plain code, run live, in replay and in tests.
+//! - [`ControlService`] (`service.rs`), the adapter: the bus ports around the step.
+
+mod service;
+mod step;
+
+pub use service::ControlService;
+pub use step::{disturbance, ControlLaw, ControlStep};
