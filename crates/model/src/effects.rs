@@ -182,14 +182,77 @@ impl EffectKind {
         }
     }
 
-    /// Every kind with its keys, their bounds and its physics, the discrepancy's terms
-    /// too: the catalogue as a command's help shows it.
+    /// What the effect does to the model, as a formula in words.
+    pub fn formula(self) -> &'static str {
+        match self {
+            EffectKind::InputDelay => "the engine follows u(t − delay_s)",
+            EffectKind::ActuatorLag => "first-order lag on u",
+            EffectKind::RateLimit => "the throttle moves no faster than up/down_pct_per_s",
+            EffectKind::SensorDrift => "measured = T + b, ḃ = (gain·T − b)/time_constant_s",
+            EffectKind::GainDrift => "v(u) scaled by (1 − per_minute·t/60)",
+            EffectKind::BearingFriction => "the measured force follows T only beyond a play band of ±force_n",
+            EffectKind::StandResonance => "the sensor reads the frame through ẍ = ω²(F − x) − 2ζω·ẋ",
+            EffectKind::Discrepancy => "extra thrust acceleration from named terms",
+        }
+    }
+
+    /// The physical range ([`EffectKind::physical`]) in words: `key lo–hi` per parameter
+    /// (the discrepancy's knots only: its coefficients are as in files).
+    pub fn physical_text(self) -> String {
+        let ranges = self.keys().iter().zip(self.physical());
+        let shown: Vec<String> = match self {
+            EffectKind::Discrepancy => ranges
+                .filter(|(key, _)| key.ends_with("_pct"))
+                .map(|(key, (lo, hi))| format!("{key} {lo}–{hi}"))
+                .collect(),
+            _ => ranges.map(|(key, (lo, hi))| format!("{key} {lo}–{hi}")).collect(),
+        };
+        shown.join(", ")
+    }
+
+    /// The catalogue as the README's Markdown table: name, parameters with the bounds a
+    /// model file must respect, what the effect does, the physics, the physical range.
+    /// A test fails when the README's table differs.
+    pub fn catalogue_markdown() -> String {
+        let mut table = String::from(
+            "| name | parameters (bounds in a model file) | what it does | physics | physical range |\n|---|---|---|---|---|\n",
+        );
+        for kind in Self::ALL {
+            let params = match kind {
+                EffectKind::Discrepancy => "terms below".to_string(),
+                _ => Self::keys_with_bounds(kind).join(", "),
+            };
+            table.push_str(&format!(
+                "| `{}` | {params} | {} | {} | {} |\n",
+                kind.name(),
+                kind.formula(),
+                kind.physics(),
+                kind.physical_text()
+            ));
+        }
+        table
+    }
+
+    fn keys_with_bounds(kind: EffectKind) -> Vec<String> {
+        kind.keys().iter().zip(kind.bounds()).map(|(key, (lo, hi))| format!("`{key}` [{lo}, {hi}]")).collect()
+    }
+
+    /// Every kind with its keys, their bounds, what it does, its physics and its physical
+    /// range, the discrepancy's terms too: the catalogue as `sim-record --help` and
+    /// `diagnose --help` show it.
     pub fn catalogue_help() -> String {
         let mut help = String::new();
         for kind in Self::ALL {
             let keys: Vec<String> =
                 kind.keys().iter().zip(kind.bounds()).map(|(key, (lo, hi))| format!("{key}=[{lo}, {hi}]")).collect();
-            help.push_str(&format!("  {}:{}\n      {}\n", kind.name(), keys.join(","), kind.physics()));
+            help.push_str(&format!(
+                "  {}:{}\n      {}; {}\n      physical: {}\n",
+                kind.name(),
+                keys.join(","),
+                kind.formula(),
+                kind.physics(),
+                kind.physical_text()
+            ));
         }
         help.push_str("  discrepancy terms (each with its shape key; absent terms are 0):\n");
         for term in DISCREPANCY_TERMS {

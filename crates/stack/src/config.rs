@@ -728,6 +728,78 @@ impl BenchConfig {
     }
 }
 
+/// What the command line may change in a bench config (`jetbench up`): each a
+/// key of the config, given as it would be written there.
+#[derive(Clone, Debug, Default)]
+pub struct Overrides {
+    /// `[control] controller`.
+    pub controller: Option<Controller>,
+    /// `[model] model`: a preset name, or a model file (made absolute by the caller).
+    pub model: Option<String>,
+    /// `[plant] model`, as `model`.
+    pub plant: Option<String>,
+    /// `[reference]`: a built-in profile by name, scaled to the model's thrust range.
+    pub profile: Option<String>,
+    /// `[control] throttle_profile` (an absolute path), with `controller = open_loop`.
+    pub open_loop: Option<PathBuf>,
+    /// Appended to `[plant] inject`.
+    pub inject: Vec<String>,
+}
+
+impl Overrides {
+    /// True when nothing is overridden (the config file is used as it is).
+    pub fn is_empty(&self) -> bool {
+        self.controller.is_none()
+            && self.model.is_none()
+            && self.plant.is_none()
+            && self.profile.is_none()
+            && self.open_loop.is_none()
+            && self.inject.is_empty()
+    }
+}
+
+impl BenchConfig {
+    /// This config with `overrides` applied, checked as the services will read it
+    /// (models and profiles loaded). Errors name the key they concern.
+    pub fn with_overrides(&self, overrides: &Overrides) -> Result<BenchConfig, ConfigError> {
+        let origin = "the command-line options".to_string();
+        let invalid = |message: String| ConfigError::Invalid { origin: origin.clone(), message };
+        let mut config = self.clone();
+        if let Some(kind) = overrides.controller {
+            config.control.controller = kind;
+        }
+        if let Some(model) = &overrides.model {
+            config.model.model = model.clone();
+        }
+        if let Some(plant) = &overrides.plant {
+            config.plant.model = plant.clone();
+        }
+        if let Some(name) = &overrides.profile {
+            let params =
+                config.model_params().map_err(|e| invalid(format!("[reference] scales to [model] model: {e}")))?;
+            let range = params
+                .stable_equilibrium(jetbench_model::THROTTLE_MIN_PCT)
+                .zip(params.stable_equilibrium(jetbench_model::THROTTLE_MAX_PCT));
+            let (idle_n, max_n) = range.ok_or_else(|| {
+                invalid(format!(
+                    "[reference] {name}: model {} has no stable thrust at 25 % or 100 % throttle to scale to",
+                    config.model.model
+                ))
+            })?;
+            config.reference = Profile::builtin(name, idle_n, max_n).ok_or_else(|| {
+                invalid(format!("[reference] {name}: the model's thrust range {idle_n:.1}..{max_n:.1} N is empty"))
+            })?;
+        }
+        config.plant.inject.extend(overrides.inject.iter().cloned());
+        if let Some(profile) = &overrides.open_loop {
+            config.control.controller = Controller::OpenLoop;
+            config.control.throttle_profile = Some(profile.display().to_string());
+        }
+        let text = toml::to_string(&config).map_err(|e| invalid(format!("cannot be written as TOML: {e}")))?;
+        BenchConfig::from_toml_str(&text, &origin, None)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -826,5 +898,44 @@ mod tests {
         assert_eq!(c.plant().unwrap(), file.plant());
         assert_eq!(c.model_params().unwrap(), file.model);
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn overrides_change_their_keys_and_nothing_else() {
+        let base = BenchConfig::default_sim().unwrap();
+        assert!(Overrides::default().is_empty());
+        assert_eq!(base.with_overrides(&Overrides::default()).unwrap(), base);
+        let overrides = Overrides {
+            controller: Some(Controller::Smc),
+            model: Some("p100-diesel".into()),
+            plant: Some("p100-diesel".into()),
+            profile: Some("ramps".into()),
+            inject: vec!["spikes:rate_per_s=1,size_n=20".into()],
+            ..Overrides::default()
+        };
+        assert!(!overrides.is_empty());
+        let changed = base.with_overrides(&overrides).unwrap();
+        assert_eq!(changed.control.controller, Controller::Smc);
+        assert_eq!((changed.model.model.as_str(), changed.plant.model.as_str()), ("p100-diesel", "p100-diesel"));
+        assert_ne!(changed.reference, base.reference, "the ramps profile replaces the config's");
+        assert_eq!(changed.plant.inject.last().map(String::as_str), Some("spikes:rate_per_s=1,size_n=20"));
+        let restored = BenchConfig {
+            control: base.control.clone(),
+            model: base.model.clone(),
+            plant: base.plant.clone(),
+            reference: base.reference.clone(),
+            ..changed
+        };
+        assert_eq!(restored, base, "nothing but the overridden keys changed");
+    }
+
+    #[test]
+    fn a_bad_override_is_an_error_naming_its_key() {
+        let base = BenchConfig::default_sim().unwrap();
+        let bad_model = Overrides { model: Some("no-such-model.toml".into()), ..Overrides::default() };
+        assert!(base.with_overrides(&bad_model).is_err());
+        let bad_inject = Overrides { inject: vec!["spikes:rate_per_s=-1".into()], ..Overrides::default() };
+        let e = base.with_overrides(&bad_inject).unwrap_err().to_string();
+        assert!(e.contains("command-line options"), "{e}");
     }
 }

@@ -30,16 +30,8 @@ the best effect, blame the parameters; look again with everything kept fitted jo
 held-out score does not need
   5. show     cause, validation MAE, fit % and whiteness before and after, and a verdict
 
-Catalogue (name: parameters):
-  input_delay: delay_s                         the engine follows u(t - delay_s)
-  actuator_lag: time_constant_s                first-order lag on u
-  rate_limit: up_pct_per_s, down_pct_per_s     the throttle moves no faster than these
-  sensor_drift: gain, time_constant_s          measured = T + b, b' = (gain*T - b)/time_constant_s
-  gain_drift: per_minute                       v(u) scaled by (1 - per_minute*t/60)
-  bearing_friction: force_n                    measured force follows T only beyond a band of force_n
-  stand_resonance: frequency_hz, damping_ratio the sensor reads the frame through a mass-spring
-  discrepancy: terms (see `jetbench sim-record --help`), for physics outside the catalogue
-
+Catalogue (name:parameters=[bounds in a model file]):
+{catalogue}
 Cause (JSON `cause`): none | parameters (re-identify; --out writes the refitted model) | missing_physics \
 | unexplained.
 
@@ -47,7 +39,7 @@ Exit status: 0 when the diagnosis ran (whatever it found), 1 on bad input or a m
 
 Examples:
   jetbench diagnose --model model.toml run.mcap
-  jetbench diagnose --model p100-diesel run.csv --json --plot plots/ --out improved.toml")]
+  jetbench diagnose --model p100-diesel run.csv --json --plot plots/ --out improved.toml".replace("{catalogue}", &jetbench_model::EffectKind::catalogue_help()))]
 pub struct DiagnoseArgs {
     /// The model the simulation uses: preset name or model file (effects in it are kept as given).
     #[arg(long, value_name = "MODEL")]

@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use anyhow::{bail, Context};
 use jetbench_control::{Controller, BUILTIN_PROFILES};
-use jetbench_stack::config::{BenchConfig, Devices};
+use jetbench_stack::config::{BenchConfig, Devices, Overrides};
 use jetbench_stack::runtime::launch::{up, UpOptions};
 
 fn bin_dir() -> anyhow::Result<PathBuf> {
@@ -105,13 +105,16 @@ impl From<TransportArg> for jetbench_bus::Transport {
 }
 
 impl UpArgs {
-    fn overrides_config(&self) -> bool {
-        self.controller.is_some()
-            || self.model.is_some()
-            || self.plant.is_some()
-            || self.profile.is_some()
-            || self.open_loop.is_some()
-            || !self.inject.is_empty()
+    /// The config keys these options override.
+    fn overrides(&self) -> Overrides {
+        Overrides {
+            controller: self.controller,
+            model: self.model.as_deref().map(model_spec),
+            plant: self.plant.as_deref().map(model_spec),
+            profile: self.profile.clone(),
+            open_loop: self.open_loop.as_ref().map(|p| std::path::absolute(p).unwrap_or_else(|_| p.clone())),
+            inject: self.inject.clone(),
+        }
     }
 }
 
@@ -128,39 +131,10 @@ pub fn run(args: UpArgs) -> anyhow::Result<ExitCode> {
     let mut checked = BenchConfig::load_or_default(args.config.as_deref())?;
     // Command-line overrides go into a derived config file that every service reads.
     let mut derived = None;
-    let config = if args.overrides_config() {
-        if let Some(kind) = args.controller {
-            checked.control.controller = kind;
-        }
-        if let Some(model) = &args.model {
-            checked.model.model = model_spec(model);
-        }
-        if let Some(plant) = &args.plant {
-            checked.plant.model = model_spec(plant);
-        }
-        if let Some(name) = &args.profile {
-            let params = checked.model_params().context("--profile scales to the model's thrust range")?;
-            let range = params
-                .stable_equilibrium(jetbench_model::THROTTLE_MIN_PCT)
-                .zip(params.stable_equilibrium(jetbench_model::THROTTLE_MAX_PCT));
-            let (idle_n, max_n) = range.with_context(|| {
-                format!(
-                    "model {} has no stable thrust at 25 % or 100 % throttle to scale --profile to",
-                    checked.model.model
-                )
-            })?;
-            checked.reference = jetbench_control::Profile::builtin(name, idle_n, max_n)
-                .with_context(|| format!("the model's thrust range {idle_n:.1}..{max_n:.1} N is empty"))?;
-        }
-        checked.plant.inject.extend(args.inject.iter().cloned());
-        if let Some(profile) = &args.open_loop {
-            let profile = std::path::absolute(profile).unwrap_or_else(|_| profile.clone());
-            checked.control.controller = Controller::OpenLoop;
-            checked.control.throttle_profile = Some(profile.display().to_string());
-        }
+    let overrides = args.overrides();
+    let config = if !overrides.is_empty() {
+        checked = checked.with_overrides(&overrides)?;
         let text = toml::to_string(&checked).context("cannot write the derived bench config")?;
-        // Check it as the services will read it (this also loads models and profiles).
-        BenchConfig::from_toml_str(&text, "the command-line options", None)?;
         let path = jetbench_stack::runtime::launch::derived_config_path();
         std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
         derived = Some(path.clone());
