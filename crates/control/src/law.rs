@@ -3,7 +3,7 @@
 use std::fmt;
 use std::str::FromStr;
 
-use jetbench_model::{Params, Plant, PlantEngine, State, STEP_S};
+use jetbench_model::{DelaySplit, Params, Plant, PlantEngine, State, STEP_S};
 use serde::{Deserialize, Serialize};
 
 use crate::mpc::PREDICTION_SUBSTEPS;
@@ -190,6 +190,14 @@ impl Law {
         self.shaper.params()
     }
 
+    /// How far ahead FBL and SMC predict through the model's input delay, s: the
+    /// cycles a command takes to reach the engine in full
+    /// ([`DelaySplit::cycles_to_full_effect`]). 0 without a delay, and for the MPC
+    /// (which predicts through the delay itself).
+    pub fn prediction_lead_s(&self) -> f64 {
+        self.predictor.as_ref().map_or(0.0, DelayPredictor::lead_s)
+    }
+
     /// Throttle for the state estimate at `t_s` seconds into `profile`. Each call is one
     /// 10 ms cycle.
     pub fn step(&mut self, state: State, t_s: f64, profile: &Profile) -> Result<LawOutput, ControlError> {
@@ -241,7 +249,7 @@ impl Law {
 /// Predicts the engine's state one input delay ahead from the commands in flight.
 struct DelayPredictor {
     plant: Plant,
-    /// Whole 10 ms steps the delay spans (rounded up).
+    /// Whole 10 ms steps the delay spans (rounded up: [`DelaySplit::cycles_to_full_effect`]).
     steps: usize,
     shadow: Option<PlantEngine>,
     scratch: Option<PlantEngine>,
@@ -251,8 +259,7 @@ struct DelayPredictor {
 impl DelayPredictor {
     /// `None` when the model has no input delay.
     fn new(plant: &Plant) -> Option<Self> {
-        let delay_s = plant.effects.input_delay_s();
-        let steps = (delay_s / STEP_S - 1e-9).ceil().max(0.0) as usize;
+        let steps = DelaySplit::of(plant.effects.input_delay_s()).cycles_to_full_effect();
         (steps > 0).then(|| Self { plant: plant.clone(), steps, shadow: None, scratch: None, last_pct: 0.0 })
     }
 

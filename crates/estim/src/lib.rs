@@ -32,10 +32,9 @@
 //! stuck sensor (the same reading over and over) is not used, and the estimate says so.
 #![doc = include_str!("../README.md")]
 
-mod delay;
 pub mod gate;
 mod observer;
 
-pub use delay::MAX_INPUT_DELAY_S;
 pub use gate::{GateConfig, Verdict};
+pub use jetbench_model::MAX_INPUT_DELAY_S;
 pub use observer::{EstimError, Estimate, Gated, ObserverConfig, ThrustObserver};

@@ -3,8 +3,8 @@
 use jetbench_model::{Params, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S};
 use nalgebra::{Matrix3, Vector3};
 
-use crate::delay::{ThrottleHistory, MAX_INPUT_DELAY_S};
 use crate::gate::{Gate, GateConfig, Verdict};
+use jetbench_model::{ThrottleHistory, MAX_INPUT_DELAY_S};
 
 type Mat3 = Matrix3<f64>;
 type Vec3 = Vector3<f64>;

@@ -21,6 +21,7 @@
 //! the [`Engine`] reports divergence as [`ModelError::Diverged`] rather than returning NaN.
 #![doc = include_str!("../README.md")]
 
+mod delay;
 pub mod discrepancy;
 mod effects;
 mod engine;
@@ -30,6 +31,7 @@ mod params;
 mod plant;
 mod preset;
 
+pub use delay::{DelaySplit, ThrottleHistory, MAX_INPUT_DELAY_S};
 pub use effects::{Effect, EffectKind, Effects};
 pub use engine::{
     rk4_step, settling_time_s, simulate, Engine, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N,

@@ -29,6 +29,7 @@
 
 use std::collections::VecDeque;
 
+use crate::delay::DelaySplit;
 use crate::discrepancy::DiscrepancyLaw;
 use crate::{
     rk4_step, EffectKind, Effects, ModelError, Params, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S,
@@ -281,7 +282,8 @@ impl PlantEngine {
         let tick_s = STEP_S / SUBSTEPS as f64;
         let values = |kind: EffectKind| plant.effects.get(kind).map(|e| e.values());
         let delay_s = Some(plant.effects.input_delay_s()).filter(|d| *d > 0.0);
-        let history_len = delay_s.map_or(1, |d| (d / STEP_S).ceil() as usize + 2);
+        // Rows the delay reaches back into, one more for a tick's average across a row boundary.
+        let history_len = delay_s.map_or(1, |d| DelaySplit::of(d).cycles_to_full_effect() + 2);
         let p = plant.params;
         Self {
             params: p,

@@ -1,11 +1,40 @@
-//! The throttle the engine follows through an input delay: the applied throttles of
-//! the last cycles, kept in a fixed ring so that a step never allocates.
+//! The input delay, cycle by cycle: the one rule that splits a delay into whole
+//! 10 ms cycles and a fraction of one more ([`DelaySplit`]), used by the plant (how
+//! many rows of throttle it keeps), the estimator ([`ThrottleHistory`]: the throttle
+//! the engine followed over each cycle) and the controllers' predictor (how far ahead
+//! a command takes full effect).
 
-use jetbench_model::STEP_S;
+use crate::STEP_S;
 
-/// The longest input delay the observer predicts through, s: the longest a model file
-/// may hold (its `input_delay` effect's bound).
+/// The longest input delay a model file may hold, s (its `input_delay` effect's
+/// bound): the estimator predicts through any of them.
 pub const MAX_INPUT_DELAY_S: f64 = 2.0;
+
+/// A delay in whole [`STEP_S`] cycles and the fraction of one more.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DelaySplit {
+    /// Whole cycles.
+    pub cycles: usize,
+    /// The fraction of one more cycle, in `[0, 1)`; 0 for a whole number of cycles.
+    pub fraction: f64,
+}
+
+impl DelaySplit {
+    /// `delay_s` (clamped to `[0, MAX_INPUT_DELAY_S]`) in cycles. 0.12 s is 11.999…
+    /// cycles in binary: a delay within a nanosecond of whole cycles is whole.
+    pub fn of(delay_s: f64) -> Self {
+        let in_cycles = delay_s.clamp(0.0, MAX_INPUT_DELAY_S) / STEP_S;
+        let whole = (in_cycles - in_cycles.round()).abs() < 1e-7;
+        let cycles = if whole { in_cycles.round() } else { in_cycles.floor() };
+        DelaySplit { cycles: cycles as usize, fraction: if whole { 0.0 } else { in_cycles - cycles } }
+    }
+
+    /// The cycles a throttle takes to reach the engine in full: the whole cycles, and
+    /// one more when there is a fraction.
+    pub fn cycles_to_full_effect(&self) -> usize {
+        self.cycles + usize::from(self.fraction > 0.0)
+    }
+}
 
 /// Cycles of history: the longest delay in whole cycles, one more for its fraction,
 /// and the cycle that just ended.
@@ -13,7 +42,7 @@ const RING: usize = 202;
 
 /// The applied throttles of the last cycles and the delay to read them at.
 #[derive(Clone, Debug)]
-pub(crate) struct ThrottleHistory {
+pub struct ThrottleHistory {
     /// The delay in whole cycles,
     cycles: usize,
     /// and the fraction of one more (0 for a whole number of cycles).
@@ -25,18 +54,9 @@ pub(crate) struct ThrottleHistory {
 
 impl ThrottleHistory {
     /// A history for a delay in `(0, MAX_INPUT_DELAY_S]` s (checked by the caller).
-    pub(crate) fn new(delay_s: f64) -> Self {
-        let in_cycles = delay_s.clamp(0.0, MAX_INPUT_DELAY_S) / STEP_S;
-        // 0.12 s is 11.999… cycles in binary: a delay within a nanosecond of whole
-        // cycles is whole.
-        let whole = (in_cycles - in_cycles.round()).abs() < 1e-7;
-        let cycles = if whole { in_cycles.round() } else { in_cycles.floor() };
-        Self {
-            cycles: cycles as usize,
-            fraction: if whole { 0.0 } else { in_cycles - cycles },
-            ring: [0.0; RING],
-            newest: None,
-        }
+    pub fn new(delay_s: f64) -> Self {
+        let DelaySplit { cycles, fraction } = DelaySplit::of(delay_s);
+        Self { cycles, fraction, ring: [0.0; RING], newest: None }
     }
 
     /// Records the throttle applied over the cycle that just ended, %, and returns the
@@ -44,7 +64,7 @@ impl ThrottleHistory {
     /// cycles spans the end of the throttle applied `n` cycles back and the start of
     /// the one `n + 1` back, weighted `1 − f` and `f`. Before the history reaches back
     /// that far, the engine is taken to have followed the first throttle (settled at it).
-    pub(crate) fn push(&mut self, applied_pct: f64) -> f64 {
+    pub fn push(&mut self, applied_pct: f64) -> f64 {
         let newest = match self.newest {
             Some(i) => (i + 1) % RING,
             None => {
@@ -63,7 +83,7 @@ impl ThrottleHistory {
     }
 
     /// Forgets every throttle.
-    pub(crate) fn clear(&mut self) {
+    pub fn clear(&mut self) {
         self.newest = None;
     }
 }
@@ -75,7 +95,7 @@ mod tests {
     #[test]
     fn the_ring_covers_the_longest_delay_and_its_fraction() {
         assert!(MAX_INPUT_DELAY_S / STEP_S + 2.0 <= RING as f64);
-        let bound = jetbench_model::EffectKind::InputDelay.bounds()[0].1;
+        let bound = crate::EffectKind::InputDelay.bounds()[0].1;
         assert_eq!(MAX_INPUT_DELAY_S, bound, "the model's input_delay bound");
     }
 
