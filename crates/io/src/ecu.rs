@@ -1,11 +1,22 @@
-//! The engine ECU's telemetry protocol: ASCII lines ending `\r`.
+//! The engine ECU's serial protocol, JetCat's RS232 interface: ASCII lines
+//! ending `\r`, each command `<address>,<MNEMONIC>,<parameter>` (address 1).
 //!
-//! The PC sends [`POLL`] (`1,RAC,1\r`); the ECU answers
-//! `1,HS,OK,<rpm>,<egt_c>,<pump_v>,<state>,<throttle_pct>\r`: shaft speed in
-//! rev/min, exhaust gas temperature in °C, fuel pump voltage in V, the ECU's
-//! state code (an integer 0..=255) and the throttle it sees in %. Numbers are
-//! plain decimals (`61250`, `612.4`, `3.05`); a line feed after the `\r` is
-//! tolerated.
+//! | command | meaning | reply |
+//! |---|---|---|
+//! | `1,RAC,1` ([`POLL`]) | read actual values | `1,HS,OK,<rpm>,<egt_c>,<pump_v>,<state>,<throttle_pct>` |
+//! | `1,RSS,1` ([`STATUS_POLL`]) | read system status | `1,HS,OK,<off_condition>,...` |
+//! | `1,TCO,1` / `1,TCO,0` | turbine control: start / stop | `1,HS,OK`, or `1,HS,ERR,<n>` |
+//! | `1,WPE,<pct>` | write the throttle, % | `1,HS,OK`, or `1,HS,ERR,<n>` |
+//!
+//! The ECU echoes every command line before its reply (`1,RAC,1\r1,HS,OK,...\r`);
+//! [`LineDecoder`] takes an echo as the context of the next reply and counts
+//! it, not as a rejection. `RAC` carries shaft speed in rev/min, exhaust gas
+//! temperature in °C, fuel pump voltage in V, the state code (an integer
+//! 0..=255, named by [`state::EcuState`]) and the throttle the ECU sees in %;
+//! `RSS` the off condition ([`state::OffCondition`]). Numbers are plain
+//! decimals (`61250`, `612.4`, `3.05`); a line feed after the `\r` is
+//! tolerated. Where this differs from JetCat's document, and why, is in
+//! crates/io/README.md.
 //!
 //! ```
 //! use jetbench_io::ecu::{decode_line, encode_reply, EcuReading};
@@ -16,8 +27,13 @@
 //! assert_eq!(decode_line(line.trim_end().as_bytes()), Ok(reading));
 //! ```
 
-/// The poll the PC sends.
+pub mod emulator;
+pub mod state;
+
+/// The poll the PC sends: read actual values.
 pub const POLL: &[u8] = b"1,RAC,1\r";
+/// Read system status: the off condition.
+pub const STATUS_POLL: &[u8] = b"1,RSS,1\r";
 /// The end of every line.
 pub const EOL: u8 = b'\r';
 /// The longest line accepted; longer ones are garbled.
@@ -58,7 +74,13 @@ pub enum EcuError {
 /// Rejections by kind, and lines accepted.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct EcuCounters {
+    /// Telemetry replies accepted.
     pub lines: u64,
+    /// Command echoes, status replies, acknowledgements and refusals seen.
+    pub echoes: u64,
+    pub statuses: u64,
+    pub acks: u64,
+    pub refusals: u64,
     pub unknown: u64,
     pub truncated: u64,
     pub garbled: u64,
@@ -148,12 +170,173 @@ pub fn decode_line(line: &[u8]) -> Result<EcuReading, EcuError> {
     })
 }
 
+/// A command line from the PC, by JetCat mnemonic.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PcCommand {
+    /// `RAC,1`: read actual values (the telemetry poll).
+    ReadActual,
+    /// `RSS,1`: read system status (the off condition).
+    ReadStatus,
+    /// `TCO,1`: start the engine.
+    Start,
+    /// `TCO,0`: stop the engine.
+    Stop,
+    /// `WPE,<pct>`: the throttle, %.
+    Throttle(f64),
+}
+
+impl PcCommand {
+    /// The line, `\r` included, for ECU address 1.
+    pub fn encode(&self) -> String {
+        match self {
+            PcCommand::ReadActual => "1,RAC,1\r".into(),
+            PcCommand::ReadStatus => "1,RSS,1\r".into(),
+            PcCommand::Start => "1,TCO,1\r".into(),
+            PcCommand::Stop => "1,TCO,0\r".into(),
+            PcCommand::Throttle(pct) => format!("1,WPE,{}\r", (pct * 10.0).round() / 10.0),
+        }
+    }
+
+    /// The reply this command gets.
+    fn context(&self) -> Context {
+        match self {
+            PcCommand::ReadActual => Context::Actual,
+            PcCommand::ReadStatus => Context::Status,
+            _ => Context::Ack,
+        }
+    }
+}
+
+/// Why a command line was not understood, with JetCat's error number.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum CommandError {
+    #[error("not a command line: {0:?}")]
+    NotACommand(String),
+    #[error("unknown command {0}")]
+    Unknown(String),
+    #[error("{0}: wrong parameter count")]
+    ParameterCount(String),
+    #[error("{0}: parameter out of range")]
+    OutOfRange(String),
+}
+
+impl CommandError {
+    /// JetCat's error number for the `HS,ERR` reply (1 unknown command,
+    /// 2 wrong parameter count, 4 parameter out of range).
+    pub fn code(&self) -> u8 {
+        match self {
+            CommandError::NotACommand(_) | CommandError::Unknown(_) => 1,
+            CommandError::ParameterCount(_) => 2,
+            CommandError::OutOfRange(_) => 4,
+        }
+    }
+}
+
+/// Parses a command line (without its `\r`): `<address>,<MNEMONIC>,<parameter>`.
+/// Mnemonics are case-insensitive, as JetCat's ECU takes them.
+pub fn parse_command(line: &[u8]) -> Result<PcCommand, CommandError> {
+    let text = std::str::from_utf8(line).map_err(|_| CommandError::NotACommand(format!("{line:?}")))?;
+    let fields: Vec<&str> = text.trim().split(',').map(str::trim).collect();
+    let (Some(address), Some(mnemonic)) = (fields.first(), fields.get(1)) else {
+        return Err(CommandError::NotACommand(text.chars().take(40).collect()));
+    };
+    if address.parse::<u8>().is_err() || mnemonic.len() != 3 || !mnemonic.bytes().all(|b| b.is_ascii_alphabetic()) {
+        return Err(CommandError::NotACommand(text.chars().take(40).collect()));
+    }
+    let mnemonic = mnemonic.to_ascii_uppercase();
+    if mnemonic == "HS" {
+        return Err(CommandError::NotACommand(text.chars().take(40).collect()));
+    }
+    let [_, _, parameter] = fields[..] else { return Err(CommandError::ParameterCount(mnemonic)) };
+    let out_of_range = || CommandError::OutOfRange(mnemonic.clone());
+    match (mnemonic.as_str(), parameter) {
+        ("RAC", "1") => Ok(PcCommand::ReadActual),
+        ("RSS", "1") => Ok(PcCommand::ReadStatus),
+        ("TCO", "1") => Ok(PcCommand::Start),
+        ("TCO", "0") => Ok(PcCommand::Stop),
+        ("RAC" | "RSS" | "TCO", _) => Err(out_of_range()),
+        ("WPE", p) => match p.parse::<f64>() {
+            Ok(pct) if pct.is_finite() && (0.0..=THROTTLE_MAX_PCT).contains(&pct) => Ok(PcCommand::Throttle(pct)),
+            _ => Err(out_of_range()),
+        },
+        _ => Err(CommandError::Unknown(mnemonic)),
+    }
+}
+
+/// What a reply line answers, from the echo before it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Context {
+    Actual,
+    Status,
+    Ack,
+}
+
+/// One reply from the ECU.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum EcuReply {
+    /// `RAC`: the telemetry.
+    Actual(EcuReading),
+    /// `RSS`: the off condition's code (named by [`state::OffCondition::from_code`]).
+    Status { off_condition: u32 },
+    /// A command was accepted.
+    Ack,
+    /// A command was refused, with JetCat's error number.
+    Refused(u8),
+}
+
+/// The reply line for a status request: the off condition, then JetCat's
+/// four speed-control fields, which this ECU leaves at 0.
+pub fn encode_status(off_condition: u8) -> String {
+    format!("1,HS,OK,{off_condition},0,0,0,0\r")
+}
+
+/// The acknowledgement line.
+pub const ACK: &str = "1,HS,OK\r";
+
+/// The refusal line with JetCat's error number.
+pub fn encode_refusal(code: u8) -> String {
+    format!("1,HS,ERR,{code}\r")
+}
+
+fn decode_small(field: &'static str, text: &str) -> Result<u32, EcuError> {
+    match text.parse::<u8>() {
+        Ok(v) => Ok(u32::from(v)),
+        Err(_) if !text.is_empty() && text.bytes().all(|b| b.is_ascii_digit()) => {
+            Err(EcuError::OutOfRange { field, value: text.into() })
+        }
+        Err(_) => Err(EcuError::Garbled(format!("{field} is not an integer: {text:?}"))),
+    }
+}
+
+/// Decodes a reply in its context (what the echo before it asked).
+fn decode_in_context(line: &[u8], context: Context) -> Result<EcuReply, EcuError> {
+    if context == Context::Actual {
+        return decode_line(line).map(EcuReply::Actual);
+    }
+    let text = std::str::from_utf8(line)
+        .ok()
+        .filter(|t| t.bytes().all(|b| b.is_ascii_graphic() || b == b' '))
+        .ok_or_else(|| EcuError::Garbled("bytes that are not printable ASCII".into()))?;
+    let fields: Vec<&str> = text.trim_end_matches(['\r', '\n']).split(',').map(str::trim).collect();
+    match (context, &fields[..]) {
+        (_, ["1", "HS", "ERR", code]) => Ok(EcuReply::Refused(decode_small("error", code)? as u8)),
+        (Context::Ack, ["1", "HS", "OK"]) => Ok(EcuReply::Ack),
+        (Context::Status, ["1", "HS", "OK", off, ..]) => {
+            Ok(EcuReply::Status { off_condition: decode_small("off_condition", off)? })
+        }
+        (_, ["1", "HS", ..] | ["1"]) => Err(EcuError::Truncated { fields: fields.len() }),
+        _ => Err(EcuError::Unknown(text.chars().take(40).collect())),
+    }
+}
+
 /// Splits a byte stream into `\r`-terminated lines and decodes each,
 /// counting rejections. A line longer than [`MAX_LINE`] is dropped up to the
 /// next `\r` and counted once as garbled.
 #[derive(Clone, Debug, Default)]
 pub struct LineDecoder {
     line: Vec<u8>,
+    /// What the next reply answers, from the last echo.
+    context: Option<Context>,
     overlong: bool,
     counters: EcuCounters,
     last_error: Option<EcuError>,
@@ -164,23 +347,25 @@ impl LineDecoder {
         Self::default()
     }
 
-    /// Feeds bytes; calls `on_reading` for every valid reply, in order.
+    /// Feeds bytes; calls `on_reading` for every valid telemetry reply, in order.
     pub fn push(&mut self, bytes: &[u8], mut on_reading: impl FnMut(EcuReading)) {
+        self.push_replies(bytes, |reply| {
+            if let EcuReply::Actual(r) = reply {
+                on_reading(r)
+            }
+        })
+    }
+
+    /// Feeds bytes; calls `on_reply` for every valid reply of any kind, in order.
+    /// Command echoes set what the next reply answers (telemetry when no
+    /// echo came before it) and are counted in `echoes`.
+    pub fn push_replies(&mut self, bytes: &[u8], mut on_reply: impl FnMut(EcuReply)) {
         for &b in bytes {
             if b == EOL {
-                let result = if self.overlong {
-                    Err(EcuError::Garbled(format!("line longer than {MAX_LINE} bytes")))
-                } else {
-                    decode_line(&self.line)
-                };
                 // Blank lines (e.g. a stray `\r\n` pair) are no replies and no errors.
                 let blank = !self.overlong && self.line.iter().all(|b| b.is_ascii_whitespace());
                 if !blank {
-                    self.counters.count(&result);
-                    match result {
-                        Ok(r) => on_reading(r),
-                        Err(e) => self.last_error = Some(e),
-                    }
+                    self.finish_line(&mut on_reply);
                 }
                 self.line.clear();
                 self.overlong = false;
@@ -194,8 +379,39 @@ impl LineDecoder {
         }
     }
 
+    fn finish_line(&mut self, on_reply: &mut impl FnMut(EcuReply)) {
+        if !self.overlong {
+            if let Ok(command) = parse_command(&self.line) {
+                self.counters.echoes += 1;
+                self.context = Some(command.context());
+                return;
+            }
+        }
+        let result = if self.overlong {
+            Err(EcuError::Garbled(format!("line longer than {MAX_LINE} bytes")))
+        } else {
+            decode_in_context(&self.line, self.context.take().unwrap_or(Context::Actual))
+        };
+        match result {
+            Ok(reply) => {
+                match reply {
+                    EcuReply::Actual(_) => self.counters.lines += 1,
+                    EcuReply::Status { .. } => self.counters.statuses += 1,
+                    EcuReply::Ack => self.counters.acks += 1,
+                    EcuReply::Refused(_) => self.counters.refusals += 1,
+                }
+                on_reply(reply);
+            }
+            Err(e) => {
+                self.counters.count::<()>(&Err(e.clone()));
+                self.last_error = Some(e);
+            }
+        }
+    }
+
     /// Drops a partial line (e.g. when a poll went unanswered), counting it as truncated.
     pub fn expire_partial(&mut self) {
+        self.context = None;
         if !self.line.is_empty() || self.overlong {
             let e = EcuError::Truncated { fields: self.line.split(|b| *b == b',').count() };
             self.counters.count::<()>(&Err(e.clone()));

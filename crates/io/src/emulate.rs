@@ -32,7 +32,9 @@ use std::time::Duration;
 use serialport::{SerialPort, TTYPort};
 
 use crate::board::{self, board_flags, BoardStatus, Deframer, Frame, Throttle};
-use crate::ecu::{self, EcuReading};
+use crate::ecu::emulator::{EcuCommand, EcuEmulator, Refused};
+use crate::ecu::state::OffCondition;
+use crate::ecu::{self, EcuReading, PcCommand};
 use crate::DeviceError;
 
 /// The board reports its status this often.
@@ -192,8 +194,8 @@ pub const EGT_PER_N: f64 = 3.0;
 pub const EGT_TAU_S: f64 = 1.5;
 pub const PUMP_IDLE_V: f64 = 0.8;
 pub const PUMP_PER_PCT: f64 = 0.05;
-/// The state code the emulated ECU reports while the engine runs.
-pub const ECU_STATE_RUNNING: u32 = 10;
+/// The state code the emulated ECU reports while the engine runs (JetCat's run, 11).
+pub const ECU_STATE_RUNNING: u32 = crate::ecu::state::EcuState::Run as u32;
 
 impl EcuModel {
     /// Settled at thrust `thrust_n` and throttle `throttle_pct`.
@@ -236,29 +238,129 @@ impl EcuModel {
     }
 }
 
-/// The ECU's firmware: answers every poll line with the current reading.
+/// What the ECU firmware serves: telemetry, the off condition, and commands.
+pub trait EcuDevice: Send {
+    fn reading(&self) -> EcuReading;
+    fn off_condition(&self) -> OffCondition;
+    /// Applies a command from the PC; a refusal is answered with its number.
+    fn command(&mut self, command: EcuCommand) -> Result<(), Refused>;
+}
+
+/// A device whose reading its owner sets; commands are accepted and queued
+/// for the owner ([`PtyEcu::take_commands`]).
+#[derive(Clone, Debug, Default)]
+pub struct FixedEcu {
+    pub reading: EcuReading,
+    pub off_condition: Option<OffCondition>,
+    pub commands: Vec<EcuCommand>,
+}
+
+impl EcuDevice for FixedEcu {
+    fn reading(&self) -> EcuReading {
+        self.reading
+    }
+
+    fn off_condition(&self) -> OffCondition {
+        self.off_condition.unwrap_or(OffCondition::None)
+    }
+
+    fn command(&mut self, command: EcuCommand) -> Result<(), Refused> {
+        self.commands.push(command);
+        Ok(())
+    }
+}
+
+/// The [`EcuEmulator`] with the clock its commands are stamped with.
+pub struct ClockedEmulator {
+    pub emulator: EcuEmulator,
+    pub clock: Box<dyn Fn() -> f64 + Send>,
+}
+
+impl EcuDevice for ClockedEmulator {
+    fn reading(&self) -> EcuReading {
+        self.emulator.reading()
+    }
+
+    fn off_condition(&self) -> OffCondition {
+        self.emulator.off_condition()
+    }
+
+    fn command(&mut self, command: EcuCommand) -> Result<(), Refused> {
+        let now = (self.clock)();
+        self.emulator.command(command, now)
+    }
+}
+
+/// The ECU's firmware: echoes every command line, as JetCat's ECU does, and
+/// answers it: telemetry (`RAC`), the off condition (`RSS`), start and stop
+/// (`TCO`) and throttle (`WPE`) acknowledged or refused with an error number.
 #[derive(Clone, Debug, Default)]
 pub struct EcuFirmware {
     line: Vec<u8>,
-    /// Lines that were not a poll.
+    /// Lines that were not a command this firmware knows.
     pub unknown_lines: u64,
     pub polls: u64,
+    /// Commands (start, stop, throttle) accepted and refused.
+    pub accepted: u64,
+    pub refused: u64,
 }
 
 impl EcuFirmware {
-    /// Bytes from the PC; a reply to each complete poll goes to `replies`.
-    pub fn receive(&mut self, bytes: &[u8], reading: &EcuReading, replies: &mut Vec<u8>) {
+    /// Bytes from the PC; the echo and reply of each complete line go to `replies`.
+    pub fn receive(&mut self, bytes: &[u8], device: &mut dyn EcuDevice, replies: &mut Vec<u8>) {
         for &b in bytes {
             if b == ecu::EOL {
-                if self.line.as_slice() == &ecu::POLL[..ecu::POLL.len() - 1] {
-                    self.polls += 1;
-                    replies.extend(ecu::encode_reply(reading).as_bytes());
-                } else if !self.line.is_empty() {
-                    self.unknown_lines += 1;
+                let line = std::mem::take(&mut self.line);
+                if !line.iter().all(|b| b.is_ascii_whitespace()) {
+                    self.answer(&line, device, replies);
                 }
-                self.line.clear();
+            } else if b == b'\n' && self.line.is_empty() {
+                // The `\n` of a `\r\n` ending.
             } else if self.line.len() < ecu::MAX_LINE {
                 self.line.push(b);
+            }
+        }
+    }
+
+    fn answer(&mut self, line: &[u8], device: &mut dyn EcuDevice, replies: &mut Vec<u8>) {
+        let command = match ecu::parse_command(line) {
+            Ok(command) => command,
+            Err(ecu::CommandError::NotACommand(_)) => {
+                self.unknown_lines += 1;
+                return; // noise on the line: a real ECU stays silent
+            }
+            Err(e) => {
+                self.unknown_lines += 1;
+                replies.extend(line);
+                replies.push(ecu::EOL);
+                replies.extend(ecu::encode_refusal(e.code()).as_bytes());
+                return;
+            }
+        };
+        replies.extend(line);
+        replies.push(ecu::EOL);
+        let result = match command {
+            PcCommand::ReadActual => {
+                self.polls += 1;
+                replies.extend(ecu::encode_reply(&device.reading()).as_bytes());
+                return;
+            }
+            PcCommand::ReadStatus => {
+                replies.extend(ecu::encode_status(device.off_condition().code()).as_bytes());
+                return;
+            }
+            PcCommand::Start => device.command(EcuCommand::Start),
+            PcCommand::Stop => device.command(EcuCommand::Stop),
+            PcCommand::Throttle(pct) => device.command(EcuCommand::Throttle(pct)),
+        };
+        match result {
+            Ok(()) => {
+                self.accepted += 1;
+                replies.extend(ecu::ACK.as_bytes());
+            }
+            Err(refused) => {
+                self.refused += 1;
+                replies.extend(ecu::encode_refusal(refused.code()).as_bytes());
             }
         }
     }
@@ -450,39 +552,103 @@ impl PtyBoard {
     }
 }
 
-/// An emulated ECU on a pty pair: answers polls with the reading the owner sets.
+/// An emulated ECU on a pty pair: answers polls with the reading the owner
+/// sets ([`PtyEcu::spawn`]) or with an [`EcuEmulator`]'s ([`PtyEcu::emulated`]).
 pub struct PtyEcu {
-    reading: Arc<Mutex<EcuReading>>,
+    fixed: Option<Arc<Mutex<FixedEcu>>>,
+    emulated: Option<Arc<Mutex<ClockedEmulator>>>,
     silent: Arc<AtomicBool>,
     firmware: Arc<Mutex<EcuFirmware>>,
     host: PtyHost,
 }
 
 impl PtyEcu {
+    /// An ECU that reports `initial` until [`PtyEcu::set_reading`]; commands are queued.
     pub fn spawn(link: &Path, initial: EcuReading) -> Result<Self, DeviceError> {
-        let reading = Arc::new(Mutex::new(initial));
+        let fixed = Arc::new(Mutex::new(FixedEcu { reading: initial, ..FixedEcu::default() }));
+        let device = fixed.clone();
+        let (silent, firmware, host) = Self::host(link, move |fw, bytes, replies| {
+            fw.receive(bytes, &mut *lock(&device), replies);
+        })?;
+        Ok(PtyEcu { fixed: Some(fixed), emulated: None, silent, firmware, host })
+    }
+
+    /// An ECU run by `emulator`, its commands stamped by `clock` (seconds, the
+    /// clock the owner steps it with through [`PtyEcu::step`]).
+    pub fn emulated(
+        link: &Path,
+        emulator: EcuEmulator,
+        clock: impl Fn() -> f64 + Send + 'static,
+    ) -> Result<Self, DeviceError> {
+        let emulated = Arc::new(Mutex::new(ClockedEmulator { emulator, clock: Box::new(clock) }));
+        let device = emulated.clone();
+        let (silent, firmware, host) = Self::host(link, move |fw, bytes, replies| {
+            fw.receive(bytes, &mut *lock(&device), replies);
+        })?;
+        Ok(PtyEcu { fixed: None, emulated: Some(emulated), silent, firmware, host })
+    }
+
+    #[allow(clippy::type_complexity)]
+    fn host(
+        link: &Path,
+        mut serve: impl FnMut(&mut EcuFirmware, &[u8], &mut Vec<u8>) + Send + 'static,
+    ) -> Result<(Arc<AtomicBool>, Arc<Mutex<EcuFirmware>>, PtyHost), DeviceError> {
         let silent = Arc::new(AtomicBool::new(false));
         let firmware = Arc::new(Mutex::new(EcuFirmware::default()));
-        let (r, s, fw) = (reading.clone(), silent.clone(), firmware.clone());
+        let (s, fw) = (silent.clone(), firmware.clone());
         let host = PtyHost::spawn(link, "ecu", move |master, stop| {
             serve_loop(master, stop, |bytes, replies| {
                 if !bytes.is_empty() && !s.load(Ordering::Relaxed) {
-                    let reading = *lock(&r);
-                    lock(&fw).receive(bytes, &reading, replies);
+                    serve(&mut lock(&fw), bytes, replies);
                 }
             })
         })?;
-        Ok(PtyEcu { reading, silent, firmware, host })
+        Ok((silent, firmware, host))
     }
 
-    /// The reading the next polls are answered with.
+    /// The reading the next polls are answered with (an ECU made by [`PtyEcu::spawn`]).
     pub fn set_reading(&self, reading: EcuReading) {
-        *lock(&self.reading) = reading;
+        if let Some(fixed) = &self.fixed {
+            lock(fixed).reading = reading;
+        }
+    }
+
+    /// The off condition status requests are answered with (an ECU made by [`PtyEcu::spawn`]).
+    pub fn set_off_condition(&self, off: OffCondition) {
+        if let Some(fixed) = &self.fixed {
+            lock(fixed).off_condition = Some(off);
+        }
+    }
+
+    /// Commands received since the last call (an ECU made by [`PtyEcu::spawn`]).
+    pub fn take_commands(&self) -> Vec<EcuCommand> {
+        self.fixed.as_ref().map(|f| std::mem::take(&mut lock(f).commands)).unwrap_or_default()
+    }
+
+    /// Advances the emulator to its clock's now with the engine at `thrust_n`
+    /// (an ECU made by [`PtyEcu::emulated`]).
+    pub fn step(&self, thrust_n: f64) {
+        if let Some(emulated) = &self.emulated {
+            let mut e = lock(emulated);
+            let now = (e.clock)();
+            e.emulator.step(now, thrust_n);
+        }
+    }
+
+    /// Runs `f` on the emulator (an ECU made by [`PtyEcu::emulated`]).
+    pub fn with_emulator<T>(&self, f: impl FnOnce(&mut EcuEmulator) -> T) -> Option<T> {
+        self.emulated.as_ref().map(|e| f(&mut lock(e).emulator))
     }
 
     /// Stops (or resumes) answering polls, like an ECU that lost power.
     pub fn set_silent(&self, silent: bool) {
         self.silent.store(silent, Ordering::Relaxed);
+    }
+
+    /// Commands accepted and refused so far.
+    pub fn commands_accepted_refused(&self) -> (u64, u64) {
+        let fw = lock(&self.firmware);
+        (fw.accepted, fw.refused)
     }
 
     pub fn polls(&self) -> u64 {

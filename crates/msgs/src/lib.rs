@@ -47,6 +47,9 @@ pub trait Sample: Copy + Default + core::fmt::Debug + ZeroCopySend + 'static {
     const NAME: &'static str;
     /// The fields in declaration order, with their byte offsets.
     const FIELDS: &'static [FieldInfo];
+    /// Named constants of the schema (`int32 NAME=value` lines after the
+    /// fields), so a recording names the codes its samples carry.
+    const CONSTANTS: &'static [SchemaConstant] = &[];
 
     /// Per-publisher sequence number.
     fn seq(&self) -> u64;
@@ -68,6 +71,9 @@ pub trait Sample: Copy + Default + core::fmt::Debug + ZeroCopySend + 'static {
             text.push(' ');
             text.push_str(field.name);
             text.push('\n');
+        }
+        for c in Self::CONSTANTS {
+            text.push_str(&format!("{} {}={}\n", c.ros_type, c.name, c.value));
         }
         text
     }
@@ -122,14 +128,33 @@ pub trait Sample: Copy + Default + core::fmt::Debug + ZeroCopySend + 'static {
     }
 }
 
+/// A named constant of a schema: `int32 KIND_TRIP=1`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SchemaConstant {
+    /// The ros2msg type, e.g. `int32`.
+    pub ros_type: &'static str,
+    pub name: &'static str,
+    pub value: i64,
+}
+
 /// Declares a sample type: the struct, its trait impls, its field table and
-/// a compile-time proof that it has no padding.
+/// a compile-time proof that it has no padding; optionally the named
+/// constants of its schema (`constants = PATH`, a `&[SchemaConstant]`).
 macro_rules! sample {
     (
         $(#[$meta:meta])*
         pub struct $name:ident {
             $( $(#[$fmeta:meta])* pub $field:ident : $ty:ty ),+ $(,)?
         }
+    ) => {
+        sample! { $(#[$meta])* pub struct $name { $( $(#[$fmeta])* pub $field : $ty ),+ } constants = &[] }
+    };
+    (
+        $(#[$meta:meta])*
+        pub struct $name:ident {
+            $( $(#[$fmeta:meta])* pub $field:ident : $ty:ty ),+ $(,)?
+        }
+        constants = $constants:expr
     ) => {
         #[repr(C)]
         #[derive(Clone, Copy, Debug, Default, PartialEq, ZeroCopySend)]
@@ -152,6 +177,7 @@ macro_rules! sample {
                     ros_type: <$ty as schema::RosField>::ROS_TYPE,
                 } ),+
             ];
+            const CONSTANTS: &'static [SchemaConstant] = $constants;
             fn seq(&self) -> u64 { self.seq }
             fn set_seq(&mut self, seq: u64) { self.seq = seq; }
             fn stamp_ns(&self) -> u64 { self.stamp_ns }
@@ -341,6 +367,194 @@ sample! {
     }
 }
 
+sample! {
+    /// Something that happened on the bench (`bench/events`), published when
+    /// it happens, not every cycle: a limit tripped or cleared, the ECU
+    /// changing state, the engine shut down (with the reason), an operator
+    /// command accepted or refused. The schema's constants name every code,
+    /// so a recording read anywhere says what each event was.
+    #[type_name("jetbench_msgs/msg/Event")]
+    pub struct Event {
+        pub seq: u64,
+        /// When it happened (monotonic, ns); for a trip, the sample that crossed the limit.
+        pub stamp_ns: u64,
+        pub publish_ns: u64,
+        /// The measured value behind it (for a trip, the value past the limit), else 0.
+        pub value: f64,
+        /// The limit it was measured against, else 0.
+        pub limit: f64,
+        /// What happened: one of [`event_kinds`].
+        pub kind: u32,
+        /// The kind's code: the new ECU state (JetCat's RS232 number, [`ecu_states`]),
+        /// the off condition of a shutdown ([`off_conditions`]), the limit of a trip
+        /// ([`trip_limits`]) or the operator's command ([`operator_commands`]).
+        pub code: i32,
+        /// Who: the publishing service ([`ServiceId`]) or, for an operator
+        /// command, the id of the client that sent it.
+        pub source_id: u32,
+        /// What came before: the previous ECU state; 0 otherwise.
+        pub previous: i32,
+    }
+    constants = EVENT_CONSTANTS
+}
+
+/// Kinds of [`Event`].
+pub mod event_kinds {
+    /// A limit tripped: `code` is the limit ([`super::trip_limits`]).
+    pub const TRIP: u32 = 1;
+    /// The operator cleared the latched trips.
+    pub const TRIP_CLEARED: u32 = 2;
+    /// The ECU changed state: `code` the new one, `previous` the old ([`super::ecu_states`]).
+    pub const ECU_STATE: u32 = 3;
+    /// The engine shut down: `code` is the off condition ([`super::off_conditions`]).
+    pub const SHUTDOWN: u32 = 4;
+    /// An operator command was accepted: `code` is the command ([`super::operator_commands`]).
+    pub const COMMAND_ACCEPTED: u32 = 5;
+    /// An operator command was refused (not authorised, or not possible now).
+    pub const COMMAND_REFUSED: u32 = 6;
+}
+
+/// Limits a trip names (the `[limits]` of the bench config).
+pub mod trip_limits {
+    pub const MAX_THRUST: i32 = 1;
+    pub const MAX_EGT: i32 = 2;
+    pub const MAX_EGT_RISE: i32 = 3;
+    pub const MAX_RPM: i32 = 4;
+    pub const MIN_RPM: i32 = 5;
+    pub const THRUST_RPM_MISMATCH: i32 = 6;
+    pub const ECU_SILENT: i32 = 7;
+    pub const SENSOR_SILENT: i32 = 8;
+}
+
+/// Operator commands.
+pub mod operator_commands {
+    pub const START: i32 = 1;
+    /// Idle, then shut down through the ECU with its cool-down.
+    pub const STOP: i32 = 2;
+    /// Shut down at once.
+    pub const STOP_NOW: i32 = 3;
+    pub const CLEAR_TRIPS: i32 = 4;
+}
+
+/// The ECU states by JetCat's RS232 number (the state field of `bench/ecu`
+/// and of ECU-state events); named in crates/io's `ecu::state::EcuState`.
+pub mod ecu_states {
+    pub const OFF: i32 = 0;
+    pub const STANDBY: i32 = 1;
+    pub const IGNITE: i32 = 2;
+    pub const ACCELERATE: i32 = 3;
+    pub const STABILISE: i32 = 4;
+    pub const LEARN_HIGH: i32 = 5;
+    pub const LEARN_LOW: i32 = 6;
+    pub const SLOW_DOWN: i32 = 8;
+    pub const AUTO_OFF: i32 = 10;
+    pub const RUN: i32 = 11;
+    pub const ACCELERATION_DELAY: i32 = 12;
+    pub const SPEED_CONTROL: i32 = 13;
+    pub const TWO_SHAFT_REGULATE: i32 = 14;
+    pub const PREHEAT_1: i32 = 15;
+    pub const PREHEAT_2: i32 = 16;
+    pub const MAIN_FUEL_START: i32 = 17;
+    pub const KEROSENE_FULL_ON: i32 = 19;
+}
+
+/// The ECU's off conditions by JetCat's RS232 number (the `RSS` reply);
+/// named in crates/io's `ecu::state::OffCondition`.
+pub mod off_conditions {
+    pub const NONE: i32 = 0;
+    pub const RC_OFF: i32 = 1;
+    pub const OVER_TEMPERATURE: i32 = 2;
+    pub const IGNITION_TIMEOUT: i32 = 3;
+    pub const ACCELERATION_TIMEOUT: i32 = 4;
+    pub const ACCELERATION_TOO_SLOW: i32 = 5;
+    pub const OVER_RPM: i32 = 6;
+    pub const LOW_RPM: i32 = 7;
+    pub const LOW_BATTERY: i32 = 8;
+    pub const AUTO_OFF: i32 = 9;
+    pub const LOW_TEMPERATURE: i32 = 10;
+    pub const HIGH_TEMPERATURE: i32 = 11;
+    pub const GLOW_PLUG: i32 = 12;
+    pub const WATCHDOG: i32 = 13;
+    pub const FAIL_SAFE: i32 = 14;
+    pub const MANUAL_OFF: i32 = 15;
+    pub const POWER_FAIL: i32 = 16;
+    pub const TEMP_SENSOR_FAIL: i32 = 17;
+    pub const FUEL_FAIL: i32 = 18;
+    pub const PROP_FAIL: i32 = 19;
+    pub const SECOND_ENGINE_FAIL: i32 = 20;
+    pub const SECOND_ENGINE_DIFFERENCE: i32 = 21;
+    pub const SECOND_ENGINE_SILENT: i32 = 22;
+}
+
+macro_rules! constants {
+    ($( $module:ident :: $name:ident as $prefix:literal : $ty:literal ),* $(,)?) => {
+        &[$( SchemaConstant { ros_type: $ty, name: concat!($prefix, stringify!($name)), value: $module::$name as i64 } ),*]
+    };
+}
+
+/// The named codes in [`Event`]'s schema, prefixed by what they name
+/// (`KIND_`, `LIMIT_`, `COMMAND_`, `ECU_`, `OFF_`).
+pub const EVENT_CONSTANTS: &[SchemaConstant] = constants![
+    event_kinds::TRIP as "KIND_": "uint32",
+    event_kinds::TRIP_CLEARED as "KIND_": "uint32",
+    event_kinds::ECU_STATE as "KIND_": "uint32",
+    event_kinds::SHUTDOWN as "KIND_": "uint32",
+    event_kinds::COMMAND_ACCEPTED as "KIND_": "uint32",
+    event_kinds::COMMAND_REFUSED as "KIND_": "uint32",
+    trip_limits::MAX_THRUST as "LIMIT_": "int32",
+    trip_limits::MAX_EGT as "LIMIT_": "int32",
+    trip_limits::MAX_EGT_RISE as "LIMIT_": "int32",
+    trip_limits::MAX_RPM as "LIMIT_": "int32",
+    trip_limits::MIN_RPM as "LIMIT_": "int32",
+    trip_limits::THRUST_RPM_MISMATCH as "LIMIT_": "int32",
+    trip_limits::ECU_SILENT as "LIMIT_": "int32",
+    trip_limits::SENSOR_SILENT as "LIMIT_": "int32",
+    operator_commands::START as "COMMAND_": "int32",
+    operator_commands::STOP as "COMMAND_": "int32",
+    operator_commands::STOP_NOW as "COMMAND_": "int32",
+    operator_commands::CLEAR_TRIPS as "COMMAND_": "int32",
+    ecu_states::OFF as "ECU_": "int32",
+    ecu_states::STANDBY as "ECU_": "int32",
+    ecu_states::IGNITE as "ECU_": "int32",
+    ecu_states::ACCELERATE as "ECU_": "int32",
+    ecu_states::STABILISE as "ECU_": "int32",
+    ecu_states::LEARN_HIGH as "ECU_": "int32",
+    ecu_states::LEARN_LOW as "ECU_": "int32",
+    ecu_states::SLOW_DOWN as "ECU_": "int32",
+    ecu_states::AUTO_OFF as "ECU_": "int32",
+    ecu_states::RUN as "ECU_": "int32",
+    ecu_states::ACCELERATION_DELAY as "ECU_": "int32",
+    ecu_states::SPEED_CONTROL as "ECU_": "int32",
+    ecu_states::TWO_SHAFT_REGULATE as "ECU_": "int32",
+    ecu_states::PREHEAT_1 as "ECU_": "int32",
+    ecu_states::PREHEAT_2 as "ECU_": "int32",
+    ecu_states::MAIN_FUEL_START as "ECU_": "int32",
+    ecu_states::KEROSENE_FULL_ON as "ECU_": "int32",
+    off_conditions::NONE as "OFF_": "int32",
+    off_conditions::RC_OFF as "OFF_": "int32",
+    off_conditions::OVER_TEMPERATURE as "OFF_": "int32",
+    off_conditions::IGNITION_TIMEOUT as "OFF_": "int32",
+    off_conditions::ACCELERATION_TIMEOUT as "OFF_": "int32",
+    off_conditions::ACCELERATION_TOO_SLOW as "OFF_": "int32",
+    off_conditions::OVER_RPM as "OFF_": "int32",
+    off_conditions::LOW_RPM as "OFF_": "int32",
+    off_conditions::LOW_BATTERY as "OFF_": "int32",
+    off_conditions::AUTO_OFF as "OFF_": "int32",
+    off_conditions::LOW_TEMPERATURE as "OFF_": "int32",
+    off_conditions::HIGH_TEMPERATURE as "OFF_": "int32",
+    off_conditions::GLOW_PLUG as "OFF_": "int32",
+    off_conditions::WATCHDOG as "OFF_": "int32",
+    off_conditions::FAIL_SAFE as "OFF_": "int32",
+    off_conditions::MANUAL_OFF as "OFF_": "int32",
+    off_conditions::POWER_FAIL as "OFF_": "int32",
+    off_conditions::TEMP_SENSOR_FAIL as "OFF_": "int32",
+    off_conditions::FUEL_FAIL as "OFF_": "int32",
+    off_conditions::PROP_FAIL as "OFF_": "int32",
+    off_conditions::SECOND_ENGINE_FAIL as "OFF_": "int32",
+    off_conditions::SECOND_ENGINE_DIFFERENCE as "OFF_": "int32",
+    off_conditions::SECOND_ENGINE_SILENT as "OFF_": "int32",
+];
+
 /// Sensor status bits, as in the CAN protocol (byte 7).
 pub mod sensor_status {
     pub const OVERLOAD: u32 = 1 << 0;
@@ -528,6 +742,9 @@ pub mod channels {
     /// One publisher per service (see [`ServiceId::ALL`]), and two spare.
     pub const HEALTH: Channel<Health> = Channel::with_publishers("bench/health", ServiceId::ALL.len() + 2);
     pub const SIM_TRUTH: Channel<SimTruth> = Channel::new("sim/truth");
+    /// Trips, ECU state changes, shutdowns, operator commands: published by
+    /// several services (control, actuation, the launcher), so room for each.
+    pub const EVENTS: Channel<Event> = Channel::with_publishers("bench/events", ServiceId::ALL.len() + 2);
 }
 
 /// Calls a generic visitor once per channel with its static type.
@@ -548,6 +765,7 @@ pub fn visit_channels<V: ChannelVisitor>(visitor: &mut V) {
     visitor.visit(ACTUATION);
     visitor.visit(ECU);
     visitor.visit(HEALTH);
+    visitor.visit(EVENTS);
     visitor.visit(SIM_TRUTH);
 }
 

@@ -175,12 +175,13 @@ pub enum SchemaError {
     UnsupportedType { line: usize, ty: String },
 }
 
-/// Parses ros2msg text made of `type name` lines (comments and blank lines allowed).
+/// Parses ros2msg text made of `type name` lines (comments, blank lines and
+/// `type NAME=value` constants allowed; constants take no room in a sample).
 pub fn parse_schema(text: &str) -> Result<Vec<(RosType, String)>, SchemaError> {
     let mut fields = Vec::new();
     for (i, raw) in text.lines().enumerate() {
         let line = raw.split('#').next().unwrap_or("").trim();
-        if line.is_empty() {
+        if line.is_empty() || line.contains('=') {
             continue;
         }
         let mut parts = line.split_whitespace();

@@ -132,3 +132,24 @@ fn a_non_finite_field_is_found_by_name() {
     let h = jetbench_msgs::Health { cycles: u64::MAX, ..Default::default() };
     assert_eq!(h.non_finite_field(), None);
 }
+
+#[test]
+fn the_event_schema_names_its_codes_and_is_56_bytes() {
+    use jetbench_msgs::{channels, event_kinds, Event};
+    assert_eq!(std::mem::size_of::<Event>(), 56);
+    assert_eq!(channels::EVENTS.name, "bench/events");
+    assert!(channel_names().contains(&"bench/events"));
+    let text = Event::schema_text();
+    for line in ["uint32 KIND_TRIP=1", "int32 OFF_OVER_TEMPERATURE=2", "int32 ECU_RUN=11", "int32 LIMIT_MAX_EGT=2"] {
+        assert!(text.contains(line), "{line} in\n{text}");
+    }
+    assert_eq!(event_kinds::SHUTDOWN, 4);
+    // Constants take no room: the parsed fields are the struct's.
+    assert_eq!(parse_schema(&text).unwrap().len(), Event::FIELDS.len());
+    // Every constant name is unique.
+    let mut names: Vec<_> = jetbench_msgs::EVENT_CONSTANTS.iter().map(|c| c.name).collect();
+    let n = names.len();
+    names.sort_unstable();
+    names.dedup();
+    assert_eq!(names.len(), n);
+}

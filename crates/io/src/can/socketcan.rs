@@ -25,7 +25,7 @@ use std::time::{Duration, Instant};
 
 use ::socketcan::{CanSocket, EmbeddedFrame, Socket, StandardId};
 
-use super::source::CanTransport;
+use super::source::{CanTransport, LinkStats};
 use super::{CanFrame, RejectKind, CAN_EFF_FLAG, CAN_ERR_FLAG, CAN_RTR_FLAG};
 use crate::DeviceError;
 
@@ -103,6 +103,9 @@ impl SocketCan {
             if let Ok(s) = CanSocket::open(&self.ifname) {
                 self.socket = Some(s);
                 self.reopens += 1;
+                if self.reopens <= 5 || self.reopens.is_multiple_of(100) {
+                    tracing::info!("{}: socket open again (reopen {})", self.ifname, self.reopens);
+                }
             }
         }
         self.socket.is_some()
@@ -173,5 +176,9 @@ impl CanTransport for SocketCan {
 
     fn describe(&self) -> String {
         format!("SocketCAN {}", self.ifname)
+    }
+
+    fn link_stats(&self) -> LinkStats {
+        LinkStats { errors: self.link_errors, reopens: self.reopens }
     }
 }

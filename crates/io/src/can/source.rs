@@ -38,6 +38,17 @@ pub trait CanTransport: Send {
     /// Closes and opens the link again.
     fn reopen(&mut self) -> Result<(), DeviceError>;
     fn describe(&self) -> String;
+    /// The link's errors and reopenings so far (none for a link that cannot fail).
+    fn link_stats(&self) -> LinkStats {
+        LinkStats::default()
+    }
+}
+
+/// How a link has fared: errors that closed it, and times it was opened again.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LinkStats {
+    pub errors: u64,
+    pub reopens: u64,
 }
 
 /// Where the sensor's frames travel, from `[sensor] can_interface`.
@@ -167,6 +178,12 @@ impl CanForceSource {
 
     pub fn counts(&self) -> &RejectCounts {
         self.decoder.counts()
+    }
+
+    /// The link's errors and reopenings, the transport's and this source's.
+    pub fn link_stats(&self) -> LinkStats {
+        let link = self.transport.link_stats();
+        LinkStats { errors: link.errors + self.link_errors, reopens: link.reopens }
     }
 
     /// Frames (or datagrams) received and readings produced so far.
