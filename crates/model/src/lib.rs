@@ -28,6 +28,7 @@ mod file;
 mod params;
 mod plant;
 mod preset;
+pub mod turbojet;
 
 pub use effects::{Effect, EffectKind, Effects};
 pub use engine::{
