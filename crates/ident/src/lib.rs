@@ -7,6 +7,7 @@ pub mod identify;
 pub mod ls;
 pub mod noise;
 pub mod plot;
+pub mod refine;
 /// Recordings as identification data; the loader lives with the recorder (`jetbench_record::series`).
 pub use jetbench_record::series;
 pub mod sindy;
