@@ -10,6 +10,7 @@ pub mod excite;
 pub mod identify;
 pub mod ls;
 pub mod noise;
+pub mod refine;
 pub mod savgol;
 /// Recordings as identification data; the loader lives with the recorder (`jetbench_record::series`).
 pub use jetbench_record::series;

@@ -30,6 +30,7 @@ mod file;
 mod params;
 mod plant;
 mod preset;
+pub mod turbojet;
 
 pub use delay::{DelaySplit, ThrottleHistory, MAX_INPUT_DELAY_S};
 pub use effects::{Effect, EffectKind, Effects};

@@ -17,6 +17,10 @@ pub enum MethodArg {
     Ls,
     Ekf,
     Sindy,
+    /// LS and EKF, then both refined by simulation error with plausibility as a
+    /// constraint (and a bounded linear start): a bounded model whenever a stable engine
+    /// can describe the data.
+    Oe,
     All,
 }
 
@@ -107,6 +111,7 @@ pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
             MethodArg::Ls => vec![Method::Ls],
             MethodArg::Ekf => vec![Method::Ekf],
             MethodArg::Sindy => vec![Method::Sindy],
+            MethodArg::Oe => vec![Method::Ls, Method::Ekf, Method::Oe],
             MethodArg::All => Method::ALL.to_vec(),
         },
         ..identify::Options::default()
