@@ -186,6 +186,8 @@ fn frames_from_cansend_and_our_sink_are_decoded_exactly_and_bad_frames_counted()
 }
 
 /// Starts `candump -L vcan0` writing to a file; returns once it hears frames.
+// The child is returned: the caller kills and waits for it.
+#[allow(clippy::zombie_processes)]
 fn start_candump(log: &std::path::Path) -> Child {
     let child = Command::new("candump")
         .args(["-L", "vcan0"])
@@ -202,7 +204,12 @@ fn start_candump(log: &std::path::Path) -> Child {
         if std::fs::read_to_string(log).unwrap_or_default().contains("7FF#AA") {
             return child;
         }
-        assert!(Instant::now() < deadline, "candump never heard the marker");
+        if Instant::now() > deadline {
+            let mut child = child;
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("candump never heard the marker");
+        }
     }
 }
 
