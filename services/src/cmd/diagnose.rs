@@ -41,6 +41,7 @@ Catalogue (name: parameters):
   discrepancy: terms (see `jetbench sim-record --help`), for physics outside the catalogue
 
 Cause (JSON `cause`): none | parameters (re-identify; --out writes the refitted model) | missing_physics \
+| ambiguous (`rivals` lists the explanations the recording cannot tell apart, with weights) | insufficient_data \
 | unexplained.
 
 Exit status: 0 when the diagnosis ran (whatever it found), 1 on bad input or a model that diverges.
