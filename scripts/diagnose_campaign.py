@@ -406,6 +406,45 @@ def summarise(results, n, seed, elapsed_s):
     return "\n".join(lines) + "\n"
 
 
+def plot_svg(results, path):
+    """Outcome per class as stacked bars (SVG, no dependencies): true claims, false claims,
+    ambiguous, unexplained, too little data, errors."""
+    kinds = [("true claim", "#2a9d43"), ("FALSE claim", "#d62728"), ("ambiguous", "#f2b134"),
+             ("unexplained", "#8c8c8c"), ("insufficient_data", "#b5b5e0"), ("error", "#000000")]
+    rows = {}
+    for r in results:
+        c, t = grade(r)
+        outcome = ("true claim" if t else "FALSE claim") if c else ("error" if "error" in r else r["cause"])
+        rows.setdefault(klass(r["case"]), {}).setdefault(outcome, 0)
+        rows[klass(r["case"])][outcome] += 1
+    names = sorted(rows)
+    width, bar, left, top = 760, 26, 190, 40
+    height = top + len(names) * (bar + 10) + 60
+    most = max(sum(v.values()) for v in rows.values()) if rows else 1
+    scale = (width - left - 20) / most
+    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" font-family="sans-serif" '
+           'font-size="12">', f'<text x="{left}" y="20" font-size="14">Outcome per class ({len(results)} cases)</text>']
+    for i, name in enumerate(names):
+        y = top + i * (bar + 10)
+        out.append(f'<text x="{left - 8}" y="{y + bar * 0.65}" text-anchor="end">{name}</text>')
+        x = left
+        for kind, colour in kinds:
+            n = rows[name].get(kind, 0)
+            if n:
+                out.append(f'<rect x="{x:.1f}" y="{y}" width="{n * scale:.1f}" height="{bar}" fill="{colour}">'
+                           f'<title>{kind}: {n}</title></rect>')
+                if n * scale > 14:
+                    out.append(f'<text x="{x + n * scale / 2:.1f}" y="{y + bar * 0.65}" text-anchor="middle" '
+                               f'fill="white">{n}</text>')
+                x += n * scale
+    y = top + len(names) * (bar + 10) + 20
+    for j, (kind, colour) in enumerate(kinds):
+        out.append(f'<rect x="{20 + j * 122}" y="{y}" width="12" height="12" fill="{colour}"/>'
+                   f'<text x="{36 + j * 122}" y="{y + 10}">{kind}</text>')
+    out.append("</svg>")
+    Path(path).write_text("\n".join(out) + "\n")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("n", type=int)
@@ -414,6 +453,7 @@ def main():
     parser.add_argument("--jetbench", default=str(ROOT / "target/release/jetbench"))
     parser.add_argument("--out", help="Markdown report (default: stdout)")
     parser.add_argument("--json", help="every case's result, for plots and tests")
+    parser.add_argument("--plot", help="SVG of the outcome per class")
     parser.add_argument("--deadline-s", type=float, help="stop starting cases after this long; report those done")
     args = parser.parse_args()
     rng = random.Random(args.seed)
@@ -439,6 +479,8 @@ def main():
     if len(results) < args.n:
         report += f"\nStopped at the deadline: {len(results)} of the {args.n} cases drawn were diagnosed.\n"
     graded = [grade(r) for r in results]
+    if args.plot:
+        plot_svg(results, args.plot)
     if args.json:
         Path(args.json).write_text(json.dumps({
             "cases": len(results),

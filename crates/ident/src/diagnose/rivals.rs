@@ -248,7 +248,7 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         .collect();
     let mut wins = vec![0usize; entries.len()];
     let mut beats = vec![0usize; entries.len()];
-    let mut rng = Rng(0x5EED_0F_B0075 ^ n as u64);
+    let mut rng = Rng(0x5EE_D0FB_0075 ^ n as u64);
     let blocks = n.div_ceil(block).max(1);
     let starts = n.saturating_sub(block) + 1;
     let mut sse = vec![0.0; entries.len()];
