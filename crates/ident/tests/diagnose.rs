@@ -25,7 +25,17 @@ fn a_concealed_delay_is_named_fitted_and_removed() {
     assert!(error > 0.0 && (fitted - 0.12).abs() < 4.0 * error, "{fitted} ± {error}");
     assert!(d.mae_before_n > 1.05 * d.noise_floor_n && d.mae_after_n < 1.02 * d.noise_floor_n, "{}", d.verdict);
     assert!(!d.before.whiteness.white && d.after.whiteness.white);
-    assert!(d.verdict.contains("input delay"), "{}", d.verdict);
+    // 60 s held out at 7 N² cannot always tell a 0.12 s delay from a fuel-pump lag: then
+    // the diagnosis says so, the delay leading, rather than claim one.
+    match d.cause {
+        Cause::MissingPhysics => assert!(d.verdict.contains("input delay"), "{}", d.verdict),
+        Cause::Ambiguous => {
+            assert_eq!(d.rivals[0].effects, ["input_delay"], "{:?}", d.rivals);
+            assert!(d.rivals.iter().any(|r| r.effects == ["actuator_lag"]), "{:?}", d.rivals);
+            assert!(d.verdict.contains("a delay shifts"), "{}", d.verdict);
+        }
+        other => panic!("{other:?}: {}", d.verdict),
+    }
     assert_eq!(d.improved.effects.get(EffectKind::InputDelay).map(|e| e.values()[0]), Some(fitted));
     // The improved model file reads back with its effect.
     let back = ModelFile::from_toml_str(&d.improved.to_toml_string()).unwrap();
@@ -116,4 +126,47 @@ fn a_dead_band_outside_the_catalogue_is_modelled_as_a_discrepancy() {
     assert!(d.verdict.contains("dead band"), "{}", d.verdict);
     assert!(d.improved.effects.get(EffectKind::Discrepancy).is_some());
     assert!(d.mae_after_n < 1.03 * d.noise_floor_n, "{}", d.verdict);
+}
+
+#[test]
+fn a_claim_lists_its_rivals_and_the_claim_dominates_them() {
+    let delay: Effect = "input_delay:delay_s=0.15".parse().unwrap();
+    let plant = Plant::new(Preset::P100Diesel.params(), Effects::new([delay]).unwrap());
+    let data = [recording(&plant, 31)];
+    let d = diagnose(&ModelFile::new(plant.params), &data, &Options::default(), &mut |_| {}).unwrap();
+    assert_eq!(d.cause, Cause::MissingPhysics, "{}", d.verdict);
+    assert!(d.dominant);
+    let best = &d.rivals[0];
+    assert_eq!(best.effects, ["input_delay"], "{:?}", d.rivals);
+    assert!(!best.refit && best.weight >= 0.95, "{:?}", d.rivals);
+    let total: f64 = d.rivals.iter().map(|r| r.weight).sum();
+    assert!(total <= 1.0 + 1e-9, "{total}");
+    assert!(d.rivals.iter().skip(1).all(|r| r.beats_best_share < 0.05 && !r.tells_apart.is_empty()), "{:?}", d.rivals);
+    assert!(d.held_out_s >= d.needed_s);
+}
+
+#[test]
+fn too_little_data_is_refused_with_how_much_is_needed() {
+    let delay: Effect = "input_delay:delay_s=0.1".parse().unwrap();
+    let plant = Plant::new(Preset::P100Diesel.params(), Effects::new([delay]).unwrap());
+    let data = [synth::record_plant(&plant, &excite::campaign(40.0, 33).profile, 7.0, 34).expect("recording")];
+    let d = diagnose(&ModelFile::new(plant.params), &data, &Options::default(), &mut |_| {}).unwrap();
+    assert_eq!(d.cause, Cause::InsufficientData, "{}", d.verdict);
+    assert!(d.held_out_s < d.needed_s && d.needed_s >= 20.0, "{} {}", d.held_out_s, d.needed_s);
+    assert!(d.verdict.starts_with("Not enough data"), "{}", d.verdict);
+}
+
+#[test]
+fn a_clipping_sensor_is_an_artefact_of_the_recording_not_engine_physics() {
+    let plant = Plant::new(Preset::P100Diesel.params(), Effects::none());
+    let mut run = recording(&plant, 35);
+    let mut sorted: Vec<f64> = run.thrust_n.clone();
+    sorted.sort_by(f64::total_cmp);
+    let limit = sorted[(0.97 * sorted.len() as f64) as usize];
+    run.thrust_n.iter_mut().for_each(|y| *y = y.min(limit));
+    let d = diagnose(&ModelFile::new(plant.params), &[run], &Options::default(), &mut |_| {}).unwrap();
+    assert!(d.noise.clipped_rows >= sorted.len() / 40, "{:?}", d.noise);
+    assert!((d.noise.clipped_at_n[0] - limit).abs() < 1e-9);
+    assert!(d.effects.is_empty(), "{}", d.verdict);
+    assert!(d.verdict.contains("clips"), "{}", d.verdict);
 }

@@ -33,6 +33,7 @@ held-out score does not need
 Catalogue (name:parameters=[bounds in a model file]):
 {catalogue}
 Cause (JSON `cause`): none | parameters (re-identify; --out writes the refitted model) | missing_physics \
+| ambiguous (`rivals` lists the explanations the recording cannot tell apart, with weights) | insufficient_data \
 | unexplained.
 
 Exit status: 0 when the diagnosis ran (whatever it found), 1 on bad input or a model that diverges.

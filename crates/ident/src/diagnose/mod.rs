@@ -47,7 +47,9 @@ mod fit;
 pub mod problem;
 pub mod report;
 pub mod residual;
+pub mod rivals;
 
+use std::cell::RefCell;
 use std::collections::BTreeMap;
 
 use jetbench_model::{Effect, EffectKind, ModelFile, Params};
@@ -58,6 +60,7 @@ use crate::IdentError;
 use fit::{Fit, Spec};
 use problem::{DataReport, Part, Problem, Sim};
 use residual::Analysis;
+use rivals::{Entry, Rival};
 
 /// Settings of a diagnosis.
 #[derive(Clone, Debug)]
@@ -117,6 +120,11 @@ pub enum Cause {
     MissingPhysics,
     /// Something systematic remains that no hypothesis explains on held-out data.
     Unexplained,
+    /// Two or more explanations of different kinds fit the held-out data about equally
+    /// well: `rivals` lists them with their weights and what would tell them apart.
+    Ambiguous,
+    /// Too little held-out data to tell any explanation from another: nothing claimed.
+    InsufficientData,
 }
 
 /// The name of the re-identification hypothesis in rounds.
@@ -233,6 +241,18 @@ pub struct Diagnosis {
     pub rounds: Vec<Round>,
     /// Parts dropped at the end because the held-out score did not need them.
     pub dropped: Vec<String>,
+    /// Every explanation kept as a rival, best first, with its weight (the share of
+    /// block-bootstrap resamples of the held-out data it wins) and what tells it apart
+    /// from the search's explanation; a claimed cause lists its rivals too.
+    pub rivals: Vec<Rival>,
+    /// Held-out data, s, and how much a claim needs, s.
+    pub held_out_s: f64,
+    pub needed_s: f64,
+    /// True when the search's explanation beats every rival of another kind in at least
+    /// 95 % of resamples and by more than a tie.
+    pub dominant: bool,
+    /// A slow periodic part left in the residual of the improved model, if any.
+    pub periodic: Option<residual::Periodic>,
     /// The improved model (refitted parameters, effects added).
     #[serde(skip)]
     pub improved: ModelFile,
@@ -289,6 +309,8 @@ struct Search<'p, 'a> {
     model: &'p ModelFile,
     options: &'p Options,
     floor_n: f64,
+    /// Every explanation fitted, for the rivals.
+    pool: RefCell<Vec<Entry>>,
 }
 
 impl Search<'_, '_> {
@@ -298,7 +320,27 @@ impl Search<'_, '_> {
         self.problem.simulate(&plant, &fit.spec.states, false, &mut sim).ok()?;
         let (sse_val, n_val) = self.problem.sse(&sim, Part::Validation);
         let mae_val = self.problem.mae(&sim, Part::Validation);
-        (sse_val.is_finite() && mae_val.is_finite()).then_some(Scored { fit, sim, sse_val, n_val, mae_val })
+        let scored =
+            (sse_val.is_finite() && mae_val.is_finite()).then_some(Scored { fit, sim, sse_val, n_val, mae_val })?;
+        let entry = self.entry(&scored);
+        self.pool.borrow_mut().push(entry);
+        Some(scored)
+    }
+
+    /// The rivals' view of a scored hypothesis: its parts and held-out innovations.
+    fn entry(&self, s: &Scored) -> Entry {
+        let mut w = Vec::new();
+        self.problem.innovations(&s.sim, Part::Validation, &mut w);
+        let kinds: Vec<EffectKind> = s.fit.spec.effects.iter().map(|(k, _)| *k).collect();
+        rivals::entry(
+            &kinds,
+            s.fit.spec.refit,
+            &w,
+            s.fit.spec.free_count(),
+            s.fit.spec.prior_cost(),
+            s.mae_val,
+            s.unphysical().is_some(),
+        )
     }
 
     /// How many standard errors `b` fits the held-out data worse than `a` (a paired test
@@ -394,7 +436,7 @@ pub fn diagnose(
     progress("simulating the model over the recording");
     let mut given = Spec::new(model.model, problem.given_states());
     given.history_max_s = problem.longest_run_s() / 3.0;
-    let search = Search { problem: &problem, model, options, floor_n };
+    let search = Search { problem: &problem, model, options, floor_n, pool: RefCell::new(Vec::new()) };
     let before = search.fit(&given).ok_or_else(|| diverged(&problem, &nominal, data))?;
     progress("analysing the residual");
     let analysis_before = residual::analyse(&problem, &before.sim);
@@ -419,6 +461,10 @@ pub fn diagnose(
         }
     }
 
+    progress("trying play in the throttle path, a rival outside the catalogue");
+    throttle_play_rivals(&search, &current);
+    progress("weighing the rival explanations on resampled held-out data");
+    let weighed = rivals::weigh(&search.pool.borrow(), &search.entry(&current));
     progress("analysing the improved model");
     let analysis_after = residual::analyse(&problem, &current.sim);
     let improved = ModelFile {
@@ -460,6 +506,11 @@ pub fn diagnose(
         after: analysis_after,
         rounds,
         dropped,
+        rivals: weighed.rivals,
+        held_out_s: weighed.held_out_s,
+        needed_s: weighed.needed_s,
+        dominant: weighed.dominant,
+        periodic: residual::periodic(&problem, &current.sim),
         improved,
         sim_before: problem.per_row(&before.sim),
         sim_after: problem.per_row(&current.sim),
@@ -747,4 +798,50 @@ fn prune(search: &Search<'_, '_>, mut current: Scored, kept: &mut Vec<Kept>, dro
 /// The parameter values of `params` by name.
 pub(crate) fn named(params: &Params) -> BTreeMap<&'static str, f64> {
     Params::NAMES.iter().copied().zip(params.to_array()).collect()
+}
+
+/// Play (backlash) in the throttle path, outside the catalogue and the discrepancy's
+/// library: the engine follows a throttle that moves only once the command has taken up
+/// the play. It acts before the engine's dynamics, where bearing friction (its sensor-side
+/// look-alike) acts on the reading, so it is weighed as a rival of whatever the search
+/// found: the model found, with the play and without its sensor-side effects, at a few
+/// widths (whichever fits best stands for it). It is never claimed, only kept as a rival.
+fn throttle_play_rivals(search: &Search<'_, '_>, current: &Scored) {
+    let mut spec = current.fit.spec.clone();
+    spec.effects.retain(|(k, _)| rivals::side_of(k.name()) != "sensor");
+    let Some(plant) = spec.plant(&search.model.effects) else { return };
+    let mut best: Option<Entry> = None;
+    for width in [0.5, 1.0, 1.5, 2.0, 3.0] {
+        let mut problem = search.problem.clone();
+        for run in &mut problem.runs {
+            let mut held = run.u.first().copied().unwrap_or(0.0);
+            for u in &mut run.u {
+                held = held.clamp(*u - width, *u + width);
+                *u = held;
+            }
+        }
+        let states = problem.initial_states(&plant);
+        let mut sim = Sim::new();
+        if problem.simulate(&plant, &states, false, &mut sim).is_err() {
+            continue;
+        }
+        let mut w = Vec::new();
+        problem.innovations(&sim, Part::Validation, &mut w);
+        let kinds: Vec<EffectKind> = spec.effects.iter().map(|(k, _)| *k).collect();
+        let mut entry = rivals::entry(
+            &kinds,
+            spec.refit,
+            &w,
+            spec.free_count() + 1,
+            spec.prior_cost(),
+            problem.mae(&sim, Part::Validation),
+            false,
+        );
+        entry.effects.push("throttle_play");
+        entry.effects.sort_unstable();
+        if entry.score.is_finite() && best.as_ref().is_none_or(|b| entry.score < b.score) {
+            best = Some(entry);
+        }
+    }
+    search.pool.borrow_mut().extend(best);
 }

@@ -114,6 +114,11 @@ pub struct DataReport {
     pub from_residual: bool,
     /// The floor from the data alone, before that, N.
     pub floor_from_data_n: f64,
+    /// Rows where the force reading sat at the end of its range (a clipping sensor): an
+    /// artefact of the recording, left out like gaps, never modelled as engine physics.
+    pub clipped_rows: usize,
+    /// The readings it clipped at, N (top, bottom).
+    pub clipped_at_n: Vec<f64>,
 }
 
 /// Recordings split into calibration and validation samples.
@@ -167,6 +172,7 @@ impl<'a> Problem<'a> {
                 start = k;
             }
         }
+        let clipped = remove_clipped(&mut runs);
         let outliers = reject_outliers(&mut runs);
         let noise =
             noise::estimate(&runs.iter().map(|r| r.y.iter().copied().step_by(r.stride).collect()).collect::<Vec<_>>())
@@ -198,6 +204,8 @@ impl<'a> Problem<'a> {
             notes: Vec::new(),
             from_residual: false,
             floor_from_data_n: noise.mae_n,
+            clipped_rows: clipped.iter().map(|c| c.1).sum(),
+            clipped_at_n: clipped.iter().map(|c| c.0).collect(),
         };
         let mut problem = Self { data, runs, cut, n_cal, n_val, noise, report };
         let states = problem.initial_states(nominal);
@@ -410,3 +418,50 @@ fn reject_outliers(runs: &mut [Run]) -> Vec<Outlier> {
     }
     outliers
 }
+
+/// Rows at the very end of the reading's range: a sensor that clips (or an amplifier that
+/// saturates) repeats its limit exactly, where noisy readings near the top are all
+/// different. A limit repeated in at least [`CLIP_MIN_ROWS`] rows and 0.2 % of them is a
+/// range; those rows are left out (as gaps) and reported. Returns (limit, rows) per end.
+fn remove_clipped(runs: &mut [Run]) -> Vec<(f64, usize)> {
+    let present: Vec<f64> = runs.iter().flat_map(|r| r.y.iter().copied().filter(|y| y.is_finite())).collect();
+    let n = present.len();
+    let (hi, lo) = present.iter().fold((f64::NEG_INFINITY, f64::INFINITY), |(h, l), &y| (h.max(y), l.min(y)));
+    let mut found = Vec::new();
+    for limit in [hi, lo] {
+        if !limit.is_finite() {
+            continue;
+        }
+        let at = |y: f64| (y - limit).abs() <= CLIP_RESOLUTION_N;
+        let count = present.iter().filter(|y| at(**y)).count();
+        if count >= CLIP_MIN_ROWS && count as f64 >= 0.002 * n as f64 {
+            // The rows around a clipped one are left out too: while the thrust is near the
+            // limit only the readings that happened to fall below it survive, a bias that
+            // would look like a flatter engine map.
+            let mut left_out = 0;
+            for run in runs.iter_mut() {
+                let clipped: Vec<usize> = (0..run.y.len()).filter(|&k| run.y[k].is_finite() && at(run.y[k])).collect();
+                let mut drop = vec![false; run.y.len()];
+                for &k in &clipped {
+                    let (a, b) = (k.saturating_sub(CLIP_MARGIN), (k + CLIP_MARGIN + 1).min(run.y.len()));
+                    drop[a..b].iter_mut().for_each(|d| *d = true);
+                }
+                for (y, d) in run.y.iter_mut().zip(drop) {
+                    if d && y.is_finite() {
+                        *y = f64::NAN;
+                        left_out += 1;
+                    }
+                }
+            }
+            found.push((limit, left_out));
+        }
+    }
+    found
+}
+
+/// Grid steps either side of a clipped reading also left out (1 s).
+const CLIP_MARGIN: usize = 100;
+/// Fewest rows at one value that make a sensor range.
+const CLIP_MIN_ROWS: usize = 20;
+/// Readings this close to the limit count as at it, N (the bench's resolution is 0.01 N).
+const CLIP_RESOLUTION_N: f64 = 0.004;

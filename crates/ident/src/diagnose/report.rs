@@ -282,11 +282,15 @@ fn explain_discrepancy(
 
 /// What the diagnosis blames.
 pub(crate) fn cause(d: &Diagnosis) -> Cause {
-    if !d.effects.is_empty() {
+    if d.held_out_s < d.needed_s {
+        Cause::InsufficientData
+    } else if !d.dominant {
+        Cause::Ambiguous
+    } else if !d.effects.is_empty() {
         Cause::MissingPhysics
     } else if d.refit.is_some() {
         Cause::Parameters
-    } else if (d.after.whiteness.white || !d.after.systematic()) && d.mae_after_n <= 1.1 * d.noise_floor_n {
+    } else if d.after.whiteness.white && d.periodic.is_none() && d.mae_after_n <= 1.1 * d.noise_floor_n {
         Cause::None
     } else {
         Cause::Unexplained
@@ -302,6 +306,15 @@ fn data_note(d: &Diagnosis) -> String {
     }
     if n.gaps > 0 {
         parts.push(format!("{} gap(s) ({} rows lost) simulated through with the throttle held", n.gaps, n.lost_rows));
+    }
+    if n.clipped_rows > 0 {
+        parts.push(format!(
+            "the force reading sits at the end of its range ({} N) in {} row(s): the sensor clips there, an \
+             artefact of the recording, not engine physics; those rows are left out (move the range, or keep the \
+             thrust below it)",
+            n.clipped_at_n.iter().map(|v| format!("{v:.2}")).collect::<Vec<_>>().join(" and "),
+            n.clipped_rows
+        ));
     }
     if n.run_splits > 0 {
         parts.push(format!("{} long gap(s) split the runs", n.run_splits));
@@ -378,9 +391,32 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
             }
             format!("{} {mae}; {whiteness}.{}", text.join(" "), remains())
         }
+        Cause::Ambiguous => format!("{} {mae} with the leading explanation.", ambiguous(d)),
+        Cause::InsufficientData => format!(
+            "Not enough data to claim anything: {:.0} s held out ({} validation samples), a claim needs at least \
+             {:.0} s held out (about {:.0} s of recording at this hold-out) so that rival explanations can be \
+             told apart on independent stretches of data. Record a longer campaign (jetbench excite). {mae}.",
+            d.held_out_s,
+            d.validation_samples,
+            d.needed_s,
+            d.needed_s * d.calibration_samples.max(1).saturating_add(d.validation_samples) as f64
+                / d.validation_samples.max(1) as f64
+        ),
         Cause::Unexplained => {
             let why = d.rounds.last().map_or(String::new(), |r| format!(" ({})", r.reason));
-            let what: Vec<&str> = d.before.findings.iter().map(String::as_str).collect();
+            let mut what: Vec<String> = d.before.findings.clone();
+            if let Some(p) = d.periodic {
+                what.insert(
+                    0,
+                    format!(
+                        "a periodic residual, period {:.1} s, amplitude {:.2} N ({:.0} % of the residual's variance): \
+                         something on the stand or the sensor repeats, which no effect of the model explains",
+                        p.period_s,
+                        p.amplitude_n,
+                        100.0 * p.share
+                    ),
+                );
+            }
             format!(
                 "Unexplained: the residual is systematic but no hypothesis explains it on held-out data{why}. What \
                  remains: {}. {mae}.",
@@ -389,6 +425,48 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
         }
     };
     format!("{text}{}", data_note(d))
+}
+
+/// An explanation in a few words: its effects and whether it refits.
+pub fn label(effects: &[&str], refit: bool) -> String {
+    let mut parts: Vec<&str> = effects.to_vec();
+    if refit {
+        parts.insert(0, "refitted parameters");
+    }
+    if parts.is_empty() {
+        "nothing left out".to_owned()
+    } else {
+        parts.join(" + ")
+    }
+}
+
+/// The ambiguous verdict: the rivals with their weights, what each means, what separates them.
+fn ambiguous(d: &Diagnosis) -> String {
+    let list: Vec<String> = d
+        .rivals
+        .iter()
+        .map(|r| {
+            format!(
+                "{} (weight {:.0} %, {:.1} behind): {}",
+                label(&r.effects, r.refit),
+                100.0 * r.weight,
+                r.score_behind,
+                r.meaning
+            )
+        })
+        .collect();
+    let apart: Vec<String> = d
+        .rivals
+        .iter()
+        .filter(|r| !r.tells_apart.is_empty())
+        .map(|r| format!("{}: {}", label(&r.effects, r.refit), r.tells_apart))
+        .collect();
+    format!(
+        "Ambiguous: the recording cannot tell these explanations apart (weights: the share of block-bootstrap \
+         resamples of the held-out data each fits best): {}. What would tell them apart: {}.",
+        list.join("; "),
+        if apart.is_empty() { "a longer, richer campaign".to_owned() } else { apart.join("; ") }
+    )
 }
 
 /// The JSON contract: `cause`, `effects[{name, params, evidence}]`, `refit`, `noise`,

@@ -599,3 +599,62 @@ fn findings(a: &Analysis) -> Vec<String> {
     }
     out
 }
+
+/// A slow periodic part of the residual (a force on the stand, a sensor's thermal cycle).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct Periodic {
+    pub period_s: f64,
+    /// Amplitude of the sine, N.
+    pub amplitude_n: f64,
+    /// Share of the residual's variance it explains.
+    pub share: f64,
+}
+
+/// The sine of period 4 s to a third of the longest run that fits the residual best, when it
+/// is large (at least 0.5 N and 10 % of the residual's variance) and seen over at least three
+/// periods: something that repeats, which no effect of the model explains.
+pub(crate) fn periodic(problem: &Problem<'_>, sim: &Sim) -> Option<Periodic> {
+    let residuals: Vec<Vec<f64>> = (0..problem.runs.len()).map(|i| problem.residual(i, sim)).collect();
+    let longest = residuals.iter().map(Vec::len).max()? as f64 * STEP_S;
+    let (mut sum, mut sq, mut n) = (0.0, 0.0, 0.0);
+    for r in residuals.iter().flatten().filter(|r| r.is_finite()) {
+        sum += r;
+        sq += r * r;
+        n += 1.0;
+    }
+    if n < 100.0 || longest < 12.0 {
+        return None;
+    }
+    let mean = sum / n;
+    let var = sq / n - mean * mean;
+    let mut best: Option<Periodic> = None;
+    let (lo, hi) = (4.0_f64, longest / 3.0);
+    let steps = 120;
+    for i in 0..=steps {
+        let period = lo * (hi / lo).powf(i as f64 / steps as f64);
+        let w = 2.0 * std::f64::consts::PI / period;
+        // Least squares on sin and cos (the normal equations, 2×2).
+        let (mut ss, mut cc, mut sc, mut ys, mut yc) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for (k, r) in residuals.iter().flat_map(|r| r.iter().enumerate()).filter(|(_, r)| r.is_finite()) {
+            let (s, c) = (w * k as f64 * STEP_S).sin_cos();
+            let y = r - mean;
+            ss += s * s;
+            cc += c * c;
+            sc += s * c;
+            ys += y * s;
+            yc += y * c;
+        }
+        let det = ss * cc - sc * sc;
+        if det.abs() < 1e-9 {
+            continue;
+        }
+        let a = (ys * cc - yc * sc) / det;
+        let b = (yc * ss - ys * sc) / det;
+        let explained = (a * ys + b * yc) / n;
+        let p = Periodic { period_s: period, amplitude_n: a.hypot(b), share: explained / var.max(1e-12) };
+        if best.is_none_or(|q| p.share > q.share) {
+            best = Some(p);
+        }
+    }
+    best.filter(|p| p.amplitude_n >= 0.5 && p.share >= 0.1)
+}

@@ -1,0 +1,343 @@
+//! Rival explanations: every hypothesis the search fitted, weighed on the held-out data
+//! by how often it wins over block-bootstrap resamples of that data, and whether the one
+//! the search arrived at dominates every rival of another kind.
+//!
+//! A likelihood ratio trusts the noise model: under coloured or heteroscedastic noise,
+//! or a slow disturbance it does not hold, two explanations a few score units apart are
+//! a coin toss. Resampling contiguous blocks of the held-out innovations (a few seconds
+//! each, longer than the noise's memory) keeps whatever structure the noise has, so a
+//! rival that wins in a fair share of resamples is a live explanation, whatever the
+//! score difference says.
+
+use std::collections::BTreeMap;
+
+use jetbench_model::{EffectKind, STEP_S};
+use serde::Serialize;
+
+use super::REFIT;
+
+/// Length of a resampled block, s: longer than the memory of any noise the bench shows.
+pub const BLOCK_S: f64 = 3.0;
+/// Resamples drawn.
+const RESAMPLES: usize = 400;
+/// Held-out blocks a claim needs: fewer, and the resampling (and any comparison of
+/// explanations) rests on too few independent stretches of data.
+pub const MIN_BLOCKS: usize = 8;
+/// A rival that beats the claim in this share of resamples or more keeps it open.
+pub const RIVAL_WIN_SHARE: f64 = 0.05;
+/// Score units (twice a log-likelihood) within which two explanations tie outright.
+pub const TIE: f64 = 2.0;
+/// Explanations further than this behind the best (score units) are not weighed.
+const WINDOW: f64 = 40.0;
+
+/// One explanation the search fitted: its parts and its held-out innovations.
+#[derive(Clone, Debug)]
+pub(crate) struct Entry {
+    /// Effect names, sorted.
+    pub effects: Vec<&'static str>,
+    /// The ten parameters refitted.
+    pub refit: bool,
+    /// Squared held-out innovations, in order.
+    pub w2: Vec<f64>,
+    /// Parameters fitted (BIC count) and the refit's prior cost, score units.
+    pub free: usize,
+    pub prior: f64,
+    /// Held-out score (`N·ln(SSE/N) + k·ln N` + prior) and MAE, N.
+    pub score: f64,
+    pub mae_val_n: f64,
+    /// Outside a physical range: evidence, never an explanation.
+    pub unphysical: bool,
+}
+
+impl Entry {
+    fn label(&self) -> (Vec<&'static str>, bool) {
+        (self.effects.clone(), self.refit)
+    }
+
+    fn score_of(&self, sse: f64, n: f64) -> f64 {
+        n * (sse / n).ln() + self.free as f64 * n.ln() + self.prior
+    }
+}
+
+/// An explanation kept as a rival, as the JSON shows it.
+#[derive(Clone, Debug, Serialize)]
+pub struct Rival {
+    /// Effects it adds (catalogue names, `discrepancy`); empty with `refit` false: nothing.
+    pub effects: Vec<&'static str>,
+    /// True when it re-identifies the ten parameters.
+    pub refit: bool,
+    /// Share of block-bootstrap resamples of the held-out data in which it fits best.
+    pub weight: f64,
+    /// Share of resamples in which it beats the explanation the search arrived at.
+    pub beats_best_share: f64,
+    /// Held-out score behind the best rival (score units, 0 for the best).
+    pub score_behind: f64,
+    /// Validation MAE with it, N.
+    pub mae_val_n: f64,
+    /// Where its physics lives: `none`, `parameters`, `sensor`, `engine`, `sensor+engine`.
+    pub side: &'static str,
+    /// What it would mean at the bench.
+    pub meaning: String,
+    /// What would tell it from the explanation the search arrived at (empty for that one).
+    pub tells_apart: String,
+}
+
+/// The rivals, best first, and whether the search's explanation dominates them all.
+#[derive(Clone, Debug, Serialize)]
+pub struct Rivals {
+    pub rivals: Vec<Rival>,
+    /// True when the search's explanation beats every rival of another kind in at least
+    /// 95 % of resamples and by more than a tie.
+    pub dominant: bool,
+    /// Held-out data and how much a claim needs, s.
+    pub held_out_s: f64,
+    pub needed_s: f64,
+}
+
+/// A small deterministic generator (SplitMix64): the same recording gets the same weights.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n.max(1) as u64) as usize
+    }
+}
+
+/// Which side of the bench an effect acts on: a sensor effect adds to what is read and
+/// passes through no engine dynamics; an engine effect does.
+pub fn side_of(kind: &str) -> &'static str {
+    match kind {
+        "sensor_drift" | "bearing_friction" | "stand_resonance" => "sensor",
+        _ => "engine",
+    }
+}
+
+fn side(effects: &[&'static str], refit: bool) -> &'static str {
+    let sensor = effects.iter().any(|e| side_of(e) == "sensor");
+    let engine = effects.iter().any(|e| side_of(e) == "engine");
+    match (sensor, engine) {
+        (true, true) => "sensor+engine",
+        (true, false) => "sensor",
+        (false, true) => "engine",
+        (false, false) if refit => "parameters",
+        _ => "none",
+    }
+}
+
+/// What an effect would mean at the bench, in a few words.
+pub fn meaning_of(kind: &str) -> &'static str {
+    match kind {
+        "input_delay" => "the engine answers the throttle late (ECU or bus latency)",
+        "actuator_lag" => "the fuel pump smooths throttle changes",
+        "rate_limit" => "the ECU limits how fast the throttle may move",
+        "sensor_drift" => "the force sensor's reading drifts as it heats (sensor side, not the engine)",
+        "gain_drift" => "the engine gives less thrust for the same throttle as the run goes on",
+        "bearing_friction" => "the stand's bearings hold the load cell back by a friction band (sensor side)",
+        "stand_resonance" => "the stand and sensor ring after fast thrust changes (sensor side)",
+        "discrepancy" => "engine physics outside the catalogue (see its terms)",
+        "throttle_play" => "play (backlash) in the throttle path, outside the catalogue: the engine side",
+        _ => "",
+    }
+}
+
+/// What shows an effect at the bench, against an explanation without it.
+pub fn signature_of(kind: &str) -> &'static str {
+    match kind {
+        "input_delay" => "a delay shifts the answer to every throttle step by the same time, small steps as large ones",
+        "actuator_lag" => "a lag rounds the start of every step, small ones too, more the faster the step",
+        "rate_limit" => "a rate limit acts only on large fast steps, and differently up and down",
+        "sensor_drift" => {
+            "a sensor drift decays at idle with its time constant after a long high-thrust hold, and reads \
+             off zero with the engine stopped"
+        }
+        "gain_drift" => {
+            "a gain drift grows with run time whatever the thrust history and does not recover during idle holds"
+        }
+        "bearing_friction" => {
+            "friction holds the reading back by the same band after every reversal of the thrust, however small"
+        }
+        "stand_resonance" => "a resonance rings at its frequency after sharp steps",
+        "discrepancy" => {
+            "physics outside the catalogue acts through the engine's dynamics (its throttle map or thrust \
+             history), not on the reading"
+        }
+        "throttle_play" => {
+            "play in the throttle path shifts the steady thrust after a reversal by the same throttle \
+             (its thrust effect grows with the map's slope), where friction shifts the reading by the same force"
+        }
+        REFIT => {
+            "parameters that are off act the same at every time of the run and every thrust history: a second \
+             campaign of different steps is fitted by the same refit"
+        }
+        _ => "",
+    }
+}
+
+fn meaning(effects: &[&'static str], refit: bool) -> String {
+    let mut parts: Vec<String> = effects.iter().map(|e| format!("{e}: {}", meaning_of(e))).collect();
+    if refit {
+        parts.push("the ten parameters are off: re-identify".to_owned());
+    }
+    if parts.is_empty() {
+        "the model as given explains the recording".to_owned()
+    } else {
+        parts.join("; ")
+    }
+}
+
+/// What separates explanation `a` from `b`: the signature of every part only one has.
+fn tells_apart(a: (&[&'static str], bool), b: (&[&'static str], bool)) -> String {
+    let mut parts: Vec<&str> = Vec::new();
+    for e in a.0.iter().filter(|e| !b.0.contains(e)).chain(b.0.iter().filter(|e| !a.0.contains(e))) {
+        parts.push(signature_of(e));
+    }
+    if a.1 != b.1 {
+        parts.push(signature_of(REFIT));
+    }
+    parts.retain(|p| !p.is_empty());
+    if parts.is_empty() {
+        return String::new();
+    }
+    format!("{}; `jetbench excite --discriminate` designs the campaign that separates them", parts.join("; "))
+}
+
+/// The rivals of `chosen` among `pool` (every explanation the search fitted).
+pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
+    let n = chosen.w2.len();
+    let block = ((BLOCK_S / STEP_S).round() as usize).clamp(1, n.max(1));
+    let held_out_s = n as f64 * STEP_S;
+    let needed_s = MIN_BLOCKS as f64 * BLOCK_S;
+    // One entry per explanation (its best fit), physical, on the same samples.
+    let mut best: BTreeMap<(Vec<&'static str>, bool), &Entry> = BTreeMap::new();
+    for e in pool.iter().chain(std::iter::once(chosen)) {
+        if e.unphysical || e.w2.len() != n || !e.score.is_finite() {
+            continue;
+        }
+        let slot = best.entry(e.label()).or_insert(e);
+        if e.score < slot.score {
+            *slot = e;
+        }
+    }
+    best.insert(chosen.label(), chosen);
+    let top = best.values().map(|e| e.score).fold(f64::INFINITY, f64::min);
+    let mut entries: Vec<&Entry> = best.into_values().filter(|e| e.score <= top + WINDOW).collect();
+    if !entries.iter().any(|e| e.label() == chosen.label()) {
+        entries.push(chosen);
+    }
+    let ci = entries.iter().position(|e| e.label() == chosen.label()).unwrap_or(0);
+    // Prefix sums of squared innovations: a block's sum in O(1).
+    let prefix: Vec<Vec<f64>> = entries
+        .iter()
+        .map(|e| {
+            let mut acc = 0.0;
+            std::iter::once(0.0)
+                .chain(e.w2.iter().map(|x| {
+                    acc += x;
+                    acc
+                }))
+                .collect()
+        })
+        .collect();
+    let mut wins = vec![0usize; entries.len()];
+    let mut beats = vec![0usize; entries.len()];
+    let mut rng = Rng(0x5EE_D0FB_0075 ^ n as u64);
+    let blocks = n.div_ceil(block).max(1);
+    let starts = n.saturating_sub(block) + 1;
+    let mut sse = vec![0.0; entries.len()];
+    for _ in 0..RESAMPLES {
+        sse.iter_mut().for_each(|s| *s = 0.0);
+        let mut len = 0usize;
+        for _ in 0..blocks {
+            let s = rng.below(starts);
+            let e = (s + block).min(n);
+            len += e - s;
+            for (j, p) in prefix.iter().enumerate() {
+                sse[j] += p[e] - p[s];
+            }
+        }
+        let scores: Vec<f64> = entries.iter().zip(&sse).map(|(e, s)| e.score_of(*s, len as f64)).collect();
+        let winner = (0..scores.len()).min_by(|a, b| scores[*a].total_cmp(&scores[*b])).unwrap_or(ci);
+        wins[winner] += 1;
+        for j in 0..scores.len() {
+            if scores[j] < scores[ci] {
+                beats[j] += 1;
+            }
+        }
+    }
+    let share = |c: usize| c as f64 / RESAMPLES as f64;
+    let mut rivals: Vec<(usize, Rival)> = entries
+        .iter()
+        .enumerate()
+        .filter(|(j, e)| *j == ci || share(wins[*j]) >= 0.01 || share(beats[*j]) >= 0.01 || e.score - top <= TIE)
+        .map(|(j, e)| {
+            let rival = Rival {
+                effects: e.effects.clone(),
+                refit: e.refit,
+                weight: share(wins[j]),
+                beats_best_share: share(beats[j]),
+                score_behind: e.score - top,
+                mae_val_n: e.mae_val_n,
+                side: side(&e.effects, e.refit),
+                meaning: meaning(&e.effects, e.refit),
+                tells_apart: if j == ci {
+                    String::new()
+                } else {
+                    tells_apart((&e.effects, e.refit), (&chosen.effects, chosen.refit))
+                },
+            };
+            (j, rival)
+        })
+        .collect();
+    let dominant = n >= MIN_BLOCKS * block
+        && rivals.iter().all(|(j, _)| {
+            *j == ci || (share(beats[*j]) < RIVAL_WIN_SHARE && entries[*j].score - entries[ci].score > TIE)
+        });
+    rivals.sort_by(|a, b| b.1.weight.total_cmp(&a.1.weight).then(a.1.score_behind.total_cmp(&b.1.score_behind)));
+    rivals.truncate(6);
+    if !rivals.iter().any(|(j, _)| *j == ci) {
+        // The search's explanation is always listed, even when it weighs little.
+        let e = entries[ci];
+        rivals.push((
+            ci,
+            Rival {
+                effects: e.effects.clone(),
+                refit: e.refit,
+                weight: share(wins[ci]),
+                beats_best_share: 0.0,
+                score_behind: e.score - top,
+                mae_val_n: e.mae_val_n,
+                side: side(&e.effects, e.refit),
+                meaning: meaning(&e.effects, e.refit),
+                tells_apart: String::new(),
+            },
+        ));
+    }
+    Rivals { rivals: rivals.into_iter().map(|(_, r)| r).collect(), dominant, held_out_s, needed_s }
+}
+
+/// The entry of an explanation: its parts, innovations and score.
+pub(crate) fn entry(
+    effects: &[EffectKind],
+    refit: bool,
+    w: &[f64],
+    free: usize,
+    prior: f64,
+    mae: f64,
+    unphysical: bool,
+) -> Entry {
+    let mut names: Vec<&'static str> = effects.iter().map(|k| k.name()).collect();
+    names.sort_unstable();
+    let w2: Vec<f64> = w.iter().map(|x| x * x).collect();
+    let n = w2.len() as f64;
+    let sse: f64 = w2.iter().sum();
+    let score = n * (sse / n).ln() + free as f64 * n.ln() + prior;
+    Entry { effects: names, refit, w2, free, prior, score, mae_val_n: mae, unphysical }
+}
