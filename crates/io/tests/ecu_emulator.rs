@@ -167,7 +167,7 @@ fn shutdown_after(spec_key: &str, setup: impl Fn(&mut Bench)) -> (OffCondition, 
     let after = b.t - at_s;
     assert_eq!(b.ecu.state(), EcuState::SlowDown, "the fuel is cut");
     b.run_until(60.0, |e| e.state() == EcuState::Off);
-    assert_eq!(b.ecu.transitions().last().unwrap().2, b.ecu.off_condition(), "off keeps the reason");
+    assert_eq!(b.ecu.transitions().last().expect("a transition").2, b.ecu.off_condition(), "off keeps the reason");
     (b.ecu.off_condition(), after, b)
 }
 
