@@ -428,13 +428,19 @@ fn remove_clipped(runs: &mut [Run]) -> Vec<(f64, usize)> {
     let n = present.len();
     let (hi, lo) = present.iter().fold((f64::NEG_INFINITY, f64::INFINITY), |(h, l), &y| (h.max(y), l.min(y)));
     let mut found = Vec::new();
+    // A reading that barely moves is not a range with ends: it is a stuck or disconnected
+    // sensor, which the noise model and the residual report as such.
+    if !(hi - lo > 100.0 * CLIP_RESOLUTION_N) {
+        return found;
+    }
     for limit in [hi, lo] {
         if !limit.is_finite() {
             continue;
         }
         let at = |y: f64| (y - limit).abs() <= CLIP_RESOLUTION_N;
         let count = present.iter().filter(|y| at(**y)).count();
-        if count >= CLIP_MIN_ROWS && count as f64 >= 0.002 * n as f64 {
+        // Most readings at one end is a stuck sensor, not one that clips now and then.
+        if count >= CLIP_MIN_ROWS && count as f64 >= 0.002 * n as f64 && 2 * count < n {
             // The rows around a clipped one are left out too: while the thrust is near the
             // limit only the readings that happened to fall below it survive, a bias that
             // would look like a flatter engine map.
