@@ -430,7 +430,7 @@ fn remove_clipped(runs: &mut [Run]) -> Vec<(f64, usize)> {
     let mut found = Vec::new();
     // A reading that barely moves is not a range with ends: it is a stuck or disconnected
     // sensor, which the noise model and the residual report as such.
-    if !(hi - lo > 100.0 * CLIP_RESOLUTION_N) {
+    if hi - lo <= 100.0 * CLIP_RESOLUTION_N {
         return found;
     }
     for limit in [hi, lo] {
