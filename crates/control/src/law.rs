@@ -246,7 +246,10 @@ impl Law {
     }
 }
 
-/// Predicts the engine's state one input delay ahead from the commands in flight.
+/// Predicts the engine's state one input delay ahead from the commands in flight. Its
+/// model is a coarse [`PlantEngine`], so the prediction runs the model's whole
+/// [`jetbench_model::ThrottlePath`] (the delay, and the rate limit and the lag the
+/// commands in flight meet on the way).
 struct DelayPredictor {
     plant: Plant,
     /// Whole 10 ms steps the delay spans (rounded up: [`DelaySplit::cycles_to_full_effect`]).

@@ -27,10 +27,12 @@
 //!
 //! with an analytic Jacobian, white unmodelled acceleration as process noise, and `d` a
 //! random walk (`disturbance_drift_n_per_s2`; 0 keeps it at 0: the 2-state filter). With
-//! a model input delay (`input_delay_s`) `u` is the throttle applied that long ago. Each
+//! a model input delay (`input_delay_s`) `u` is the throttle applied that long ago (the
+//! model's [`jetbench_model::ThrottlePath`]). Each
 //! measurement passes a [`gate`] first: a spike (chi-square test on the innovation) or a
 //! stuck sensor (the same reading over and over) is not used, and the estimate says so.
 #![doc = include_str!("../README.md")]
+#![deny(missing_docs)]
 
 pub mod gate;
 mod observer;

@@ -4,7 +4,7 @@ use jetbench_model::{Params, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_
 use nalgebra::{Matrix3, Vector3};
 
 use crate::gate::{Gate, GateConfig, Verdict};
-use jetbench_model::{ThrottleHistory, MAX_INPUT_DELAY_S};
+use jetbench_model::{ThrottlePath, MAX_INPUT_DELAY_S};
 
 type Mat3 = Matrix3<f64>;
 type Vec3 = Vector3<f64>;
@@ -164,8 +164,8 @@ pub struct ThrustObserver {
     fallbacks: u64,
     gate: Gate,
     gated: Gated,
-    /// The throttles in flight to the engine (`None` without an input delay).
-    delayed: Option<ThrottleHistory>,
+    /// The throttle path to the engine (`None` when it leaves the throttle as applied).
+    path: Option<ThrottlePath>,
 }
 
 impl ThrustObserver {
@@ -194,7 +194,7 @@ impl ThrustObserver {
             fallbacks: 0,
             gate: Gate::default(),
             gated: Gated::default(),
-            delayed: (config.input_delay_s > 0.0).then(|| ThrottleHistory::new(config.input_delay_s)),
+            path: (config.input_delay_s > 0.0).then(|| ThrottlePath::delay_only(config.input_delay_s)),
         }
     }
 
@@ -219,7 +219,7 @@ impl ThrustObserver {
         if !throttle_pct.is_finite() {
             return Err(EstimError::NonFiniteInput { what: "throttle", value: throttle_pct });
         }
-        let engine_pct = self.delayed.as_mut().map_or(throttle_pct, |history| history.push(throttle_pct));
+        let engine_pct = self.path.as_mut().map_or(throttle_pct, |path| path.cycle_mean(throttle_pct));
         let Some((x, p)) = self.state else {
             let (x, p) = self.initial(thrust_meas_n);
             self.state = Some((x, p));
@@ -276,14 +276,24 @@ impl ThrustObserver {
         Ok(self.estimate(&x_new, &p_new, [throttle_pct, engine_pct], innovation_n, verdict))
     }
 
+    /// The observer predicting through a model's whole throttle path (input delay, rate
+    /// limit and actuator lag: [`ThrottlePath::new`] of the model's effects) instead of
+    /// the delay alone of [`ObserverConfig::input_delay_s`]: it predicts each cycle with
+    /// the mean throttle the engine follows over it ([`ThrottlePath::cycle_mean`]). A
+    /// path of a delay alone predicts exactly as that delay in the config does.
+    pub fn with_throttle_path(mut self, path: ThrottlePath) -> Self {
+        self.path = path.shapes().then_some(path);
+        self
+    }
+
     /// Forgets the estimate and the fallback count; the next step initialises again.
     pub fn reset(&mut self) {
         self.state = None;
         self.fallbacks = 0;
         self.gate = Gate::default();
         self.gated = Gated::default();
-        if let Some(history) = self.delayed.as_mut() {
-            history.clear();
+        if let Some(path) = self.path.as_mut() {
+            path.clear();
         }
     }
 
@@ -366,8 +376,15 @@ impl ThrustObserver {
 /// Counts of measurements the gate did not use ([`ThrustObserver::gated`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Gated {
+    /// Measurements rejected as implausible (a spike: the innovation failed the
+    /// chi-square test); the estimate was the prediction.
     pub rejected: u64,
+    /// Measurements ignored because the sensor repeated the same reading bit for bit
+    /// ([`GateConfig::stuck_after_samples`] times or more).
     pub stuck: u64,
+    /// Times the filter restarted at the measurement after
+    /// [`GateConfig::max_rejections`] rejections in a row (a real jump, or a bad first
+    /// sample).
     pub restarts: u64,
 }
 

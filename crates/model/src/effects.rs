@@ -466,10 +466,12 @@ impl Effects {
         self.list.iter()
     }
 
+    /// True when the model is the ten parameters alone (no effect).
     pub fn is_empty(&self) -> bool {
         self.list.is_empty()
     }
 
+    /// How many effects the model has (at most one of each kind).
     pub fn len(&self) -> usize {
         self.list.len()
     }

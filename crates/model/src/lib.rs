@@ -20,8 +20,8 @@
 //! `Ṫ` in N/s and throttle `u` in %. Identified parameter sets are only locally valid, so
 //! the [`Engine`] reports divergence as [`ModelError::Diverged`] rather than returning NaN.
 #![doc = include_str!("../README.md")]
+#![deny(missing_docs)]
 
-mod delay;
 pub mod discrepancy;
 mod effects;
 mod engine;
@@ -30,9 +30,9 @@ mod file;
 mod params;
 mod plant;
 mod preset;
+mod throttle_path;
 pub mod turbojet;
 
-pub use delay::{DelaySplit, ThrottleHistory, MAX_INPUT_DELAY_S};
 pub use effects::{Effect, EffectKind, Effects};
 pub use engine::{
     rk4_step, settling_time_s, simulate, Engine, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N,
@@ -43,6 +43,7 @@ pub use file::{resolve_model, resolve_params, ModelFile};
 pub use params::{AccelPartials, Equilibrium, Params};
 pub use plant::{Plant, PlantEngine, PlantSample};
 pub use preset::Preset;
+pub use throttle_path::{DelaySplit, ThrottlePath, Window, MAX_INPUT_DELAY_S, TICK_S};
 
 /// The period of everything on the bench, ns: the model's discretisation step, the
 /// control loop's cycle and every channel's sample interval (100 Hz, as on the original

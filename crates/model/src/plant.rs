@@ -22,15 +22,13 @@
 //! ([`SUBSTEPS`] ticks per [`STEP_S`]); the engine is integrated by classic RK4 with
 //! `substeps` steps per [`STEP_S`], each holding the throttle map `v(u)` averaged over
 //! its ticks. With the reference 10 substeps that is RK4 at 1 kHz with the throttle of
-//! each tick; with 1 substep (what a fit uses) it is within a few hundredths of a
-//! newton of it on any effect (at most 0.005 N in the tests), ten times cheaper. The sensor side
+//! each tick; with 1 substep (what a fit uses) it is within 0.01 N of it on any effect
+//! (the bound the tests hold it to), ten times cheaper. The sensor side
 //! (play band, resonance, drift bias) and the thrust history follow the engine thrust
 //! at the end of every substep, the linear states by exact first-order-hold updates.
 
-use std::collections::VecDeque;
-
-use crate::delay::DelaySplit;
 use crate::discrepancy::DiscrepancyLaw;
+use crate::throttle_path::{ThrottlePath, Window};
 use crate::{
     rk4_step, EffectKind, Effects, ModelError, Params, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S,
     SUBSTEPS,
@@ -57,12 +55,14 @@ pub struct PlantSample {
 }
 
 impl Plant {
+    /// The engine of `params` with `effects` (use [`Effects::none`] for the ten
+    /// parameters alone).
     pub fn new(params: Params, effects: Effects) -> Self {
         Self { params, effects }
     }
 
     /// A stepping simulator started at `initial` with every effect at rest for the
-    /// throttle `u0_pct` (delay line full of it, lag settled, sensor bias zero as just
+    /// throttle `u0_pct` (the [`crate::ThrottlePath`] settled at it, sensor bias zero as just
     /// after a tare, the stand at rest, the thrust history at the initial thrust),
     /// `t0_s` seconds after the start of the recording.
     pub fn engine(&self, initial: State, u0_pct: f64, t0_s: f64) -> PlantEngine {
@@ -221,8 +221,9 @@ struct Discrepancy {
 }
 
 /// The plant stepped 10 ms at a time (see the module docs; with [`SUBSTEPS`] it
-/// reproduces [`crate::Engine`] bit for bit when there is no effect).
-#[derive(Debug)]
+/// reproduces [`crate::Engine`] bit for bit when there is no effect). It holds no heap
+/// memory, so a controller may copy its model every cycle.
+#[derive(Clone, Debug)]
 pub struct PlantEngine {
     params: Params,
     state: State,
@@ -232,38 +233,20 @@ pub struct PlantEngine {
     t0_s: f64,
     steps: u64,
     failed: bool,
+    /// Input delay, rate limit and actuator lag.
+    path: ThrottlePath,
     // Effect parameters, flattened for the inner loop (None: effect absent).
-    delay_s: Option<f64>,
-    rate_limit: Option<(f64, f64)>,
-    lag_alpha: Option<f64>,
     gain_per_s: f64,
     discrepancy: Option<Discrepancy>,
     play_n: Option<f64>,
     stand: Option<Stand>,
     drift: Option<(f64, FirstOrder)>,
     // Effect states.
-    history: VecDeque<f64>,
-    rate_limited_pct: f64,
-    lagged_pct: f64,
-    engine_throttle_pct: f64,
     frame_n: f64,
     sensor_n: f64,
     sensor_rate_n_per_s: f64,
     bias_n: f64,
     history_n: f64,
-}
-
-impl Clone for PlantEngine {
-    fn clone(&self) -> Self {
-        Self { history: self.history.clone(), ..*self }
-    }
-
-    /// Reuses the throttle history's memory: a controller copies its model every cycle.
-    fn clone_from(&mut self, source: &Self) {
-        let mut history = std::mem::take(&mut self.history);
-        history.clone_from(&source.history);
-        *self = Self { history, ..*source };
-    }
 }
 
 /// The throttle map over one substep: `v(u)` and the discrepancy's hinges, averaged.
@@ -279,11 +262,9 @@ impl PlantEngine {
         let substeps = [10, 5, 2, 1].into_iter().find(|&d| d <= substeps.max(1)).unwrap_or(1);
         let ticks = SUBSTEPS / substeps;
         let h = STEP_S / substeps as f64;
-        let tick_s = STEP_S / SUBSTEPS as f64;
         let values = |kind: EffectKind| plant.effects.get(kind).map(|e| e.values());
-        let delay_s = Some(plant.effects.input_delay_s()).filter(|d| *d > 0.0);
-        // Rows the delay reaches back into, one more for a tick's average across a row boundary.
-        let history_len = delay_s.map_or(1, |d| DelaySplit::of(d).cycles_to_full_effect() + 2);
+        let mut path = ThrottlePath::new(&plant.effects);
+        path.start_at(u0_pct);
         let p = plant.params;
         Self {
             params: p,
@@ -293,12 +274,7 @@ impl PlantEngine {
             t0_s,
             steps: 0,
             failed: false,
-            delay_s,
-            rate_limit: values(EffectKind::RateLimit).map(|v| (v[0] * tick_s, v[1] * tick_s)),
-            lag_alpha: values(EffectKind::ActuatorLag)
-                .map(|v| v[0])
-                .filter(|tau| *tau > 0.0)
-                .map(|tau| 1.0 - (-tick_s / tau).exp()),
+            path,
             gain_per_s: values(EffectKind::GainDrift).map_or(0.0, |v| v[0] / 60.0),
             discrepancy: values(EffectKind::Discrepancy).map(|v| {
                 let law = DiscrepancyLaw::new(v);
@@ -312,10 +288,6 @@ impl PlantEngine {
             play_n: values(EffectKind::BearingFriction).map(|v| v[0]),
             stand: values(EffectKind::StandResonance).map(|v| Stand::new(v[0], v[1], h)),
             drift: values(EffectKind::SensorDrift).map(|v| (v[0], FirstOrder::new(v[1], h))),
-            history: std::iter::repeat_n(u0_pct, history_len).collect(),
-            rate_limited_pct: u0_pct,
-            lagged_pct: u0_pct,
-            engine_throttle_pct: u0_pct,
             frame_n: initial.thrust_n,
             sensor_n: initial.thrust_n,
             sensor_rate_n_per_s: 0.0,
@@ -358,19 +330,13 @@ impl PlantEngine {
             return Err(self.diverged(self.time_s()));
         }
         let h = STEP_S / self.substeps as f64;
-        if self.delay_s.is_some() {
-            self.history.pop_front();
-            self.history.push_back(throttle_pct);
-        }
-        let shaped = self.delay_s.is_some() || self.rate_limit.is_some() || self.lag_alpha.is_some();
+        self.path.push(throttle_pct);
+        let shaped = self.path.shapes();
         let held = if shaped { Drive::default() } else { self.drive_of(throttle_pct) };
-        if !shaped {
-            self.engine_throttle_pct = throttle_pct;
-        }
         let p = self.params;
         let (mut t, mut d) = (self.state.thrust_n, self.state.thrust_rate_n_per_s);
         for i in 0..self.substeps {
-            let mut drive = if shaped { self.shaped_drive(throttle_pct, i) } else { held };
+            let mut drive = if shaped { self.shaped_drive(i) } else { held };
             if self.gain_per_s != 0.0 {
                 let t_mid = self.t0_s + self.steps as f64 * STEP_S + (i as f64 + 0.5) * h;
                 drive.v *= 1.0 - self.gain_per_s * t_mid;
@@ -399,7 +365,7 @@ impl PlantEngine {
         Ok(PlantSample {
             state: self.state,
             measured_n: self.measured_n(),
-            engine_throttle_pct: self.engine_throttle_pct,
+            engine_throttle_pct: if shaped { self.path.followed_pct() } else { throttle_pct },
         })
     }
 
@@ -415,29 +381,25 @@ impl PlantEngine {
         }
     }
 
-    /// Runs the throttle path (delay, rate limit, lag) over the ticks of substep `i`
-    /// and averages the throttle map over them.
-    fn shaped_drive(&mut self, throttle_pct: f64, i: usize) -> Drive {
-        let tick_s = STEP_S / SUBSTEPS as f64;
-        if let (Some(delay), None, None, true) = (self.delay_s, self.rate_limit, self.lag_alpha, self.ticks > 1) {
-            return self.delayed_drive(i as f64 * self.ticks as f64 * tick_s - delay, self.ticks as f64 * tick_s);
+    /// Runs the throttle path over the ticks of substep `i` and averages the throttle
+    /// map over them (a pure delay over a substep of several ticks in closed form).
+    fn shaped_drive(&mut self, i: usize) -> Drive {
+        if self.path.is_pure_delay() && self.ticks > 1 {
+            return match self.path.window(i * self.ticks, self.ticks) {
+                Window::Held(u) => self.drive_of(u),
+                Window::Spans { early, late, early_weight: w } => {
+                    let (late, early) = (self.drive_of(late), self.drive_of(early));
+                    Drive {
+                        v: w * early.v + (1.0 - w) * late.v,
+                        below: w * early.below + (1.0 - w) * late.below,
+                        above: w * early.above + (1.0 - w) * late.above,
+                    }
+                }
+            };
         }
         let mut sum = Drive::default();
         for j in 0..self.ticks {
-            let tick = i * self.ticks + j;
-            let mut u = match self.delay_s {
-                None => throttle_pct,
-                Some(delay) => self.delayed_pct(tick as f64 * tick_s - delay, tick_s),
-            };
-            if let Some((up, down)) = self.rate_limit {
-                self.rate_limited_pct += (u - self.rate_limited_pct).clamp(-down, up);
-                u = self.rate_limited_pct;
-            }
-            if let Some(alpha) = self.lag_alpha {
-                self.lagged_pct += (u - self.lagged_pct) * alpha;
-                u = self.lagged_pct;
-            }
-            self.engine_throttle_pct = u;
+            let u = self.path.tick(i * self.ticks + j);
             let drive = self.drive_of(u);
             if self.ticks == 1 {
                 return drive;
@@ -448,28 +410,6 @@ impl PlantEngine {
         }
         let n = self.ticks as f64;
         Drive { v: sum.v / n, below: sum.below / n, above: sum.above / n }
-    }
-
-    /// The throttle map averaged over `[from_s, from_s + h]` of the commanded throttle,
-    /// times relative to the start of the current row: what a pure delay gives a
-    /// substep, in closed form (the rows are held, so at most two share the window).
-    fn delayed_drive(&mut self, from_s: f64, h: f64) -> Drive {
-        let n = self.history.len() as i64;
-        let row = |j: i64| self.history[(n - 1 + j.clamp(1 - n, 0)) as usize];
-        let first = (from_s / STEP_S + 1e-9).floor() as i64;
-        let last = ((from_s + h) / STEP_S - 1e-9).floor() as i64;
-        let late = self.drive_of(row(last));
-        self.engine_throttle_pct = row(last);
-        if last <= first {
-            return late;
-        }
-        let w = (((first + 1) as f64 * STEP_S - from_s) / h).clamp(0.0, 1.0);
-        let early = self.drive_of(row(first));
-        Drive {
-            v: w * early.v + (1.0 - w) * late.v,
-            below: w * early.below + (1.0 - w) * late.below,
-            above: w * early.above + (1.0 - w) * late.above,
-        }
     }
 
     /// The sensor side and the thrust history, after the engine moved from `t0` to `t1`
@@ -489,24 +429,6 @@ impl PlantEngine {
         }
         if let Some(disc) = self.discrepancy {
             self.history_n = disc.history.advance(self.history_n, t0, t1);
-        }
-    }
-
-    /// The commanded throttle averaged over `[from_s, from_s + h]`, times relative to
-    /// the start of the current row (negative: earlier rows). Averaging over the
-    /// tick makes the response a smooth function of the delay, which a fit needs.
-    fn delayed_pct(&self, from_s: f64, h: f64) -> f64 {
-        let n = self.history.len() as i64;
-        let row = |j: i64| self.history[(n - 1 + j.clamp(1 - n, 0)) as usize];
-        // Row holding the end of the interval (a tolerance keeps an end exactly on a
-        // row boundary in the earlier row).
-        let j_end = ((from_s + h) / STEP_S - 1e-9).floor().min(0.0) as i64;
-        let boundary_s = j_end as f64 * STEP_S;
-        if from_s < boundary_s {
-            let w = ((boundary_s - from_s) / h).min(1.0);
-            w * row(j_end - 1) + (1.0 - w) * row(j_end)
-        } else {
-            row(j_end)
         }
     }
 
