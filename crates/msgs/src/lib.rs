@@ -314,9 +314,14 @@ sample! {
         pub egt_c: f64,
         pub pump_v: f64,
         pub throttle_pct: f64,
-        /// ECU state code as reported.
+        /// ECU state code as reported (JetCat's RS232 number, [`ecu_states`]).
         pub state: u32,
         pub flags: u32,
+        /// Why the engine last stopped (JetCat's RS232 number, [`off_conditions`]),
+        /// read with `RSS` whenever the ECU is not in run; 0 until then.
+        pub off_condition: u32,
+        /// Commands (start, stop) the ECU refused so far.
+        pub refused: u32,
     }
 }
 
@@ -392,10 +397,70 @@ sample! {
         /// Who: the publishing service ([`ServiceId`]) or, for an operator
         /// command, the id of the client that sent it.
         pub source_id: u32,
-        /// What came before: the previous ECU state; 0 otherwise.
+        /// What came before or why: the previous ECU state of an `ECU_STATE`
+        /// event, the reason of a `COMMAND_REFUSED` ([`refusals`]), the limit or
+        /// off condition behind a `TEST_ENDED`; 0 otherwise.
         pub previous: i32,
+        /// For an operator command, where it came from ([`origins`]); 0 otherwise.
+        pub origin: u32,
+        /// For an operator command, the authority its gateway vouched for ([`authorities`]).
+        pub authority: u32,
+        /// For an operator command, who sent it (UTF-8, NUL-padded: a certificate's
+        /// common name, `local:<user>`); else the publishing service's name.
+        pub identity: [u8; IDENTITY_LEN],
     }
     constants = EVENT_CONSTANTS
+}
+
+sample! {
+    /// An operator's command to the bench (`bench/operator`): from this machine's
+    /// command line or from a gateway of the control room, which authenticated
+    /// the sender and says so in `authority`. The control service is its only
+    /// consumer and decides; it answers each with a `COMMAND_ACCEPTED` or
+    /// `COMMAND_REFUSED` event on `bench/events` naming the sender.
+    #[type_name("jetbench_msgs/msg/OperatorCommand")]
+    pub struct OperatorCommand {
+        pub seq: u64,
+        /// When the operator gave it (monotonic, ns).
+        pub stamp_ns: u64,
+        pub publish_ns: u64,
+        /// The command's argument: the reference in N (`SET_REFERENCE`), the
+        /// profile index (`RUN_PROFILE`), the throttle in % (`HOLD`); else 0.
+        pub value: f64,
+        /// What to do: one of [`operator_commands`].
+        pub command: i32,
+        /// Where it came from: one of [`origins`].
+        pub origin: u32,
+        /// The gateway's id for the client (0 for a local command).
+        pub client_id: u32,
+        /// What the gateway that authenticated the sender vouches for: one of
+        /// [`authorities`]. Commands given on the bench PC itself are `OPERATOR`.
+        pub authority: u32,
+        /// Who sent it (UTF-8, NUL-padded): the certificate's common name,
+        /// `local:<user>`, ...
+        pub identity: [u8; IDENTITY_LEN],
+    }
+    constants = OPERATOR_CONSTANTS
+}
+
+/// Bytes of the `identity` of [`OperatorCommand`] and [`Event`].
+pub const IDENTITY_LEN: usize = 32;
+
+/// `text` as a NUL-padded identity, cut at a character boundary to fit.
+pub fn identity(text: &str) -> [u8; IDENTITY_LEN] {
+    let mut out = [0u8; IDENTITY_LEN];
+    let mut end = text.len().min(IDENTITY_LEN);
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    out[..end].copy_from_slice(&text.as_bytes()[..end]);
+    out
+}
+
+/// The text of a NUL-padded identity (invalid UTF-8 replaced, never a panic).
+pub fn identity_text(bytes: &[u8; IDENTITY_LEN]) -> String {
+    let end = bytes.iter().position(|b| *b == 0).unwrap_or(IDENTITY_LEN);
+    String::from_utf8_lossy(&bytes[..end]).into_owned()
 }
 
 /// Kinds of [`Event`].
@@ -412,6 +477,36 @@ pub mod event_kinds {
     pub const COMMAND_ACCEPTED: u32 = 5;
     /// An operator command was refused (not authorised, or not possible now).
     pub const COMMAND_REFUSED: u32 = 6;
+    /// The test is over and the engine is being brought down: `code` is why
+    /// ([`super::end_reasons`]); for a trip `previous` names the limit, for a
+    /// shutdown the ECU made `previous` is its off condition.
+    pub const TEST_ENDED: u32 = 7;
+}
+
+/// Why an operator command was refused (`previous` of a `COMMAND_REFUSED` event).
+pub mod refusals {
+    /// It could raise the throttle, and its sender is not an authenticated operator.
+    pub const NOT_AUTHORISED: i32 = 1;
+    /// Not possible in the engine's state (e.g. a start while the ECU is not in standby).
+    pub const NOT_NOW: i32 = 2;
+    /// The test has ended: the engine is being brought down.
+    pub const TEST_ENDED: i32 = 3;
+    /// Its value is out of range (a profile index, a reference, a throttle).
+    pub const BAD_VALUE: i32 = 4;
+    /// A command code this bench does not know.
+    pub const UNKNOWN: i32 = 5;
+    /// Trips are latched: clear them first.
+    pub const TRIPPED: i32 = 6;
+}
+
+/// Why a test ended ([`event_kinds::TEST_ENDED`]'s code).
+pub mod end_reasons {
+    /// An operator stopped it (`STOP` or `STOP_NOW`).
+    pub const OPERATOR: i32 = 1;
+    /// The ECU left run on its own (`previous` is its off condition).
+    pub const ECU_SHUTDOWN: i32 = 2;
+    /// A limit whose response is `shutdown` tripped (`previous` is the limit).
+    pub const TRIP: i32 = 3;
 }
 
 /// Limits a trip names (the `[limits]` of the bench config).
@@ -426,14 +521,74 @@ pub mod trip_limits {
     pub const SENSOR_SILENT: i32 = 8;
 }
 
-/// Operator commands.
+/// Operator commands ([`OperatorCommand`]'s `command`).
+///
+/// Safe commands (`HOLD` at or below the current throttle, `IDLE`, `STOP`,
+/// `STOP_NOW`, `HEARTBEAT`, `RELEASE_CONTROL`) are accepted from any authority;
+/// the ones that can raise the throttle (`START`, `RUN_PROFILE`, `SET_REFERENCE`
+/// above the current, `CLEAR_TRIPS`, `TAKE_CONTROL`, `HANDOVER`) only from
+/// [`authorities::OPERATOR`].
 pub mod operator_commands {
+    /// Start the engine through the ECU.
     pub const START: i32 = 1;
     /// Idle, then shut down through the ECU with its cool-down.
     pub const STOP: i32 = 2;
-    /// Shut down at once.
+    /// Shut down at once (the emergency stop).
     pub const STOP_NOW: i32 = 3;
+    /// Clear the latched trips.
     pub const CLEAR_TRIPS: i32 = 4;
+    /// Hold at or below the current throttle (`value`, %; 0 = the current).
+    pub const HOLD: i32 = 5;
+    /// Go to idle and stay there.
+    pub const IDLE: i32 = 6;
+    /// Run a profile: `value` is its index in `jetbench_control::BUILTIN_PROFILES`
+    /// (0 steps, 1 ramps, 2 sines, 3 chirp, 4 campaign), scaled to the model's
+    /// thrust range; -1 is the bench config's own `[reference]`.
+    pub const RUN_PROFILE: i32 = 7;
+    /// Track a constant reference: `value` in N.
+    pub const SET_REFERENCE: i32 = 8;
+    pub const TAKE_CONTROL: i32 = 9;
+    pub const RELEASE_CONTROL: i32 = 10;
+    pub const HANDOVER: i32 = 11;
+    pub const HEARTBEAT: i32 = 12;
+
+    /// The command's name (`STOP_NOW`), or `None` for an unknown code.
+    pub fn name(code: i32) -> Option<&'static str> {
+        Some(match code {
+            START => "START",
+            STOP => "STOP",
+            STOP_NOW => "STOP_NOW",
+            CLEAR_TRIPS => "CLEAR_TRIPS",
+            HOLD => "HOLD",
+            IDLE => "IDLE",
+            RUN_PROFILE => "RUN_PROFILE",
+            SET_REFERENCE => "SET_REFERENCE",
+            TAKE_CONTROL => "TAKE_CONTROL",
+            RELEASE_CONTROL => "RELEASE_CONTROL",
+            HANDOVER => "HANDOVER",
+            HEARTBEAT => "HEARTBEAT",
+            _ => return None,
+        })
+    }
+}
+
+/// Where an [`OperatorCommand`] came from.
+pub mod origins {
+    /// The bench PC's own command line (`jetbench stop`, Ctrl-C in `jetbench up`).
+    pub const LOCAL: u32 = 1;
+    /// The Zenoh gateway to the control room.
+    pub const ZENOH: u32 = 2;
+    /// The Foxglove live view's gateway.
+    pub const FOXGLOVE: u32 = 3;
+}
+
+/// The authority a gateway vouches for in an [`OperatorCommand`].
+pub mod authorities {
+    /// Anyone: only safe commands are accepted.
+    pub const ANYONE: u32 = 0;
+    /// An operator: authenticated by a trusted client certificate or token, or
+    /// on the bench PC itself.
+    pub const OPERATOR: u32 = 1;
 }
 
 /// The ECU states by JetCat's RS232 number (the state field of `bench/ecu`
@@ -501,6 +656,16 @@ pub const EVENT_CONSTANTS: &[SchemaConstant] = constants![
     event_kinds::SHUTDOWN as "KIND_": "uint32",
     event_kinds::COMMAND_ACCEPTED as "KIND_": "uint32",
     event_kinds::COMMAND_REFUSED as "KIND_": "uint32",
+    event_kinds::TEST_ENDED as "KIND_": "uint32",
+    end_reasons::OPERATOR as "END_": "int32",
+    end_reasons::ECU_SHUTDOWN as "END_": "int32",
+    end_reasons::TRIP as "END_": "int32",
+    refusals::NOT_AUTHORISED as "REFUSED_": "int32",
+    refusals::NOT_NOW as "REFUSED_": "int32",
+    refusals::TEST_ENDED as "REFUSED_": "int32",
+    refusals::BAD_VALUE as "REFUSED_": "int32",
+    refusals::UNKNOWN as "REFUSED_": "int32",
+    refusals::TRIPPED as "REFUSED_": "int32",
     trip_limits::MAX_THRUST as "LIMIT_": "int32",
     trip_limits::MAX_EGT as "LIMIT_": "int32",
     trip_limits::MAX_EGT_RISE as "LIMIT_": "int32",
@@ -513,6 +678,19 @@ pub const EVENT_CONSTANTS: &[SchemaConstant] = constants![
     operator_commands::STOP as "COMMAND_": "int32",
     operator_commands::STOP_NOW as "COMMAND_": "int32",
     operator_commands::CLEAR_TRIPS as "COMMAND_": "int32",
+    operator_commands::HOLD as "COMMAND_": "int32",
+    operator_commands::IDLE as "COMMAND_": "int32",
+    operator_commands::RUN_PROFILE as "COMMAND_": "int32",
+    operator_commands::SET_REFERENCE as "COMMAND_": "int32",
+    operator_commands::TAKE_CONTROL as "COMMAND_": "int32",
+    operator_commands::RELEASE_CONTROL as "COMMAND_": "int32",
+    operator_commands::HANDOVER as "COMMAND_": "int32",
+    operator_commands::HEARTBEAT as "COMMAND_": "int32",
+    origins::LOCAL as "ORIGIN_": "uint32",
+    origins::ZENOH as "ORIGIN_": "uint32",
+    origins::FOXGLOVE as "ORIGIN_": "uint32",
+    authorities::ANYONE as "AUTHORITY_": "uint32",
+    authorities::OPERATOR as "AUTHORITY_": "uint32",
     ecu_states::OFF as "ECU_": "int32",
     ecu_states::STANDBY as "ECU_": "int32",
     ecu_states::IGNITE as "ECU_": "int32",
@@ -553,6 +731,27 @@ pub const EVENT_CONSTANTS: &[SchemaConstant] = constants![
     off_conditions::SECOND_ENGINE_FAIL as "OFF_": "int32",
     off_conditions::SECOND_ENGINE_DIFFERENCE as "OFF_": "int32",
     off_conditions::SECOND_ENGINE_SILENT as "OFF_": "int32",
+];
+
+/// The named codes in [`OperatorCommand`]'s schema (`COMMAND_`, `ORIGIN_`, `AUTHORITY_`).
+pub const OPERATOR_CONSTANTS: &[SchemaConstant] = constants![
+    operator_commands::START as "COMMAND_": "int32",
+    operator_commands::STOP as "COMMAND_": "int32",
+    operator_commands::STOP_NOW as "COMMAND_": "int32",
+    operator_commands::CLEAR_TRIPS as "COMMAND_": "int32",
+    operator_commands::HOLD as "COMMAND_": "int32",
+    operator_commands::IDLE as "COMMAND_": "int32",
+    operator_commands::RUN_PROFILE as "COMMAND_": "int32",
+    operator_commands::SET_REFERENCE as "COMMAND_": "int32",
+    operator_commands::TAKE_CONTROL as "COMMAND_": "int32",
+    operator_commands::RELEASE_CONTROL as "COMMAND_": "int32",
+    operator_commands::HANDOVER as "COMMAND_": "int32",
+    operator_commands::HEARTBEAT as "COMMAND_": "int32",
+    origins::LOCAL as "ORIGIN_": "uint32",
+    origins::ZENOH as "ORIGIN_": "uint32",
+    origins::FOXGLOVE as "ORIGIN_": "uint32",
+    authorities::ANYONE as "AUTHORITY_": "uint32",
+    authorities::OPERATOR as "AUTHORITY_": "uint32",
 ];
 
 /// Sensor status bits, as in the CAN protocol (byte 7).
@@ -608,6 +807,13 @@ pub mod command_flags {
     /// The configured law failed this cycle (an MPC solve that did not converge in
     /// time); feedback linearisation computed the command instead.
     pub const FALLBACK: u64 = 1 << 2;
+    /// The throttle is held at idle (or below a hold) whatever the law asked:
+    /// the ECU is not in run, a trip is latched, or an operator said idle or hold.
+    pub const GATED: u64 = 1 << 3;
+    /// Control asks actuation to start the engine through the ECU.
+    pub const ECU_START: u64 = 1 << 4;
+    /// Control asks actuation to shut the engine down through the ECU.
+    pub const ECU_STOP: u64 = 1 << 5;
 }
 
 /// Flags of [`Actuation`](crate::Actuation).
@@ -745,6 +951,9 @@ pub mod channels {
     /// Trips, ECU state changes, shutdowns, operator commands: published by
     /// several services (control, actuation, the launcher), so room for each.
     pub const EVENTS: Channel<Event> = Channel::with_publishers("bench/events", ServiceId::ALL.len() + 2);
+    /// Operator commands: from the command line (one short-lived process per
+    /// command) and the control room's gateways; the control service consumes them.
+    pub const OPERATOR: Channel<OperatorCommand> = Channel::with_publishers("bench/operator", 8);
 }
 
 /// Calls a generic visitor once per channel with its static type.
@@ -766,6 +975,7 @@ pub fn visit_channels<V: ChannelVisitor>(visitor: &mut V) {
     visitor.visit(ECU);
     visitor.visit(HEALTH);
     visitor.visit(EVENTS);
+    visitor.visit(OPERATOR);
     visitor.visit(SIM_TRUTH);
 }
 
