@@ -394,8 +394,66 @@ sample! {
         pub source_id: u32,
         /// What came before: the previous ECU state; 0 otherwise.
         pub previous: i32,
+        /// For an operator command, where it came from ([`origins`]); 0 otherwise.
+        pub origin: u32,
+        /// For an operator command, the authority its gateway vouched for ([`authorities`]).
+        pub authority: u32,
+        /// For an operator command, who sent it (UTF-8, NUL-padded: a certificate's
+        /// common name, `local:<user>`); else the publishing service's name.
+        pub identity: [u8; IDENTITY_LEN],
     }
     constants = EVENT_CONSTANTS
+}
+
+sample! {
+    /// An operator's command to the bench (`bench/operator`): from this machine's
+    /// command line or from a gateway of the control room, which authenticated
+    /// the sender and says so in `authority`. The control service is its only
+    /// consumer and decides; it answers each with a `COMMAND_ACCEPTED` or
+    /// `COMMAND_REFUSED` event on `bench/events` naming the sender.
+    #[type_name("jetbench_msgs/msg/OperatorCommand")]
+    pub struct OperatorCommand {
+        pub seq: u64,
+        /// When the operator gave it (monotonic, ns).
+        pub stamp_ns: u64,
+        pub publish_ns: u64,
+        /// The command's argument: the reference in N (`SET_REFERENCE`), the
+        /// profile index (`RUN_PROFILE`), the throttle in % (`HOLD`); else 0.
+        pub value: f64,
+        /// What to do: one of [`operator_commands`].
+        pub command: i32,
+        /// Where it came from: one of [`origins`].
+        pub origin: u32,
+        /// The gateway's id for the client (0 for a local command).
+        pub client_id: u32,
+        /// What the gateway that authenticated the sender vouches for: one of
+        /// [`authorities`]. Commands given on the bench PC itself are `OPERATOR`.
+        pub authority: u32,
+        /// Who sent it (UTF-8, NUL-padded): the certificate's common name,
+        /// `local:<user>`, ...
+        pub identity: [u8; IDENTITY_LEN],
+    }
+    constants = OPERATOR_CONSTANTS
+}
+
+/// Bytes of the `identity` of [`OperatorCommand`] and [`Event`].
+pub const IDENTITY_LEN: usize = 32;
+
+/// `text` as a NUL-padded identity, cut at a character boundary to fit.
+pub fn identity(text: &str) -> [u8; IDENTITY_LEN] {
+    let mut out = [0u8; IDENTITY_LEN];
+    let mut end = text.len().min(IDENTITY_LEN);
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    out[..end].copy_from_slice(&text.as_bytes()[..end]);
+    out
+}
+
+/// The text of a NUL-padded identity (invalid UTF-8 replaced, never a panic).
+pub fn identity_text(bytes: &[u8; IDENTITY_LEN]) -> String {
+    let end = bytes.iter().position(|b| *b == 0).unwrap_or(IDENTITY_LEN);
+    String::from_utf8_lossy(&bytes[..end]).into_owned()
 }
 
 /// Kinds of [`Event`].
@@ -426,14 +484,72 @@ pub mod trip_limits {
     pub const SENSOR_SILENT: i32 = 8;
 }
 
-/// Operator commands.
+/// Operator commands ([`OperatorCommand`]'s `command`).
+///
+/// Safe commands (`HOLD` at or below the current throttle, `IDLE`, `STOP`,
+/// `STOP_NOW`, `HEARTBEAT`, `RELEASE_CONTROL`) are accepted from any authority;
+/// the ones that can raise the throttle (`START`, `RUN_PROFILE`, `SET_REFERENCE`
+/// above the current, `CLEAR_TRIPS`, `TAKE_CONTROL`, `HANDOVER`) only from
+/// [`authorities::OPERATOR`].
 pub mod operator_commands {
+    /// Start the engine through the ECU.
     pub const START: i32 = 1;
     /// Idle, then shut down through the ECU with its cool-down.
     pub const STOP: i32 = 2;
-    /// Shut down at once.
+    /// Shut down at once (the emergency stop).
     pub const STOP_NOW: i32 = 3;
+    /// Clear the latched trips.
     pub const CLEAR_TRIPS: i32 = 4;
+    /// Hold at or below the current throttle (`value`, %; 0 = the current).
+    pub const HOLD: i32 = 5;
+    /// Go to idle and stay there.
+    pub const IDLE: i32 = 6;
+    /// Run a profile: `value` is its index (see `jetbench_control::profile`).
+    pub const RUN_PROFILE: i32 = 7;
+    /// Track a constant reference: `value` in N.
+    pub const SET_REFERENCE: i32 = 8;
+    pub const TAKE_CONTROL: i32 = 9;
+    pub const RELEASE_CONTROL: i32 = 10;
+    pub const HANDOVER: i32 = 11;
+    pub const HEARTBEAT: i32 = 12;
+
+    /// The command's name (`STOP_NOW`), or `None` for an unknown code.
+    pub fn name(code: i32) -> Option<&'static str> {
+        Some(match code {
+            START => "START",
+            STOP => "STOP",
+            STOP_NOW => "STOP_NOW",
+            CLEAR_TRIPS => "CLEAR_TRIPS",
+            HOLD => "HOLD",
+            IDLE => "IDLE",
+            RUN_PROFILE => "RUN_PROFILE",
+            SET_REFERENCE => "SET_REFERENCE",
+            TAKE_CONTROL => "TAKE_CONTROL",
+            RELEASE_CONTROL => "RELEASE_CONTROL",
+            HANDOVER => "HANDOVER",
+            HEARTBEAT => "HEARTBEAT",
+            _ => return None,
+        })
+    }
+}
+
+/// Where an [`OperatorCommand`] came from.
+pub mod origins {
+    /// The bench PC's own command line (`jetbench stop`, Ctrl-C in `jetbench up`).
+    pub const LOCAL: u32 = 1;
+    /// The Zenoh gateway to the control room.
+    pub const ZENOH: u32 = 2;
+    /// The Foxglove live view's gateway.
+    pub const FOXGLOVE: u32 = 3;
+}
+
+/// The authority a gateway vouches for in an [`OperatorCommand`].
+pub mod authorities {
+    /// Anyone: only safe commands are accepted.
+    pub const ANYONE: u32 = 0;
+    /// An operator: authenticated by a trusted client certificate or token, or
+    /// on the bench PC itself.
+    pub const OPERATOR: u32 = 1;
 }
 
 /// The ECU states by JetCat's RS232 number (the state field of `bench/ecu`
@@ -513,6 +629,19 @@ pub const EVENT_CONSTANTS: &[SchemaConstant] = constants![
     operator_commands::STOP as "COMMAND_": "int32",
     operator_commands::STOP_NOW as "COMMAND_": "int32",
     operator_commands::CLEAR_TRIPS as "COMMAND_": "int32",
+    operator_commands::HOLD as "COMMAND_": "int32",
+    operator_commands::IDLE as "COMMAND_": "int32",
+    operator_commands::RUN_PROFILE as "COMMAND_": "int32",
+    operator_commands::SET_REFERENCE as "COMMAND_": "int32",
+    operator_commands::TAKE_CONTROL as "COMMAND_": "int32",
+    operator_commands::RELEASE_CONTROL as "COMMAND_": "int32",
+    operator_commands::HANDOVER as "COMMAND_": "int32",
+    operator_commands::HEARTBEAT as "COMMAND_": "int32",
+    origins::LOCAL as "ORIGIN_": "uint32",
+    origins::ZENOH as "ORIGIN_": "uint32",
+    origins::FOXGLOVE as "ORIGIN_": "uint32",
+    authorities::ANYONE as "AUTHORITY_": "uint32",
+    authorities::OPERATOR as "AUTHORITY_": "uint32",
     ecu_states::OFF as "ECU_": "int32",
     ecu_states::STANDBY as "ECU_": "int32",
     ecu_states::IGNITE as "ECU_": "int32",
@@ -553,6 +682,27 @@ pub const EVENT_CONSTANTS: &[SchemaConstant] = constants![
     off_conditions::SECOND_ENGINE_FAIL as "OFF_": "int32",
     off_conditions::SECOND_ENGINE_DIFFERENCE as "OFF_": "int32",
     off_conditions::SECOND_ENGINE_SILENT as "OFF_": "int32",
+];
+
+/// The named codes in [`OperatorCommand`]'s schema (`COMMAND_`, `ORIGIN_`, `AUTHORITY_`).
+pub const OPERATOR_CONSTANTS: &[SchemaConstant] = constants![
+    operator_commands::START as "COMMAND_": "int32",
+    operator_commands::STOP as "COMMAND_": "int32",
+    operator_commands::STOP_NOW as "COMMAND_": "int32",
+    operator_commands::CLEAR_TRIPS as "COMMAND_": "int32",
+    operator_commands::HOLD as "COMMAND_": "int32",
+    operator_commands::IDLE as "COMMAND_": "int32",
+    operator_commands::RUN_PROFILE as "COMMAND_": "int32",
+    operator_commands::SET_REFERENCE as "COMMAND_": "int32",
+    operator_commands::TAKE_CONTROL as "COMMAND_": "int32",
+    operator_commands::RELEASE_CONTROL as "COMMAND_": "int32",
+    operator_commands::HANDOVER as "COMMAND_": "int32",
+    operator_commands::HEARTBEAT as "COMMAND_": "int32",
+    origins::LOCAL as "ORIGIN_": "uint32",
+    origins::ZENOH as "ORIGIN_": "uint32",
+    origins::FOXGLOVE as "ORIGIN_": "uint32",
+    authorities::ANYONE as "AUTHORITY_": "uint32",
+    authorities::OPERATOR as "AUTHORITY_": "uint32",
 ];
 
 /// Sensor status bits, as in the CAN protocol (byte 7).
@@ -745,6 +895,9 @@ pub mod channels {
     /// Trips, ECU state changes, shutdowns, operator commands: published by
     /// several services (control, actuation, the launcher), so room for each.
     pub const EVENTS: Channel<Event> = Channel::with_publishers("bench/events", ServiceId::ALL.len() + 2);
+    /// Operator commands: from the command line (one short-lived process per
+    /// command) and the control room's gateways; the control service consumes them.
+    pub const OPERATOR: Channel<OperatorCommand> = Channel::with_publishers("bench/operator", 8);
 }
 
 /// Calls a generic visitor once per channel with its static type.
@@ -766,6 +919,7 @@ pub fn visit_channels<V: ChannelVisitor>(visitor: &mut V) {
     visitor.visit(ECU);
     visitor.visit(HEALTH);
     visitor.visit(EVENTS);
+    visitor.visit(OPERATOR);
     visitor.visit(SIM_TRUTH);
 }
 

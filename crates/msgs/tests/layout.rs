@@ -134,9 +134,9 @@ fn a_non_finite_field_is_found_by_name() {
 }
 
 #[test]
-fn the_event_schema_names_its_codes_and_is_56_bytes() {
+fn the_event_schema_names_its_codes_and_is_96_bytes() {
     use jetbench_msgs::{channels, event_kinds, Event};
-    assert_eq!(std::mem::size_of::<Event>(), 56);
+    assert_eq!(std::mem::size_of::<Event>(), 96);
     assert_eq!(channels::EVENTS.name, "bench/events");
     assert!(channel_names().contains(&"bench/events"));
     let text = Event::schema_text();
@@ -152,4 +152,41 @@ fn the_event_schema_names_its_codes_and_is_56_bytes() {
     names.sort_unstable();
     names.dedup();
     assert_eq!(names.len(), n);
+}
+
+#[test]
+fn the_operator_command_is_80_bytes_with_named_codes_and_an_identity() {
+    use jetbench_msgs::{authorities, channels, identity, identity_text, operator_commands, origins, OperatorCommand};
+    assert_eq!(std::mem::size_of::<OperatorCommand>(), 80);
+    assert_eq!(channels::OPERATOR.name, "bench/operator");
+    assert!(channel_names().contains(&"bench/operator"));
+    let text = OperatorCommand::schema_text();
+    for line in [
+        "uint8[32] identity",
+        "int32 COMMAND_STOP_NOW=3",
+        "int32 COMMAND_HEARTBEAT=12",
+        "uint32 ORIGIN_LOCAL=1",
+        "uint32 ORIGIN_FOXGLOVE=3",
+        "uint32 AUTHORITY_OPERATOR=1",
+    ] {
+        assert!(text.contains(line), "{line} in\n{text}");
+    }
+    assert_eq!(parse_schema(&text).unwrap().len(), OperatorCommand::FIELDS.len());
+    assert!(jetbench_msgs::Event::schema_text().contains("int32 COMMAND_RUN_PROFILE=7"));
+    assert_eq!(origins::LOCAL, 1);
+    assert_eq!(authorities::ANYONE, 0);
+    assert_eq!(operator_commands::name(operator_commands::CLEAR_TRIPS), Some("CLEAR_TRIPS"));
+    assert_eq!(operator_commands::name(99), None);
+
+    // Identities round-trip, and a long one is cut at a character boundary.
+    let c = OperatorCommand { identity: identity("local:ana"), ..Default::default() };
+    assert_eq!(identity_text(&c.identity), "local:ana");
+    let long = "é".repeat(20); // 40 bytes
+    let cut = identity_text(&identity(&long));
+    assert_eq!(cut, "é".repeat(16));
+    let mut garbage = [0xffu8; 32];
+    garbage[3] = 0;
+    assert_eq!(identity_text(&garbage).chars().count(), 3);
+    let bytes = c.as_bytes().to_vec();
+    assert_eq!(OperatorCommand::from_bytes(&bytes), Some(c));
 }
