@@ -34,6 +34,7 @@ mod fbl;
 mod law;
 mod metrics;
 mod mpc;
+pub mod operator;
 mod profile;
 pub mod recorded;
 mod shaper;
