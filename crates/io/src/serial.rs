@@ -37,7 +37,7 @@ use jetbench_msgs::{ecu_flags, EcuTelemetry};
 use serialport::{SerialPort, TTYPort};
 
 use crate::board::{self, board_flags, BoardStatus, Deframer, Frame, Throttle};
-use crate::ecu::{self, EcuCounters, LineDecoder};
+use crate::ecu::{self, EcuCounters, EcuReply, LineDecoder, PcCommand};
 use crate::{Acknowledgement, DeviceError, ThrottleOutput};
 
 /// How long a write waits for the board's acknowledgement before the cycle
@@ -486,6 +486,7 @@ impl ThrottleOutput for ThrottleBoard {
 /// [`SILENT_AFTER`]th unanswered poll on, when the port is also reopened).
 pub struct EcuPoller {
     samples: Receiver<EcuTelemetry>,
+    commands: Sender<PcCommand>,
     shared: Arc<Mutex<EcuShared>>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
@@ -511,6 +512,7 @@ impl EcuPoller {
             return Err(DeviceError::InvalidValue { device: describe, reason: format!("poll rate {poll_hz} Hz") });
         }
         let (tx, rx) = crossbeam_channel::bounded(256);
+        let (commands, command_rx) = crossbeam_channel::bounded(16);
         let shared = Arc::new(Mutex::new(EcuShared::default()));
         let stop = Arc::new(AtomicBool::new(false));
         let worker = EcuWorker {
@@ -519,6 +521,7 @@ impl EcuPoller {
             period_ns: (1e9 / poll_hz) as u64,
             clock,
             tx,
+            commands: command_rx,
             shared: shared.clone(),
             stop: stop.clone(),
         };
@@ -526,7 +529,14 @@ impl EcuPoller {
             .name("ecu-poller".into())
             .spawn(move || worker.run())
             .map_err(|e| DeviceError::Io { device: describe.clone(), reason: format!("cannot start thread: {e}") })?;
-        Ok(EcuPoller { samples: rx, shared, stop, thread: Some(thread), describe })
+        Ok(EcuPoller { samples: rx, commands, shared, stop, thread: Some(thread), describe })
+    }
+
+    /// Sends `command` (start, stop, throttle) before the next poll; its
+    /// acknowledgement or refusal is counted, a refusal in the next samples'
+    /// `refused`. False when the queue is full (the caller asks again later).
+    pub fn send(&self, command: PcCommand) -> bool {
+        self.commands.try_send(command).is_ok()
     }
 
     /// The samples polled since the last call, oldest first; never blocks.
@@ -565,6 +575,7 @@ struct EcuWorker {
     period_ns: u64,
     clock: fn() -> u64,
     tx: Sender<EcuTelemetry>,
+    commands: Receiver<PcCommand>,
     shared: Arc<Mutex<EcuShared>>,
     stop: Arc<AtomicBool>,
 }
@@ -581,6 +592,8 @@ impl EcuWorker {
         let mut decoder = LineDecoder::new();
         let mut last = EcuTelemetry::default();
         let mut missed: u32 = 0;
+        let mut off_condition: u32 = 0;
+        let mut refused: u32 = 0;
         let mut next_ns = (self.clock)();
         let mut buf = [0u8; 256];
         while !self.stop.load(Ordering::Relaxed) {
@@ -602,13 +615,34 @@ impl EcuWorker {
             // Answer window: most of the period, leaving time to publish.
             let answer_by_ns = poll_ns + self.period_ns * 9 / 10;
             let mut reading = None;
+            // Commands first (their echo and acknowledgement come before the
+            // poll's reply), then the poll.
+            let mut lines: Vec<u8> = self.commands.try_iter().flat_map(|c| c.encode().into_bytes()).collect();
+            lines.extend_from_slice(ecu::POLL);
+            let mut status = None;
+            let mut asked_status = false;
             if let Some(p) = port.as_mut() {
-                if let Err(e) = p.write_all(ecu::POLL) {
+                if let Err(e) = p.write_all(&lines) {
                     self.update(|s| s.link_error = Some(format!("write failed: {e}")));
                     port = None;
                 }
             }
-            while let (Some(p), None) = (port.as_mut(), reading) {
+            loop {
+                // Not in run: the off condition too (`RSS`), once the reading is in.
+                let want_status = reading.is_some_and(|(r, _): (ecu::EcuReading, u64)| {
+                    r.state != u32::from(crate::ecu::state::EcuState::Run.code())
+                });
+                if want_status && !asked_status {
+                    asked_status = true;
+                    if let Some(p) = port.as_mut() {
+                        if let Err(e) = p.write_all(ecu::STATUS_POLL) {
+                            self.update(|s| s.link_error = Some(format!("write failed: {e}")));
+                            port = None;
+                        }
+                    }
+                }
+                let done = reading.is_some() && (!want_status || status.is_some());
+                let Some(p) = port.as_mut().filter(|_| !done) else { break };
                 let left_ns = answer_by_ns.saturating_sub((self.clock)());
                 if left_ns == 0 || self.stop.load(Ordering::Relaxed) {
                     break;
@@ -618,7 +652,12 @@ impl EcuWorker {
                     Ok(0) => port = None,
                     Ok(n) => {
                         let received_ns = (self.clock)();
-                        decoder.push(&buf[..n], |r| reading = Some((r, received_ns)));
+                        decoder.push_replies(&buf[..n], |reply| match reply {
+                            EcuReply::Actual(r) => reading = Some((r, received_ns)),
+                            EcuReply::Status { off_condition } => status = Some(off_condition),
+                            EcuReply::Refused(_) => refused = refused.saturating_add(1),
+                            EcuReply::Ack => {}
+                        });
                     }
                     Err(e)
                         if matches!(e.kind(), ErrorKind::TimedOut | ErrorKind::Interrupted | ErrorKind::WouldBlock) => {
@@ -628,6 +667,9 @@ impl EcuWorker {
                         port = None;
                     }
                 }
+            }
+            if let Some(off) = status {
+                off_condition = off;
             }
             let sample = match reading {
                 Some((r, received_ns)) => {
@@ -642,6 +684,8 @@ impl EcuWorker {
                         throttle_pct: r.throttle_pct,
                         state: r.state,
                         flags: 0,
+                        off_condition,
+                        refused,
                     };
                     last
                 }
@@ -655,7 +699,7 @@ impl EcuWorker {
                             self.update(|s| s.link_error = Some(format!("no valid reply to {SILENT_AFTER} polls")));
                         }
                     }
-                    EcuTelemetry { stamp_ns: (self.clock)(), flags, ..last }
+                    EcuTelemetry { stamp_ns: (self.clock)(), flags, refused, ..last }
                 }
             };
             let counters = *decoder.counters();

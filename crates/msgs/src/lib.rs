@@ -314,9 +314,14 @@ sample! {
         pub egt_c: f64,
         pub pump_v: f64,
         pub throttle_pct: f64,
-        /// ECU state code as reported.
+        /// ECU state code as reported (JetCat's RS232 number, [`ecu_states`]).
         pub state: u32,
         pub flags: u32,
+        /// Why the engine last stopped (JetCat's RS232 number, [`off_conditions`]),
+        /// read with `RSS` whenever the ECU is not in run; 0 until then.
+        pub off_condition: u32,
+        /// Commands (start, stop) the ECU refused so far.
+        pub refused: u32,
     }
 }
 
@@ -392,7 +397,9 @@ sample! {
         /// Who: the publishing service ([`ServiceId`]) or, for an operator
         /// command, the id of the client that sent it.
         pub source_id: u32,
-        /// What came before: the previous ECU state; 0 otherwise.
+        /// What came before or why: the previous ECU state of an `ECU_STATE`
+        /// event, the reason of a `COMMAND_REFUSED` ([`refusals`]), the limit or
+        /// off condition behind a `TEST_ENDED`; 0 otherwise.
         pub previous: i32,
         /// For an operator command, where it came from ([`origins`]); 0 otherwise.
         pub origin: u32,
@@ -470,6 +477,36 @@ pub mod event_kinds {
     pub const COMMAND_ACCEPTED: u32 = 5;
     /// An operator command was refused (not authorised, or not possible now).
     pub const COMMAND_REFUSED: u32 = 6;
+    /// The test is over and the engine is being brought down: `code` is why
+    /// ([`super::end_reasons`]); for a trip `previous` names the limit, for a
+    /// shutdown the ECU made `previous` is its off condition.
+    pub const TEST_ENDED: u32 = 7;
+}
+
+/// Why an operator command was refused (`previous` of a `COMMAND_REFUSED` event).
+pub mod refusals {
+    /// It could raise the throttle, and its sender is not an authenticated operator.
+    pub const NOT_AUTHORISED: i32 = 1;
+    /// Not possible in the engine's state (e.g. a start while the ECU is not in standby).
+    pub const NOT_NOW: i32 = 2;
+    /// The test has ended: the engine is being brought down.
+    pub const TEST_ENDED: i32 = 3;
+    /// Its value is out of range (a profile index, a reference, a throttle).
+    pub const BAD_VALUE: i32 = 4;
+    /// A command code this bench does not know.
+    pub const UNKNOWN: i32 = 5;
+    /// Trips are latched: clear them first.
+    pub const TRIPPED: i32 = 6;
+}
+
+/// Why a test ended ([`event_kinds::TEST_ENDED`]'s code).
+pub mod end_reasons {
+    /// An operator stopped it (`STOP` or `STOP_NOW`).
+    pub const OPERATOR: i32 = 1;
+    /// The ECU left run on its own (`previous` is its off condition).
+    pub const ECU_SHUTDOWN: i32 = 2;
+    /// A limit whose response is `shutdown` tripped (`previous` is the limit).
+    pub const TRIP: i32 = 3;
 }
 
 /// Limits a trip names (the `[limits]` of the bench config).
@@ -504,7 +541,9 @@ pub mod operator_commands {
     pub const HOLD: i32 = 5;
     /// Go to idle and stay there.
     pub const IDLE: i32 = 6;
-    /// Run a profile: `value` is its index (see `jetbench_control::profile`).
+    /// Run a profile: `value` is its index in `jetbench_control::BUILTIN_PROFILES`
+    /// (0 steps, 1 ramps, 2 sines, 3 chirp, 4 campaign), scaled to the model's
+    /// thrust range; -1 is the bench config's own `[reference]`.
     pub const RUN_PROFILE: i32 = 7;
     /// Track a constant reference: `value` in N.
     pub const SET_REFERENCE: i32 = 8;
@@ -617,6 +656,16 @@ pub const EVENT_CONSTANTS: &[SchemaConstant] = constants![
     event_kinds::SHUTDOWN as "KIND_": "uint32",
     event_kinds::COMMAND_ACCEPTED as "KIND_": "uint32",
     event_kinds::COMMAND_REFUSED as "KIND_": "uint32",
+    event_kinds::TEST_ENDED as "KIND_": "uint32",
+    end_reasons::OPERATOR as "END_": "int32",
+    end_reasons::ECU_SHUTDOWN as "END_": "int32",
+    end_reasons::TRIP as "END_": "int32",
+    refusals::NOT_AUTHORISED as "REFUSED_": "int32",
+    refusals::NOT_NOW as "REFUSED_": "int32",
+    refusals::TEST_ENDED as "REFUSED_": "int32",
+    refusals::BAD_VALUE as "REFUSED_": "int32",
+    refusals::UNKNOWN as "REFUSED_": "int32",
+    refusals::TRIPPED as "REFUSED_": "int32",
     trip_limits::MAX_THRUST as "LIMIT_": "int32",
     trip_limits::MAX_EGT as "LIMIT_": "int32",
     trip_limits::MAX_EGT_RISE as "LIMIT_": "int32",
@@ -758,6 +807,13 @@ pub mod command_flags {
     /// The configured law failed this cycle (an MPC solve that did not converge in
     /// time); feedback linearisation computed the command instead.
     pub const FALLBACK: u64 = 1 << 2;
+    /// The throttle is held at idle (or below a hold) whatever the law asked:
+    /// the ECU is not in run, a trip is latched, or an operator said idle or hold.
+    pub const GATED: u64 = 1 << 3;
+    /// Control asks actuation to start the engine through the ECU.
+    pub const ECU_START: u64 = 1 << 4;
+    /// Control asks actuation to shut the engine down through the ECU.
+    pub const ECU_STOP: u64 = 1 << 5;
 }
 
 /// Flags of [`Actuation`](crate::Actuation).

@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 
 use jetbench_control::{Controller, FblGains, Law, LawSettings, MpcSettings, Profile, ShaperSettings, SmcGains};
 use jetbench_io::can::source::{CanInterface, InterfaceError};
+use jetbench_io::ecu::emulator::EcuFaults;
 use jetbench_model::{ModelFile, Params, Plant};
 use jetbench_msgs::ServiceId;
 use serde::{Deserialize, Serialize};
@@ -58,8 +59,14 @@ pub struct BenchConfig {
     pub recorder: RecorderSection,
     #[serde(default)]
     pub rt: RtSection,
-    /// Who may operate the bench from the control room; `None`: view only (crates/bridge).
     #[serde(default)]
+    pub engine: EngineSection,
+    /// The operating envelope, checked and typed by [`BenchConfig::limits`]
+    /// (kept as written so that a derived config carries it unchanged).
+    #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
+    pub limits: toml::Table,
+    /// Who may operate the bench from the control room; `None`: view only (crates/bridge).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub operator: Option<jetbench_control::operator::OperatorSettings>,
 }
 
@@ -119,6 +126,15 @@ impl PlantSection {
     /// The injected faults ([`crate::inject`]); none unless asked for.
     pub fn faults(&self) -> Result<crate::inject::FaultPlan, crate::inject::InjectError> {
         crate::inject::FaultPlan::parse(&self.inject)
+    }
+
+    /// The emulated ECU's faults (`--inject ecu:overtemp_at_s=20,...`); none unless asked for.
+    pub fn ecu_faults(&self) -> Result<EcuFaults, jetbench_io::ecu::emulator::EcuFaultError> {
+        let mut faults = EcuFaults::default();
+        for spec in self.inject.iter().filter(|s| EcuFaults::is_ecu_spec(s)) {
+            faults.merge(spec.parse()?);
+        }
+        Ok(faults)
     }
 
     /// The simulated force sensor of this plant: its noise, its zero offset, its seed.
@@ -336,6 +352,60 @@ impl Default for ActuationSection {
     fn default() -> Self {
         ActuationSection { idle_after_missed_cycles: 3, board_port: None, board_baud: 115_200 }
     }
+}
+
+/// The engine's lifecycle in a run (`[engine]`).
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EngineSection {
+    /// How the engine gets to run: `wait` (someone starts it, from the ECU's
+    /// panel or `jetbench start`), `auto` (`jetbench up` starts it through the
+    /// ECU), or `running` (the simulated bench only: the emulated engine is
+    /// running when the run begins).
+    pub start: EngineStart,
+    /// What the controller tracks once the engine runs: `idle` (until an
+    /// operator runs a profile: `jetbench run --profile NAME`) or `profile`
+    /// (`[reference]`; `jetbench up --profile NAME` sets this).
+    pub reference: EngineReference,
+    /// At the end of a run, bring the engine down through the ECU and record
+    /// its cool-down until it is off.
+    pub cool_down_at_end: bool,
+    /// The longest `jetbench up` waits for the engine to run, s.
+    pub start_timeout_s: f64,
+    /// The longest `jetbench up` records a cool-down, s.
+    pub cool_down_timeout_s: f64,
+    /// A stop idles this long before the ECU shuts the engine down, s.
+    pub stop_idle_s: f64,
+}
+
+impl Default for EngineSection {
+    fn default() -> Self {
+        EngineSection {
+            start: EngineStart::Wait,
+            reference: EngineReference::Idle,
+            cool_down_at_end: true,
+            start_timeout_s: 120.0,
+            cool_down_timeout_s: 120.0,
+            stop_idle_s: 3.0,
+        }
+    }
+}
+
+/// `[engine] start`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum EngineStart {
+    Wait,
+    Auto,
+    Running,
+}
+
+/// `[engine] reference`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum EngineReference {
+    Idle,
+    Profile,
 }
 
 /// The engine ECU's telemetry port, polled by the actuation service.
@@ -581,6 +651,7 @@ impl BenchConfig {
             return Err(invalid(format!("[plant] noise_var_n2 = {} must be >= 0", self.plant.noise_var_n2)));
         }
         self.plant.faults().map_err(|e| invalid(format!("[plant] inject: {e}")))?;
+        self.plant.ecu_faults().map_err(|e| invalid(format!("[plant] inject: {e}")))?;
         if !self.plant.inject.is_empty() && self.bench.devices != Devices::Sim {
             return Err(invalid("[plant] inject needs the simulated bench (devices = \"sim\")".into()));
         }
@@ -636,6 +707,27 @@ impl BenchConfig {
             return Err(invalid(format!("[ecu] poll_hz = {} must be within 10..50", self.ecu.poll_hz)));
         }
         self.sensor.validate(self.bench.devices).map_err(invalid)?;
+        let engine = &self.engine;
+        if engine.start == EngineStart::Running && self.bench.devices != Devices::Sim {
+            return Err(invalid(
+                "[engine] start = \"running\" is for the simulated bench; at the bench use \"wait\" or \"auto\"".into(),
+            ));
+        }
+        for (key, v) in [
+            ("start_timeout_s", engine.start_timeout_s),
+            ("cool_down_timeout_s", engine.cool_down_timeout_s),
+            ("stop_idle_s", engine.stop_idle_s),
+        ] {
+            if !(v.is_finite() && (0.0..=3600.0).contains(&v)) {
+                return Err(invalid(format!("[engine] {key} = {v} must be within 0..3600 s")));
+            }
+        }
+        let limits = self.limits().map_err(|e| invalid(e.to_string()))?;
+        if self.bench.devices == Devices::Bench && limits.is_empty() {
+            return Err(invalid(
+                "devices = \"bench\" needs [limits] (e.g. preset = \"p100\" or \"p220\"; see docs/bench/RUN.md)".into(),
+            ));
+        }
         self.rt.validate().map_err(invalid)?;
         if self.actuation.idle_after_missed_cycles == 0 {
             return Err(invalid("[actuation] idle_after_missed_cycles must be at least 1".into()));
@@ -668,6 +760,12 @@ impl BenchConfig {
             );
         }
         Ok(())
+    }
+
+    /// The operating envelope of `[limits]`, checked: every key known (a typo
+    /// names the key it resembles), every value in range.
+    pub fn limits(&self) -> Result<crate::limits::Limits, crate::limits::LimitsError> {
+        crate::limits::Limits::from_table(&self.limits)
     }
 
     /// The open-loop throttle profile, one value per 10 ms (empty when none is set).
@@ -798,11 +896,15 @@ impl BenchConfig {
             config.reference = Profile::builtin(name, idle_n, max_n).ok_or_else(|| {
                 invalid(format!("[reference] {name}: the model's thrust range {idle_n:.1}..{max_n:.1} N is empty"))
             })?;
+            // A profile chosen on the command line is the explicit choice the
+            // bench waits for: it runs once the engine does.
+            config.engine.reference = EngineReference::Profile;
         }
         config.plant.inject.extend(overrides.inject.iter().cloned());
         if let Some(profile) = &overrides.open_loop {
             config.control.controller = Controller::OpenLoop;
             config.control.throttle_profile = Some(profile.display().to_string());
+            config.engine.reference = EngineReference::Profile;
         }
         let text = toml::to_string(&config).map_err(|e| invalid(format!("cannot be written as TOML: {e}")))?;
         BenchConfig::from_toml_str(&text, &origin, None)

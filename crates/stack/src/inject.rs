@@ -43,7 +43,7 @@ use crate::runtime::clock::PERIOD_NS;
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum InjectError {
     #[error(
-        "unknown fault `{kind}`; --inject takes spikes, stuck, nan or silence (e.g. spikes:rate_per_s=2,size_n=30)"
+        "unknown fault `{kind}`; --inject takes spikes, stuck, nan, silence or ecu (e.g. spikes:rate_per_s=2,size_n=30, ecu:flameout_at_s=15)"
     )]
     UnknownKind { kind: String },
     #[error("--inject {kind}: {message} (keys: {keys})")]
@@ -175,7 +175,12 @@ pub struct FaultPlan {
 impl FaultPlan {
     /// Parses every specification (`KIND:KEY=VALUE,...`).
     pub fn parse<S: AsRef<str>>(specs: impl IntoIterator<Item = S>) -> Result<Self, InjectError> {
-        let faults = specs.into_iter().map(|s| s.as_ref().parse()).collect::<Result<_, _>>()?;
+        // `ecu:...` faults are the emulated ECU's (`PlantSection::ecu_faults`).
+        let faults = specs
+            .into_iter()
+            .filter(|s| !jetbench_io::ecu::emulator::EcuFaults::is_ecu_spec(s.as_ref()))
+            .map(|s| s.as_ref().parse())
+            .collect::<Result<_, _>>()?;
         Ok(FaultPlan { faults })
     }
 

@@ -27,6 +27,7 @@ pub mod config;
 pub mod control;
 pub mod estimation;
 pub mod inject;
+pub mod limits;
 pub mod recorder;
 pub mod replay;
 pub mod runtime;

@@ -123,6 +123,11 @@ pub struct EcuParams {
     pub ambient_c: f64,
     /// From off to standby (the ECU's self-test, or re-arming after a stop).
     pub arm_s: f64,
+    /// In run, RPM is `idle_rpm + rpm_per_sqrt_n · √thrust` and the exhaust
+    /// settles at `idle_egt_c + egt_per_n · thrust`.
+    pub rpm_per_sqrt_n: f64,
+    pub idle_egt_c: f64,
+    pub egt_per_n: f64,
 }
 
 impl Default for EcuParams {
@@ -151,6 +156,9 @@ impl Default for EcuParams {
             cooling_rpm: 4_000.0,
             ambient_c: 20.0,
             arm_s: 1.0,
+            rpm_per_sqrt_n: RPM_PER_SQRT_N,
+            idle_egt_c: EGT_IDLE_C,
+            egt_per_n: EGT_PER_N,
         }
     }
 }
@@ -309,6 +317,19 @@ impl EcuEmulator {
         }
     }
 
+    /// Powered up at `now_s` with the engine already running at idle (a
+    /// simulated bench that starts where a test begins; [`EcuEmulator::new`]
+    /// starts from off).
+    pub fn running(params: EcuParams, faults: EcuFaults, now_s: f64) -> Self {
+        let mut ecu = EcuEmulator::new(params, faults, now_s);
+        ecu.rpm = ecu.params.idle_rpm;
+        ecu.egt_c = ecu.params.idle_egt_c;
+        ecu.pump_v = PUMP_IDLE_V;
+        ecu.phase = ecu.params.phases.len();
+        ecu.enter(EcuState::Run, now_s);
+        ecu
+    }
+
     pub fn state(&self) -> EcuState {
         self.state
     }
@@ -404,8 +425,8 @@ impl EcuEmulator {
             s if s.is_running() => {
                 let u = self.throttle_pct;
                 (
-                    IDLE_RPM + RPM_PER_SQRT_N * thrust_n.sqrt(),
-                    EGT_IDLE_C + EGT_PER_N * thrust_n,
+                    p.idle_rpm + p.rpm_per_sqrt_n * thrust_n.sqrt(),
+                    p.idle_egt_c + p.egt_per_n * thrust_n,
                     PUMP_IDLE_V + PUMP_PER_PCT * (u - 25.0),
                 )
             }

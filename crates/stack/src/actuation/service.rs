@@ -1,9 +1,10 @@
 //! Actuation: `bench/command` in; throttle board, `bench/actuation` and `bench/ecu` out.
 
 use jetbench_bus::{Publisher, Wake};
+use jetbench_io::ecu::PcCommand;
 use jetbench_io::serial::{EcuPoller, ThrottleBoard, SILENT_AFTER};
 use jetbench_io::ThrottleOutput;
-use jetbench_msgs::{actuation_flags, channels, Command, EcuTelemetry, ServiceId};
+use jetbench_msgs::{actuation_flags, channels, command_flags, ecu_flags, Command, EcuTelemetry, ServiceId};
 
 use super::ActuationStep;
 use crate::runtime::clock::{monotonic_ns, COMMAND_DEADLINE};
@@ -22,7 +23,14 @@ pub struct ActuationService {
     telemetry: Publisher<EcuTelemetry>,
     links: LinkLog,
     was_idle: bool,
+    /// The ECU's state by its newest fresh sample (`None` before the first).
+    ecu_state: Option<u32>,
+    /// What was last asked of the ECU (start or stop) and when (monotonic ns).
+    ecu_asked: Option<(PcCommand, u64)>,
 }
+
+/// How often a start or stop is repeated while control keeps asking, ns.
+const ECU_ASK_EVERY_NS: u64 = 1_000_000_000;
 
 impl Service for ActuationService {
     const ID: ServiceId = ServiceId::Actuation;
@@ -52,6 +60,8 @@ impl Service for ActuationService {
             telemetry: bus.publisher(channels::ECU)?,
             links: LinkLog::default(),
             was_idle: false,
+            ecu_state: None,
+            ecu_asked: None,
         };
         Ok((actuation, command))
     }
@@ -59,14 +69,22 @@ impl Service for ActuationService {
     fn process(&mut self, wake: Wake, command: &Input<Command>, ctx: &mut Context<'_>) -> Result<(), ServiceError> {
         // Before the first command the board is kept at idle; that is the
         // expected start, not a missed deadline.
-        let (output, late) = match wake {
+        let (mut output, late) = match wake {
             Wake::Input(_) => match command.latest()? {
-                Some(command) => (self.step.on_command(&command), false),
+                Some(command) => {
+                    self.ask_ecu(command.flags);
+                    (self.step.on_command(&command), false)
+                }
                 None => return Ok(()),
             },
             Wake::Missed(_) => (self.step.on_missed(ctx.wake_ns()), command.started()),
             Wake::Tick => return Ok(()),
         };
+        // A second guard behind control's: above idle only while the ECU says run.
+        let running = |code: u32| jetbench_io::ecu::state::EcuState::from_code(code).is_some_and(|s| s.is_running());
+        if self.ecu_state.is_some_and(|s| !running(s)) && output.applied_pct > jetbench_model::THROTTLE_MIN_PCT {
+            output.applied_pct = jetbench_model::THROTTLE_MIN_PCT;
+        }
         if let Err(e) = self.board.write(output.applied_pct) {
             ctx.reject("throttle write", &e);
         }
@@ -82,6 +100,9 @@ impl Service for ActuationService {
         for telemetry in self.ecu.try_iter() {
             if self.links.ecu(telemetry.flags, &self.ecu) {
                 ctx.health().error();
+            }
+            if telemetry.flags & (ecu_flags::STALE | ecu_flags::SILENT) == 0 {
+                self.ecu_state = Some(telemetry.state);
             }
             ctx.publish(&mut self.telemetry, telemetry, |t, ns| t.publish_ns = ns)?;
         }
@@ -135,6 +156,35 @@ impl Service for ActuationService {
             self.ecu.shared().counters
         );
         Ok(())
+    }
+}
+
+impl ActuationService {
+    /// Passes control's start or stop request to the ECU: at once when it is
+    /// new, again every [`ECU_ASK_EVERY_NS`] while control keeps asking.
+    fn ask_ecu(&mut self, flags: u64) {
+        let wanted = if flags & command_flags::ECU_STOP != 0 {
+            Some(PcCommand::Stop)
+        } else if flags & command_flags::ECU_START != 0 {
+            Some(PcCommand::Start)
+        } else {
+            None
+        };
+        let Some(wanted) = wanted else {
+            self.ecu_asked = None;
+            return;
+        };
+        let now = monotonic_ns();
+        let due = match self.ecu_asked {
+            Some((asked, at)) => asked != wanted || now.saturating_sub(at) >= ECU_ASK_EVERY_NS,
+            None => true,
+        };
+        if due {
+            if self.ecu.send(wanted) {
+                tracing::info!("asking the ECU: {}", if wanted == PcCommand::Stop { "stop" } else { "start" });
+            }
+            self.ecu_asked = Some((wanted, now));
+        }
     }
 }
 

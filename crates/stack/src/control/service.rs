@@ -1,17 +1,31 @@
-//! Control: `bench/state` in, `bench/command` and `bench/reference` out.
+//! Control: `bench/state`, `bench/ecu` and `bench/operator` in; `bench/command`,
+//! `bench/reference` and `bench/events` out.
 
-use jetbench_bus::{Publisher, Wake};
-use jetbench_msgs::{channels, command_flags, Command, Reference, ServiceId, StateEstimate};
+use jetbench_bus::{Publisher, Subscriber, Wake};
+use jetbench_control::Profile;
+use jetbench_msgs::{
+    channels, command_flags, Command, EcuTelemetry, Event, OperatorCommand, Reference, ServiceId, StateEstimate,
+};
 
+use super::engine::{EngineSupervisor, LawChange, ProfileSource};
 use super::{ControlLaw, ControlStep};
-use crate::runtime::clock::INPUT_DEADLINE;
+use crate::config::BenchConfig;
+use crate::runtime::clock::{monotonic_ns, INPUT_DEADLINE};
 use crate::runtime::{Context, Input, Service, ServiceError, Setup};
 
-/// Control: the reference profile and the law ([`ControlStep`]) on every state estimate.
+/// Control: the reference profile and the law ([`ControlStep`]) on every state
+/// estimate, gated by the engine supervisor ([`EngineSupervisor`]): the ECU's
+/// state, the limits and the operator's commands.
 pub struct ControlService {
     step: ControlStep,
+    config: BenchConfig,
+    profile: Profile,
+    engine: EngineSupervisor,
+    ecu: Subscriber<EcuTelemetry>,
+    operator: Subscriber<OperatorCommand>,
     reference: Publisher<Reference>,
     command: Publisher<Command>,
+    events: Publisher<Event>,
 }
 
 impl Service for ControlService {
@@ -29,28 +43,121 @@ impl Service for ControlService {
                 throttle_pct.len() as f64 * jetbench_model::STEP_S
             ),
         }
+        let limits = config.limits().map_err(|e| ServiceError::Setup(e.to_string()))?;
+        let params = config.model_params()?;
+        let profiles = ProfileSource {
+            configured: config.reference.clone(),
+            idle_n: params.stable_equilibrium(jetbench_model::THROTTLE_MIN_PCT).unwrap_or(0.0),
+            max_n: params.stable_equilibrium(jetbench_model::THROTTLE_MAX_PCT).unwrap_or(0.0),
+        };
+        tracing::info!(
+            "engine: start {:?}, reference {:?}; limits: {}",
+            config.engine.start,
+            config.engine.reference,
+            describe_limits(&limits)
+        );
         let control = ControlService {
             step: ControlStep::with_law(law, config.reference.clone()),
+            config: config.clone(),
+            profile: config.reference.clone(),
+            engine: EngineSupervisor::new(&config.engine, limits, profiles),
+            // Polled every cycle: ECU samples come at 10–50 Hz, commands rarely.
+            ecu: bus.polled_subscriber(channels::ECU, 64)?,
+            operator: bus.polled_subscriber(channels::OPERATOR, 64)?,
             reference: bus.publisher(channels::REFERENCE)?,
             command: bus.publisher(channels::COMMAND)?,
+            events: bus.publisher(channels::EVENTS)?,
         };
         Ok((control, state))
     }
 
     fn process(&mut self, wake: Wake, state: &Input<StateEstimate>, ctx: &mut Context<'_>) -> Result<(), ServiceError> {
+        self.supervise(ctx)?;
+        if let Wake::Missed(_) = wake {
+            // No estimate (the sensor is silent, or not yet heard): while the
+            // engine is gated, idle is commanded anyway, carrying what the ECU is asked.
+            if !self.engine.is_free() {
+                let now = monotonic_ns();
+                let (throttle_pct, flags) = self.engine.gate(now, jetbench_model::THROTTLE_MIN_PCT, 0.0);
+                let command = Command {
+                    stamp_ns: now,
+                    throttle_pct,
+                    unclamped_pct: throttle_pct,
+                    flags: flags | command_flags::GATED,
+                    ..Command::default()
+                };
+                ctx.publish(&mut self.command, command, |c, ns| c.publish_ns = ns)?;
+                self.publish_events(ctx)?;
+            }
+        }
         state.each_sample(wake, ctx, |estimate, ctx| {
+            self.engine.on_thrust(estimate.stamp_ns, estimate.thrust_n);
+            self.engine.check(monotonic_ns());
+            match self.engine.take_law_change() {
+                LawChange::None => {}
+                LawChange::Reset => self.reset_law()?,
+                LawChange::Profile(profile) => {
+                    self.profile = profile;
+                    self.reset_law()?;
+                }
+            }
             match self.step.step(&estimate) {
-                Ok((reference, command)) => {
+                Ok((reference, mut command)) => {
                     if command.flags & command_flags::FALLBACK != 0 {
                         ctx.reject("MPC solve", &"fell back to FBL for this cycle");
                     }
+                    let (throttle_pct, flags) =
+                        self.engine.gate(monotonic_ns(), command.throttle_pct, reference.thrust_n);
+                    command.throttle_pct = throttle_pct;
+                    command.flags |= flags;
                     // The command first: it wakes actuation, the reference only the recorder.
                     ctx.publish(&mut self.command, command, |c, ns| c.publish_ns = ns)?;
                     ctx.publish(&mut self.reference, reference, |r, ns| r.publish_ns = ns)?;
                 }
                 Err(e) => ctx.reject("state estimate", &e),
             }
-            Ok(())
+            self.publish_events(ctx)
         })
+    }
+}
+
+impl ControlService {
+    /// Takes the ECU's samples and the operator's commands, and checks the limits.
+    fn supervise(&mut self, ctx: &mut Context<'_>) -> Result<(), ServiceError> {
+        while let Some(t) = self.ecu.try_recv()? {
+            self.engine.on_ecu(monotonic_ns(), &t);
+        }
+        while let Some(c) = self.operator.try_recv()? {
+            self.engine.on_command(monotonic_ns(), &c);
+        }
+        self.engine.check(monotonic_ns());
+        self.publish_events(ctx)
+    }
+
+    fn publish_events(&mut self, ctx: &mut Context<'_>) -> Result<(), ServiceError> {
+        for event in self.engine.take_events() {
+            ctx.publish(&mut self.events, event, |e, ns| e.publish_ns = ns)?;
+        }
+        Ok(())
+    }
+
+    /// The law afresh (integral, shaper, predictor, profile time), tracking `self.profile`.
+    fn reset_law(&mut self) -> Result<(), ServiceError> {
+        self.step = ControlStep::with_law(self.config.control_law()?, self.profile.clone());
+        Ok(())
+    }
+}
+
+fn describe_limits(limits: &crate::limits::Limits) -> String {
+    let set: Vec<String> = crate::limits::LimitKind::ALL
+        .iter()
+        .filter_map(|k| {
+            limits.get(*k).map(|l| format!("{} {} {} ({}, {} s)", k.key(), l.limit, k.unit(), l.response, l.hold_s))
+        })
+        .collect();
+    if set.is_empty() {
+        "none".into()
+    } else {
+        set.join(", ")
     }
 }

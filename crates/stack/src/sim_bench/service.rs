@@ -5,7 +5,9 @@ use std::time::{Duration, Instant};
 
 use jetbench_bus::{Publisher, Wake};
 use jetbench_io::can::source::CanForceSink;
-use jetbench_io::emulate::{EcuModel, PtyBoard, PtyEcu};
+use jetbench_io::ecu::emulator::{EcuEmulator, EcuParams};
+use jetbench_io::ecu::state::EcuState;
+use jetbench_io::emulate::{PtyBoard, PtyEcu};
 use jetbench_io::ForceSink;
 use jetbench_msgs::{channels, ServiceId, SimTruth};
 
@@ -32,8 +34,12 @@ pub struct SimBenchService {
     sensor: CanForceSink,
     unplugged: Unplugged,
     board: PtyBoard,
-    ecu_model: EcuModel,
+    /// The emulated ECU ([`EcuEmulator`]) on its pty, clocked by the bench's clock.
     ecu: PtyEcu,
+    /// The ECU state last logged.
+    ecu_state: EcuState,
+    /// The ECU's clock starts here (monotonic ns): its faults' times count from it.
+    ecu_t0_ns: u64,
     truth: Publisher<SimTruth>,
     next: Instant,
 }
@@ -62,8 +68,7 @@ impl Service for SimBenchService {
         // The throttle board and the ECU, each on its own pty pair, published
         // where actuation opens them (see `config::sim_port_link`).
         let board = PtyBoard::spawn(&config.board_port(), monotonic_ns)?;
-        let ecu_model = EcuModel::settled(0.0, config.plant.initial_throttle_pct);
-        let ecu = PtyEcu::spawn(&config.ecu_port(), ecu_model.reading())?;
+        let (ecu, ecu_t0_ns) = Self::spawn_ecu(config)?;
         tracing::info!("throttle board on {}, ECU on {}", board.link().display(), ecu.link().display());
         let bench = SimBenchService {
             sim,
@@ -72,7 +77,8 @@ impl Service for SimBenchService {
             sensor,
             unplugged: Unplugged::new(sim_port_link(SENSOR_UNPLUGGED_FILE)),
             board,
-            ecu_model,
+            ecu_state: ecu.with_emulator(|e| e.state()).unwrap_or(EcuState::Off),
+            ecu_t0_ns,
             ecu,
             truth: setup.bus.publisher(channels::SIM_TRUTH)?,
             next: Instant::now(),
@@ -143,7 +149,15 @@ impl SimBenchService {
         let late = now > self.next + PERIOD;
         self.next = if now > self.next + STALL { now + PERIOD } else { self.next + PERIOD };
         // Idle while the board idles (disarmed, or its watchdog tripped).
-        let throttle_pct = self.board.output_pct(start_ns).unwrap_or(jetbench_model::THROTTLE_MIN_PCT);
+        let board_pct = self.board.output_pct(start_ns).unwrap_or(jetbench_model::THROTTLE_MIN_PCT);
+        // The ECU gets the board's signal (no signal reads as idle) and the
+        // engine follows it only while the ECU runs it; otherwise it idles.
+        let now_s = start_ns.saturating_sub(self.ecu_t0_ns) as f64 * 1e-9;
+        let running = self.ecu.with_emulator(|e| {
+            let _ = e.throttle(board_pct, now_s);
+            e.state().is_running()
+        });
+        let throttle_pct = if running == Some(true) { board_pct } else { jetbench_model::THROTTLE_MIN_PCT };
         let (reading, mut truth) = self.sim.step_driven(start_ns, throttle_pct).map_err(|e| {
             tracing::error!("the simulated engine failed: {e}");
             e
@@ -153,8 +167,8 @@ impl SimBenchService {
         for (bit, count) in self.injected.iter_mut().enumerate() {
             *count += (injected.faults >> bit) & 1;
         }
-        self.ecu_model.step(truth.thrust_n, truth.engine_throttle_pct, jetbench_model::STEP_S);
-        self.ecu.set_reading(self.ecu_model.reading());
+        self.ecu.step(truth.thrust_n);
+        self.log_ecu_state();
         if let (true, Some(reading)) = (self.unplugged.check(), injected.reading) {
             self.sensor.emit(&reading, start_ns)?;
         }
@@ -176,6 +190,53 @@ impl SimBenchService {
         }
         // One more step, so the idle engine is on record.
         self.tick(ctx)
+    }
+}
+
+/// Shaft speed of the emulated engine at the plant's full thrust, rev/min (a
+/// P100's is about 115 000; the emulated ECU's over-RPM is 5 % above 125 000).
+pub const FULL_RPM: f64 = 115_000.0;
+/// Exhaust temperature of the emulated engine at the plant's full thrust, °C
+/// (the emulated ECU's over-temperature is 800 °C).
+pub const FULL_EGT_C: f64 = 750.0;
+
+impl SimBenchService {
+    /// The emulated ECU on its pty: sized for the plant (full thrust at
+    /// [`FULL_RPM`] and [`FULL_EGT_C`], below the ECU's own limits), its
+    /// faults from `--inject ecu:...`, running from the start or off
+    /// (`[engine] start`), clocked in seconds since now.
+    fn spawn_ecu(config: &crate::config::BenchConfig) -> Result<(PtyEcu, u64), ServiceError> {
+        let faults = config.plant.ecu_faults().map_err(|e| ServiceError::Setup(e.to_string()))?;
+        if !faults.is_empty() {
+            tracing::warn!("injecting ECU faults: {faults:?}");
+        }
+        let full_n = config.plant_params()?.stable_equilibrium(jetbench_model::THROTTLE_MAX_PCT).unwrap_or(100.0);
+        let full_n = full_n.max(1.0);
+        let mut params = EcuParams::default();
+        params.rpm_per_sqrt_n = (FULL_RPM - params.idle_rpm) / full_n.sqrt();
+        params.egt_per_n = (FULL_EGT_C - params.idle_egt_c) / full_n;
+        let t0 = monotonic_ns();
+        let clock = move || monotonic_ns().saturating_sub(t0) as f64 * 1e-9;
+        let emulator = if config.engine.start == crate::config::EngineStart::Running {
+            EcuEmulator::running(params, faults, 0.0)
+        } else {
+            EcuEmulator::new(params, faults, 0.0)
+        };
+        tracing::info!("emulated ECU {} at power-up", emulator.state());
+        Ok((PtyEcu::emulated(&config.ecu_port(), emulator, clock)?, t0))
+    }
+
+    /// Logs each state the emulated ECU enters, with the reason when it stops.
+    fn log_ecu_state(&mut self) {
+        let Some((state, off)) = self.ecu.with_emulator(|e| (e.state(), e.off_condition())) else { return };
+        if state != self.ecu_state {
+            if state.is_stopping() {
+                tracing::info!("emulated ECU: {} -> {state} ({off})", self.ecu_state);
+            } else {
+                tracing::info!("emulated ECU: {} -> {state}", self.ecu_state);
+            }
+            self.ecu_state = state;
+        }
     }
 }
 

@@ -1,0 +1,574 @@
+//! The engine's side of control: what the ECU says, the limits, and the
+//! operator's commands decide how much of the law's throttle reaches the
+//! engine. Plain code that never touches the bus; [`super::ControlService`]
+//! feeds it and publishes what it decides.
+//!
+//! - Throttle above idle only while the ECU says run, no trip is latched, no
+//!   stop is under way and the operator has not said idle (or hold, which
+//!   caps it).
+//! - An ECU that leaves run on its own ends the test: the throttle goes to
+//!   idle, the law is reset, and a `SHUTDOWN` and a `TEST_ENDED` event name
+//!   the ECU's reason.
+//! - A trip is latched until `CLEAR_TRIPS`; a `shutdown` trip also shuts the
+//!   engine down through the ECU and ends the test.
+//! - Operator commands follow one rule: anyone may make the engine safer;
+//!   only an authenticated operator may make it run harder.
+
+use jetbench_io::ecu::state::{EcuState, OffCondition};
+use jetbench_model::THROTTLE_MIN_PCT;
+use jetbench_msgs::{
+    authorities, command_flags, ecu_flags, end_reasons, event_kinds, identity, operator_commands as op, refusals,
+    EcuTelemetry, Event, OperatorCommand, ServiceId,
+};
+
+use crate::config::{EngineReference, EngineSection};
+use crate::limits::{LimitMonitor, Limits, Response, Trip};
+
+/// What the operator asked the throttle to do.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Mode {
+    /// The reference profile (the config's, or one an operator chose).
+    Profile,
+    /// Idle until told otherwise.
+    Idle,
+    /// The law's throttle, capped at this, %.
+    Hold(f64),
+}
+
+/// A stop under way: idle, then the ECU shuts the engine down.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Stopping {
+    since_ns: u64,
+    /// At once (`STOP_NOW`, a `shutdown` trip) or after the idle time.
+    now: bool,
+}
+
+/// What the control step should do about the law this cycle.
+#[derive(Clone, Debug, PartialEq)]
+pub enum LawChange {
+    /// Nothing.
+    None,
+    /// Reset it (integral, shaper, profile time): it was gated.
+    Reset,
+    /// Track this profile from now on (an operator's choice).
+    Profile(jetbench_control::Profile),
+}
+
+/// The engine supervisor of the control service.
+#[derive(Debug)]
+pub struct EngineSupervisor {
+    monitor: LimitMonitor,
+    stop_idle_ns: u64,
+    mode: Mode,
+    ecu: Option<EcuTelemetry>,
+    state: Option<EcuState>,
+    running: bool,
+    /// A start requested: ask the ECU until it starts (or this deadline).
+    start_until_ns: Option<u64>,
+    stopping: Option<Stopping>,
+    ended: bool,
+    /// The ECU left run on its own at this time: its reason is awaited.
+    left_run: Option<(u64, EcuTelemetry)>,
+    gated: bool,
+    law_change: LawChange,
+    /// The throttle last commanded, % (what HOLD and SET_REFERENCE compare with).
+    last_throttle_pct: f64,
+    last_reference_n: f64,
+    events: Vec<Event>,
+    /// Builds the profile of `RUN_PROFILE` (index) or `SET_REFERENCE` (N); `None` if invalid.
+    profiles: ProfileSource,
+}
+
+/// Where operator-chosen profiles come from.
+#[derive(Clone, Debug)]
+pub struct ProfileSource {
+    /// The config's `[reference]`.
+    pub configured: jetbench_control::Profile,
+    /// The model's idle and full thrust, N, to scale the built-in profiles to.
+    pub idle_n: f64,
+    pub max_n: f64,
+}
+
+impl ProfileSource {
+    fn by_index(&self, index: f64) -> Option<(String, jetbench_control::Profile)> {
+        if index < 0.0 {
+            return Some(("the configured [reference]".into(), self.configured.clone()));
+        }
+        let name = *jetbench_control::BUILTIN_PROFILES.get(index as usize).filter(|_| index.fract() == 0.0)?;
+        jetbench_control::Profile::builtin(name, self.idle_n, self.max_n).map(|p| (name.to_string(), p))
+    }
+
+    fn constant(&self, thrust_n: f64) -> Option<jetbench_control::Profile> {
+        (thrust_n.is_finite() && (0.0..=self.max_n).contains(&thrust_n)).then(|| {
+            jetbench_control::Profile::from(jetbench_control::ProfileSpec::Steps {
+                levels_n: vec![thrust_n],
+                hold_s: 1.0,
+                smoothing_s: 0.3,
+            })
+        })
+    }
+}
+
+/// How long the reason of a shutdown the ECU made is awaited before the test
+/// ends without it (the `RSS` reply follows the state by a poll or two).
+const REASON_WAIT_NS: u64 = 400_000_000;
+/// How long a start is asked for before it is given up.
+const START_ASK_NS: u64 = 5_000_000_000;
+
+impl EngineSupervisor {
+    pub fn new(settings: &EngineSection, limits: Limits, profiles: ProfileSource) -> Self {
+        EngineSupervisor {
+            monitor: LimitMonitor::new(limits),
+            stop_idle_ns: (settings.stop_idle_s * 1e9) as u64,
+            mode: match settings.reference {
+                EngineReference::Profile => Mode::Profile,
+                EngineReference::Idle => Mode::Idle,
+            },
+            ecu: None,
+            state: None,
+            running: false,
+            start_until_ns: None,
+            stopping: None,
+            ended: false,
+            left_run: None,
+            gated: true,
+            law_change: LawChange::None,
+            last_throttle_pct: THROTTLE_MIN_PCT,
+            last_reference_n: 0.0,
+            events: Vec::new(),
+            profiles,
+        }
+    }
+
+    pub fn mode(&self) -> Mode {
+        self.mode
+    }
+
+    /// True once the test has ended (the engine is being brought down).
+    pub fn ended(&self) -> bool {
+        self.ended
+    }
+
+    /// The events that happened since the last call, oldest first.
+    pub fn take_events(&mut self) -> Vec<Event> {
+        std::mem::take(&mut self.events)
+    }
+
+    /// How the law must change before this cycle's step.
+    pub fn take_law_change(&mut self) -> LawChange {
+        std::mem::replace(&mut self.law_change, LawChange::None)
+    }
+
+    fn event(&mut self, now_ns: u64, kind: u32, code: i32) -> &mut Event {
+        self.events.push(Event {
+            stamp_ns: now_ns,
+            kind,
+            code,
+            source_id: ServiceId::Control as u32,
+            identity: identity(ServiceId::Control.name()),
+            ..Event::default()
+        });
+        self.events.last_mut().expect("just pushed")
+    }
+
+    fn end(&mut self, now_ns: u64, reason: i32, previous: i32, value: f64, limit: f64) {
+        if self.ended {
+            return;
+        }
+        self.ended = true;
+        let e = self.event(now_ns, event_kinds::TEST_ENDED, reason);
+        (e.previous, e.value, e.limit) = (previous, value, limit);
+    }
+
+    /// An ECU sample.
+    pub fn on_ecu(&mut self, now_ns: u64, t: &EcuTelemetry) {
+        self.monitor.on_ecu(now_ns, t);
+        if t.flags & (ecu_flags::STALE | ecu_flags::SILENT) != 0 {
+            return;
+        }
+        self.ecu = Some(*t);
+        let state = EcuState::from_code(t.state);
+        if state != self.state {
+            let previous = self.state.map_or(-1, |s| i32::from(s.code()));
+            let e = self.event(t.stamp_ns, event_kinds::ECU_STATE, t.state as i32);
+            e.previous = previous;
+            if let Some(s) = state {
+                tracing::info!(
+                    "ECU: {} -> {s}",
+                    self.state.map_or_else(|| "(first reading)".to_string(), |p| p.to_string())
+                );
+            } else {
+                tracing::warn!("ECU reports an unknown state {}", t.state);
+            }
+            self.state = state;
+        }
+        let running = state.is_some_and(EcuState::is_running);
+        if self.running && !running && self.stopping.is_none() && !self.ended {
+            // Left run, and nobody here asked: the ECU shut the engine down.
+            self.left_run = Some((t.stamp_ns, *t));
+        }
+        if running || state.is_some_and(EcuState::is_starting) {
+            self.start_until_ns = None;
+        }
+        self.running = running;
+    }
+
+    /// A thrust estimate.
+    pub fn on_thrust(&mut self, now_ns: u64, thrust_n: f64) {
+        self.monitor.on_thrust(now_ns, thrust_n);
+    }
+
+    /// The limits and the ECU's shutdowns at `now_ns`.
+    pub fn check(&mut self, now_ns: u64) {
+        if let Some((at, t)) = self.left_run {
+            // Name the ECU's reason once its status arrives (or give up waiting).
+            let off = self.ecu.map_or(0, |e| e.off_condition);
+            if off != 0 || now_ns.saturating_sub(at) >= REASON_WAIT_NS {
+                self.left_run = None;
+                let reason = OffCondition::from_code(off).unwrap_or(OffCondition::None);
+                tracing::error!(
+                    "the ECU shut the engine down: {reason} (RPM {:.0}, EGT {:.0} °C); the test ends",
+                    t.rpm,
+                    t.egt_c
+                );
+                let e = self.event(at, event_kinds::SHUTDOWN, off as i32);
+                (e.value, e.limit) = (t.egt_c, t.rpm);
+                self.end(at, end_reasons::ECU_SHUTDOWN, off as i32, t.egt_c, t.rpm);
+            }
+        }
+        for trip in self.monitor.check(now_ns, self.running) {
+            self.on_trip(&trip);
+        }
+    }
+
+    fn on_trip(&mut self, trip: &Trip) {
+        tracing::error!("limit tripped: {trip}");
+        let e = self.event(trip.at_ns, event_kinds::TRIP, trip.kind.code());
+        (e.value, e.limit) = (trip.value, trip.limit);
+        e.previous = match trip.response {
+            Response::Idle => 0,
+            Response::Shutdown => 1,
+        };
+        if trip.response == Response::Shutdown && !self.ended {
+            self.stopping = Some(Stopping { since_ns: trip.at_ns, now: true });
+            self.end(trip.at_ns, end_reasons::TRIP, trip.kind.code(), trip.value, trip.limit);
+        }
+    }
+
+    /// An operator command: accepted or refused by the authority rule and the
+    /// engine's state, with an event either way.
+    pub fn on_command(&mut self, now_ns: u64, c: &OperatorCommand) {
+        let result = self.apply(now_ns, c);
+        let who = jetbench_msgs::identity_text(&c.identity);
+        let name = op::name(c.command).unwrap_or("unknown command");
+        let (kind, previous) = match &result {
+            Ok(note) => {
+                tracing::info!("{name} from {who}: accepted{note}");
+                (event_kinds::COMMAND_ACCEPTED, 0)
+            }
+            Err((code, why)) => {
+                tracing::warn!("{name} from {who}: refused, {why}");
+                (event_kinds::COMMAND_REFUSED, *code)
+            }
+        };
+        let e = self.event(now_ns, kind, c.command);
+        e.previous = previous;
+        e.value = c.value;
+        e.source_id = c.client_id;
+        e.origin = c.origin;
+        e.authority = c.authority;
+        e.identity = c.identity;
+    }
+
+    fn apply(&mut self, now_ns: u64, c: &OperatorCommand) -> Result<String, (i32, String)> {
+        let operator = c.authority == authorities::OPERATOR;
+        let need_operator = |what: &str| -> Result<(), (i32, String)> {
+            if operator {
+                Ok(())
+            } else {
+                Err((refusals::NOT_AUTHORISED, format!("{what} needs an authenticated operator")))
+            }
+        };
+        let ended = |s: &Self| -> Result<(), (i32, String)> {
+            if s.ended {
+                Err((refusals::TEST_ENDED, "the test has ended; the engine is being brought down".into()))
+            } else {
+                Ok(())
+            }
+        };
+        match c.command {
+            op::STOP | op::STOP_NOW => {
+                let now = c.command == op::STOP_NOW;
+                match self.stopping {
+                    Some(s) if s.now || !now => {}
+                    _ => self.stopping = Some(Stopping { since_ns: now_ns, now }),
+                }
+                self.end(now_ns, end_reasons::OPERATOR, c.command, 0.0, 0.0);
+                Ok(if now { ": shutting down now".into() } else { ": idle, then shutdown".into() })
+            }
+            op::IDLE => {
+                self.mode = Mode::Idle;
+                Ok(String::new())
+            }
+            op::HOLD => {
+                let cap = if c.value > 0.0 { c.value } else { self.last_throttle_pct };
+                if !cap.is_finite() {
+                    return Err((refusals::BAD_VALUE, format!("hold at {cap} %")));
+                }
+                if cap > self.last_throttle_pct + 1e-9 {
+                    need_operator("a hold above the current throttle")?;
+                }
+                self.mode = Mode::Hold(cap.max(THROTTLE_MIN_PCT));
+                Ok(format!(": throttle at most {cap:.1} %"))
+            }
+            op::HEARTBEAT | op::RELEASE_CONTROL => Ok(": recorded (operator leases are not kept yet)".into()),
+            op::TAKE_CONTROL | op::HANDOVER => {
+                need_operator("control")?;
+                Ok(": recorded (operator leases are not kept yet)".into())
+            }
+            op::CLEAR_TRIPS => {
+                need_operator("clearing trips")?;
+                ended(self)?;
+                self.monitor.clear();
+                let _ = self.event(now_ns, event_kinds::TRIP_CLEARED, 0);
+                Ok(String::new())
+            }
+            op::START => {
+                need_operator("a start")?;
+                ended(self)?;
+                if self.monitor.tripped() {
+                    return Err((refusals::TRIPPED, "a trip is latched; clear it first".into()));
+                }
+                match self.state {
+                    Some(EcuState::Standby) => {
+                        self.start_until_ns = Some(now_ns + START_ASK_NS);
+                        Ok(": starting through the ECU".into())
+                    }
+                    Some(s) if s.is_burning() => Ok(format!(": the engine is already {s}")),
+                    s => Err((
+                        refusals::NOT_NOW,
+                        format!(
+                            "the ECU is {} (a start needs standby)",
+                            s.map_or("not heard yet".into(), |s| s.to_string())
+                        ),
+                    )),
+                }
+            }
+            op::RUN_PROFILE => {
+                need_operator("a profile")?;
+                ended(self)?;
+                let (name, profile) = self
+                    .profiles
+                    .by_index(c.value)
+                    .ok_or_else(|| (refusals::BAD_VALUE, format!("no profile {}", c.value)))?;
+                self.mode = Mode::Profile;
+                self.law_change = LawChange::Profile(profile);
+                Ok(format!(": {name}"))
+            }
+            op::SET_REFERENCE => {
+                if c.value > self.last_reference_n + 1e-9 {
+                    need_operator("a higher reference")?;
+                }
+                ended(self)?;
+                let profile = self.profiles.constant(c.value).ok_or_else(|| {
+                    (refusals::BAD_VALUE, format!("{} N is outside 0..{:.0} N", c.value, self.profiles.max_n))
+                })?;
+                self.mode = Mode::Profile;
+                self.law_change = LawChange::Profile(profile);
+                Ok(format!(": {:.1} N", c.value))
+            }
+            other => Err((refusals::UNKNOWN, format!("unknown command {other}"))),
+        }
+    }
+
+    /// The throttle the engine gets this cycle from the law's `law_pct` (and
+    /// the reference it tracked), with the command flags that say why it was
+    /// gated and what the ECU is asked.
+    pub fn gate(&mut self, now_ns: u64, law_pct: f64, reference_n: f64) -> (f64, u64) {
+        let stop_due = self.stopping.map(|s| s.now || now_ns.saturating_sub(s.since_ns) >= self.stop_idle_ns);
+        let burning = self.state.is_some_and(EcuState::is_burning);
+        let mut flags = 0;
+        if stop_due == Some(true) && burning {
+            flags |= command_flags::ECU_STOP;
+        }
+        match self.start_until_ns {
+            Some(until) if now_ns < until && self.stopping.is_none() => flags |= command_flags::ECU_START,
+            Some(_) => {
+                tracing::warn!("the ECU did not start the engine within {} s", START_ASK_NS / 1_000_000_000);
+                self.start_until_ns = None;
+            }
+            None => {}
+        }
+        let free = self.running
+            && !self.monitor.tripped()
+            && self.stopping.is_none()
+            && !self.ended
+            && self.left_run.is_none()
+            && self.mode != Mode::Idle;
+        let throttle = match (free, self.mode) {
+            (false, _) => THROTTLE_MIN_PCT,
+            (true, Mode::Hold(cap)) => law_pct.min(cap),
+            (true, _) => law_pct,
+        };
+        if throttle < law_pct {
+            flags |= command_flags::GATED;
+        }
+        if !free && !self.gated {
+            // Gated from now on: the law starts afresh when it is free again.
+            self.law_change = LawChange::Reset;
+        }
+        self.gated = !free;
+        self.last_throttle_pct = throttle;
+        if free {
+            self.last_reference_n = reference_n;
+        }
+        (throttle, flags)
+    }
+
+    /// True while the law runs free (its output reaches the engine).
+    pub fn is_free(&self) -> bool {
+        !self.gated
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use jetbench_msgs::{ecu_states, origins};
+
+    const MS: u64 = 1_000_000;
+
+    fn supervisor(reference: EngineReference, limits: Limits) -> EngineSupervisor {
+        let settings = EngineSection { reference, ..EngineSection::default() };
+        let profiles = ProfileSource { configured: Default::default(), idle_n: 5.0, max_n: 100.0 };
+        EngineSupervisor::new(&settings, limits, profiles)
+    }
+
+    fn ecu(state: i32, off: u32, at_ns: u64) -> EcuTelemetry {
+        EcuTelemetry {
+            stamp_ns: at_ns,
+            state: state as u32,
+            off_condition: off,
+            rpm: 60_000.0,
+            egt_c: 600.0,
+            ..Default::default()
+        }
+    }
+
+    fn command(command: i32, value: f64, authority: u32) -> OperatorCommand {
+        OperatorCommand {
+            command,
+            value,
+            authority,
+            origin: origins::ZENOH,
+            identity: identity("tester"),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn throttle_passes_only_in_run_and_an_ecu_shutdown_ends_the_test_with_its_reason() {
+        let mut s = supervisor(EngineReference::Profile, Limits::default());
+        s.on_ecu(0, &ecu(ecu_states::STANDBY, 0, 0));
+        assert_eq!(s.gate(0, 60.0, 50.0).0, THROTTLE_MIN_PCT);
+        s.on_ecu(10 * MS, &ecu(ecu_states::RUN, 0, 10 * MS));
+        assert_eq!(s.gate(10 * MS, 60.0, 50.0), (60.0, 0));
+        // Over-temperature: slow-down, the reason one poll later.
+        s.on_ecu(20 * MS, &ecu(ecu_states::SLOW_DOWN, 0, 20 * MS));
+        s.check(20 * MS);
+        let (u, flags) = s.gate(20 * MS, 60.0, 50.0);
+        assert_eq!(u, THROTTLE_MIN_PCT);
+        assert_ne!(flags & command_flags::GATED, 0);
+        assert_eq!(s.take_law_change(), LawChange::Reset);
+        assert!(!s.ended());
+        s.on_ecu(80 * MS, &ecu(ecu_states::SLOW_DOWN, 2, 80 * MS));
+        s.check(80 * MS);
+        assert!(s.ended());
+        let events = s.take_events();
+        let shutdown = events.iter().find(|e| e.kind == event_kinds::SHUTDOWN).expect("a shutdown event");
+        assert_eq!((shutdown.code, shutdown.stamp_ns), (2, 20 * MS));
+        let ended = events.iter().find(|e| e.kind == event_kinds::TEST_ENDED).expect("the test ends");
+        assert_eq!((ended.code, ended.previous), (end_reasons::ECU_SHUTDOWN, 2));
+    }
+
+    #[test]
+    fn anyone_may_make_it_safer_only_an_operator_may_raise_it() {
+        let mut s = supervisor(EngineReference::Idle, Limits::default());
+        s.on_ecu(0, &ecu(ecu_states::RUN, 0, 0));
+        // Idle by default at the bench until a profile is chosen.
+        assert_eq!(s.gate(0, 60.0, 50.0).0, THROTTLE_MIN_PCT);
+        s.on_command(MS, &command(op::RUN_PROFILE, 0.0, authorities::ANYONE));
+        assert_eq!(s.mode(), Mode::Idle);
+        s.on_command(MS, &command(op::RUN_PROFILE, 0.0, authorities::OPERATOR));
+        assert!(matches!(s.take_law_change(), LawChange::Profile(_)));
+        assert_eq!(s.gate(2 * MS, 60.0, 50.0).0, 60.0);
+        s.on_command(3 * MS, &command(op::HOLD, 80.0, authorities::ANYONE));
+        s.on_command(3 * MS, &command(op::HOLD, 40.0, authorities::ANYONE));
+        assert_eq!(s.gate(4 * MS, 60.0, 50.0).0, 40.0);
+        s.on_command(5 * MS, &command(op::SET_REFERENCE, 70.0, authorities::ANYONE));
+        s.on_command(5 * MS, &command(op::SET_REFERENCE, 30.0, authorities::ANYONE));
+        s.on_command(5 * MS, &command(op::CLEAR_TRIPS, 0.0, authorities::ANYONE));
+        s.on_command(6 * MS, &command(op::STOP_NOW, 0.0, authorities::ANYONE));
+        let (u, flags) = s.gate(7 * MS, 60.0, 50.0);
+        assert_eq!(u, THROTTLE_MIN_PCT);
+        assert_ne!(flags & command_flags::ECU_STOP, 0);
+        s.on_command(8 * MS, &command(op::START, 0.0, authorities::OPERATOR));
+        let verdicts: Vec<(u32, i32, i32)> = s
+            .take_events()
+            .iter()
+            .filter(|e| e.kind == event_kinds::COMMAND_ACCEPTED || e.kind == event_kinds::COMMAND_REFUSED)
+            .map(|e| (e.kind, e.code, e.previous))
+            .collect();
+        let (ok, no) = (event_kinds::COMMAND_ACCEPTED, event_kinds::COMMAND_REFUSED);
+        assert_eq!(
+            verdicts,
+            vec![
+                (no, op::RUN_PROFILE, refusals::NOT_AUTHORISED),
+                (ok, op::RUN_PROFILE, 0),
+                (no, op::HOLD, refusals::NOT_AUTHORISED),
+                (ok, op::HOLD, 0),
+                (no, op::SET_REFERENCE, refusals::NOT_AUTHORISED),
+                (ok, op::SET_REFERENCE, 0),
+                (no, op::CLEAR_TRIPS, refusals::NOT_AUTHORISED),
+                (ok, op::STOP_NOW, 0),
+                (no, op::START, refusals::TEST_ENDED),
+            ]
+        );
+    }
+
+    #[test]
+    fn a_stop_idles_first_then_asks_the_ecu() {
+        let mut s = supervisor(EngineReference::Profile, Limits::default());
+        s.on_ecu(0, &ecu(ecu_states::RUN, 0, 0));
+        s.on_command(0, &command(op::STOP, 0.0, authorities::ANYONE));
+        let (u, flags) = s.gate(MS, 60.0, 50.0);
+        assert_eq!((u, flags & command_flags::ECU_STOP), (THROTTLE_MIN_PCT, 0));
+        let (_, flags) = s.gate(3_000 * MS, 60.0, 50.0);
+        assert_ne!(flags & command_flags::ECU_STOP, 0);
+        // The ECU obeys: slow-down is no shutdown of its own.
+        s.on_ecu(3_100 * MS, &ecu(ecu_states::SLOW_DOWN, 15, 3_100 * MS));
+        s.check(3_100 * MS);
+        assert!(!s.take_events().iter().any(|e| e.kind == event_kinds::SHUTDOWN));
+    }
+
+    #[test]
+    fn a_latched_trip_holds_idle_until_cleared() {
+        let mut limits = Limits::default();
+        limits.set(
+            crate::limits::LimitKind::MaxThrust,
+            Some(crate::limits::Limit { limit: 80.0, response: Response::Idle, hold_s: 0.0 }),
+        );
+        let mut s = supervisor(EngineReference::Profile, limits);
+        s.on_ecu(0, &ecu(ecu_states::RUN, 0, 0));
+        s.on_thrust(MS, 90.0);
+        s.check(MS);
+        assert_eq!(s.gate(MS, 60.0, 50.0).0, THROTTLE_MIN_PCT);
+        s.on_thrust(2 * MS, 40.0);
+        s.check(2 * MS);
+        assert_eq!(s.gate(2 * MS, 60.0, 50.0).0, THROTTLE_MIN_PCT, "latched");
+        s.on_command(3 * MS, &command(op::CLEAR_TRIPS, 0.0, authorities::OPERATOR));
+        s.check(3 * MS);
+        assert_eq!(s.gate(3 * MS, 60.0, 50.0).0, 60.0);
+        assert!(!s.ended(), "an idle trip does not end the test");
+    }
+}
