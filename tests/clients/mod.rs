@@ -328,3 +328,139 @@ pub fn zenoh_subscriber(netns: Option<&str>, endpoint: &str, suite: &str, out: &
         .arg(recording);
     Process::start(command, "subscribed", "the Python Zenoh subscriber")
 }
+
+/// Certificates made by the test with the `openssl` command: a CA the bench trusts,
+/// the bench's certificate (valid for `bench_ip`), a client certificate per trusted
+/// name, and an untrusted client from another CA that claims a trusted name.
+pub struct TestPki {
+    pub dir: PathBuf,
+}
+
+impl TestPki {
+    /// Makes `ca.crt`, `bench.{crt,key}`, `<name>.{crt,key}` for each of `clients` (signed by
+    /// the CA) and `untrusted.{crt,key}` (CN `untrusted_cn`, signed by `rogue-ca.crt`) in `dir`.
+    pub fn make(dir: &Path, bench_ip: &str, clients: &[&str], untrusted_cn: &str) -> TestPki {
+        std::fs::create_dir_all(dir).unwrap();
+        let openssl = |args: &[&str]| {
+            let out = Command::new("openssl").current_dir(dir).args(args).output().expect("run openssl");
+            assert!(out.status.success(), "openssl {}:\n{}", args.join(" "), String::from_utf8_lossy(&out.stderr));
+        };
+        let ca = |name: &str| {
+            let (key, crt, subject) =
+                (format!("{name}.key"), format!("{name}.crt"), format!("/CN=jetbench test {name}"));
+            openssl(&[
+                "req",
+                "-x509",
+                "-newkey",
+                "ec",
+                "-pkeyopt",
+                "ec_paramgen_curve:prime256v1",
+                "-nodes",
+                "-keyout",
+                &key,
+                "-out",
+                &crt,
+                "-days",
+                "2",
+                "-subj",
+                &subject,
+                "-addext",
+                "basicConstraints=critical,CA:TRUE",
+                "-addext",
+                "keyUsage=critical,keyCertSign,cRLSign",
+            ]);
+        };
+        ca("ca");
+        ca("rogue-ca");
+        let leaf = |file: &str, cn: &str, ca: &str, san: &str| {
+            let ext = format!("{file}.ext");
+            std::fs::write(
+                dir.join(&ext),
+                format!(
+                    "basicConstraints=CA:FALSE\nkeyUsage=critical,digitalSignature\n\
+                     extendedKeyUsage=serverAuth,clientAuth\nsubjectAltName={san}\n"
+                ),
+            )
+            .unwrap();
+            let (key, csr, crt) = (format!("{file}.key"), format!("{file}.csr"), format!("{file}.crt"));
+            openssl(&[
+                "req",
+                "-newkey",
+                "ec",
+                "-pkeyopt",
+                "ec_paramgen_curve:prime256v1",
+                "-nodes",
+                "-keyout",
+                &key,
+                "-out",
+                &csr,
+                "-subj",
+                &format!("/CN={cn}"),
+            ]);
+            openssl(&[
+                "x509",
+                "-req",
+                "-in",
+                &csr,
+                "-CA",
+                &format!("{ca}.crt"),
+                "-CAkey",
+                &format!("{ca}.key"),
+                "-CAcreateserial",
+                "-out",
+                &crt,
+                "-days",
+                "2",
+                "-extfile",
+                &ext,
+            ]);
+        };
+        leaf("bench", "bench", "ca", &format!("IP:{bench_ip},IP:127.0.0.1,DNS:localhost"));
+        for name in clients {
+            leaf(name, name, "ca", &format!("DNS:{name}"));
+        }
+        leaf("untrusted", untrusted_cn, "rogue-ca", &format!("DNS:{untrusted_cn}"));
+        TestPki { dir: dir.to_path_buf() }
+    }
+
+    pub fn path(&self, file: &str) -> String {
+        self.dir.join(file).display().to_string()
+    }
+}
+
+/// Runs tests/clients/zenoh_command.py in `netns`: connects to `endpoint` (with the
+/// client certificate `client` of `pki`, if any), queries each of `queries`
+/// (`KEY[=VALUE]`) in turn; returns each query's replies, or `Err` with the connect
+/// error.
+pub fn zenoh_commands(
+    netns: Option<&str>,
+    endpoint: &str,
+    tls: Option<(&TestPki, &str)>,
+    queries: &[String],
+) -> Result<Vec<(String, Vec<String>)>, String> {
+    let mut command = in_netns(netns, &crate::common::python());
+    command.arg(repo_root().join("tests/clients/zenoh_command.py")).args(["--connect", endpoint]);
+    if let Some((pki, client)) = tls {
+        command.args(["--ca", &pki.path("ca.crt"), "--cert", &pki.path(&format!("{client}.crt"))]);
+        command.args(["--key", &pki.path(&format!("{client}.key"))]);
+    }
+    command.args(queries);
+    let out = command.output().expect("run zenoh_command.py");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let mut answers = Vec::new();
+    for line in stdout.lines().filter(|l| l.starts_with('{')) {
+        let v: Value = serde_json::from_str(line).unwrap();
+        if let Some(e) = v["connect_error"].as_str() {
+            return Err(e.to_string());
+        }
+        let replies = v["replies"].as_array().unwrap().iter().map(|r| r.as_str().unwrap().to_string()).collect();
+        answers.push((v["key"].as_str().unwrap().to_string(), replies));
+    }
+    assert!(
+        out.status.success() && answers.len() == queries.len(),
+        "zenoh_command.py failed ({}):\n{stdout}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    Ok(answers)
+}

@@ -27,6 +27,7 @@
 //! no multicast scouting and no gossip, so nothing connects that was not asked to.
 #![doc = include_str!("../README.md")]
 
+pub mod operator;
 mod publish;
 mod remote;
 mod service;
@@ -53,12 +54,19 @@ pub enum BridgeError {
     Endpoint { endpoint: String, reason: String },
     #[error("invalid Zenoh setting {key}: {source}")]
     Config { key: &'static str, source: zenoh::Error },
-    #[error("cannot open a Zenoh session {role} {endpoint}: {source}")]
-    Open { role: &'static str, endpoint: Endpoint, source: zenoh::Error },
+    /// A session that could not be opened: which endpoint, what Zenoh said (without its
+    /// source locations), what to check.
+    #[error("cannot open a Zenoh session {role} {endpoint}: {reason}; {hint}")]
+    Open { role: &'static str, endpoint: Endpoint, reason: String, hint: &'static str },
     #[error("cannot declare {what} on {key}: {source}")]
     Declare { what: &'static str, key: String, source: zenoh::Error },
     #[error("unknown channel {0:?}; channels are: {names}", names = jetbench_msgs::channel_names().join(", "))]
     UnknownChannel(String),
+    #[error(transparent)]
+    Operator(#[from] jetbench_control::operator::OperatorSettingsError),
+    /// A command the bench did not answer, or that cannot be sent.
+    #[error("{0}")]
+    Command(String),
     #[error(transparent)]
     Bus(#[from] jetbench_bus::BusError),
     #[error(transparent)]
@@ -70,8 +78,9 @@ jetbench_bus::from_bus_errors!(BridgeError);
 /// Where the bridge listens unless told: this machine only.
 pub const DEFAULT_ENDPOINT: &str = "tcp/127.0.0.1:7447";
 
-/// A Zenoh TCP endpoint, `tcp/HOST:PORT`: where a bridge listens
-/// (`tcp/0.0.0.0:7447`) or a remote tool connects (`tcp/192.0.2.10:7447`).
+/// A Zenoh endpoint, `tcp/HOST:PORT` or `tls/HOST:PORT`: where a bridge listens
+/// (`tcp/0.0.0.0:7447`) or a remote tool connects (`tcp/192.0.2.10:7447`). TLS is the
+/// operator's path (`[operator] tls_listen`, client certificates required).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Endpoint(String);
 
@@ -80,14 +89,17 @@ impl FromStr for Endpoint {
 
     fn from_str(s: &str) -> Result<Endpoint, BridgeError> {
         let error = |reason: &str| BridgeError::Endpoint { endpoint: s.into(), reason: reason.into() };
-        let address = s.strip_prefix("tcp/").ok_or_else(|| {
-            error("expected tcp/HOST:PORT, e.g. tcp/0.0.0.0:7447 (this build carries Zenoh over TCP only)")
+        let address = s.strip_prefix("tcp/").or_else(|| s.strip_prefix("tls/")).ok_or_else(|| {
+            error("expected tcp/HOST:PORT (or tls/HOST:PORT for the operator), e.g. tcp/0.0.0.0:7447")
         })?;
         let (host, port) = address.rsplit_once(':').ok_or_else(|| error("no port: expected tcp/HOST:PORT"))?;
         if host.is_empty() {
             return Err(error("no host: expected tcp/HOST:PORT"));
         }
         port.parse::<u16>().map_err(|_| error("the port is not a number from 0 to 65535"))?;
+        if address.contains(['#', '?']) {
+            return Err(error("no #options or ?metadata: TLS files come from the config's [operator] section"));
+        }
         zenoh::config::EndPoint::from_str(s).map_err(|e| error(&e.to_string()))?;
         Ok(Endpoint(s.into()))
     }
@@ -122,11 +134,30 @@ impl Role {
     }
 }
 
+impl Endpoint {
+    /// Whether it is a TLS endpoint.
+    pub fn is_tls(&self) -> bool {
+        self.0.starts_with("tls/")
+    }
+}
+
 /// Opens a peer session on one endpoint, with nothing found by scouting.
 fn open_session(role: Role, endpoint: &Endpoint) -> Result<zenoh::Session, BridgeError> {
+    open_session_with(role, std::slice::from_ref(endpoint), &[])
+}
+
+/// Opens a peer session on `endpoints` (listened on or connected to), with nothing
+/// found by scouting, and `extra` settings (key, JSON5 value) on top.
+fn open_session_with(
+    role: Role,
+    endpoints: &[Endpoint],
+    extra: &[(&'static str, String)],
+) -> Result<zenoh::Session, BridgeError> {
     use zenoh::Wait;
     let mut config = zenoh::Config::default();
-    let endpoints = format!("[\"{endpoint}\"]");
+    let endpoint = endpoints.first().cloned().unwrap_or_else(|| Endpoint(DEFAULT_ENDPOINT.into()));
+    let endpoints = serde_json::to_string(&endpoints.iter().map(|e| e.0.as_str()).collect::<Vec<_>>())
+        .unwrap_or_else(|_| "[]".into());
     let (listen, connect) = match role {
         Role::Listen => (endpoints.as_str(), "[]"),
         Role::Connect => ("[]", endpoints.as_str()),
@@ -141,14 +172,48 @@ fn open_session(role: Role, endpoint: &Endpoint) -> Result<zenoh::Session, Bridg
         ("connect/timeout_ms", "5000"),
         ("connect/exit_on_failure", "true"),
     ];
-    for (key, value) in settings {
+    for (key, value) in settings.iter().copied().chain(extra.iter().map(|(k, v)| (*k, v.as_str()))) {
         config.insert_json5(key, value).map_err(|source| BridgeError::Config { key, source })?;
     }
-    zenoh::open(config).wait().map_err(|source| BridgeError::Open {
+    zenoh::open(config).wait().map_err(|e| BridgeError::Open {
         role: role.describe(),
-        endpoint: endpoint.clone(),
-        source,
+        reason: zenoh_reason(&e),
+        hint: match role {
+            Role::Connect => {
+                "check that the bench runs `jetbench up --zenoh` on that address and port, that this machine \
+                 reaches it (ping, firewall), and for tls/ that the certificates are the ones the bench trusts"
+            }
+            Role::Listen => "check that the address is this machine's and that nothing else uses the port",
+        },
+        endpoint,
     })
+}
+
+/// Zenoh's error text without the source locations it appends (`at /path/to/src.rs:12.`),
+/// each sentence once.
+fn zenoh_reason(e: &zenoh::Error) -> String {
+    let mut parts: Vec<String> = Vec::new();
+    for line in e.to_string().lines() {
+        let mut text = line.trim().to_string();
+        while let Some(at) = text.find(" at /") {
+            let end = text[at..].find(".rs:").map(|i| at + i + 4).unwrap_or(text.len());
+            let digits = text[end..].chars().take_while(|c| c.is_ascii_digit() || *c == ':').count();
+            let mut cut = end + digits;
+            if text[cut..].starts_with('.') {
+                cut += 1;
+            }
+            text.replace_range(at..cut, "");
+        }
+        let text = text.trim().trim_end_matches('.').to_string();
+        if !text.is_empty() && !parts.contains(&text) {
+            parts.push(text);
+        }
+    }
+    if parts.is_empty() {
+        "Zenoh gave no reason".into()
+    } else {
+        parts.join(": ")
+    }
 }
 
 #[cfg(test)]
@@ -160,10 +225,21 @@ mod tests {
         assert!("tcp/0.0.0.0:7447".parse::<Endpoint>().is_ok());
         assert!("tcp/[::1]:7447".parse::<Endpoint>().is_ok());
         assert!("tcp/bench-pc.local:7447".parse::<Endpoint>().is_ok());
-        for bad in ["udp/0.0.0.0:7447", "0.0.0.0:7447", "tcp/0.0.0.0", "tcp/:7447", "tcp/h:port"] {
+        assert!("tls/10.0.0.1:7448".parse::<Endpoint>().is_ok_and(|e| e.is_tls()));
+        assert!(!"tcp/10.0.0.1:7447".parse::<Endpoint>().unwrap().is_tls());
+        for bad in ["udp/0.0.0.0:7447", "0.0.0.0:7447", "tcp/0.0.0.0", "tcp/:7447", "tcp/h:port", "quic/h:7447"] {
             let e = bad.parse::<Endpoint>().unwrap_err().to_string();
             assert!(e.contains("tcp/"), "{bad}: {e}");
         }
+    }
+
+    #[test]
+    fn zenoh_errors_lose_their_source_paths_and_repeats() {
+        let e: zenoh::Error = "Unable to connect to any of [tcp/192.0.2.1:7447]! at /root/.cargo/registry/src/i/zenoh-1.10.2/src/net/runtime/orchestrator.rs:412.\nUnable to connect to any of [tcp/192.0.2.1:7447]! at /root/.cargo/registry/src/i/zenoh-1.10.2/src/net/runtime/orchestrator.rs:377."
+            .into();
+        assert_eq!(zenoh_reason(&e), "Unable to connect to any of [tcp/192.0.2.1:7447]!");
+        let plain: zenoh::Error = "refused".into();
+        assert_eq!(zenoh_reason(&plain), "refused");
     }
 
     #[test]

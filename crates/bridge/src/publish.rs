@@ -10,7 +10,9 @@ use zenoh::bytes::Encoding;
 use zenoh::qos::CongestionControl;
 use zenoh::Wait;
 
-use crate::{key_for, open_session, BridgeError, Endpoint, Role};
+use crate::operator::{Gateway, GatewayCounts};
+use crate::{key_for, open_session_with, BridgeError, Endpoint, Role};
+use jetbench_control::operator::OperatorSettings;
 
 /// What the bridge did, printed at exit.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -21,11 +23,20 @@ pub struct BridgeReport {
     pub published: u64,
     /// Samples Zenoh refused (logged).
     pub failed: u64,
+    /// The command gateway's counts, with `[operator]`.
+    pub commands: Option<GatewayCounts>,
 }
 
 impl fmt::Display for BridgeReport {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(f, "bridge: {} samples published, {} refused by Zenoh", self.published, self.failed)?;
+        if let Some(c) = self.commands {
+            writeln!(
+                f,
+                "  commands: {} forwarded, {} accepted, {} refused, {} undecided, {} malformed",
+                c.forwarded, c.accepted, c.refused, c.undecided, c.malformed
+            )?;
+        }
         for c in self.channels.iter().filter(|c| c.received > 0 || c.gaps > 0) {
             writeln!(f, "  /{:<16} {:>7} samples, {} lost on the bus", c.channel, c.received, c.gaps)?;
         }
@@ -41,14 +52,31 @@ pub struct Bridge {
     publishers: Vec<(&'static str, zenoh::pubsub::Publisher<'static>)>,
     published: u64,
     failed: u64,
+    gateway: Option<Gateway>,
 }
 
 impl Bridge {
     /// Subscribes to every channel of `bus` and opens a Zenoh session
     /// listening on `endpoint`, publishing under `jetbench/<namespace>/`.
-    pub fn open(bus: &Bus, endpoint: &Endpoint, namespace: &str) -> Result<Bridge, BridgeError> {
+    /// With `operator`, it also listens on the operator's TLS endpoint (client
+    /// certificates required), enforces the access control made from it and answers
+    /// commands (see [`crate::operator`]).
+    pub fn open(
+        bus: &Bus,
+        endpoint: &Endpoint,
+        namespace: &str,
+        operator: Option<&OperatorSettings>,
+    ) -> Result<Bridge, BridgeError> {
         let tap = Tap::open(bus, Tap::DEPTH)?;
-        let session = open_session(Role::Listen, endpoint)?;
+        let mut endpoints = vec![endpoint.clone()];
+        let mut extra = Vec::new();
+        if let Some(settings) = operator {
+            settings.check()?;
+            settings.check_files()?;
+            endpoints.push(settings.tls_listen.parse()?);
+            extra = crate::operator::session_settings(settings, namespace);
+        }
+        let session = open_session_with(Role::Listen, &endpoints, &extra)?;
         struct Declare<'a> {
             session: &'a zenoh::Session,
             namespace: &'a str,
@@ -80,13 +108,33 @@ impl Bridge {
             return Err(e);
         }
         let publishers = declare.publishers;
-        Ok(Bridge { tap, session, publishers, published: 0, failed: 0 })
+        let gateway = match operator {
+            Some(settings) => Some(Gateway::open(&session, bus, settings, namespace)?),
+            None => None,
+        };
+        Ok(Bridge { tap, session, publishers, published: 0, failed: 0, gateway })
     }
 
-    /// Publishes everything queued on the bus now; returns how many samples were taken.
+    /// Forwards the control room's commands, publishes everything queued on the bus now,
+    /// and answers the commands the control service decided; returns how many samples
+    /// were taken.
     pub fn pump(&mut self) -> Result<usize, BridgeError> {
-        let Bridge { tap, publishers, published, failed, .. } = self;
-        Ok(tap.drain(&mut |sample| publish(publishers, published, failed, sample))?)
+        let Bridge { tap, publishers, published, failed, gateway, .. } = self;
+        if let Some(g) = gateway.as_mut() {
+            g.forward(jetbench_record::clock::monotonic_ns());
+        }
+        let taken = tap.drain(&mut |sample| {
+            if let Some(g) = gateway.as_mut().filter(|_| sample.channel == jetbench_msgs::channels::EVENTS.name) {
+                if let Some(event) = <jetbench_msgs::Event as Sample>::from_bytes(sample.body) {
+                    g.decided(&event);
+                }
+            }
+            publish(publishers, published, failed, sample)
+        })?;
+        if let Some(g) = gateway.as_mut() {
+            g.expire(jetbench_record::clock::monotonic_ns());
+        }
+        Ok(taken)
     }
 
     /// Closes the Zenoh session (remote subscribers see the bench leave).
@@ -97,7 +145,12 @@ impl Bridge {
     }
 
     pub fn report(&self) -> BridgeReport {
-        BridgeReport { channels: self.tap.counts(), published: self.published, failed: self.failed }
+        BridgeReport {
+            channels: self.tap.counts(),
+            published: self.published,
+            failed: self.failed,
+            commands: self.gateway.as_ref().map(Gateway::counts),
+        }
     }
 
     /// Samples lost on the bus before the bridge took them, every channel.

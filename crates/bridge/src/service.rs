@@ -23,8 +23,17 @@ impl ChannelReader for ZenohBridge {
     fn open(setup: &Setup<'_>) -> Result<Self, ServiceError> {
         let endpoint: Endpoint = setup.listen.unwrap_or(DEFAULT_ENDPOINT).parse()?;
         let namespace = jetbench_bus::namespace_name()?;
-        let bridge = Bridge::open(setup.bus, &endpoint, &namespace)?;
+        let operator = setup.config.operator.as_ref();
+        let bridge = Bridge::open(setup.bus, &endpoint, &namespace, operator)?;
         tracing::info!("publishing every channel on Zenoh {endpoint} under jetbench/{namespace}/");
+        if let Some(op) = operator {
+            tracing::info!(
+                "operator commands: anyone on jetbench/{namespace}/cmd/*; operators {} on {} \
+                 (client certificate required) under jetbench/{namespace}/op/<name>/cmd/*",
+                op.operators.join(", "),
+                op.tls_listen
+            );
+        }
         Ok(ZenohBridge { bridge })
     }
 

@@ -36,7 +36,7 @@
 use std::fmt;
 
 /// Longest identity, bytes (the width of the `identity` field of the bus samples).
-pub const IDENTITY_LEN: usize = 32;
+pub const IDENTITY_LEN: usize = jetbench_msgs::IDENTITY_LEN;
 
 /// Who sent a command: a certificate's common name, `local:<user>`, a Foxglove client, as
 /// UTF-8 NUL-padded to [`IDENTITY_LEN`] bytes, exactly the bus samples' `identity` field.
@@ -427,8 +427,9 @@ pub struct OperatorSettingsError {
 pub const MIN_TOKEN_LEN: usize = 16;
 
 impl OperatorSettings {
-    /// Checks every setting (files exist and are readable, names fit, the window is
-    /// positive); the first problem found, naming its key.
+    /// Checks every setting but the files (names fit, the window is positive, the token
+    /// goes with an address); the first problem found, naming its key. The config loader
+    /// calls it; a recorded config replayed on another machine needs no certificates.
     pub fn check(&self) -> Result<(), OperatorSettingsError> {
         let bad = |key: &'static str, problem: String| Err(OperatorSettingsError { key, problem });
         match self.tls_listen.strip_prefix("tls/").and_then(|a| a.rsplit_once(':')) {
@@ -438,15 +439,6 @@ impl OperatorSettings {
                     "tls_listen",
                     format!("{:?} is not tls/HOST:PORT (for example tls/0.0.0.0:7448)", self.tls_listen),
                 )
-            }
-        }
-        for (key, path) in
-            [("certificate", &self.certificate), ("private_key", &self.private_key), ("client_ca", &self.client_ca)]
-        {
-            match std::fs::read_to_string(path) {
-                Ok(text) if text.contains("-----BEGIN ") => {}
-                Ok(_) => return bad(key, format!("{} is not a PEM file (no -----BEGIN line)", path.display())),
-                Err(e) => return bad(key, format!("cannot read {}: {e}", path.display())),
             }
         }
         if self.operators.is_empty() {
@@ -496,6 +488,31 @@ impl OperatorSettings {
         Ok(())
     }
 
+    /// Checks that the certificate, key and CA files are readable PEM; the service that
+    /// serves the control room calls it when it starts.
+    pub fn check_files(&self) -> Result<(), OperatorSettingsError> {
+        let bad = |key: &'static str, problem: String| Err(OperatorSettingsError { key, problem });
+        for (key, path) in
+            [("certificate", &self.certificate), ("private_key", &self.private_key), ("client_ca", &self.client_ca)]
+        {
+            match std::fs::read_to_string(path) {
+                Ok(text) if text.contains("-----BEGIN ") => {}
+                Ok(_) => return bad(key, format!("{} is not a PEM file (no -----BEGIN line)", path.display())),
+                Err(e) => return bad(key, format!("cannot read {}: {e}", path.display())),
+            }
+        }
+        Ok(())
+    }
+
+    /// Makes the relative file paths relative to `dir` (the config file's folder).
+    pub fn resolve(&mut self, dir: &std::path::Path) {
+        for path in [&mut self.certificate, &mut self.private_key, &mut self.client_ca] {
+            if path.is_relative() {
+                *path = dir.join(&*path);
+            }
+        }
+    }
+
     /// The lease timing these settings give.
     pub fn lease(&self) -> LeaseSettings {
         LeaseSettings {
@@ -507,6 +524,74 @@ impl OperatorSettings {
     /// Whether `name` (a verified certificate's common name) is an operator.
     pub fn is_operator(&self, name: &str) -> bool {
         self.operators.iter().any(|o| o == name)
+    }
+}
+
+/// The commands a gateway forwarded to the bus and whose decision it waits for: the
+/// control service answers each with a `COMMAND_ACCEPTED` or `COMMAND_REFUSED` event
+/// naming the gateway (`origin`), the request (`source_id` = the command's `client_id`)
+/// and the command (`code`). `R` is what the gateway answers through (a Zenoh query, a
+/// Foxglove responder).
+#[derive(Debug)]
+pub struct AwaitingDecision<R> {
+    origin: u32,
+    items: Vec<Awaiting<R>>,
+}
+
+/// One forwarded command waiting for its decision.
+#[derive(Debug)]
+pub struct Awaiting<R> {
+    /// The request's number, the command's `client_id`.
+    pub client_id: u32,
+    /// The command (`operator_commands`).
+    pub command: i32,
+    /// When to stop waiting (monotonic, ns).
+    pub deadline_ns: u64,
+    /// The answer channel.
+    pub reply: R,
+}
+
+impl<R> AwaitingDecision<R> {
+    /// Waiting for the decisions of commands from gateway `origin` (`origins::ZENOH`, ...).
+    pub fn new(origin: u32) -> Self {
+        Self { origin, items: Vec::new() }
+    }
+
+    /// Waits for the decision of a forwarded command.
+    pub fn push(&mut self, awaiting: Awaiting<R>) {
+        self.items.push(awaiting);
+    }
+
+    /// The command `event` decides, if it is one of ours, with `true` for accepted.
+    pub fn decided(&mut self, event: &jetbench_msgs::Event) -> Option<(Awaiting<R>, bool)> {
+        use jetbench_msgs::event_kinds;
+        let accepted = match event.kind {
+            event_kinds::COMMAND_ACCEPTED => true,
+            event_kinds::COMMAND_REFUSED => false,
+            _ => return None,
+        };
+        if event.origin != self.origin {
+            return None;
+        }
+        let i = self.items.iter().position(|a| a.client_id == event.source_id && a.command == event.code)?;
+        Some((self.items.swap_remove(i), accepted))
+    }
+
+    /// The commands whose deadline has passed at `now_ns`, no longer waited for.
+    pub fn expired(&mut self, now_ns: u64) -> Vec<Awaiting<R>> {
+        let (gone, kept) = std::mem::take(&mut self.items).into_iter().partition(|a| a.deadline_ns <= now_ns);
+        self.items = kept;
+        gone
+    }
+
+    /// How many are waiting.
+    pub fn len(&self) -> usize {
+        self.items.len()
+    }
+
+    /// Whether none is waiting.
+    pub fn is_empty(&self) -> bool {
+        self.items.is_empty()
     }
 }
 
@@ -680,6 +765,7 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let good = settings(&dir);
         good.check().unwrap();
+        good.check_files().unwrap();
         assert_eq!(good.lease(), LeaseSettings::default());
         assert!(good.is_operator("alice") && !good.is_operator("bob"));
         let parsed: OperatorSettings = toml::from_str(&format!(
@@ -732,13 +818,48 @@ mod tests {
         for (key, edit) in cases {
             let mut s = good.clone();
             edit(&mut s);
-            let e = s.check().unwrap_err();
+            let e = s.check().and_then(|()| s.check_files()).unwrap_err();
             assert_eq!(e.key, key, "{e}");
             assert!(e.to_string().starts_with(&format!("[operator] {key}: ")), "{e}");
         }
         std::fs::write(dir.join("bench.key"), "not pem").unwrap();
-        assert_eq!(good.check().unwrap_err().key, "private_key");
+        good.check().unwrap();
+        assert_eq!(good.check_files().unwrap_err().key, "private_key");
+        let mut relative = good.clone();
+        relative.certificate = "bench.crt".into();
+        relative.resolve(&dir);
+        assert_eq!(relative.certificate, dir.join("bench.crt"));
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn decisions_find_their_command_and_the_rest_expire() {
+        use jetbench_msgs::{event_kinds, operator_commands as c, origins, Event};
+        let mut w = AwaitingDecision::new(origins::ZENOH);
+        for (id, command) in [(1, c::START), (2, c::STOP), (3, c::HOLD)] {
+            w.push(Awaiting { client_id: id, command, deadline_ns: 100 * id as u64, reply: id });
+        }
+        let event = |kind, origin, source_id, code| Event { kind, origin, source_id, code, ..Default::default() };
+        assert!(w.decided(&event(event_kinds::TRIP, origins::ZENOH, 1, c::START)).is_none(), "not a decision");
+        assert!(
+            w.decided(&event(event_kinds::COMMAND_ACCEPTED, origins::FOXGLOVE, 1, c::START)).is_none(),
+            "another gateway's"
+        );
+        assert!(
+            w.decided(&event(event_kinds::COMMAND_ACCEPTED, origins::ZENOH, 1, c::STOP)).is_none(),
+            "another command"
+        );
+        let (a, ok) = w.decided(&event(event_kinds::COMMAND_REFUSED, origins::ZENOH, 1, c::START)).unwrap();
+        assert_eq!((a.reply, ok), (1, false));
+        let (a, ok) = w.decided(&event(event_kinds::COMMAND_ACCEPTED, origins::ZENOH, 2, c::STOP)).unwrap();
+        assert_eq!((a.reply, ok), (2, true));
+        assert!(
+            w.decided(&event(event_kinds::COMMAND_ACCEPTED, origins::ZENOH, 2, c::STOP)).is_none(),
+            "answered once"
+        );
+        assert!(w.expired(299).is_empty());
+        assert_eq!(w.expired(300).iter().map(|a| a.reply).collect::<Vec<_>>(), vec![3]);
+        assert!(w.is_empty());
     }
 
     #[derive(Clone, Copy, Debug)]

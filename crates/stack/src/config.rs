@@ -65,6 +65,9 @@ pub struct BenchConfig {
     /// (kept as written so that a derived config carries it unchanged).
     #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
     pub limits: toml::Table,
+    /// Who may operate the bench from the control room; `None`: view only (crates/bridge).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub operator: Option<jetbench_control::operator::OperatorSettings>,
 }
 
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
@@ -620,6 +623,9 @@ impl BenchConfig {
                     *spec = dir.join(spec.as_str()).display().to_string();
                 }
             }
+            if let Some(operator) = config.operator.as_mut() {
+                operator.resolve(dir);
+            }
             if let Some(profile) = config.control.throttle_profile.as_mut() {
                 if Path::new(profile.as_str()).is_relative() {
                     *profile = dir.join(profile.as_str()).display().to_string();
@@ -632,6 +638,9 @@ impl BenchConfig {
 
     fn validate(&self, origin: &str) -> Result<(), ConfigError> {
         let invalid = |message: String| ConfigError::Invalid { origin: origin.into(), message };
+        if let Some(operator) = &self.operator {
+            operator.check().map_err(|e| invalid(e.to_string()))?;
+        }
         if let Some(rate_hz) = self.bench.rate_hz {
             return Err(invalid(format!(
                 "[bench] rate_hz = {rate_hz} is no longer a setting: the bench runs at 100 Hz, the model's and the \

@@ -32,6 +32,7 @@
 
 mod channels;
 mod live;
+pub mod operator;
 mod play;
 mod server;
 mod service;

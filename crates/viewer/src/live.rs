@@ -7,6 +7,7 @@ use jetbench_bus::Bus;
 use jetbench_record::clock::realtime_ns;
 use jetbench_record::CdrMessage;
 
+use crate::operator::FoxgloveGateway;
 use crate::{ClientCounts, FoxgloveServer, ViewerError};
 
 /// What the viewer did with one channel.
@@ -49,6 +50,8 @@ pub struct LiveView {
     server: FoxgloveServer,
     /// Samples sent per channel, in the server's channel order.
     sent: Vec<u64>,
+    /// The operator commands the server's services forward, if it offers any.
+    gateway: Option<FoxgloveGateway>,
 }
 
 impl LiveView {
@@ -56,17 +59,40 @@ impl LiveView {
     pub fn open(bus: &Bus, server: FoxgloveServer) -> Result<LiveView, ViewerError> {
         let tap = Tap::open(bus, Tap::DEPTH)?;
         let sent = vec![0; server.channels().names().count()];
-        Ok(LiveView { tap, server, sent })
+        Ok(LiveView { tap, server, sent, gateway: None })
+    }
+
+    /// [`LiveView::open`] with the command `gateway` whose services `server` offers.
+    pub fn with_gateway(bus: &Bus, server: FoxgloveServer, gateway: FoxgloveGateway) -> Result<LiveView, ViewerError> {
+        let mut view = Self::open(bus, server)?;
+        view.gateway = Some(gateway);
+        Ok(view)
     }
 
     pub fn server(&self) -> &FoxgloveServer {
         &self.server
     }
 
-    /// Sends everything queued on the bus now; returns how many samples were taken.
+    /// Forwards the operator commands called now, sends everything queued on the bus,
+    /// and answers the calls the control service decided; returns how many samples were
+    /// taken.
     pub fn pump(&mut self) -> Result<usize, ViewerError> {
-        let Self { tap, server, sent } = self;
-        Ok(tap.drain(&mut |sample| forward(server, sent, sample))?)
+        let Self { tap, server, sent, gateway } = self;
+        if let Some(g) = gateway.as_mut() {
+            g.forward(jetbench_record::clock::monotonic_ns());
+        }
+        let taken = tap.drain(&mut |sample| {
+            if let Some(g) = gateway.as_mut().filter(|_| sample.channel == jetbench_msgs::channels::EVENTS.name) {
+                if let Some(event) = <jetbench_msgs::Event as jetbench_msgs::Sample>::from_bytes(sample.body) {
+                    g.decided(&event);
+                }
+            }
+            forward(server, sent, sample)
+        })?;
+        if let Some(g) = gateway.as_mut() {
+            g.expire(jetbench_record::clock::monotonic_ns());
+        }
+        Ok(taken)
     }
 
     pub fn report(&self) -> LiveReport {

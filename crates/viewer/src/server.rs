@@ -80,6 +80,15 @@ impl FoxgloveServer {
     /// Listens on `listen` (`HOST:PORT`; port 0 picks a free one) and
     /// advertises every bus channel.
     pub fn start(listen: &str, options: &ServerOptions) -> Result<FoxgloveServer, ViewerError> {
+        Self::start_with_services(listen, options, Vec::new())
+    }
+
+    /// [`FoxgloveServer::start`], offering `services` to the clients (JSON requests).
+    pub fn start_with_services(
+        listen: &str,
+        options: &ServerOptions,
+        services: Vec<foxglove::websocket::service::Service>,
+    ) -> Result<FoxgloveServer, ViewerError> {
         let addr = parse_listen(listen)?;
         // A context of its own: the channels of this server only.
         let context = Context::new();
@@ -91,8 +100,16 @@ impl FoxgloveServer {
             .context(&context)
             .message_backlog_size(options.backlog.max(1))
             .listener(clients.clone());
+        let mut capabilities = Vec::new();
         if options.time {
-            server = server.capabilities([Capability::Time]);
+            capabilities.push(Capability::Time);
+        }
+        if !services.is_empty() {
+            capabilities.push(Capability::Services);
+            server = server.services(services).supported_encodings(["json"]);
+        }
+        if !capabilities.is_empty() {
+            server = server.capabilities(capabilities);
         }
         let handle = server.start_blocking().map_err(|source| ViewerError::Start { addr: listen.into(), source })?;
         let addr = SocketAddr::new(addr.ip(), handle.port());

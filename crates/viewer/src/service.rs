@@ -21,8 +21,13 @@ impl ChannelReader for Viewer {
     const ID: ServiceId = ServiceId::Viewer;
 
     fn open(setup: &Setup<'_>) -> Result<Self, ServiceError> {
-        let server = FoxgloveServer::start(setup.listen.unwrap_or(DEFAULT_ADDR), &ServerOptions::default())?;
-        let view = LiveView::open(setup.bus, server)?;
+        let listen = setup.listen.unwrap_or(DEFAULT_ADDR);
+        let token = crate::operator::operator_token(setup.config.operator.as_ref(), crate::parse_listen(listen)?);
+        let (gateway, services) =
+            crate::operator::FoxgloveGateway::open(setup.bus, token).map_err(ViewerError::from)?;
+        tracing::info!("Foxglove services: {}", gateway.offered().join(", "));
+        let server = FoxgloveServer::start_with_services(listen, &ServerOptions::default(), services)?;
+        let view = LiveView::with_gateway(setup.bus, server, gateway)?;
         tracing::info!("Foxglove live view on {}", view.server().url());
         Ok(Viewer { view })
     }
