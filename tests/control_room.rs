@@ -7,7 +7,9 @@
 
 use std::time::Duration;
 
-use jetbench_msgs::{authorities, channels, identity_text, operator_commands, origins, OperatorCommand};
+use jetbench_msgs::{
+    authorities, channels, event_kinds, identity_text, operator_commands, origins, refusals, OperatorCommand,
+};
 use jetbench_record::Recording;
 
 mod clients;
@@ -16,16 +18,20 @@ mod common;
 use clients::{free_port, in_netns, zenoh_commands, Process, TestPki, TwoHosts};
 use common::{repo_root, scratch};
 
-/// A reply that says the command was taken: accepted by the control service, or, where
-/// no control service decides operator commands, forwarded to the bus.
-fn taken(reply: &[String]) -> bool {
-    matches!(reply, [r] if r == "accepted" || r.starts_with("forwarded: "))
+/// The control service accepted it.
+fn accepted(reply: &[String]) -> bool {
+    matches!(reply, [r] if r == "accepted")
 }
 
-/// A reply that says the command was refused by the control service, or forwarded
-/// where none decides (the recording then shows the authority it carried).
-fn refused_or_forwarded(reply: &[String]) -> bool {
-    matches!(reply, [r] if r.starts_with("refused: ") || r.starts_with("forwarded: "))
+/// The control service decided it, and not for want of authority (a start while the
+/// engine already runs may be refused as not possible now; never as not authorised).
+fn decided_as_operator(reply: &[String]) -> bool {
+    matches!(reply, [r] if r == "accepted" || (r.starts_with("refused: ") && !r.contains("needs an authenticated operator")))
+}
+
+/// The control service refused it for want of the operator's authority.
+fn refused_unauthorised(reply: &[String]) -> bool {
+    matches!(reply, [r] if r.starts_with("refused: ") && r.contains("needs an authenticated operator"))
 }
 
 #[test]
@@ -111,11 +117,14 @@ fn operators_with_trusted_certificates_command_and_anyone_else_only_reaches_the_
 
     // Replies.
     let reply = |answers: &[(String, Vec<String>)], i: usize| answers[i].1.clone();
-    for i in 0..6 {
-        assert!(taken(&reply(&alice, i)), "{}: {:?}", alice[i].0, alice[i].1);
+    for i in [0, 4, 5] {
+        assert!(accepted(&reply(&alice, i)), "{}: {:?}", alice[i].0, alice[i].1);
+    }
+    for i in 1..4 {
+        assert!(decided_as_operator(&reply(&alice, i)), "{}: {:?}", alice[i].0, alice[i].1);
     }
     assert_eq!(reply(&alice, 6), Vec::<String>::new(), "alice reached bob's key");
-    assert!(taken(&reply(&alice, 7)), "{:?}", alice[7]);
+    assert!(accepted(&reply(&alice, 7)), "{:?}", alice[7]);
     assert!(
         matches!(&reply(&alice, 8)[..], [r] if r.starts_with("refused: unknown command \"launch\"")),
         "{:?}",
@@ -133,9 +142,9 @@ fn operators_with_trusted_certificates_command_and_anyone_else_only_reaches_the_
         "a client without a certificate was let in over TLS:\n{}",
         String::from_utf8_lossy(&no_cert.stdout)
     );
-    assert!(taken(&reply(&anyone, 0)), "anyone's stop: {:?}", anyone[0]);
+    assert!(accepted(&reply(&anyone, 0)), "anyone's stop: {:?}", anyone[0]);
     for i in 1..4 {
-        assert!(refused_or_forwarded(&reply(&anyone, i)), "{}: {:?}", anyone[i].0, anyone[i].1);
+        assert!(refused_unauthorised(&reply(&anyone, i)), "{}: {:?}", anyone[i].0, anyone[i].1);
     }
     assert_eq!(reply(&anyone, 4), Vec::<String>::new(), "an anonymous client reached the operator's key");
     assert!(matches!(&reply(&anyone, 5)[..], [r] if r.contains("is a pattern")), "{:?}", anyone[5]);
@@ -165,6 +174,20 @@ fn operators_with_trusted_certificates_command_and_anyone_else_only_reaches_the_
         anon(TAKE_CONTROL),
     ];
     assert_eq!(commands, expected, "bench/operator from the control room");
+    // Every one of them decided in bench/events, with who sent it; anyone's raising
+    // commands refused as not authorised.
+    let decisions: Vec<(u32, i32, String, i32)> = recording
+        .samples(channels::EVENTS)
+        .iter()
+        .filter(|e| e.origin == origins::ZENOH)
+        .map(|e| (e.kind, e.code, identity_text(&e.identity), e.previous))
+        .collect();
+    assert_eq!(decisions.len(), expected.len(), "{decisions:?}");
+    for command in [START, CLEAR_TRIPS, TAKE_CONTROL] {
+        let refused = (event_kinds::COMMAND_REFUSED, command, "zenoh:anonymous".to_string(), refusals::NOT_AUTHORISED);
+        assert!(decisions.contains(&refused), "{command}: {decisions:?}");
+    }
+    assert!(decisions.contains(&(event_kinds::COMMAND_ACCEPTED, TAKE_CONTROL, "alice".into(), 0)), "{decisions:?}");
 }
 
 /// Runs tests/clients/foxglove_services.mjs against `url`: the services offered, and
@@ -227,7 +250,7 @@ fn foxglove_offers_the_safe_commands_to_anyone_and_the_raising_ones_only_to_the_
     let (ok, log) = up.wait(Duration::from_secs(60));
     assert!(ok, "jetbench up failed:\n{log}");
     assert_eq!(offered, SAFE, "a bench without [operator] offers the safe commands only");
-    assert!(taken(&answers[..1]), "{answers:?}");
+    assert!(accepted(&answers[..1]), "{answers:?}");
     assert_eq!(answers[1], "failure: \"not offered\"");
     let got = foxglove_commands(&record);
     assert_eq!(got.len(), 1, "{got:?}");
@@ -267,9 +290,9 @@ fn foxglove_offers_the_safe_commands_to_anyone_and_the_raising_ones_only_to_the_
     assert!(ok, "jetbench up failed:\n{log}");
     assert_eq!(offered.len(), 12, "{offered:?}");
     assert!(SAFE.iter().all(|s| offered.iter().any(|o| o == s)) && offered.iter().any(|o| o == "jetbench/start"));
-    assert!(taken(&answers[..1]), "{answers:?}");
-    assert!(refused_or_forwarded(&answers[1..2]), "{answers:?}");
-    assert!(taken(&answers[2..3]), "{answers:?}");
+    assert!(decided_as_operator(&answers[..1]), "{answers:?}");
+    assert!(refused_unauthorised(&answers[1..2]), "{answers:?}");
+    assert!(decided_as_operator(&answers[2..3]), "{answers:?}");
     assert!(answers[3].contains("not a finite number"), "{answers:?}");
     let got = foxglove_commands(&record);
     let op = |command, value| (command, "foxglove:operator".to_string(), authorities::OPERATOR, value);

@@ -130,7 +130,6 @@ struct Request {
 struct Reply {
     query: Query,
     identity: String,
-    authority: u32,
     seq: u64,
 }
 
@@ -242,7 +241,7 @@ impl Gateway {
                         client_id,
                         command,
                         deadline_ns: now_ns + DECISION_TIMEOUT.as_nanos() as u64,
-                        reply: Reply { query, identity: from.identity, authority: from.authority, seq },
+                        reply: Reply { query, identity: from.identity, seq },
                     });
                 }
                 Err(e) => {
@@ -263,14 +262,7 @@ impl Gateway {
             reply(&r.query, "accepted");
         } else {
             self.counts.refused += 1;
-            let why = if r.authority == authorities::ANYONE && raises(a.command) {
-                format!(
-                    "{} needs the operator (a client certificate the bench trusts, on the operator's key)",
-                    name(a.command)
-                )
-            } else {
-                format!("the control service refused {} from {}", name(a.command), r.identity)
-            };
+            let why = jetbench_control::operator::refusal_text(event.previous, a.command);
             reply(&r.query, &format!("refused: {why}"));
         }
     }

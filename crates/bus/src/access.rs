@@ -26,13 +26,19 @@ pub const GROUP_ENV: &str = "JETBENCH_GROUP";
 /// Why the group setting cannot be used.
 #[derive(Debug, thiserror::Error)]
 pub enum GroupError {
+    /// No group of that name (or id) exists here (the name given).
     #[error("no group named {0:?} on this machine ([bench] group / {GROUP_ENV})")]
     Unknown(String),
+    /// The process does not run with the group as its own, so files it creates would
+    /// not be shared.
     #[error(
         "[bench] group = {name:?} shares the set's files with that group, so the set must run with it as its group: \
          start it with `sg {name} -c \"jetbench up ...\"` (you must be a member)"
     )]
-    NotOurGroup { name: String },
+    NotOurGroup {
+        /// The group's name.
+        name: String,
+    },
 }
 
 /// The group that shares the set's files, from [`GROUP_ENV`] (its name and id).

@@ -39,6 +39,7 @@
 //! `port` (typed publishers and subscribers), [`tap`] (every channel, read as
 //! the recorder reads it) and [`error`] (one error enum per operation).
 #![doc = include_str!("../README.md")]
+#![deny(missing_docs)]
 
 pub mod access;
 pub mod bell;
@@ -113,10 +114,12 @@ impl Bus {
         Ok(Bus { node, name: node_name.to_string(), transport, namespace })
     }
 
+    /// The node's name, as given to [`Bus::open`] (the service's name: `sensing`, …).
     pub fn name(&self) -> &str {
         &self.name
     }
 
+    /// How samples travel: shared memory (iceoryx2) or copied through Unix sockets.
     pub fn transport(&self) -> Transport {
         self.transport
     }

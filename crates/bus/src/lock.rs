@@ -29,15 +29,28 @@ use crate::error::EnvError;
 /// Why the namespace could not be taken.
 #[derive(Debug, thiserror::Error)]
 pub enum LockError {
+    /// The process's bus settings are not usable.
     #[error(transparent)]
     Env(#[from] EnvError),
+    /// Another service set holds the namespace.
     #[error(
         "bus namespace {namespace} is in use by {holder}; stop that set first (Ctrl-C in its terminal, or kill -TERM \
          its pid), or run this one in another namespace (JETBENCH_BUS=NAME)"
     )]
-    InUse { namespace: String, holder: String },
+    InUse {
+        /// The namespace.
+        namespace: String,
+        /// Who holds it, as its lock file names it (launcher pid and start time).
+        holder: String,
+    },
+    /// The lock file could not be opened, locked or written.
     #[error("cannot take the lock {path} of the bus namespace: {source}")]
-    Io { path: PathBuf, source: io::Error },
+    Io {
+        /// The lock file.
+        path: PathBuf,
+        /// The system's reason.
+        source: io::Error,
+    },
 }
 
 /// The namespace's lock, held while this value (and any child that inherited
@@ -99,6 +112,7 @@ impl NamespaceLock {
         Ok(NamespaceLock { file, path })
     }
 
+    /// The lock file, next to the namespace's doorbells (it names the launcher).
     pub fn path(&self) -> &Path {
         &self.path
     }

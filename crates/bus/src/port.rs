@@ -41,6 +41,7 @@ impl<T: Sample> Publisher<T> {
         self.next_seq
     }
 
+    /// The channel this port is on.
     pub fn channel(&self) -> Channel<T> {
         self.channel
     }
@@ -144,6 +145,7 @@ impl<T: Sample> Subscriber<T> {
         self.seq_tracks.borrow().len()
     }
 
+    /// The channel this port is on.
     pub fn channel(&self) -> Channel<T> {
         self.channel
     }
@@ -170,7 +172,9 @@ impl<T: Sample> Drop for Subscriber<T> {
 pub trait AnySubscriber: Trigger {
     /// Takes every queued sample and hands `(seq, stamp_ns, bytes)` to `sink`.
     fn drain_raw(&self, sink: &mut dyn FnMut(u64, u64, &[u8])) -> Result<usize, ReceiveError>;
+    /// Samples taken since the subscriber was created.
     fn received(&self) -> u64;
+    /// Samples lost before they were taken: jumps of the publishers' `seq`.
     fn gaps(&self) -> u64;
 }
 

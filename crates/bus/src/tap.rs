@@ -27,7 +27,10 @@ use jetbench_msgs::{visit_channels, Channel, ChannelVisitor, Sample};
 pub struct TapSample<'a> {
     /// Bus channel name, e.g. `bench/thrust`.
     pub channel: &'static str,
+    /// The publisher's sequence number: consecutive on a channel, so a jump is a
+    /// sample lost before it was taken.
     pub seq: u64,
+    /// When the sample was taken at its source, ns on the bench's monotonic clock.
     pub stamp_ns: u64,
     /// The sample's bytes: its CDR body.
     pub body: &'a [u8],
@@ -36,7 +39,9 @@ pub struct TapSample<'a> {
 /// What a tap took from one channel.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ChannelCount {
+    /// Bus channel name, e.g. `bench/thrust`.
     pub channel: &'static str,
+    /// Samples taken.
     pub received: u64,
     /// Samples lost before they were taken (`seq` gaps).
     pub gaps: u64,

@@ -163,7 +163,9 @@ fn check_socket_size<T: Sample>() -> Result<(), PortError> {
 /// What wakes a consumer: its channel's doorbell (iceoryx2) or its sockets.
 #[derive(Clone, Copy)]
 pub enum Waker<'a> {
+    /// The channel's futex doorbell (iceoryx2 transport).
     Bell(&'a Doorbell),
+    /// The subscriber's sockets (Unix-socket transport).
     Socket(&'a uds::Inbox),
 }
 

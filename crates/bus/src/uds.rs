@@ -143,6 +143,8 @@ pub struct Outbox {
 }
 
 impl Outbox {
+    /// A publisher's end for the channel whose folder is `dir` (created if missing);
+    /// it connects to the subscribers listening there when they come.
     pub fn open(dir: &Path) -> io::Result<Outbox> {
         std::fs::create_dir_all(dir)?;
         Ok(Outbox { dir: dir.to_path_buf(), generation_seen: None, outlets: Vec::new() })

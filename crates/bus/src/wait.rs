@@ -22,7 +22,9 @@ pub enum Wake {
 /// What the [`Bus::run`](crate::Bus::run) callback wants next.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Flow {
+    /// Wait for the next input or tick.
     Continue,
+    /// Return from the loop: [`Bus::run`](crate::Bus::run) returns [`LoopExit::Stopped`].
     Stop,
 }
 

@@ -26,6 +26,7 @@
 //! look ahead. Every controller is a plain `step` function; [`Law`] picks one from the
 //! bench config; wiring it to sensors and the ECU is the service's job.
 #![doc = include_str!("../README.md")]
+#![deny(missing_docs)]
 
 use jetbench_model::State;
 

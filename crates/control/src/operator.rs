@@ -595,6 +595,22 @@ impl<R> AwaitingDecision<R> {
     }
 }
 
+/// Why the control service refused a command, in words, from the refusal code of its
+/// `COMMAND_REFUSED` event (`previous`, one of `refusals`): what a gateway answers.
+pub fn refusal_text(refusal: i32, command: i32) -> String {
+    use jetbench_msgs::refusals as r;
+    let name = jetbench_msgs::operator_commands::name(command).unwrap_or("an unknown command");
+    match refusal {
+        r::NOT_AUTHORISED => format!("{name} needs an authenticated operator (a trusted client certificate or token)"),
+        r::NOT_NOW => format!("{name} is not possible in the engine's state now"),
+        r::TEST_ENDED => "the test has ended: the engine is being brought down".into(),
+        r::BAD_VALUE => format!("the value of {name} is out of range"),
+        r::UNKNOWN => "the bench does not know this command".into(),
+        r::TRIPPED => "trips are latched: clear them first".into(),
+        other => format!("{name} refused by the control service (reason code {other})"),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

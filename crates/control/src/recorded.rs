@@ -47,6 +47,7 @@ impl ThrustSource {
     /// Every source with its name, for the command line.
     pub const ALL: [ThrustSource; 3] = [ThrustSource::Truth, ThrustSource::Estimate, ThrustSource::Measured];
 
+    /// The name on the command line (`--thrust truth|estimate|measured`).
     pub fn name(self) -> &'static str {
         match self {
             ThrustSource::Truth => "truth",
@@ -55,6 +56,7 @@ impl ThrustSource {
         }
     }
 
+    /// The channel it is read from and what it is, for a report's header.
     pub fn describe(self) -> &'static str {
         match self {
             ThrustSource::Truth => "sim/truth (the simulated engine's true thrust)",
@@ -78,23 +80,49 @@ impl std::str::FromStr for ThrustSource {
 /// Why a recording gives no figures.
 #[derive(Debug, thiserror::Error)]
 pub enum RecordedError {
+    /// The recording lacks a channel metrics need (`what` names it): it is not a
+    /// closed-loop recording of every channel.
     #[error(
         "{what}: metrics compare the thrust with the reference the controller tracked and the throttle it \
          commanded, so they need a closed-loop recording of every channel, e.g. \
          `jetbench up --sim --duration 30 --record run.mcap`"
     )]
-    NotClosedLoop { what: String },
+    NotClosedLoop {
+        /// What is missing, e.g. "no bench/command samples".
+        what: String,
+    },
+    /// `--thrust truth` on a recording without `sim/truth` (a real bench has none).
     #[error("no sim/truth samples (only the simulated bench records the true thrust); use --thrust measured or --thrust estimate")]
     NoTruth,
+    /// No reference could be joined with a command and a thrust of the same cycle.
     #[error(
         "none of the {references} references has both a command and a {thrust} thrust sample of the same cycle; \
          is the recording complete? (`jetbench info` lists its channels)"
     )]
-    NothingJoined { references: usize, thrust: &'static str },
+    NothingJoined {
+        /// References in the recording.
+        references: usize,
+        /// The thrust source asked for ([`ThrustSource::name`]).
+        thrust: &'static str,
+    },
+    /// A controller run's metrics failed.
     #[error("the {controller} run at {start_s:.2}-{end_s:.2} s: {error}")]
-    Metrics { controller: &'static str, start_s: f64, end_s: f64, error: MetricsError },
+    Metrics {
+        /// The run's law ([`crate::Controller::name`]).
+        controller: &'static str,
+        /// The run's start, s from the recording's first control cycle.
+        start_s: f64,
+        /// The run's end, s from the recording's first control cycle.
+        end_s: f64,
+        /// Why its metrics failed.
+        error: MetricsError,
+    },
+    /// Every controller run was too short for metrics.
     #[error("no controller run is long enough for metrics ({})", notes.join("; "))]
-    NoRun { notes: Vec<String> },
+    NoRun {
+        /// Why each run was skipped.
+        notes: Vec<String>,
+    },
 }
 
 /// One controller run of a recording.
@@ -104,20 +132,26 @@ pub struct ControllerRun {
     pub index: usize,
     /// The law; `code` keeps what the recording said when this build does not know it.
     pub controller: &'static str,
+    /// The law's wire code ([`crate::Controller::code`]) as recorded.
     pub code: u32,
     /// The run in the recording, s from its first control cycle.
     pub start_s: f64,
+    /// Its end, s from the recording's first control cycle.
     pub end_s: f64,
+    /// Tracking figures over the run ([`TrackingMetrics`]).
     pub metrics: TrackingMetrics,
+    /// Every joined cycle of the run: reference, thrust and throttle.
     pub samples: Vec<TrackingSample>,
 }
 
 /// Everything found in one recording.
 #[derive(Clone, Debug)]
 pub struct RecordingMetrics {
+    /// Which thrust the metrics are of.
     pub source: ThrustSource,
     /// What was left out and why.
     pub notes: Vec<String>,
+    /// The controller runs, in recording order.
     pub runs: Vec<ControllerRun>,
 }
 

@@ -59,6 +59,7 @@ impl Default for EkfOptions {
 /// One pass over the calibration data.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct Pass {
+    /// Its number, from 1.
     pub pass: usize,
     /// Free-run validation score after the pass; `None` if the model diverged.
     pub validation: Option<Score>,
@@ -69,9 +70,11 @@ pub struct Pass {
 pub struct EkfFit {
     /// Parameters of the best pass.
     pub params: Params,
+    /// Every pass run, in order, with its validation score.
     pub passes: Vec<Pass>,
-    /// The tuning actually used (defaults resolved).
+    /// The tuning actually used (defaults resolved): the measurement variance, N².
     pub measurement_var_n2: f64,
+    /// The process noise used: unmodelled acceleration, N/s².
     pub accel_noise_n_per_s2: f64,
 }
 

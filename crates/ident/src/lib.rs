@@ -23,16 +23,22 @@ pub mod validate;
 /// Why an identification could not be done.
 #[derive(Debug, thiserror::Error)]
 pub enum IdentError {
+    /// The recording does not load or has unusable rows.
     #[error(transparent)]
     Data(#[from] series::DataError),
+    /// An option out of range (which, and why).
     #[error("bad option: {0}")]
     Options(String),
+    /// Fewer samples than the method needs (how many, and how many it needs).
     #[error("too little data: {0}")]
     TooLittleData(String),
+    /// The regression's matrix is singular: the throttle did not move enough to tell
+    /// the terms apart (which method).
     #[error(
         "{0}: the regression is singular; the data does not excite every term (use a campaign from `jetbench excite`)"
     )]
     Singular(String),
+    /// The method ran and failed (why).
     #[error("{0}")]
     Failed(String),
 }

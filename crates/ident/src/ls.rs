@@ -41,6 +41,7 @@ impl Default for LsOptions {
 /// The result of a least-squares fit.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LsFit {
+    /// The ten coefficients fitted.
     pub params: Params,
     /// RMS of the acceleration residual, N/s².
     pub residual_rms_n_per_s2: f64,

@@ -53,6 +53,8 @@ pub struct ArModel {
 }
 
 impl ArModel {
+    /// `e_k = φ₁·e_(k−1) + … + φ_p·e_(k−p) + w_k` with `w` white of variance
+    /// `innovation_var`, N².
     pub fn new(phi: Vec<f64>, innovation_var: f64) -> Self {
         Self { phi, innovation_var }
     }
@@ -178,6 +180,7 @@ fn from_pacf(kappa: &[f64]) -> Vec<f64> {
 /// The noise model of a recording, as [`estimate`] found it.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct NoiseEstimate {
+    /// The AR model fitted to the noise (its order, 0 to 6, chosen by BIC).
     pub model: ArModel,
     /// Standard deviation of the noise, N.
     pub sigma_n: f64,

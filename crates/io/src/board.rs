@@ -46,16 +46,24 @@ pub const WATCHDOG_NS: u64 = 100_000_000;
 
 /// Frame type codes.
 pub mod kind {
+    /// PC → board: set the throttle ([`super::Frame::SetThrottle`]).
     pub const SET_THROTTLE: u8 = 0x01;
+    /// PC → board: arm the output ([`super::Frame::Arm`]).
     pub const ARM: u8 = 0x02;
+    /// PC → board: disarm, output 0 ([`super::Frame::Disarm`]).
     pub const DISARM: u8 = 0x03;
+    /// Board → PC: acknowledgement of one command ([`super::Frame::Ack`]).
     pub const ACK: u8 = 0x81;
+    /// Board → PC: periodic status ([`super::Frame::Status`]).
     pub const STATUS: u8 = 0x82;
 }
 
 /// Bits of the `flags` byte in acknowledgements and status frames.
 pub mod board_flags {
+    /// The board is armed: it outputs the commanded throttle (disarmed: 0).
     pub const ARMED: u8 = 1 << 0;
+    /// The board's watchdog fired (no valid frame for [`super::WATCHDOG_NS`]) and it
+    /// holds idle until the next valid command.
     pub const IDLE_FALLBACK: u8 = 1 << 1;
 }
 
@@ -80,10 +88,12 @@ impl Throttle {
         Self::from_raw((pct * 100.0).round() as u16)
     }
 
+    /// In wire units, 0.01 %.
     pub fn raw(self) -> u16 {
         self.0
     }
 
+    /// In percent.
     pub fn pct(self) -> f64 {
         f64::from(self.0) / 100.0
     }
@@ -107,26 +117,38 @@ pub struct BoardStatus {
 /// One decoded frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Frame {
+    /// Set the throttle the board outputs while armed.
     SetThrottle {
+        /// The PC's number for this command, echoed in its acknowledgement.
         seq: u16,
+        /// The throttle to output.
         throttle: Throttle,
     },
+    /// Arm the output: from now on the board outputs the commanded throttle.
     Arm {
+        /// The PC's number for this command.
         seq: u16,
     },
+    /// Disarm: the board outputs 0 until armed again.
     Disarm {
+        /// The PC's number for this command.
         seq: u16,
     },
     /// The board's acknowledgement of command `seq`, with the throttle it now outputs.
     Ack {
+        /// The acknowledged command's number.
         seq: u16,
+        /// The throttle the board outputs after it.
         applied: Throttle,
+        /// [`board_flags`] bits.
         flags: u8,
     },
+    /// The board's periodic report.
     Status(BoardStatus),
 }
 
 impl Frame {
+    /// Its type code on the wire ([`kind`]).
     pub fn kind(&self) -> u8 {
         match self {
             Frame::SetThrottle { .. } => kind::SET_THROTTLE,
@@ -141,16 +163,40 @@ impl Frame {
 /// Why a frame was rejected. Each kind has its own counter in [`Counters`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum FrameError {
+    /// The CRC does not match the bytes: a bit flipped on the line.
     #[error("CRC mismatch: frame says {found:#06x}, bytes give {computed:#06x}")]
-    Crc { found: u16, computed: u16 },
+    Crc {
+        /// The CRC the frame carries.
+        found: u16,
+        /// The CRC of its bytes.
+        computed: u16,
+    },
+    /// The bytes end before the frame does.
     #[error("truncated frame: {have} of {need} bytes")]
-    Truncated { have: usize, need: usize },
+    Truncated {
+        /// Bytes there are.
+        have: usize,
+        /// Bytes the frame's `len` needs.
+        need: usize,
+    },
+    /// A `len` above [`MAX_PAYLOAD`] or not the payload length of its type.
     #[error("bad length {len} for frame type {kind:#04x}")]
-    BadLength { kind: u8, len: usize },
+    BadLength {
+        /// The frame's type code.
+        kind: u8,
+        /// The `len` it gives.
+        len: usize,
+    },
+    /// A type code this protocol does not have.
     #[error("unknown frame type {0:#04x}")]
     UnknownType(u8),
+    /// A throttle above 100 % (wire value, 0.01 %).
     #[error("throttle {raw} (0.01 %) is outside 0..=10000")]
-    OutOfRange { raw: u16 },
+    OutOfRange {
+        /// The wire value, 0.01 %.
+        raw: u16,
+    },
+    /// The first byte is not [`SYNC`] (the byte found).
     #[error("frame does not start with 0xA5 (found {0:#04x})")]
     NoSync(u8),
 }
@@ -308,11 +354,15 @@ pub fn decode(bytes: &[u8]) -> Result<(Frame, usize), FrameError> {
 pub struct Counters {
     /// Valid frames delivered.
     pub frames: u64,
+    /// Frames whose CRC did not match (a bit flipped on the line).
     pub crc_errors: u64,
     /// Partial frames given up on when the line went quiet ([`Deframer::expire_partial`]).
     pub truncated: u64,
+    /// Frames whose `len` exceeds [`MAX_PAYLOAD`] or is not their type's.
     pub bad_length: u64,
+    /// Frames of a type code this protocol does not have.
     pub unknown_type: u64,
+    /// Frames with a throttle above 100 % (10000 wire units).
     pub out_of_range: u64,
     /// Every byte discarded outside a valid frame (noise before a sync, and
     /// the bytes of rejected frames).
@@ -353,6 +403,7 @@ pub struct Deframer {
 }
 
 impl Deframer {
+    /// An empty deframer, every counter 0.
     pub fn new() -> Self {
         Deframer { buf: Vec::with_capacity(2 * MAX_FRAME), counters: Counters::default(), last_error: None }
     }
@@ -427,6 +478,7 @@ impl Deframer {
         self.buf.len()
     }
 
+    /// What it has seen so far, by kind.
     pub fn counters(&self) -> &Counters {
         &self.counters
     }

@@ -32,10 +32,25 @@ pub type Wrench = [f64; 6];
 /// Why a calibration is unusable.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CalibrationError {
+    /// An entry of the config's `calibration` matrix is NaN or infinite.
     #[error("calibration matrix entry [{row}][{col}] = {value} is not a finite number")]
-    NotFinite { row: usize, col: usize, value: f64 },
+    NotFinite {
+        /// Its row, 0..6 (Fx, Fy, Fz, Tx, Ty, Tz).
+        row: usize,
+        /// Its column, 0..6.
+        col: usize,
+        /// The value.
+        value: f64,
+    },
+    /// A tare offset is NaN or infinite.
     #[error("tare offset {axis} = {value} is not a finite number")]
-    TareNotFinite { axis: usize, value: f64 },
+    TareNotFinite {
+        /// Its axis, 0..6 (Fx, Fy, Fz, Tx, Ty, Tz).
+        axis: usize,
+        /// The value.
+        value: f64,
+    },
+    /// A tare was asked of no readings.
     #[error("no samples to tare with")]
     NoSamples,
 }
@@ -43,6 +58,9 @@ pub enum CalibrationError {
 /// Calibration matrix and tare offsets.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Calibration {
+    /// `C`: maps the raw reading (forces N, torques N·m, as the sensor reports them)
+    /// to calibrated ones, axes in the order Fx, Fy, Fz, Tx, Ty, Tz (the sensor's
+    /// calibration sheet gives it; identity for a sensor that is calibrated itself).
     pub matrix: Matrix6,
     /// Subtracted after the matrix, N (0..3) and N·m (3..6).
     pub tare: Wrench,
@@ -55,6 +73,7 @@ impl Default for Calibration {
 }
 
 impl Calibration {
+    /// The identity matrix and no tare: readings pass unchanged.
     pub fn identity() -> Self {
         Calibration { matrix: Matrix6::identity(), tare: [0.0; 6] }
     }
@@ -97,10 +116,13 @@ pub struct Tare {
 }
 
 impl Tare {
+    /// No readings yet.
     pub fn new() -> Self {
         Self::default()
     }
 
+    /// Adds one calibrated, untared reading taken at rest
+    /// ([`Calibration::calibrated_untared`]).
     pub fn add(&mut self, calibrated: &Wrench) {
         for ((sum, sum_sq), v) in self.sum.iter_mut().zip(&mut self.sum_sq).zip(calibrated) {
             *sum += v;
@@ -109,6 +131,7 @@ impl Tare {
         self.n += 1;
     }
 
+    /// Readings added.
     pub fn samples(&self) -> u64 {
         self.n
     }

@@ -34,12 +34,14 @@ use crate::can::{CanFrame, Codec, FrameDecoder, RejectCounts, RejectKind, Sensor
 /// A candump timestamp, kept exact: whole seconds and microseconds.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub struct Timestamp {
+    /// Whole seconds (candump `-L`: since the epoch).
     pub secs: u64,
     /// 0..1_000_000.
     pub micros: u32,
 }
 
 impl Timestamp {
+    /// In seconds (rounded to the nearest `f64`).
     pub fn as_secs_f64(&self) -> f64 {
         self.secs as f64 + f64::from(self.micros) * 1e-6
     }
@@ -55,8 +57,11 @@ impl fmt::Display for Timestamp {
 /// One log line, parsed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct LogFrame<'a> {
+    /// When the kernel received the frame.
     pub time: Timestamp,
+    /// The CAN interface it came in on, e.g. `vcan0`.
     pub interface: &'a str,
+    /// The frame.
     pub frame: CanFrame,
 }
 
@@ -176,6 +181,7 @@ pub struct CandumpDecoder {
 }
 
 impl CandumpDecoder {
+    /// A decoder for the sensor `codec` describes (its IDs and scales).
     pub fn new(codec: Codec) -> Self {
         CandumpDecoder { decoder: FrameDecoder::new(codec) }
     }
@@ -207,14 +213,17 @@ impl CandumpDecoder {
         self.decoder.finish();
     }
 
+    /// Lines rejected so far, by kind.
     pub fn counts(&self) -> &RejectCounts {
         self.decoder.counts()
     }
 
+    /// Lines read.
     pub fn lines_in(&self) -> u64 {
         self.decoder.frames_in()
     }
 
+    /// Readings decoded (force/torque pairs).
     pub fn pairs_out(&self) -> u64 {
         self.decoder.pairs_out()
     }

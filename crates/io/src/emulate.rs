@@ -63,6 +63,7 @@ pub struct BoardFirmware {
 pub const PARTIAL_FRAME_NS: u64 = 5_000_000;
 
 impl BoardFirmware {
+    /// Just powered up: disarmed, output 0, every counter 0.
     pub fn new() -> Self {
         Self::default()
     }
@@ -153,6 +154,7 @@ impl BoardFirmware {
         flags
     }
 
+    /// The status frame it would send at `now_ns`.
     pub fn status(&self, now_ns: u64) -> BoardStatus {
         let c = self.deframer.counters();
         BoardStatus {
@@ -169,6 +171,7 @@ impl BoardFirmware {
         self.deframer.counters()
     }
 
+    /// True when armed (it outputs the commanded throttle).
     pub fn is_armed(&self) -> bool {
         self.armed
     }
@@ -187,12 +190,19 @@ pub struct EcuModel {
     reading: EcuReading,
 }
 
+/// Shaft speed at zero thrust, RPM (a small turbojet idles near 35 000).
 pub const IDLE_RPM: f64 = 35_000.0;
+/// Shaft speed per √N of thrust, RPM/√N.
 pub const RPM_PER_SQRT_N: f64 = 8_000.0;
+/// Exhaust gas temperature at zero thrust, °C.
 pub const EGT_IDLE_C: f64 = 450.0;
+/// Exhaust gas temperature rise per newton of thrust, °C/N.
 pub const EGT_PER_N: f64 = 3.0;
+/// Time constant of the exhaust temperature, s.
 pub const EGT_TAU_S: f64 = 1.5;
+/// Fuel-pump voltage at 25 % throttle, V.
 pub const PUMP_IDLE_V: f64 = 0.8;
+/// Fuel-pump voltage per % of throttle above 25 %, V/%.
 pub const PUMP_PER_PCT: f64 = 0.05;
 /// The state code the emulated ECU reports while the engine runs (JetCat's run, 11).
 pub const ECU_STATE_RUNNING: u32 = crate::ecu::state::EcuState::Run as u32;
@@ -240,7 +250,9 @@ impl EcuModel {
 
 /// What the ECU firmware serves: telemetry, the off condition, and commands.
 pub trait EcuDevice: Send {
+    /// The telemetry a poll (`RAC`) answers with now.
     fn reading(&self) -> EcuReading;
+    /// Why the engine is off, if it is (`RSS` answers with it).
     fn off_condition(&self) -> OffCondition;
     /// Applies a command from the PC; a refusal is answered with its number.
     fn command(&mut self, command: EcuCommand) -> Result<(), Refused>;
@@ -250,8 +262,11 @@ pub trait EcuDevice: Send {
 /// for the owner ([`PtyEcu::take_commands`]).
 #[derive(Clone, Debug, Default)]
 pub struct FixedEcu {
+    /// The telemetry it answers every poll with.
     pub reading: EcuReading,
+    /// The off condition it reports (`None`: no condition).
     pub off_condition: Option<OffCondition>,
+    /// Commands received, oldest first, for the owner to take.
     pub commands: Vec<EcuCommand>,
 }
 
@@ -272,7 +287,9 @@ impl EcuDevice for FixedEcu {
 
 /// The [`EcuEmulator`] with the clock its commands are stamped with.
 pub struct ClockedEmulator {
+    /// The emulated ECU.
     pub emulator: EcuEmulator,
+    /// Seconds on the emulator's clock, read when a command arrives.
     pub clock: Box<dyn Fn() -> f64 + Send>,
 }
 
@@ -299,9 +316,11 @@ pub struct EcuFirmware {
     line: Vec<u8>,
     /// Lines that were not a command this firmware knows.
     pub unknown_lines: u64,
+    /// Telemetry polls (`RAC`) answered.
     pub polls: u64,
     /// Commands (start, stop, throttle) accepted and refused.
     pub accepted: u64,
+    /// Commands refused with an error number.
     pub refused: u64,
 }
 
@@ -532,6 +551,7 @@ impl PtyBoard {
         lock(&self.applied).clone()
     }
 
+    /// A copy of the emulated board's firmware state (armed, output, counters).
     pub fn firmware(&self) -> BoardFirmware {
         lock(&self.firmware).clone()
     }
@@ -547,6 +567,7 @@ impl PtyBoard {
         lock(&self.host.master_writer).write_all(bytes)
     }
 
+    /// The path of the PC's end of the pty pair (what the config's device names).
     pub fn link(&self) -> &Path {
         &self.host.link
     }
@@ -651,6 +672,7 @@ impl PtyEcu {
         (fw.accepted, fw.refused)
     }
 
+    /// Telemetry polls answered so far.
     pub fn polls(&self) -> u64 {
         lock(&self.firmware).polls
     }
@@ -660,6 +682,7 @@ impl PtyEcu {
         lock(&self.host.master_writer).write_all(bytes)
     }
 
+    /// The path of the PC's end of the pty pair (what the config's device names).
     pub fn link(&self) -> &Path {
         &self.host.link
     }

@@ -48,10 +48,23 @@ pub struct ForceReading {
 /// Why a device operation failed.
 #[derive(Debug, thiserror::Error)]
 pub enum DeviceError {
+    /// The device could not be opened, read or written (a missing port, a
+    /// disconnected adapter, an interface that is down).
     #[error("device {device}: {reason}")]
-    Io { device: String, reason: String },
+    Io {
+        /// The device, e.g. `throttle board on /dev/ttyUSB0`.
+        device: String,
+        /// What failed.
+        reason: String,
+    },
+    /// A value the device cannot take (a throttle out of range, a poll rate of 0).
     #[error("device {device} rejected a value: {reason}")]
-    InvalidValue { device: String, reason: String },
+    InvalidValue {
+        /// The device, e.g. `throttle board on /dev/ttyUSB0`.
+        device: String,
+        /// The value and why.
+        reason: String,
+    },
 }
 
 /// The force/torque sensor, read by the sensing service.
@@ -115,10 +128,13 @@ pub trait ThrottleOutput {
     }
     /// Puts the device in its safe state at shutdown (the board disarms).
     fn stop(&mut self) {}
+    /// The device for messages, e.g. `throttle board on /dev/ttyUSB0 at 115200 baud`.
     fn describe(&self) -> String;
 }
 
 /// The simulated sensor's output side: emits readings to sensing.
 pub trait ForceSink {
+    /// Sends one reading, taken at `sampled_ns` on the bench clock, as the real
+    /// sensor would (two CAN frames).
     fn emit(&mut self, reading: &ForceReading, sampled_ns: u64) -> Result<(), DeviceError>;
 }

@@ -386,6 +386,7 @@ impl ThrottleBoard {
         }
     }
 
+    /// True while the port is open (after a link error it is closed until reopened).
     pub fn is_open(&self) -> bool {
         self.port.is_some()
     }
@@ -496,10 +497,13 @@ pub struct EcuPoller {
 /// What the poller thread shares with its owner.
 #[derive(Clone, Debug, Default)]
 pub struct EcuShared {
+    /// The ECU link's counters: polls, replies, garbage, refusals.
     pub counters: EcuCounters,
     /// Samples dropped because the owner did not take them.
     pub dropped: u64,
+    /// Times the port was opened (1 plus the reopenings after link errors).
     pub opens: u64,
+    /// Why the port is closed now; `None` while it is open.
     pub link_error: Option<String>,
 }
 
@@ -555,6 +559,7 @@ impl EcuPoller {
         self.shared.lock().map(|s| s.clone()).unwrap_or_default()
     }
 
+    /// The link for messages, e.g. `ECU on /dev/ttyUSB0 at 9600 baud`.
     pub fn describe(&self) -> &str {
         &self.describe
     }

@@ -78,19 +78,55 @@ pub enum CampaignError {
     Load(#[from] LoadError),
     /// A file or folder of the run.
     #[error("cannot {what} {path}: {source}")]
-    Io { what: &'static str, path: PathBuf, source: std::io::Error },
+    Io {
+        /// What was being done, e.g. `create`.
+        what: &'static str,
+        /// The file or folder.
+        path: PathBuf,
+        /// The system's reason.
+        source: std::io::Error,
+    },
     /// `jetbench up` did not start.
     #[error("cannot start `jetbench up` from {exe}: {source}")]
-    Launch { exe: PathBuf, source: std::io::Error },
+    Launch {
+        /// The `jetbench` binary.
+        exe: PathBuf,
+        /// The system's reason.
+        source: std::io::Error,
+    },
+    /// A service set exited with an error or was killed.
     #[error("the service set over {transport} failed ({how}); its log is above{}",
         log.as_ref().map(|l| format!(" and in {}", l.display())).unwrap_or_default())]
-    Pipeline { transport: Transport, how: String, log: Option<PathBuf> },
+    Pipeline {
+        /// The set's transport.
+        transport: Transport,
+        /// How it ended (exit code or signal).
+        how: String,
+        /// Its kept log, with `--keep`.
+        log: Option<PathBuf>,
+    },
+    /// A service set's recording does not read back.
     #[error("cannot read back the {transport} run's recording {path}: {source}")]
-    Recording { transport: Transport, path: PathBuf, source: jetbench_record::RecordError },
+    Recording {
+        /// The set's transport.
+        transport: Transport,
+        /// The recording.
+        path: PathBuf,
+        /// Why it does not read.
+        source: jetbench_record::RecordError,
+    },
+    /// A service set ran but not one cycle went from the sensor to the board.
     #[error("the {transport} run's recording {} has no complete cycle", path.display())]
-    NoCycle { transport: Transport, path: PathBuf },
+    NoCycle {
+        /// The set's transport.
+        transport: Transport,
+        /// The recording.
+        path: PathBuf,
+    },
+    /// The floor chain failed.
     #[error(transparent)]
     Chain(#[from] ChainError),
+    /// The thread running the floor chain panicked (a bug: reported, not hidden).
     #[error("the floor chain's thread panicked")]
     ChainPanicked,
 }
@@ -147,9 +183,13 @@ impl Measurement {
 /// The floor chain's results, over every round.
 #[derive(Default)]
 pub struct FloorResult {
+    /// First stage woken → last stage done, per cycle.
     pub e2e: LatencyHistogram,
+    /// Per hop of the chain (one per process hand-over of the control path).
     pub hops: [LatencyHistogram; FLOOR_HOPS],
+    /// Cycles the chain dropped (a stage still busy with the previous one).
     pub lost: u64,
+    /// Real-time settings the kernel refused the chain's stages (each once).
     pub refused: Vec<String>,
 }
 
@@ -177,41 +217,71 @@ fn add_once(list: &mut Vec<String>, item: &str) {
 /// What the copying baseline measured, beside its end-to-end latency.
 #[derive(Serialize)]
 pub struct BaselineReport {
+    /// Sensor cycles judged ([`PipelineAnalysis::cycles`]).
     pub cycles: u64,
+    /// Of those, cycles whose command reached the board.
     pub completed: u64,
+    /// [`PipelineAnalysis::deadline_misses`].
     pub deadline_misses: u64,
+    /// [`PipelineAnalysis::lost`].
     pub lost: u64,
+    /// Per hop of the control path ([`HOPS`]), µs.
     pub hops_us: BTreeMap<&'static str, Percentiles>,
+    /// |time between sensor cycles − 10 ms|, µs.
     pub period_jitter_us: Percentiles,
 }
 
 /// Everything one run measured, as `--json` prints it; [`fmt::Display`] is the text report.
 #[derive(Serialize)]
 pub struct Report {
+    /// Seconds measured of each of the three ([`CampaignOptions::duration_s`]).
     pub duration_s: f64,
+    /// Rounds the duration was split into.
     pub rounds: u32,
+    /// The background load ([`LoadKind::name`]).
     pub load: String,
+    /// True when the config's `[rt]` settings were asked for (`--rt`).
     pub rt_requested: bool,
+    /// Real-time settings the kernel refused (each once); empty when all held.
     pub rt_refused: Vec<String>,
+    /// iceoryx2 set: sensor cycles judged, after each run's warm-up.
     pub cycles: u64,
+    /// Of those, cycles whose command reached the board.
     pub completed: u64,
+    /// Deadline misses: `late_e2e + late_periods + superseded`.
     pub deadline_misses: u64,
+    /// Cycles whose command was written more than one 10 ms period after the sensor frame.
     pub late_e2e: u64,
+    /// Sensor cycles more than 20 ms after the previous one.
     pub late_periods: u64,
+    /// Cycles whose command a newer one replaced before actuation wrote it.
     pub superseded: u64,
+    /// Samples lost anywhere: `frames_lost`, the `seq_gaps` and `unfinished`.
     pub lost: u64,
+    /// Sensor frames lost before sensing (jumps of the sensor's frame counter).
     pub frames_lost: u64,
+    /// Cycles a stage produced nothing for (the run's last 0.5 s excepted).
     pub unfinished: u64,
+    /// `seq` gaps per recorded channel: samples lost between publisher and recorder.
     pub seq_gaps: BTreeMap<String, u64>,
+    /// Deadline misses each service counted itself.
     pub service_deadline_misses: BTreeMap<String, u64>,
+    /// Sensor frame received → command frame written, µs.
     pub e2e_us: Percentiles,
+    /// Per hop of the control path ([`HOPS`]), µs.
     pub hops_us: BTreeMap<&'static str, Percentiles>,
+    /// |time between sensor cycles − 10 ms|, µs.
     pub period_jitter_us: Percentiles,
+    /// The floor chain, first stage woken → last stage done, µs: what the machine
+    /// gives any chain of processes, none of our code in it.
     pub floor_us: Percentiles,
+    /// The floor chain per hop, µs.
     pub floor_hops_us: Vec<Percentiles>,
+    /// Cycles the floor chain dropped.
     pub floor_lost: u64,
     /// The same service set over Unix domain sockets: its end-to-end latency.
     pub uds_us: Percentiles,
+    /// The Unix-socket set's counts, hops and jitter.
     pub uds: BaselineReport,
     /// CPU time the hypervisor took per CPU while measuring, ms
     /// (empty where the kernel does not report steal).
@@ -219,27 +289,37 @@ pub struct Report {
     /// Deadline misses of the iceoryx2 runs that came within 40 ms before to
     /// 20 ms after the hypervisor took a CPU (a bench PC has no hypervisor).
     pub misses_during_steal: u64,
+    /// The iceoryx2 set against the floor and the baseline.
     pub ratios: Ratios,
     /// The iceoryx2 set with the control room attached (`--control-room`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub control_room: Option<ControlRoomCost>,
 }
 
+/// The iceoryx2 set's end-to-end latency as ratios: to the machine's floor (how much
+/// our code and the bus add to what any chain of processes costs; it does not move
+/// with the VM's speed the way absolute figures do) and to the copying baseline.
 #[derive(Serialize)]
 pub struct Ratios {
     /// Pipeline p99 / floor p99.
     pub e2e_p99_over_floor_p99: f64,
+    /// Pipeline p50 / floor p50.
     pub e2e_p50_over_floor_p50: f64,
-    /// iceoryx2 / Unix sockets, the same service set.
+    /// iceoryx2 p50 / Unix sockets p50, the same service set.
     pub e2e_p50_over_uds_p50: f64,
+    /// iceoryx2 p99 / Unix sockets p99, the same service set.
     pub e2e_p99_over_uds_p99: f64,
 }
 
 /// A whole run: the report and the distributions behind it.
 pub struct Campaign {
+    /// The figures, as printed.
     pub report: Report,
+    /// The iceoryx2 set, every round merged.
     pub iceoryx2: PipelineAnalysis,
+    /// The Unix-socket set, every round merged.
     pub uds: PipelineAnalysis,
+    /// The floor chain, every round merged.
     pub floor: FloorResult,
     /// The iceoryx2 set with the control room attached (`--control-room`).
     pub control_room: Option<PipelineAnalysis>,
@@ -279,16 +359,23 @@ impl Room {
 /// room attached against the same set without it, from the same rounds.
 #[derive(Serialize)]
 pub struct ControlRoomCost {
+    /// End-to-end latency with the control room attached, µs.
     pub e2e_us: Percentiles,
+    /// Sensor cycles judged with it attached.
     pub cycles: u64,
+    /// Deadline misses with it attached.
     pub deadline_misses: u64,
+    /// Samples lost with it attached.
     pub lost: u64,
+    /// Deadline misses each service counted itself, with it attached.
     pub service_deadline_misses: BTreeMap<String, u64>,
     /// Deadline misses per 1000 cycles with the control room, and without it.
     pub misses_per_1000: f64,
+    /// Deadline misses per 1000 cycles without it.
     pub misses_per_1000_without: f64,
     /// p99 with / p99 without.
     pub e2e_p99_ratio: f64,
+    /// p50 with / p50 without.
     pub e2e_p50_ratio: f64,
     /// What the clients did, one per round.
     pub clients: Vec<ControlRoomReport>,

@@ -116,22 +116,76 @@ impl ChainOptions {
 /// Why a chain run failed.
 #[derive(Debug, thiserror::Error)]
 pub enum ChainError {
+    /// Options that leave nothing to run (what is wrong).
     #[error("invalid chain options: {0}")]
     Options(String),
+    /// The eventfds or pipes linking the stages could not be made.
     #[error("cannot create the {what} of the latency chain: {source}")]
-    Setup { what: &'static str, source: std::io::Error },
+    Setup {
+        /// What was being made.
+        what: &'static str,
+        /// The system's reason.
+        source: std::io::Error,
+    },
+    /// A stage process did not start.
     #[error("cannot start chain stage {stage} ({service}) from {exe}: {source} (is it the jetbench binary?)")]
-    Spawn { stage: usize, service: &'static str, exe: PathBuf, source: std::io::Error },
+    Spawn {
+        /// The stage, 0..=3.
+        stage: usize,
+        /// The service whose place it takes.
+        service: &'static str,
+        /// The binary run.
+        exe: PathBuf,
+        /// The system's reason.
+        source: std::io::Error,
+    },
+    /// A stage did not say it was ready in time.
     #[error("chain stage {stage} ({service}) did not report ready within {timeout:?}; see its log above")]
-    NotReady { stage: usize, service: &'static str, timeout: Duration },
+    NotReady {
+        /// The stage, 0..=3.
+        stage: usize,
+        /// The service whose place it takes.
+        service: &'static str,
+        /// How long it was given.
+        timeout: Duration,
+    },
+    /// A stage exited before the run's end.
     #[error("chain stage {stage} ({service}) {how}; see its log above")]
-    StageDied { stage: usize, service: &'static str, how: String },
+    StageDied {
+        /// The stage, 0..=3.
+        stage: usize,
+        /// The service whose place it takes.
+        service: &'static str,
+        /// How it ended (exit code or signal).
+        how: String,
+    },
+    /// A stage kept running after the run's end.
     #[error("chain stage {stage} ({service}) did not finish within {timeout:?} of the run's end")]
-    NotFinished { stage: usize, service: &'static str, timeout: Duration },
+    NotFinished {
+        /// The stage, 0..=3.
+        stage: usize,
+        /// The service whose place it takes.
+        service: &'static str,
+        /// How long it was given.
+        timeout: Duration,
+    },
+    /// A stage's report does not parse.
     #[error("chain stage {stage} ({service}) sent malformed output: {what}")]
-    Protocol { stage: usize, service: &'static str, what: String },
+    Protocol {
+        /// The stage, 0..=3.
+        stage: usize,
+        /// The service whose place it takes.
+        service: &'static str,
+        /// What does not parse.
+        what: String,
+    },
+    /// Not one cycle reached the last stage.
     #[error("the chain completed no cycle (the source sent {sent})")]
-    NoRecords { sent: u64 },
+    NoRecords {
+        /// Cycles the source sent.
+        sent: u64,
+    },
+    /// SIGINT or SIGTERM stopped the run.
     #[error("the chain run was interrupted")]
     Interrupted,
 }
@@ -141,6 +195,7 @@ pub enum ChainError {
 /// eventfd cannot lose one).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct StageRecord {
+    /// The cycle's number, counted from 0 by every stage alike.
     pub cycle: u64,
     /// When the stage woke with its ping (stage 0: its clock), ns.
     pub wake_ns: u64,
@@ -175,6 +230,7 @@ impl StageRecord {
 /// comparable across the stage processes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ChainCycle {
+    /// The cycle's number, from 0.
     pub cycle: u64,
     /// When the source was scheduled to wake.
     pub scheduled_ns: u64,
@@ -225,7 +281,9 @@ impl ChainCycle {
 /// What one stage process reported about itself.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct StageReport {
+    /// 0 = the clocked source … 3 = the sink.
     pub stage: usize,
+    /// The service whose place in the control path it takes (its CPU and priority).
     pub service: ServiceId,
     /// What it was asked to set.
     pub requested: Option<RtRequest>,
@@ -233,6 +291,7 @@ pub struct StageReport {
     pub rt: RtOutcome,
     /// Its scheduling policy once set up, e.g. `SCHED_FIFO`, and priority.
     pub policy: String,
+    /// Its real-time priority (0 outside SCHED_FIFO).
     pub priority: i32,
     /// Cycles it handled.
     pub handled: u64,
@@ -263,6 +322,7 @@ impl StageReport {
 /// The outcome of [`run_chain`].
 #[derive(Clone, Debug)]
 pub struct ChainRun {
+    /// The source's period (the bench's 10 ms).
     pub period: Duration,
     /// Cycles the source sent.
     pub sent: u64,

@@ -32,6 +32,7 @@ impl LoadKind {
         (LoadKind::All, "all", "computation, memory traffic and file I/O at once"),
     ];
 
+    /// Its name on the command line (`--load none|cpu|all`).
     pub fn name(self) -> &'static str {
         Self::ALL.iter().find(|(k, ..)| *k == self).map_or("none", |(_, name, _)| name)
     }
@@ -52,10 +53,22 @@ impl std::str::FromStr for LoadKind {
 /// Why a load could not run.
 #[derive(Debug, thiserror::Error)]
 pub enum LoadError {
+    /// The load's processes (stress-ng or `jetbench latency-load`) did not start.
     #[error("cannot start the load `{description}`: {source}")]
-    Start { description: String, source: std::io::Error },
+    Start {
+        /// The command line of the load.
+        description: String,
+        /// The system's reason.
+        source: std::io::Error,
+    },
+    /// The built-in load's file-I/O part could not create its scratch file.
     #[error("the built-in load cannot create {path}: {source}")]
-    TempFile { path: std::path::PathBuf, source: std::io::Error },
+    TempFile {
+        /// The scratch file.
+        path: std::path::PathBuf,
+        /// The system's reason.
+        source: std::io::Error,
+    },
 }
 
 /// A running load; stopped when dropped.

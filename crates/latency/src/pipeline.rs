@@ -31,12 +31,19 @@ pub const HOPS: [&str; 4] = ["sensing", "estimation", "control", "actuation"];
 /// Percentiles of one latency distribution, µs.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct Percentiles {
+    /// Median, µs.
     pub p50: f64,
+    /// 90th percentile, µs.
     pub p90: f64,
+    /// 99th percentile, µs: the figure a 100 Hz loop's margin is judged by.
     pub p99: f64,
+    /// 99.9th percentile, µs.
     pub p999: f64,
+    /// Longest, µs.
     pub max: f64,
+    /// Mean, µs.
     pub mean: f64,
+    /// Values in the distribution.
     pub count: u64,
 }
 
@@ -64,12 +71,14 @@ impl LatencyHistogram {
     /// would be reported as a deadline miss long before).
     pub const MAX_NS: u64 = 60_000_000_000;
 
+    /// An empty distribution.
     pub fn new() -> Self {
         // The bounds are constants that hdrhistogram accepts.
         let histogram = Histogram::new_with_bounds(1, Self::MAX_NS, 3).expect("valid histogram bounds");
         LatencyHistogram { histogram }
     }
 
+    /// Adds one latency, ns (beyond [`LatencyHistogram::MAX_NS`]: recorded as that).
     pub fn record(&mut self, ns: u64) {
         self.histogram.saturating_record(ns.clamp(1, Self::MAX_NS));
     }
@@ -80,10 +89,12 @@ impl LatencyHistogram {
         let _ = self.histogram.add(&other.histogram);
     }
 
+    /// Latencies recorded.
     pub fn len(&self) -> u64 {
         self.histogram.len()
     }
 
+    /// True before the first latency.
     pub fn is_empty(&self) -> bool {
         self.histogram.is_empty()
     }

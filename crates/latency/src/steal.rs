@@ -22,6 +22,7 @@ pub struct StealSampler {
 /// one entry at the start and one per change.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct StealTimeline {
+    /// `(CLOCK_MONOTONIC ns, steal ms per CPU since boot)`, in time order.
     pub points: Vec<(u64, Vec<f64>)>,
 }
 

@@ -177,7 +177,7 @@ impl FoxgloveGateway {
             let answer = if accepted {
                 "accepted".to_string()
             } else {
-                format!("refused: the control service refused {}", c::name(a.command).unwrap_or("?"))
+                format!("refused: {}", jetbench_control::operator::refusal_text(event.previous, a.command))
             };
             respond(a.reply, &answer);
         }

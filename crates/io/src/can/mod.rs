@@ -50,9 +50,11 @@ pub const TORQUE_NM_PER_COUNT: f64 = 0.001;
 pub const CAN_FRAME_BYTES: usize = 16;
 /// Highest classic (11-bit) identifier.
 pub const MAX_STANDARD_ID: u32 = 0x7ff;
-/// `struct can_frame` identifier flags.
+/// `struct can_frame` identifier flag: an extended (29-bit) identifier.
 pub const CAN_EFF_FLAG: u32 = 0x8000_0000;
+/// `struct can_frame` identifier flag: a remote transmission request (no data).
 pub const CAN_RTR_FLAG: u32 = 0x4000_0000;
+/// `struct can_frame` identifier flag: an error frame the controller reports.
 pub const CAN_ERR_FLAG: u32 = 0x2000_0000;
 /// Status bit the encoder sets when it saturates a value (as `sensor_status::OVERLOAD`).
 pub const STATUS_OVERLOAD: u8 = 1;
@@ -65,6 +67,7 @@ pub struct CanFrame {
     pub id: u32,
     /// Data length code, 0..=8 for a well-formed frame.
     pub len: u8,
+    /// The data bytes; those past `len` are 0.
     pub data: [u8; 8],
 }
 
@@ -138,6 +141,7 @@ pub enum RejectKind {
 }
 
 impl RejectKind {
+    /// Every kind, in the order [`RejectCounts`] prints them.
     pub const ALL: [RejectKind; 7] = [
         RejectKind::BadDlc,
         RejectKind::UnknownId,
@@ -176,22 +180,31 @@ impl fmt::Display for RejectKind {
 /// `lost_pairs` the pairs they skipped; neither is a rejected frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct RejectCounts {
+    /// [`RejectKind::BadDlc`] frames.
     pub bad_dlc: u64,
+    /// [`RejectKind::UnknownId`] frames.
     pub unknown_id: u64,
+    /// [`RejectKind::SequenceJump`] events (not frames).
     pub sequence_jump: u64,
+    /// [`RejectKind::PairMismatch`] frames.
     pub pair_mismatch: u64,
+    /// [`RejectKind::Truncated`] frames or lines.
     pub truncated: u64,
+    /// [`RejectKind::Garbage`] inputs.
     pub garbage: u64,
+    /// [`RejectKind::OutOfRange`] frames.
     pub out_of_range: u64,
     /// Pairs skipped by sequence jumps (from the counter difference).
     pub lost_pairs: u64,
 }
 
 impl RejectCounts {
+    /// Counts one rejection of `kind`.
     pub fn add(&mut self, kind: RejectKind) {
         *self.slot(kind) += 1;
     }
 
+    /// The count of `kind`.
     pub fn get(&self, kind: RejectKind) -> u64 {
         match kind {
             RejectKind::BadDlc => self.bad_dlc,
@@ -238,25 +251,33 @@ impl fmt::Display for RejectCounts {
 /// Which half of a reading a frame carries.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum PartKind {
+    /// The `base+1` frame: Fx, Fy, Fz.
     Force,
+    /// The `base+2` frame: Tx, Ty, Tz.
     Torque,
 }
 
 /// One decoded sensor frame, in counts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct SensorPart {
+    /// Which of the pair it is.
     pub kind: PartKind,
     /// Three axes: 0.01 N (force) or 0.001 N·m (torque) per count.
     pub counts: [i16; 3],
+    /// The sensor's sequence counter (byte 6), the same in both frames of a pair.
     pub seq: u8,
+    /// Status bits (byte 7): [`STATUS_OVERLOAD`] when a value saturated.
     pub status: u8,
 }
 
 /// A force/torque reading as the sensor sent it: counts, sequence and status.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SensorReading<T> {
+    /// Fx, Fy, Fz at [`FORCE_N_PER_COUNT`].
     pub force_counts: [i16; 3],
+    /// Tx, Ty, Tz at [`TORQUE_NM_PER_COUNT`].
     pub torque_counts: [i16; 3],
+    /// The pair's sequence counter, wrapping at 256.
     pub seq: u8,
     /// Status bits of the force frame ORed with the torque frame's.
     pub status: u8,
@@ -281,10 +302,17 @@ impl<T> SensorReading<T> {
 /// Why the codec cannot be built or a reading cannot be encoded.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CodecError {
+    /// The base ID leaves `base+2` outside 11 bits (the ID given).
     #[error("CAN base ID {0:#x}: base+2 must be a classic 11-bit identifier (base <= 0x7fd)")]
     BaseId(u32),
+    /// A value to encode is NaN or infinite.
     #[error("{axis} = {value} is not a number; the sensor cannot send it")]
-    NotFinite { axis: &'static str, value: f64 },
+    NotFinite {
+        /// The axis, e.g. `Fx`.
+        axis: &'static str,
+        /// The value.
+        value: f64,
+    },
 }
 
 /// Encodes and decodes the sensor's two frames for one base ID.
@@ -302,14 +330,17 @@ impl Codec {
         Ok(Codec { base_id })
     }
 
+    /// The sensor's base identifier (config `[sensor] can_base_id`).
     pub fn base_id(&self) -> u16 {
         self.base_id
     }
 
+    /// The force frame's identifier, `base+1`.
     pub fn force_id(&self) -> u16 {
         self.base_id + 1
     }
 
+    /// The torque frame's identifier, `base+2`.
     pub fn torque_id(&self) -> u16 {
         self.base_id + 2
     }
@@ -403,10 +434,12 @@ pub struct FrameDecoder<T> {
 }
 
 impl<T> FrameDecoder<T> {
+    /// A decoder for `codec`'s identifiers, nothing pending, every count 0.
     pub fn new(codec: Codec) -> Self {
         FrameDecoder { codec, pending: None, last_seq: None, counts: RejectCounts::default(), frames: 0, pairs: 0 }
     }
 
+    /// The codec it decodes with.
     pub fn codec(&self) -> &Codec {
         &self.codec
     }
@@ -483,6 +516,7 @@ impl<T> FrameDecoder<T> {
         had
     }
 
+    /// Rejections so far, by kind.
     pub fn counts(&self) -> &RejectCounts {
         &self.counts
     }

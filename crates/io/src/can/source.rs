@@ -34,9 +34,11 @@ pub trait CanTransport: Send {
     /// Waits up to `timeout` for the next frame: `Ok(None)` on timeout,
     /// `Ok(Some(Err(kind)))` for something received that is not a frame.
     fn recv(&mut self, timeout: Duration) -> Result<Option<Result<CanFrame, RejectKind>>, DeviceError>;
+    /// Sends one frame (the simulated sensor sends; sensing only receives).
     fn send(&mut self, frame: &CanFrame) -> Result<(), DeviceError>;
     /// Closes and opens the link again.
     fn reopen(&mut self) -> Result<(), DeviceError>;
+    /// The link for messages, e.g. `SocketCAN can0`.
     fn describe(&self) -> String;
     /// The link's errors and reopenings so far (none for a link that cannot fail).
     fn link_stats(&self) -> LinkStats {
@@ -47,7 +49,9 @@ pub trait CanTransport: Send {
 /// How a link has fared: errors that closed it, and times it was opened again.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct LinkStats {
+    /// Errors that closed the link (the interface went down or away).
     pub errors: u64,
+    /// Times the link was opened again after one.
     pub reopens: u64,
 }
 
@@ -58,14 +62,21 @@ pub enum CanInterface {
     Kernel(String),
     /// A userspace bus, written `user:NAME`, in a bus namespace: service sets
     /// in different namespaces never hear each other.
-    Userspace { name: String, namespace: String },
+    Userspace {
+        /// The bus's name (after `user:`).
+        name: String,
+        /// The bus namespace it lives in.
+        namespace: String,
+    },
 }
 
 /// Why an interface name is unusable.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("CAN interface {name:?}: {reason}")]
 pub struct InterfaceError {
+    /// The name as written.
     pub name: String,
+    /// What is wrong with it.
     pub reason: &'static str,
 }
 
@@ -136,10 +147,12 @@ pub struct CanForceSource {
 }
 
 impl CanForceSource {
+    /// Reads `codec`'s frames from `transport`.
     pub fn new(transport: Box<dyn CanTransport>, codec: Codec) -> Self {
         CanForceSource { transport, decoder: FrameDecoder::new(codec), link_errors: 0 }
     }
 
+    /// Opens `interface` for reading the sensor's frames.
     pub fn open(interface: &CanInterface, codec: Codec) -> Result<Self, DeviceError> {
         Ok(Self::new(interface.open(true)?, codec))
     }
@@ -176,6 +189,7 @@ impl CanForceSource {
         }
     }
 
+    /// Frames rejected so far, by kind.
     pub fn counts(&self) -> &RejectCounts {
         self.decoder.counts()
     }
@@ -217,10 +231,12 @@ pub struct CanForceSink {
 }
 
 impl CanForceSink {
+    /// Writes `codec`'s frames to `transport`.
     pub fn new(transport: Box<dyn CanTransport>, codec: Codec) -> Self {
         CanForceSink { transport, codec }
     }
 
+    /// Opens `interface` for sending the sensor's frames (the simulated sensor's end).
     pub fn open(interface: &CanInterface, codec: Codec) -> Result<Self, DeviceError> {
         Ok(Self::new(interface.open(false)?, codec))
     }

@@ -32,6 +32,7 @@ pub struct StageOptions {
     pub stage: usize,
     /// Cycles the source sends.
     pub cycles: u64,
+    /// The source's period (the bench's 10 ms).
     pub period: Duration,
     /// The eventfd the ping comes in on (stages 1–3).
     pub input: Option<OwnedFd>,
@@ -46,16 +47,36 @@ pub struct StageOptions {
 /// Why a stage failed.
 #[derive(Debug, thiserror::Error)]
 pub enum StageError {
+    /// A stage number outside 0..=3 (the number given).
     #[error("stage {0} does not exist: stages are numbered 0 to 3")]
     NoSuchStage(usize),
+    /// An eventfd the stage needs was not passed on its command line.
     #[error("stage {stage} needs {what}, which was not passed")]
-    MissingFd { stage: usize, what: &'static str },
+    MissingFd {
+        /// The stage, 0..=3.
+        stage: usize,
+        /// Which descriptor, e.g. `--input`.
+        what: &'static str,
+    },
+    /// A descriptor number that is not open here: the stage was not started by the chain.
     #[error("fd {fd} is not open in this process: {source} (latency-stage runs only under `jetbench latency`)")]
-    BadFd { fd: RawFd, source: std::io::Error },
+    BadFd {
+        /// The descriptor number.
+        fd: RawFd,
+        /// The system's reason.
+        source: std::io::Error,
+    },
+    /// The stage's bus settings do not open (it takes the bus's stop flag).
     #[error(transparent)]
     Bus(#[from] OpenError),
+    /// A read, write or wait on the stage's descriptors failed.
     #[error("{what}: {source}")]
-    Io { what: &'static str, source: std::io::Error },
+    Io {
+        /// What was being done.
+        what: &'static str,
+        /// The system's reason.
+        source: std::io::Error,
+    },
 }
 
 /// Takes ownership of an fd this process inherited from [`run_chain`](super::run_chain).
