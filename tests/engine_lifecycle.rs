@@ -75,7 +75,8 @@ fn ecu_failure(name: &str, inject: &str, off: i32, words: &str, cause: impl Fn(&
     let commands = recording.samples(channels::COMMAND);
     let events = recording.samples(channels::EVENTS);
     let left = left_run(&ecu).unwrap_or_else(|| panic!("the ECU never left run\n{log}"));
-    assert_eq!(left.state, ecu_states::SLOW_DOWN as u32);
+    // Slow-down, or off already: a flame-out's exhaust is cold by the time the ECU decides.
+    assert!([ecu_states::SLOW_DOWN as u32, ecu_states::OFF as u32].contains(&left.state), "{left:?}");
     // The reason, in the events and the ECU's status.
     let shutdown: Vec<&Event> = events.iter().filter(|e| e.kind == event_kinds::SHUTDOWN).collect();
     assert_eq!(shutdown.len(), 1, "one shutdown event: {events:?}");
