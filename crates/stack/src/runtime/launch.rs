@@ -594,7 +594,7 @@ fn run_engine(
     watch: &mut EngineWatch,
 ) -> Result<(), LaunchError> {
     // No status line, no subscribers: a quiet run adds nothing to the control path.
-    let mut status = if options.status { Some(Status::new(&bus)?) } else { None };
+    let mut status = if options.status { Some(Status::new(bus)?) } else { None };
     let started = Instant::now();
     let tty = std::io::stderr().is_terminal();
     // A terminal gets a line rewritten every second, a log a line every 5 s.
