@@ -22,6 +22,18 @@ enum Cmd {
     ///
     /// Example: jetbench up --sim --duration 10 --record run.mcap
     Up(cmd::up::UpArgs),
+    /// Start the engine through the ECU (it must be in standby).
+    Start,
+    /// Run a reference profile once the engine runs, e.g. `jetbench run --profile steps`.
+    Run(cmd::command::RunArgs),
+    /// Hold the throttle at or below its current value (or PERCENT).
+    Hold(cmd::command::HoldArgs),
+    /// Idle the engine and keep it there.
+    Idle,
+    /// Stop the test: idle, then shut down through the ECU with its cool-down (--now: at once).
+    Stop(cmd::command::StopArgs),
+    /// Clear the latched trips, so the throttle may rise again.
+    Clear,
     /// List the channels and bus nodes that exist now.
     List,
     /// Print the samples of a channel as they arrive, e.g. `jetbench echo bench/thrust`.
@@ -135,6 +147,7 @@ fn main() -> ExitCode {
 /// The commands as `jetbench --help` lists them, by what they are for.
 const GROUPS: &[(&str, &[&str])] = &[
     ("Run the bench", &["up", "tare", "record"]),
+    ("Operate the engine", &["start", "run", "hold", "idle", "stop", "clear"]),
     ("Watch it", &["list", "echo", "hz", "play"]),
     ("Offline analysis", &["info", "recover", "replay", "identify", "diagnose", "metrics", "export", "can-decode"]),
     ("Experiments", &["excite", "simulate", "sim-record", "latency", "faults", "soak"]),
@@ -167,6 +180,12 @@ fn run() -> anyhow::Result<ExitCode> {
     jetbench_bus::namespace()?;
     match cli.command {
         Cmd::Up(args) => cmd::up::run(args),
+        Cmd::Start => cmd::command::start(),
+        Cmd::Run(args) => cmd::command::run(args),
+        Cmd::Hold(args) => cmd::command::hold(args),
+        Cmd::Idle => cmd::command::idle(),
+        Cmd::Stop(args) => cmd::command::stop(args),
+        Cmd::Clear => cmd::command::clear(),
         Cmd::List => cmd::bus::list(),
         Cmd::Echo { channel, count, remote } => {
             cmd::bus::with_channel(&channel, remote.as_deref(), cmd::bus::Echo { count })

@@ -29,6 +29,7 @@ mod error;
 mod file;
 mod params;
 mod plant;
+pub mod plausibility;
 mod preset;
 mod throttle_path;
 pub mod turbojet;

@@ -3,6 +3,7 @@
 
 pub mod bus;
 pub mod can_decode;
+pub mod command;
 pub mod diagnose;
 pub mod excite;
 pub mod export;

@@ -177,6 +177,16 @@ fn run_up(args: &UpArgs, config: Option<PathBuf>, checked: &BenchConfig) -> anyh
             }
         }
     }
+    if checked.bench.devices == Devices::Bench {
+        // A real engine gets no model that cannot keep a simulation bounded.
+        let params = checked.model_params().context("[model] model")?;
+        if let Err(why) = jetbench_model::plausibility::check(&params) {
+            bail!(
+                "[model] model {} is refused for a real engine: {why} (identify again, or use a bounded model)",
+                checked.model.model
+            );
+        }
+    }
     if let Some(group) = &checked.bench.group {
         // Every service inherits it: their files are shared with the group.
         std::env::set_var(jetbench_bus::access::GROUP_ENV, group);
@@ -192,6 +202,7 @@ fn run_up(args: &UpArgs, config: Option<PathBuf>, checked: &BenchConfig) -> anyh
         transport,
         foxglove: args.foxglove.clone(),
         zenoh: args.zenoh.clone(),
+        engine: checked.engine.clone(),
     };
     if let Some(listen) = &options.foxglove {
         jetbench_viewer::parse_listen(listen).context("--foxglove")?;

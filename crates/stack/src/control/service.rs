@@ -43,6 +43,11 @@ impl Service for ControlService {
                 throttle_pct.len() as f64 * jetbench_model::STEP_S
             ),
         }
+        if config.bench.devices == crate::config::Devices::Bench {
+            jetbench_model::plausibility::check(&config.model_params()?).map_err(|why| {
+                ServiceError::Setup(format!("[model] model {} is refused for a real engine: {why}", config.model.model))
+            })?;
+        }
         let limits = config.limits().map_err(|e| ServiceError::Setup(e.to_string()))?;
         let params = config.model_params()?;
         let profiles = ProfileSource {

@@ -11,6 +11,8 @@ use std::time::{Duration, Instant};
 use jetbench_bus::{Bus, BusError, Flow, Subscriber};
 use jetbench_msgs::{channels, Health, Sample, ServiceId};
 
+use crate::config::{EngineSection, EngineStart};
+use crate::runtime::lifecycle::{clear_line, EngineWatch, Interrupts};
 use crate::runtime::supervise::{describe_exit, SpawnOptions, StopOrder, Supervisor};
 
 /// How long a service may take to create its ports.
@@ -37,6 +39,15 @@ pub enum LaunchError {
     ServiceDied { service: &'static str, how: String },
     #[error("service `{service}` {how} while stopping")]
     StopFailed { service: &'static str, how: String },
+    /// The test ended before its time: the ECU shut the engine down, or a
+    /// limit tripped with the response `shutdown`.
+    #[error("the test ended: {reason}")]
+    TestEnded { reason: String },
+    /// The engine did not get to run.
+    #[error("the engine did not run within {timeout_s} s (the ECU says {state}); {hint}")]
+    NotRunning { timeout_s: f64, state: String, hint: String },
+    #[error("cannot count Ctrl-C: {0}")]
+    Signals(std::io::Error),
     #[error(transparent)]
     Bus(#[from] BusError),
     #[error(transparent)]
@@ -70,6 +81,8 @@ pub struct UpOptions {
     pub foxglove: Option<String>,
     /// Publish every channel on Zenoh, listening here (`tcp/HOST:PORT`): starts the bridge service.
     pub zenoh: Option<String>,
+    /// The engine's lifecycle: how it starts, whether it cools down at the end.
+    pub engine: EngineSection,
 }
 
 /// File name start of the config a launcher derives from its command line.
@@ -336,10 +349,24 @@ impl Status {
     }
 }
 
+/// The engine's part of the status line: the ECU's state, RPM, EGT, and the
+/// latest trip.
+fn engine_status(watch: &EngineWatch) -> String {
+    let ecu = match (watch.state(), watch.latest) {
+        (Some(s), Some(t)) => format!(" | ECU {s} {:.0} rpm {:.0} °C", t.rpm, t.egt_c),
+        _ => " | ECU -".into(),
+    };
+    match &watch.last_trip {
+        Some(trip) => format!("{ecu} | {trip}"),
+        None => ecu,
+    }
+}
+
 /// Runs the service set; returns when the duration ends or a stop is
 /// requested, with every service stopped.
 pub fn up(options: &UpOptions) -> Result<(), LaunchError> {
     jetbench_bus::install_signal_flag()?;
+    let interrupts = Interrupts::install().map_err(LaunchError::Signals)?;
     jetbench_bus::access::restrict()?;
     if let Some(ns) = jetbench_bus::namespace()? {
         println!("bus namespace {ns} ({} is set)", jetbench_bus::NAMESPACE_ENV);
@@ -368,7 +395,7 @@ pub fn up(options: &UpOptions) -> Result<(), LaunchError> {
     }
 
     let mut services = Services::default();
-    let result = start_and_supervise(options, &order, &mut services);
+    let result = start_and_supervise(options, &order, &mut services, &interrupts);
     if matches!(result, Err(LaunchError::ServiceDied { .. })) {
         std::thread::sleep(FAILSAFE_GRACE);
     }
@@ -380,7 +407,12 @@ pub fn up(options: &UpOptions) -> Result<(), LaunchError> {
     }
 }
 
-fn start_and_supervise(options: &UpOptions, order: &[ServiceId], services: &mut Services) -> Result<(), LaunchError> {
+fn start_and_supervise(
+    options: &UpOptions,
+    order: &[ServiceId],
+    services: &mut Services,
+    interrupts: &Interrupts,
+) -> Result<(), LaunchError> {
     for &id in order {
         services.spawn(options, id)?;
         let deadline = Instant::now() + READY_TIMEOUT;
@@ -403,14 +435,166 @@ fn start_and_supervise(options: &UpOptions, order: &[ServiceId], services: &mut 
         "all {} services ready{}",
         services.ids.len(),
         match options.duration {
-            Some(d) => format!("; running for {:.1} s", d.as_secs_f64()),
-            None => "; Ctrl-C stops".into(),
+            Some(d) => format!("; running for {:.1} s once the engine runs", d.as_secs_f64()),
+            None => "; Ctrl-C stops (idle, then shutdown); a second Ctrl-C shuts down at once".into(),
         }
     );
 
     let bus = Bus::open_with("jetbench-up", options.transport)?;
+    let mut watch = EngineWatch::new(&bus)?;
+    if let Some(failure) = wait_for_run(options, services, &mut watch)? {
+        return Err(failure);
+    }
+    let result = run_engine(options, services, &bus, &mut watch);
+    bring_down(options, services, &mut watch, interrupts)?;
+    result?;
+    match watch.ended.take() {
+        Some((reason, true)) => Err(LaunchError::TestEnded { reason }),
+        Some((reason, false)) => {
+            println!("test ended: {reason}");
+            Ok(())
+        }
+        None => Ok(()),
+    }
+}
+
+/// Until the ECU says run: starts the engine through it (`[engine] start =
+/// "auto"`), or waits for someone to; shows the states as they come.
+/// `Some(error)` when it did not get there (a stop, a death, the timeout).
+fn wait_for_run(
+    options: &UpOptions,
+    services: &mut Services,
+    watch: &mut EngineWatch,
+) -> Result<Option<LaunchError>, LaunchError> {
+    let engine = &options.engine;
+    if engine.start == EngineStart::Running {
+        return Ok(None);
+    }
+    let started = Instant::now();
+    let timeout = Duration::from_secs_f64(engine.start_timeout_s);
+    let mut asked: Option<Instant> = None;
+    let mut shown = None;
+    match engine.start {
+        EngineStart::Auto => println!("starting the engine through the ECU"),
+        _ => println!("waiting for the engine to run: start it from the ECU, or run `jetbench start`"),
+    }
+    loop {
+        services.pump_lines(Duration::ZERO);
+        if let Some(died) = services.died() {
+            return Ok(Some(died));
+        }
+        watch.poll()?;
+        if watch.state() != shown {
+            shown = watch.state();
+            if let (Some(s), Some(t)) = (shown, watch.latest) {
+                println!("ECU {s}: {:.0} rpm, EGT {:.0} °C, pump {:.2} V", t.rpm, t.egt_c, t.pump_v);
+            }
+        }
+        if watch.running() {
+            println!("engine running after {:.1} s", started.elapsed().as_secs_f64());
+            return Ok(None);
+        }
+        if jetbench_bus::stop_requested() || watch.ended.is_some() {
+            return Ok(None);
+        }
+        let standby = watch.state() == Some(jetbench_io::ecu::state::EcuState::Standby);
+        if engine.start == EngineStart::Auto && standby && asked.is_none_or(|t| t.elapsed() > Duration::from_secs(3)) {
+            watch.command(jetbench_msgs::operator_commands::START)?;
+            asked = Some(Instant::now());
+        }
+        if started.elapsed() >= timeout {
+            return Ok(Some(LaunchError::NotRunning {
+                timeout_s: engine.start_timeout_s,
+                state: watch.state().map_or_else(|| "nothing (no reply)".to_string(), |s| s.to_string()),
+                hint: match engine.start {
+                    EngineStart::Auto => "see the ECU's events above".into(),
+                    _ => "start it from the ECU, or set [engine] start = \"auto\"".into(),
+                },
+            }));
+        }
+        crate::runtime::lifecycle::tick();
+    }
+}
+
+/// The end of a run: with `[engine] cool_down_at_end`, idle, shut down
+/// through the ECU and record the cool-down until the engine is off (a
+/// second Ctrl-C shuts down at once, a third stops waiting). Without it, a
+/// test that ended keeps recording for a moment, so its idle is on record.
+fn bring_down(
+    options: &UpOptions,
+    services: &mut Services,
+    watch: &mut EngineWatch,
+    interrupts: &Interrupts,
+) -> Result<(), LaunchError> {
+    watch.poll()?;
+    if !options.engine.cool_down_at_end {
+        if watch.ended.is_some() {
+            std::thread::sleep(Duration::from_millis(300));
+            watch.poll()?;
+        }
+        return Ok(());
+    }
+    if watch.ended.is_none() {
+        let now = interrupts.count() >= 2;
+        watch.command(if now {
+            jetbench_msgs::operator_commands::STOP_NOW
+        } else {
+            jetbench_msgs::operator_commands::STOP
+        })?;
+    }
+    println!("bringing the engine down: idle, shutdown, cool-down (Ctrl-C again: shut down at once)");
+    let started = Instant::now();
+    let timeout = Duration::from_secs_f64(options.engine.cool_down_timeout_s);
+    let mut shown = watch.state();
+    let mut stopped_now = false;
+    let presses = interrupts.count();
+    // Until the ECU reports the engine off; a reply is awaited at least briefly.
+    while started.elapsed() < timeout {
+        services.pump_lines(Duration::ZERO);
+        if let Some(died) = services.died() {
+            return Err(died);
+        }
+        watch.poll()?;
+        if watch.state() != shown {
+            shown = watch.state();
+            if let (Some(s), Some(t)) = (shown, watch.latest) {
+                println!("ECU {s}: {:.0} rpm, EGT {:.0} °C", t.rpm, t.egt_c);
+            }
+        }
+        if !watch.engine_busy() && started.elapsed() > Duration::from_millis(500) {
+            println!("engine off after {:.1} s", started.elapsed().as_secs_f64());
+            return Ok(());
+        }
+        let count = interrupts.count();
+        if count > presses && !stopped_now {
+            println!("shutting down at once");
+            watch.command(jetbench_msgs::operator_commands::STOP_NOW)?;
+            stopped_now = true;
+        }
+        if count > presses + 1 {
+            println!("no longer waiting for the cool-down");
+            return Ok(());
+        }
+        crate::runtime::lifecycle::tick();
+    }
+    eprintln!(
+        "the engine was not off within {:.0} s (the ECU says {})",
+        options.engine.cool_down_timeout_s,
+        watch.state().map_or_else(|| "nothing".to_string(), |s| s.to_string())
+    );
+    Ok(())
+}
+
+/// The run itself, from the engine running to the duration's end, a stop, a
+/// death or the test's end.
+fn run_engine(
+    options: &UpOptions,
+    services: &mut Services,
+    bus: &Bus,
+    watch: &mut EngineWatch,
+) -> Result<(), LaunchError> {
     // No status line, no subscribers: a quiet run adds nothing to the control path.
-    let mut status = if options.status { Some(Status::new(&bus)?) } else { None };
+    let mut status = if options.status { Some(Status::new(bus)?) } else { None };
     let started = Instant::now();
     let tty = std::io::stderr().is_terminal();
     // A terminal gets a line rewritten every second, a log a line every 5 s.
@@ -423,12 +607,19 @@ fn start_and_supervise(options: &UpOptions, order: &[ServiceId], services: &mut 
             failure = Some(died);
             return Flow::Stop;
         }
+        if let Err(e) = watch.poll() {
+            failure = Some(e.into());
+            return Flow::Stop;
+        }
+        if watch.ended.is_some() {
+            return Flow::Stop;
+        }
         let now = Instant::now();
         if let Some(status) = status.as_mut() {
             if status.drain().is_ok() && now - last_status >= status_every {
-                let line = status.line(now - started, now - last_status);
+                let line = format!("{}{}", status.line(now - started, now - last_status), engine_status(watch));
                 let mut err = std::io::stderr().lock();
-                let _ = if tty { write!(err, "\r{line}") } else { writeln!(err, "{line}") };
+                let _ = if tty { write!(err, "{}{line}", clear_line()) } else { writeln!(err, "{line}") };
                 let _ = err.flush();
                 last_status = now;
             }

@@ -66,6 +66,7 @@ use crate::sim_bench::SimError;
 pub mod clock;
 pub mod health;
 pub mod launch;
+pub mod lifecycle;
 mod reader;
 pub mod rt;
 pub mod supervise;

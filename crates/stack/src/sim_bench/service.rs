@@ -22,6 +22,10 @@ use crate::runtime::{Context, Schedule, Service, ServiceError, Setup};
 /// the frames come back. In the run's sim folder (`config::sim_port_link`).
 pub const SENSOR_UNPLUGGED_FILE: &str = "sensor-unplugged";
 
+/// File that, while it exists, silences sim-bench's ECU (it answers no poll,
+/// like an ECU that lost power or its cable), in the run's sim folder.
+pub const ECU_UNPLUGGED_FILE: &str = "ecu-unplugged";
+
 /// Sim-bench: the engine ([`SimBenchStep`]) stepped on its own clock, its
 /// force sensor sending real CAN frames, the throttle board and the ECU each
 /// on its own pty pair, published where actuation opens them.
@@ -33,6 +37,7 @@ pub struct SimBenchService {
     injected: [u64; 4],
     sensor: CanForceSink,
     unplugged: Unplugged,
+    ecu_unplugged: Unplugged,
     board: PtyBoard,
     /// The emulated ECU ([`EcuEmulator`]) on its pty, clocked by the bench's clock.
     ecu: PtyEcu,
@@ -75,7 +80,8 @@ impl Service for SimBenchService {
             faults: FaultySensor::new(plan),
             injected: [0; 4],
             sensor,
-            unplugged: Unplugged::new(sim_port_link(SENSOR_UNPLUGGED_FILE)),
+            unplugged: Unplugged::new(sim_port_link(SENSOR_UNPLUGGED_FILE), "force sensor"),
+            ecu_unplugged: Unplugged::new(sim_port_link(ECU_UNPLUGGED_FILE), "ECU"),
             board,
             ecu_state: ecu.with_emulator(|e| e.state()).unwrap_or(EcuState::Off),
             ecu_t0_ns,
@@ -167,6 +173,7 @@ impl SimBenchService {
         for (bit, count) in self.injected.iter_mut().enumerate() {
             *count += (injected.faults >> bit) & 1;
         }
+        self.ecu.set_silent(!self.ecu_unplugged.check());
         self.ecu.step(truth.thrust_n);
         self.log_ecu_state();
         if let (true, Some(reading)) = (self.unplugged.check(), injected.reading) {
@@ -243,14 +250,15 @@ impl SimBenchService {
 /// The unplug marker file: watched every cycle, each change logged once.
 struct Unplugged {
     file: PathBuf,
+    what: &'static str,
     unplugged: bool,
 }
 
 impl Unplugged {
-    fn new(file: PathBuf) -> Self {
+    fn new(file: PathBuf, what: &'static str) -> Self {
         // A marker left by an earlier run must not start this one unplugged.
         let _ = std::fs::remove_file(&file);
-        Unplugged { file, unplugged: false }
+        Unplugged { file, what, unplugged: false }
     }
 
     /// True while the sensor is plugged in.
@@ -259,9 +267,9 @@ impl Unplugged {
         if unplugged != self.unplugged {
             self.unplugged = unplugged;
             if unplugged {
-                tracing::warn!("force sensor unplugged ({} exists): no frames", self.file.display());
+                tracing::warn!("{} unplugged ({} exists): silent", self.what, self.file.display());
             } else {
-                tracing::info!("force sensor plugged back in");
+                tracing::info!("{} plugged back in", self.what);
             }
         }
         !unplugged
