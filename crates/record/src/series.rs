@@ -600,6 +600,34 @@ mod tests {
     }
 
     #[test]
+    fn inputs_are_checked_as_a_test_engineer_would() {
+        let series = |u: &dyn Fn(usize) -> f64, y: &dyn Fn(usize) -> f64| Series {
+            name: "s.csv".into(),
+            t_s: (0..1000).map(|k| k as f64 * 0.01).collect(),
+            u_pct: (0..1000).map(u).collect(),
+            thrust_n: (0..1000).map(y).collect(),
+        };
+        // An idling engine's noise dips below zero: that is fine.
+        let noisy_idle = |k: usize| if k < 500 { 1.5 + 3.0 * ((k as f64) * 1.7).sin() } else { 60.0 };
+        let step = |k: usize| if k < 500 { 25.0 } else { 75.0 };
+        series(&step, &noisy_idle).check_inputs().unwrap();
+        let err = |s: Series| s.check_inputs().unwrap_err().to_string();
+        let e = err(series(&|k| step(k) / 100.0, &noisy_idle));
+        assert!(e.contains("looks like a fraction") && e.contains("multiply the column by 100"), "{e}");
+        let e = err(series(&|k| if k == 700 { 120.0 } else { step(k) }, &noisy_idle));
+        assert!(e.contains("120 at row 702") && e.contains("outside 0–100 %"), "{e}");
+        let e = err(series(&|_| 10.0, &|_| 1.0));
+        assert!(e.contains("below idle"), "{e}");
+        let e = err(series(&step, &|k| -noisy_idle(k)));
+        assert!(e.contains("sign is reversed"), "{e}");
+        let e = err(series(&step, &|k| noisy_idle(k) * 1000.0 / 9.81));
+        assert!(e.contains("not in newtons"), "{e}");
+        // A throttle profile (no thrust) may stay below idle: it is only an input.
+        let profile = Series { thrust_n: Vec::new(), ..series(&|_| 10.0, &|_| 0.0) };
+        profile.check_inputs().unwrap();
+    }
+
+    #[test]
     fn grid_steps_count_lost_rows_through_jitter() {
         let t = [0.0, 0.0102, 0.0199, 0.0401, 0.05, 0.0899];
         let s = Series { name: "j".into(), u_pct: vec![25.0; 6], thrust_n: vec![0.0; 6], t_s: t.to_vec() };

@@ -55,8 +55,11 @@ impl<A: PlaySink, B: PlaySink> PlaySink for (A, B) {
 /// Publishes played samples on this machine's bus, one publisher per bench
 /// channel, as the services would (each publisher numbers its own `seq`).
 pub struct BusSink {
-    publishers: Vec<(String, Box<dyn FnMut(&[u8]) -> Result<bool, BusError>>)>,
+    publishers: Vec<(String, Publish)>,
 }
+
+/// Publishes one CDR message as its channel's sample; false if it is not one.
+type Publish = Box<dyn FnMut(&[u8]) -> Result<bool, BusError>>;
 
 impl BusSink {
     /// A publisher on every bench channel of `bus`.
