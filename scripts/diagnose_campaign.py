@@ -75,7 +75,7 @@ def draw_effect(rng, name):
 
 
 class Engine:
-    """T'' = f(T, T') + g(T, T')·v(u) (plant.md), RK4 at 2 ms with the throttle path
+    """T'' = f(T, T') + g(T, T')·v(u) (docs/model/README.md), RK4 at 2 ms with the throttle path
     (delay, play, rate limit, lag) stepped at the same rate, and the sensor side after it."""
 
     def __init__(self, p, effects):

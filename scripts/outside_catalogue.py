@@ -5,7 +5,7 @@ independently of jetbench (its own RK4 and its own noise), for the concealed sce
     scripts/outside_catalogue.py --plant plants/p100-diesel.toml --profile campaign.csv \\
         --physics heat_soak:loss_per_n=0.0004,time_constant_s=45 --noise-var 7 --seed 3 --out case.csv
 
-The model is plant.md's, T'' = f(T, T') + g(T, T')*v(u), integrated by RK4 at 1 kHz with the
+The model is jetbench's (docs/model/README.md), T'' = f(T, T') + g(T, T')*v(u), integrated by RK4 at 1 kHz with the
 throttle of each 10 ms row held, and one of:
 
 - heat_soak: loss_per_n, time_constant_s. The engine loses input gain as it heat-soaks: the

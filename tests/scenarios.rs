@@ -260,7 +260,7 @@ fn bad_input_gets_a_clear_error() {
     let err = diagnose_err("p100-diesel", &backwards);
     assert!(err.contains("time") && (err.contains("increas") || err.contains("backwards")), "{err}");
 
-    // The study's EKF P100 set escapes to infinity on a step from 70 % to 100 % (plant.md).
+    // The study's EKF P100 set escapes to infinity on a step from 70 % to 100 % (docs/model/README.md).
     let steps = write(
         "steps.csv",
         &format!(

@@ -8,13 +8,36 @@ use jetbench_stack::runtime::{run, RunOptions, Service};
 /// Sets up logging to stderr (`RUST_LOG` overrides the `info` default).
 pub fn init_logging() {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_log_filter()));
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_target(false)
         .try_init();
+}
+
+/// `info` for jetbench; only errors from Zenoh's crates, whose warnings (an
+/// unreachable endpoint, gossip settings) repeat what jetbench says itself, with
+/// paths inside Zenoh's source. `RUST_LOG` replaces it.
+fn default_log_filter() -> String {
+    const ZENOH: &[&str] = &[
+        "zenoh",
+        "zenoh_buffers",
+        "zenoh_codec",
+        "zenoh_config",
+        "zenoh_core",
+        "zenoh_link",
+        "zenoh_link_commons",
+        "zenoh_link_tcp",
+        "zenoh_protocol",
+        "zenoh_runtime",
+        "zenoh_sync",
+        "zenoh_task",
+        "zenoh_transport",
+        "zenoh_util",
+    ];
+    std::iter::once("info".to_string()).chain(ZENOH.iter().map(|c| format!("{c}=error"))).collect::<Vec<_>>().join(",")
 }
 
 /// Arguments every service takes.

@@ -1,6 +1,5 @@
 //! `jetbench`: launch the service set and look inside a running one.
 
-use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::bail;
@@ -8,9 +7,13 @@ use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 mod cmd;
 
+/// `jetbench --version`: the release, the commit and the build date.
+const VERSION: &str =
+    concat!(env!("CARGO_PKG_VERSION"), " (", env!("JETBENCH_COMMIT"), ", built ", env!("JETBENCH_BUILD_DATE"), ")");
+
 /// Control stack for model-jet-engine thrust benches.
 #[derive(Parser)]
-#[command(version, about, long_about = None)]
+#[command(version = VERSION, about, long_about = None)]
 struct Cli {
     #[command(subcommand)]
     command: Cmd,
@@ -43,6 +46,12 @@ enum Cmd {
         /// Stop after this many samples.
         #[arg(long, short = 'n')]
         count: Option<u64>,
+        /// Print CSV: a header line once, then one line per sample.
+        #[arg(long, conflicts_with = "json")]
+        csv: bool,
+        /// Print one JSON object per sample, one per line (JSON Lines).
+        #[arg(long)]
+        json: bool,
         /// Read the bench bridged at this Zenoh endpoint (`jetbench up --zenoh`), e.g. tcp/BENCH-PC:7447.
         #[arg(long, value_name = "ENDPOINT")]
         remote: Option<String>,
@@ -50,9 +59,9 @@ enum Cmd {
     /// Measure a channel's rate and period jitter, e.g. `jetbench hz bench/thrust`.
     Hz {
         channel: String,
-        /// Report every this many seconds.
-        #[arg(long, default_value_t = 1.0)]
-        window: f64,
+        /// Compute rate and jitter over the latest N messages (like `ros2 topic hz -w`); printed every second.
+        #[arg(long, short = 'w', default_value_t = 10_000, value_name = "N")]
+        window: usize,
         /// Stop after this many seconds (default: until Ctrl-C).
         #[arg(long)]
         duration: Option<f64>,
@@ -64,8 +73,8 @@ enum Cmd {
     ///
     /// Example: jetbench record --remote tcp/BENCH-PC:7447 --duration 60 --out run.mcap
     Record(cmd::record::RecordArgs),
-    /// Summarise an MCAP recording: messages, rates and sequence gaps per channel.
-    Info { file: PathBuf },
+    /// A recording at a glance, like `ros2 bag info`: duration, size, channels and types, the run's config.
+    Info(cmd::info::InfoArgs),
     /// Rewrite a truncated or damaged recording as a valid, indexed MCAP file.
     ///
     /// Exit status 0: nothing lost; 3: data lost (the rest recovered); 1: failure.
@@ -120,9 +129,9 @@ enum Cmd {
     ///
     /// Example: jetbench soak --minutes 30 --load all
     Soak(cmd::soak::SoakArgs),
-    /// Serve a recording to Foxglove at its recorded pace, like `ros2 bag play`.
+    /// Play a recording onto the bus (or to Foxglove) at its recorded pace, like `ros2 bag play`.
     ///
-    /// Example: jetbench play run.mcap --foxglove 127.0.0.1:8765 --rate 2 --loop
+    /// Example: jetbench play run.mcap --rate 2
     Play(cmd::play::PlayArgs),
     /// The built-in background load of `jetbench latency` (used where stress-ng is not installed).
     #[command(hide = true)]
@@ -138,10 +147,53 @@ fn main() -> ExitCode {
     match run() {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("jetbench: error: {e:#}");
+            eprintln!("jetbench: error: {}", error_text(&e));
             ExitCode::FAILURE
         }
     }
+}
+
+/// An error and its causes on one line, each said once: a cause whose text the
+/// message before it already carries (a library error that prints its source and
+/// also returns it as its cause) is not repeated, and the source-file locations
+/// some dependencies put in their messages are left out.
+fn error_text(error: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in error.chain() {
+        let message = without_source_locations(&cause.to_string());
+        if message.is_empty() || text.contains(&message) {
+            continue;
+        }
+        if !text.is_empty() {
+            text.push_str(": ");
+        }
+        text.push_str(&message);
+    }
+    text
+}
+
+/// `message` without the ` at /path/to/file.rs:LINE` locations that some
+/// dependencies (Zenoh) append to their errors: they say where in a library's
+/// source the error was made, which tells a user nothing.
+fn without_source_locations(message: &str) -> String {
+    let mut out = String::new();
+    for (i, line) in message.lines().enumerate() {
+        let mut line = line.to_string();
+        while let Some(at) = line.find(" at /") {
+            let rest = &line[at + 4..];
+            let end = rest.find(|c: char| c.is_whitespace() || c == ')' || c == ',').unwrap_or(rest.len());
+            let location = &rest[..end];
+            if !location.contains(".rs") {
+                break;
+            }
+            line = format!("{}{}", &line[..at], &rest[end..]);
+        }
+        if i > 0 {
+            out.push('\n');
+        }
+        out.push_str(line.trim_end());
+    }
+    out.trim().to_string()
 }
 
 /// The commands as `jetbench --help` lists them, by what they are for.
@@ -187,17 +239,24 @@ fn run() -> anyhow::Result<ExitCode> {
         Cmd::Stop(args) => cmd::command::stop(args),
         Cmd::Clear => cmd::command::clear(),
         Cmd::List => cmd::bus::list(),
-        Cmd::Echo { channel, count, remote } => {
-            cmd::bus::with_channel(&channel, remote.as_deref(), cmd::bus::Echo { count })
+        Cmd::Echo { channel, count, csv, json, remote } => {
+            let format = match (csv, json) {
+                (true, _) => cmd::bus::EchoFormat::Csv,
+                (_, true) => cmd::bus::EchoFormat::Json,
+                _ => cmd::bus::EchoFormat::Fields,
+            };
+            let local = remote.is_none();
+            cmd::bus::with_channel(&channel, remote.as_deref(), cmd::bus::Echo { count, format, local })
         }
         Cmd::Hz { channel, window, duration, remote } => {
-            if !window.is_finite() || window <= 0.0 {
-                bail!("--window must be a positive number of seconds");
+            if window < 2 {
+                bail!("--window {window}: the rate needs at least 2 messages");
             }
-            cmd::bus::with_channel(&channel, remote.as_deref(), cmd::bus::Hz { window, duration })
+            let local = remote.is_none();
+            cmd::bus::with_channel(&channel, remote.as_deref(), cmd::bus::Hz { window, duration, local })
         }
         Cmd::Record(args) => cmd::record::run_record(args),
-        Cmd::Info { file } => cmd::info::run(&file),
+        Cmd::Info(args) => cmd::info::run(args),
         Cmd::Recover(args) => cmd::recover::run(args),
         Cmd::Replay(args) => cmd::replay::run(args),
         Cmd::Identify(args) => cmd::identify::run(args),
@@ -234,6 +293,19 @@ mod tests {
         for name in &listed {
             assert!(cmd.find_subcommand(name).is_some_and(|c| !c.is_hide_set()), "`{name}` is not a command");
         }
+    }
+
+    #[test]
+    fn an_error_says_each_cause_once_without_library_source_paths() {
+        let io = std::io::Error::from(std::io::ErrorKind::NotFound);
+        let e = anyhow::Error::new(io)
+            .context(format!("cannot read x.mcap: {}", std::io::Error::from(std::io::ErrorKind::NotFound)));
+        let text = error_text(&e);
+        assert_eq!(text.matches("not found").count(), 1, "{text}");
+        let zenoh = anyhow::anyhow!("Unable to connect to any of [tcp/127.0.0.1:1]! at /root/.cargo/registry/src/index/zenoh-1.0/src/net/runtime/orchestrator.rs:312.");
+        let text = error_text(&zenoh.context("cannot reach the bench bridged at tcp/127.0.0.1:1"));
+        assert!(!text.contains(".cargo") && !text.contains(".rs"), "{text}");
+        assert!(text.contains("Unable to connect") && text.contains("cannot reach the bench"), "{text}");
     }
 
     #[test]

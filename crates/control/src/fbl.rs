@@ -1,4 +1,4 @@
-//! Feedback-linearising thrust controller (plant.md).
+//! Feedback-linearising thrust controller (docs/model/README.md).
 
 use jetbench_model::{Params, State, STEP_S, THROTTLE_MAX_PCT};
 use serde::{Deserialize, Serialize};

@@ -1,4 +1,4 @@
-//! Sliding-mode thrust controller (plant.md).
+//! Sliding-mode thrust controller (docs/model/README.md).
 
 use jetbench_model::{Params, State};
 use serde::{Deserialize, Serialize};

@@ -19,7 +19,7 @@
 //!
 //! The bench measures only thrust; the controllers need `[T, Ṫ]`, and FBL the
 //! disturbance `d`: the acceleration the model does not explain. The filter uses the
-//! discretisation of plant.md at `Δt = STEP_S`:
+//! discretisation of the model (docs/model/README.md) at `Δt = STEP_S`:
 //!
 //! ```text
 //! T[k+1] = T + Ṫ·Δt + T̈·Δt²/2,   Ṫ[k+1] = Ṫ + T̈·Δt,   T̈ = f(T, Ṫ) + g(T, Ṫ)·v(u) + d,   d[k+1] = d,   y = T

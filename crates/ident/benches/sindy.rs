@@ -1,4 +1,4 @@
-//! Jet-sized SINDy: 30 000 samples (5 min at 100 Hz, plant.md's data-set size), the
+//! Jet-sized SINDy: 30 000 samples (5 min at 100 Hz, an identification campaign's size), the
 //! 56-term degree-5 library in `(T, Tdot, u)`, one target `T''`.
 //!
 //! ```sh

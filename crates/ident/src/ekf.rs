@@ -1,4 +1,4 @@
-//! The ten parameters in the state of an extended Kalman filter (plant.md).
+//! The ten parameters in the state of an extended Kalman filter (docs/model/README.md).
 //!
 //! State `[T, Ṫ, K_T, …, B_UU]` (12), parameters as random walks, measurement
 //! `y = T`. Each pass runs the filter over the calibration data starting from

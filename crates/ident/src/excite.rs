@@ -1,5 +1,5 @@
 //! Identification campaigns: open-loop throttle profiles that excite every term
-//! of the model (plant.md: steps, ramps, sinusoids and chirps at several
+//! of the model (docs/model/README.md: steps, ramps, sinusoids and chirps at several
 //! amplitudes and operating points, at least 30 000 samples).
 
 use jetbench_model::{Params, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
@@ -10,7 +10,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::series::Series;
 use crate::validate::Dynamics;
 
-/// Samples a campaign should have at least (plant.md).
+/// Samples a campaign should have at least (docs/model/README.md).
 pub const MIN_SAMPLES: usize = 30_000;
 
 /// What a campaign is made of, for the report.

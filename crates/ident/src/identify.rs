@@ -139,7 +139,7 @@ impl Dynamics for Fitted {
     }
 }
 
-/// What a plausibility check found (plant.md, "Stability notes").
+/// What a plausibility check found (docs/model/README.md, "When a model is plausible").
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct Plausibility {
     /// Stable equilibrium thrust (N) at 25, 50, 75 and 100 % (None: none).
@@ -451,7 +451,7 @@ pub fn fit_sindy(data: &[Series], options: &SindyOptions) -> Result<JetSindy, Id
     Ok(JetSindy { model, scale, standardise })
 }
 
-/// Equilibria, a full step each way, and the rise time (plant.md: one stable
+/// Equilibria, a full step each way, and the rise time (docs/model/README.md: one stable
 /// equilibrium per throttle, no fall far below idle, 10–90 % in roughly 0.5–2 s).
 pub fn plausibility(p: &Params) -> Plausibility {
     let mut out = Plausibility::default();
@@ -628,7 +628,7 @@ impl Report {
                 "{:<6} {:>12} {:>10} {:>12} {:>9.3}  {}",
                 r.method.name(),
                 v.map_or_else(|| r.diverged_text(), |s| format!("{:.3}", s.mae_n)),
-                v.map_or("-".into(), |s| format!("{:.1}", s.fit_pct)),
+                v.map_or("-".into(), |s| fit_text(s.fit_pct)),
                 r.calibration_score.map_or("-".into(), |s| format!("{:.3}", s.mae_n)),
                 r.fit_seconds,
                 r.notes.join("; ")
@@ -640,8 +640,25 @@ impl Report {
         for (method, error) in &self.failures {
             let _ = writeln!(out, "{:<6} failed: {error}", method.name());
         }
+        if self.results.iter().any(|r| r.validation_score.is_some_and(|s| !s.fit_pct.is_finite())) {
+            let _ = writeln!(
+                out,
+                "fit % \"none\": the measured validation thrust is constant, so the fit (which compares the error \
+                 with the thrust's variation) is not defined; judge by the MAE"
+            );
+        }
         let _ = writeln!(out, "\n{}", self.verdict);
         out
+    }
+}
+
+/// A fit percentage for the report: "none" when it is not defined (constant
+/// measured thrust), never "NaN".
+fn fit_text(fit_pct: f64) -> String {
+    if fit_pct.is_finite() {
+        format!("{fit_pct:.1}")
+    } else {
+        "none".into()
     }
 }
 

@@ -5,7 +5,7 @@
 //! an equation-error fit can be excellent sample by sample and still diverge in a free
 //! run (a second equilibrium, a full step that escapes). This module takes such estimates
 //! as starting points and refines them on what matters, the simulation error over the
-//! calibration data, while keeping the model plausible (plant.md's rules, checked as in
+//! calibration data, while keeping the model plausible (docs/model/README.md's rules, checked as in
 //! [`crate::identify::plausibility`]): one stable equilibrium per throttle in range, and
 //! full steps both ways bounded. A step of the optimiser that would break a rule is
 //! refused, so a plausible start stays plausible; an implausible start is first moved

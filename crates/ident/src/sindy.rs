@@ -18,7 +18,7 @@
 //! ```
 //!
 //! SINDy regresses measured rates `Ẋ` on a library `Θ(X)` of candidate terms and keeps only
-//! the terms that matter: `Ẋ ≈ Θ(X)·Ξ` with a sparse `Ξ`. The study (plant.md) found the
+//! the terms that matter: `Ẋ ≈ Θ(X)·Ξ` with a sparse `Ξ`. The study (docs/model/README.md) found the
 //! structure of the engine model this way, over the 56 monomials of degree ≤ 5 in `(T, Ṫ, u)`.
 //!
 //! [`fit`] runs STLSQ as PySINDy 2.x does (`pysindy.optimizers.STLSQ` with `unbias=True`):

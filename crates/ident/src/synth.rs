@@ -41,7 +41,7 @@ pub struct Bench {
     /// Fraction of rows lost (never the first or the last).
     pub drop_fraction: f64,
     /// Round time to 0.01 s, throttle to 0.01 % and thrust to 0.01 N, as the bench's
-    /// board and sensor report them (design.md, "Bench protocols").
+    /// board and sensor report them (docs/io/README.md).
     pub resolution: bool,
 }
 

@@ -1,5 +1,5 @@
-//! Physics the ten-parameter model leaves out (plant.md, "Effects the second-order
-//! model leaves out"), each a small extension with few parameters.
+//! Physics the ten-parameter model leaves out (docs/model/README.md, "Effects the ten
+//! parameters leave out"), each a small extension with few parameters.
 //!
 //! The effects act on the way in (the throttle the engine follows), in the engine
 //! (extra acceleration) or on the way out (the force the sensor reads), in a fixed
@@ -210,9 +210,9 @@ impl EffectKind {
         shown.join(", ")
     }
 
-    /// The catalogue as the README's Markdown table: name, parameters with the bounds a
+    /// The catalogue as the Markdown table of docs/model/README.md: name, parameters with the bounds a
     /// model file must respect, what the effect does, the physics, the physical range.
-    /// A test fails when the README's table differs.
+    /// A test fails when that table differs.
     pub fn catalogue_markdown() -> String {
         let mut table = String::from(
             "| name | parameters (bounds in a model file) | what it does | physics | physical range |\n|---|---|---|---|---|\n",

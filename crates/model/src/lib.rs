@@ -16,7 +16,7 @@
 //! # Ok::<(), jetbench_model::ModelError>(())
 //! ```
 //!
-//! The model (plant.md) is `T̈ = f(T, Ṫ) + g(T, Ṫ)·v(u)` with thrust `T` in N, its rate
+//! The model (docs/model/README.md) is `T̈ = f(T, Ṫ) + g(T, Ṫ)·v(u)` with thrust `T` in N, its rate
 //! `Ṫ` in N/s and throttle `u` in %. Identified parameter sets are only locally valid, so
 //! the [`Engine`] reports divergence as [`ModelError::Diverged`] rather than returning NaN.
 #![doc = include_str!("../README.md")]

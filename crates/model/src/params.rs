@@ -4,7 +4,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::ModelError;
 
-/// Coefficients of `T̈ = f(T, Ṫ) + g(T, Ṫ)·v(u)` (see plant.md), with thrust `T` in N,
+/// Coefficients of `T̈ = f(T, Ṫ) + g(T, Ṫ)·v(u)` (see docs/model/README.md), with thrust `T` in N,
 /// its rate `Ṫ` in N/s and the throttle `u` in %.
 ///
 /// ```text

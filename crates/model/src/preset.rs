@@ -40,7 +40,7 @@ impl Preset {
         }
     }
 
-    /// The coefficients, as published (plant.md).
+    /// The coefficients, as published (docs/model/README.md).
     pub fn params(&self) -> Params {
         // Array order is Params::NAMES: K_T, K_TT, K_D, K_DD, K_TD, c, B_U, B_T, B_D, B_UU.
         let a = match self {

@@ -55,7 +55,7 @@ fn p100_diesel_full_steps_stay_bounded() {
 fn p100_diesel_full_step_rise_time() {
     let params = Preset::P100Diesel.params();
     let rise_s = settling_time_s(&params, 25.0, 100.0, 10.0).unwrap().unwrap();
-    // plant.md calls 0.5-2 s "roughly" plausible; this set measures 2.29 s (10-90 %).
+    // docs/model/README.md calls 0.5-2 s plausible; this set measures 2.29 s (10-90 %).
     assert!((0.5..=2.5).contains(&rise_s), "rise time {rise_s} s");
     assert!((rise_s - 2.29).abs() < 0.05, "rise time {rise_s} s");
     let fall_s = settling_time_s(&params, 100.0, 25.0, 10.0).unwrap().unwrap();

@@ -18,6 +18,7 @@
 //!         models: &[("first order", &model_n)],
 //!         split_s: Some(7.0),
 //!         windows: &[(1.0, 2.0, "spool-up")],
+//!         throttle_pct: None,
 //!     },
 //! )?;
 //! assert_eq!(files, [dir.join("first_order.png"), dir.join("first_order.svg")]);
@@ -70,6 +71,9 @@ pub struct FitPlot<'a> {
     /// Time windows (start s, end s, label) to shade, e.g. where a residual is systematic; either order of
     /// start and end works, windows with a non-finite bound are skipped.
     pub windows: &'a [(f64, f64, &'a str)],
+    /// The throttle (%) the thrust answered, same length as `t_s`: drawn in a third panel under the
+    /// residual, on the same time axis, so a reader sees what drove each error.
+    pub throttle_pct: Option<&'a [f64]>,
 }
 
 /// A generic line chart (e.g. residual autocorrelation with confidence bounds, a spectrum).
@@ -88,6 +92,8 @@ pub struct LinePlot<'a> {
     pub hlines: &'a [(f64, &'a str)],
     /// Logarithmic y axis; values `<= 0` are then skipped like non-finite ones.
     pub log_y: bool,
+    /// Logarithmic x axis (a spectrum over frequency); `x <= 0` is then skipped.
+    pub log_x: bool,
 }
 
 /// Why a plot could not be written, naming the figure (`<dir>/<stem>`) or file concerned.
@@ -171,6 +177,9 @@ pub fn write_fit_plot(dir: &Path, stem: &str, plot: &FitPlot) -> Result<Vec<Path
     check_len(&figure, "measured_n".into(), plot.measured_n.len(), "t_s", n)?;
     for (name, y) in plot.models {
         check_len(&figure, format!("model {name:?}"), y.len(), "t_s", n)?;
+    }
+    if let Some(u) = plot.throttle_pct {
+        check_len(&figure, "throttle_pct".into(), u.len(), "t_s", n)?;
     }
     let prepared = PreparedFit::new(plot);
     write_figure(dir, stem, FIT_PLOT_SIZE_PX, &prepared)
@@ -397,6 +406,8 @@ struct PreparedFit {
     models: Vec<PreparedModel>,
     split_s: Option<f64>,
     windows: Vec<(f64, f64, String)>,
+    /// The throttle trace and its axis range, when given.
+    throttle: Option<(Trace, (f64, f64))>,
 }
 
 impl PreparedFit {
@@ -432,6 +443,11 @@ impl PreparedFit {
             models,
             split_s: plot.split_s.filter(|s| s.is_finite()),
             windows,
+            throttle: plot.throttle_pct.map(|u| {
+                // The ECU's range, 25 (idle) to 100 %, widened to what the data holds.
+                let range = linear_range(union(Some((25.0, 100.0)), paired_bounds(t, u, any)));
+                (Trace::new(t, u, any, x_span, columns), range)
+            }),
         }
     }
 }
@@ -445,20 +461,22 @@ struct PreparedLine {
     series: Vec<(String, Trace)>,
     hlines: Vec<(f64, String)>,
     log_y: bool,
+    log_x: bool,
 }
 
 impl PreparedLine {
     fn new(plot: &LinePlot) -> Self {
-        let log_y = plot.log_y;
+        let (log_x, log_y) = (plot.log_x, plot.log_y);
         let keep = move |v: f64| !log_y || v > 0.0;
+        let keep_x = move |v: f64| v.is_finite() && (!log_x || v > 0.0);
         let x_bounds = plot
             .series
             .iter()
             .map(|(_, x, y)| {
-                min_max(x.iter().zip(y.iter()).filter(|(a, b)| a.is_finite() && b.is_finite()).map(|(&a, _)| a))
+                min_max(x.iter().zip(y.iter()).filter(|(a, b)| keep_x(**a) && b.is_finite()).map(|(&a, _)| a))
             })
             .fold(None, union);
-        let x_range = linear_range(x_bounds);
+        let x_range = if log_x { log_range(x_bounds) } else { linear_range(x_bounds) };
         let x_span = x_range.1 - x_range.0;
         let columns = LINE_PLOT_SIZE_PX.0 as usize;
         let hlines: Vec<(f64, String)> = plot
@@ -475,7 +493,11 @@ impl PreparedLine {
         let series = plot
             .series
             .iter()
-            .map(|(name, x, y)| (name.to_string(), Trace::new(x, y, keep, x_span, columns)))
+            .map(|(name, x, y)| {
+                // On a log axis the points at x <= 0 are not drawn: give them a y that is skipped.
+                let y: Vec<f64> = x.iter().zip(y.iter()).map(|(&a, &b)| if keep_x(a) { b } else { f64::NAN }).collect();
+                (name.to_string(), Trace::new(x, &y, keep, x_span, columns))
+            })
             .collect();
         PreparedLine {
             title: plot.title.to_string(),
@@ -486,6 +508,7 @@ impl PreparedLine {
             series,
             hlines,
             log_y,
+            log_x,
         }
     }
 }
@@ -502,12 +525,15 @@ trait Figure {
 
 const FONT: &str = "sans-serif";
 const TITLE_PX: u32 = 28;
+/// Smallest title type before a title too long for the figure is shortened.
+const TITLE_MIN_PX: u32 = 18;
 const DESC_PX: u32 = 19;
 const TICK_PX: u32 = 15;
 const LEGEND_PX: u32 = 16;
 const NOTE_PX: u32 = 15;
 
 const MEASURED: RGBColor = RGBColor(125, 125, 125);
+const THROTTLE: RGBColor = RGBColor(60, 60, 60);
 const SPLIT: RGBColor = RGBColor(40, 40, 40);
 const WINDOW_FILL: RGBAColor = RGBAColor(255, 165, 0, 0.18);
 const WINDOW_TEXT: RGBColor = RGBColor(170, 90, 0);
@@ -586,8 +612,8 @@ fn text(size_px: u32) -> TextStyle<'static> {
 
 /// Draws a trace (lines for runs, small dots for isolated samples); with a label, adds a legend entry even
 /// if the trace is empty, so a diverged model is still listed.
-fn draw_trace<DB: DrawingBackend, Y: Ranged<ValueType = f64>>(
-    chart: &mut ChartContext<'_, DB, Cartesian2d<RangedCoordf64, Y>>,
+fn draw_trace<DB: DrawingBackend, X: Ranged<ValueType = f64>, Y: Ranged<ValueType = f64>>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<X, Y>>,
     trace: &Trace,
     style: ShapeStyle,
     label: Option<&str>,
@@ -607,8 +633,8 @@ fn draw_trace<DB: DrawingBackend, Y: Ranged<ValueType = f64>>(
     Ok(())
 }
 
-fn configure_legend<'a, DB: DrawingBackend + 'a, Y: Ranged<ValueType = f64>>(
-    chart: &mut ChartContext<'a, DB, Cartesian2d<RangedCoordf64, Y>>,
+fn configure_legend<'a, DB: DrawingBackend + 'a, X: Ranged<ValueType = f64>, Y: Ranged<ValueType = f64>>(
+    chart: &mut ChartContext<'a, DB, Cartesian2d<X, Y>>,
 ) -> DrawResult<DB> {
     chart
         .configure_series_labels()
@@ -658,9 +684,17 @@ impl PreparedFit {
 impl Figure for PreparedFit {
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> DrawResult<DB> {
         root.fill(&WHITE)?;
-        let body = root.titled(&self.title, text(TITLE_PX))?;
-        let top_px = body.dim_in_pixel().1 * 62 / 100;
-        let (top, bottom) = body.split_vertically(top_px);
+        let (title, title_px) = fit_title(root, &self.title);
+        let body = root.titled(&title, text(title_px))?;
+        let height = body.dim_in_pixel().1;
+        let (top, rest) = body.split_vertically(height * if self.throttle.is_some() { 50 } else { 62 } / 100);
+        let (bottom, throttle_area) = match self.throttle {
+            Some(_) => {
+                let (b, t) = rest.split_vertically(height * 26 / 100);
+                (b, Some(t))
+            }
+            None => (rest, None),
+        };
         let (x0, x1) = self.x_range;
         let (y0, y1) = self.y_range;
         let (r0, r1) = self.r_range;
@@ -701,7 +735,7 @@ impl Figure for PreparedFit {
             .margin_right(20)
             .margin_top(10)
             .margin_bottom(5)
-            .x_label_area_size(50)
+            .x_label_area_size(if throttle_area.is_some() { 30 } else { 50 })
             .y_label_area_size(85)
             .build_cartesian_2d(x0..x1, r0..r1)?;
         chart
@@ -712,7 +746,7 @@ impl Figure for PreparedFit {
             .y_labels(5)
             .x_label_formatter(&x_fmt)
             .y_label_formatter(&r_fmt)
-            .x_desc("time (s)")
+            .x_desc(if throttle_area.is_some() { "" } else { "time (s)" })
             .y_desc("residual (N)")
             .axis_desc_style(text(DESC_PX))
             .label_style(text(TICK_PX))
@@ -726,26 +760,88 @@ impl Figure for PreparedFit {
         if !self.models.is_empty() {
             configure_legend(&mut chart)?;
         }
+
+        // Third panel: the throttle that drove the thrust, same time axis.
+        if let (Some(area), Some((trace, (u0, u1)))) = (throttle_area, &self.throttle) {
+            let u_fmt = |v: &f64| tick_label(*v, u1 - u0);
+            let mut chart = ChartBuilder::on(&area)
+                .margin_left(10)
+                .margin_right(20)
+                .margin_top(10)
+                .margin_bottom(5)
+                .x_label_area_size(50)
+                .y_label_area_size(85)
+                .build_cartesian_2d(x0..x1, *u0..*u1)?;
+            chart
+                .configure_mesh()
+                .bold_line_style(GRID_BOLD)
+                .light_line_style(GRID_LIGHT)
+                .x_labels(12)
+                .y_labels(4)
+                .x_label_formatter(&x_fmt)
+                .y_label_formatter(&u_fmt)
+                .x_desc("time (s)")
+                .y_desc("throttle (%)")
+                .axis_desc_style(text(DESC_PX))
+                .label_style(text(TICK_PX))
+                .draw()?;
+            self.draw_annotations(&mut chart, (*u0, *u1), false)?;
+            draw_trace(&mut chart, trace, THROTTLE.stroke_width(1), None)?;
+        }
         Ok(())
     }
 }
 
+/// The title and a font size at which it fits the figure's width: smaller type first, down to a
+/// legible minimum, then the middle of the title left out (`…`), never cut at the edges.
+fn fit_title<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, title: &str) -> (String, u32) {
+    let available = root.dim_in_pixel().0.saturating_sub(40);
+    let width = |t: &str, px: u32| root.estimate_text_size(t, &text(px)).map_or(0, |(w, _)| w);
+    let mut px = TITLE_PX;
+    while px > TITLE_MIN_PX && width(title, px) > available {
+        px -= 1;
+    }
+    if width(title, px) <= available {
+        return (title.to_string(), px);
+    }
+    let chars: Vec<char> = title.chars().collect();
+    let mut keep = chars.len();
+    while keep > 8 {
+        keep -= 1;
+        let head: String = chars[..keep / 2].iter().collect();
+        let tail: String = chars[chars.len() - (keep - keep / 2)..].iter().collect();
+        let shortened = format!("{head}…{tail}");
+        if width(&shortened, px) <= available {
+            return (shortened, px);
+        }
+    }
+    (title.to_string(), px)
+}
+
 impl PreparedLine {
-    fn draw_chart<DB: DrawingBackend, Y>(&self, root: &DrawingArea<DB, Shift>, y_spec: Y) -> DrawResult<DB>
+    fn draw_chart<DB: DrawingBackend, X, Y>(
+        &self,
+        root: &DrawingArea<DB, Shift>,
+        x_spec: X,
+        y_spec: Y,
+    ) -> DrawResult<DB>
     where
+        X: AsRangedCoord<Value = f64>,
+        X::CoordDescType: ValueFormatter<f64>,
         Y: AsRangedCoord<Value = f64>,
         Y::CoordDescType: ValueFormatter<f64>,
     {
         root.fill(&WHITE)?;
         let (x0, x1) = self.x_range;
+        let (title, title_px) = fit_title(root, &self.title);
         let mut chart = ChartBuilder::on(root)
-            .caption(&self.title, text(TITLE_PX))
+            .caption(&title, text(title_px))
             .margin(15)
             .x_label_area_size(50)
             .y_label_area_size(85)
-            .build_cartesian_2d(x0..x1, y_spec)?;
+            .build_cartesian_2d(x_spec, y_spec)?;
         let (y0, y1) = self.y_range;
-        let x_fmt = |v: &f64| tick_label(*v, x1 - x0);
+        let x_fmt = |v: &f64| tick_label(*v, if self.log_x { 0.0 } else { x1 - x0 });
         let y_fmt = |v: &f64| tick_label(*v, if self.log_y { 0.0 } else { y1 - y0 });
         chart
             .configure_mesh()
@@ -776,11 +872,12 @@ impl PreparedLine {
 
 impl Figure for PreparedLine {
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> DrawResult<DB> {
-        let (y0, y1) = self.y_range;
-        if self.log_y {
-            self.draw_chart(root, (y0..y1).log_scale())
-        } else {
-            self.draw_chart(root, y0..y1)
+        let ((x0, x1), (y0, y1)) = (self.x_range, self.y_range);
+        match (self.log_x, self.log_y) {
+            (false, false) => self.draw_chart(root, x0..x1, y0..y1),
+            (false, true) => self.draw_chart(root, x0..x1, (y0..y1).log_scale()),
+            (true, false) => self.draw_chart(root, (x0..x1).log_scale(), y0..y1),
+            (true, true) => self.draw_chart(root, (x0..x1).log_scale(), (y0..y1).log_scale()),
         }
     }
 }

@@ -74,6 +74,7 @@ fn fit_plot_writes_png_and_svg_with_size_title_and_legend() {
         models: &[("first order", &fast), ("slow lag", &slow)],
         split_s: Some(7.0),
         windows: &[(1.0, 2.5, "lag error")],
+        throttle_pct: None,
     };
     let files = write_fit_plot(&dir, "fit", &plot).unwrap();
     assert_eq!(files, [dir.join("fit.png"), dir.join("fit.svg")]);
@@ -112,6 +113,7 @@ fn fit_plot_draws_nan_gaps_and_all_nan_model_without_panicking() {
             models: &[("gappy", &gappy), ("diverged", &diverged)],
             split_s: Some(f64::NAN),
             windows: &[(f64::NAN, 3.0, "ignored"), (15.0, 12.0, "reversed")],
+            throttle_pct: None,
         };
         let files = write_fit_plot(&dir, "nan", &plot).unwrap();
         assert_eq!(png_size(&files[0]), FIT_PLOT_SIZE_PX);
@@ -129,7 +131,15 @@ fn fit_plot_survives_degenerate_data() {
         write_fit_plot(
             &dir,
             "single",
-            &FitPlot { title: "one", t_s: &[0.0], measured_n: &[1.0], models: &[], split_s: None, windows: &[] },
+            &FitPlot {
+                title: "one",
+                t_s: &[0.0],
+                measured_n: &[1.0],
+                models: &[],
+                split_s: None,
+                windows: &[],
+                throttle_pct: None,
+            },
         )
         .unwrap();
         // Everything NaN.
@@ -144,6 +154,7 @@ fn fit_plot_survives_degenerate_data() {
                 models: &[("m", &nan)],
                 split_s: None,
                 windows: &[],
+                throttle_pct: None,
             },
         )
         .unwrap();
@@ -160,6 +171,7 @@ fn fit_plot_survives_degenerate_data() {
                 models: &[("huge", &huge)],
                 split_s: Some(1.5),
                 windows: &[(0.5, 1.0, "w")],
+                throttle_pct: None,
             },
         )
         .unwrap();
@@ -172,13 +184,22 @@ fn fit_plot_survives_degenerate_data() {
 #[test]
 fn fit_plot_rejects_empty_and_mismatched_input() {
     let dir = out_dir("fit_errors");
-    let empty = FitPlot { title: "e", t_s: &[], measured_n: &[], models: &[], split_s: None, windows: &[] };
+    let empty =
+        FitPlot { title: "e", t_s: &[], measured_n: &[], models: &[], split_s: None, windows: &[], throttle_pct: None };
     let err = write_fit_plot(&dir, "empty", &empty).unwrap_err();
     assert!(matches!(&err, PlotError::EmptyInput { what, .. } if what == "t_s"), "{err}");
     assert!(err.to_string().contains("empty"), "{err}");
 
     let t_s = [0.0, 1.0, 2.0];
-    let short = FitPlot { title: "m", t_s: &t_s, measured_n: &[1.0, 2.0], models: &[], split_s: None, windows: &[] };
+    let short = FitPlot {
+        title: "m",
+        t_s: &t_s,
+        measured_n: &[1.0, 2.0],
+        models: &[],
+        split_s: None,
+        windows: &[],
+        throttle_pct: None,
+    };
     let err = write_fit_plot(&dir, "short", &short).unwrap_err();
     assert!(matches!(err, PlotError::LengthMismatch { got: 2, expected: 3, .. }), "{err}");
 
@@ -190,6 +211,7 @@ fn fit_plot_rejects_empty_and_mismatched_input() {
         models: &[("m4", &model)],
         split_s: None,
         windows: &[],
+        throttle_pct: None,
     };
     let err = write_fit_plot(&dir, "long_model", &long_model).unwrap_err();
     assert!(matches!(&err, PlotError::LengthMismatch { what, got: 4, .. } if what.contains("m4")), "{err}");
@@ -214,6 +236,7 @@ fn unwritable_directory_is_reported_with_its_path() {
         models: &[("m", &fast)],
         split_s: None,
         windows: &[],
+        throttle_pct: None,
     };
     let err = write_fit_plot(&file.join("sub"), "fit", &plot).unwrap_err();
     assert!(matches!(err, PlotError::CreateDir { .. }), "{err}");
@@ -235,6 +258,7 @@ fn fit_plot_of_30000_samples_and_3_models_renders() {
         models: &[("first order", &fast), ("slow lag", &slow), ("spiky", &spiky)],
         split_s: Some(210.0),
         windows: &[(40.0, 60.0, "systematic residual")],
+        throttle_pct: None,
     };
     let start = Instant::now();
     let files = write_fit_plot(&dir, "fit_30k", &plot).unwrap();
@@ -282,6 +306,7 @@ fn line_plot_writes_both_files_with_bounds_and_log_axis() {
             series: &[("acf", &lags_s, &acf)],
             hlines: &[(bound, "+1.96/√N"), (-bound, "−1.96/√N")],
             log_y: false,
+            log_x: false,
         };
         let files = write_line_plot(&dir, "acf", &plot).unwrap();
         assert_eq!(png_size(&files[0]), LINE_PLOT_SIZE_PX);
@@ -303,6 +328,7 @@ fn line_plot_writes_both_files_with_bounds_and_log_axis() {
             series: &[("residual", &freq_hz, &psd), ("single", &[1.0], &[0.5])],
             hlines: &[(1e-3, "noise floor"), (-1.0, "not drawn on a log axis")],
             log_y: true,
+            log_x: false,
         };
         let files = write_line_plot(&dir, "psd", &spectrum).unwrap();
         assert_eq!(png_size(&files[0]), LINE_PLOT_SIZE_PX);
@@ -314,7 +340,8 @@ fn line_plot_writes_both_files_with_bounds_and_log_axis() {
 #[test]
 fn line_plot_rejects_empty_and_mismatched_series() {
     let dir = out_dir("line_errors");
-    let base = LinePlot { title: "t", x_label: "x", y_label: "y", series: &[], hlines: &[], log_y: false };
+    let base =
+        LinePlot { title: "t", x_label: "x", y_label: "y", series: &[], hlines: &[], log_y: false, log_x: false };
     let err = write_line_plot(&dir, "none", &base).unwrap_err();
     assert!(matches!(&err, PlotError::EmptyInput { what, .. } if what == "series"), "{err}");
 
@@ -325,4 +352,50 @@ fn line_plot_rejects_empty_and_mismatched_series() {
         write_line_plot(&dir, "mismatch", &LinePlot { series: &[("m", &[0.0, 1.0], &[1.0])], ..base }).unwrap_err();
     assert!(matches!(err, PlotError::LengthMismatch { got: 1, expected: 2, .. }), "{err}");
     assert!(!dir.exists(), "nothing is written for rejected input");
+}
+
+/// The throttle is drawn in its own panel under the thrust and residual; a title too long for the figure
+/// is set smaller or shortened in the middle, never cut at the edges; a spectrum gets a log frequency axis
+/// on which the 0 Hz bin is left out.
+#[test]
+fn throttle_panel_long_titles_and_a_log_frequency_axis() {
+    watchdog(|| {
+        let dir = out_dir("throttle_panel");
+        let t_s: Vec<f64> = (0..3000).map(|k| k as f64 * 0.01).collect();
+        let u: Vec<f64> = t_s.iter().map(|t| if (t / 5.0).floor() as i64 % 2 == 0 { 30.0 } else { 80.0 }).collect();
+        let y: Vec<f64> = u.iter().map(|u| u - 25.0).collect();
+        let title = "diagnose: a very long title that names the recording, the model, the cause and the figures \
+                     before and after, longer than any figure is wide, so that it must be shortened to fit at all";
+        let plot = FitPlot {
+            title,
+            t_s: &t_s,
+            measured_n: &y,
+            models: &[("model", &y)],
+            split_s: Some(20.0),
+            windows: &[],
+            throttle_pct: Some(&u),
+        };
+        let files = write_fit_plot(&dir, "fit", &plot).unwrap();
+        assert_eq!(png_size(&files[0]), FIT_PLOT_SIZE_PX);
+        let svg = read_svg(&files[1]);
+        assert!(svg.contains("throttle (%)") && svg.contains("thrust (N)"), "no throttle panel");
+        assert!(svg.contains('…') && svg.contains("diagnose: a very") && svg.contains("to fit at all"), "title");
+        let bad = FitPlot { throttle_pct: Some(&u[..10]), ..plot };
+        assert!(matches!(write_fit_plot(&dir, "bad", &bad), Err(PlotError::LengthMismatch { .. })));
+
+        let freq_hz: Vec<f64> = (0..500).map(|k| k as f64 * 0.01).collect();
+        let ratio: Vec<f64> = freq_hz.iter().map(|f| 1.0 + 10.0 / (1.0 + (f - 0.3).powi(2) * 400.0)).collect();
+        let spectrum = LinePlot {
+            title: "residual spectrum over the noise model's",
+            x_label: "frequency (Hz)",
+            y_label: "ratio",
+            series: &[("residual", &freq_hz, &ratio)],
+            hlines: &[(1.0, "noise")],
+            log_y: true,
+            log_x: true,
+        };
+        let files = write_line_plot(&dir, "spectrum", &spectrum).unwrap();
+        let svg = read_svg(&files[1]);
+        assert!(svg.contains("frequency (Hz)"));
+    });
 }

@@ -54,8 +54,8 @@ pub enum RecordError {
     Read { path: PathBuf, source: std::io::Error },
     #[error("MCAP error in {path}: {source}")]
     Mcap { path: PathBuf, source: mcap::McapError },
-    #[error("{path} is not an MCAP file (bad magic); is it a CSV or a truncated download?")]
-    NotMcap { path: PathBuf },
+    #[error("{path} is not an MCAP file (it does not start with the MCAP magic bytes); {what}")]
+    NotMcap { path: PathBuf, what: &'static str },
     #[error("channel {0} is not registered in this recording")]
     UnknownChannel(String),
     #[error("sample of {channel} is {size} bytes, larger than the {max}-byte record slot")]
@@ -72,6 +72,18 @@ pub enum RecordError {
 }
 
 impl RecordError {
+    /// [`RecordError::NotMcap`] for a file whose content is `bytes`, saying what it looks like instead.
+    pub fn not_mcap(path: &Path, bytes: &[u8]) -> RecordError {
+        let what = if looks_like_text(bytes) {
+            "it is text: a CSV `time_s,throttle_pct,thrust_n` is read by identify, diagnose, export and simulate, \
+             whatever its name"
+        } else {
+            "nor is it text (CSV): a damaged download or another format; a recording cut short keeps its start, so \
+             this is not one"
+        };
+        RecordError::NotMcap { path: path.into(), what }
+    }
+
     /// This error as [`RecordError::DiskFull`] when it is one (a write that
     /// failed for lack of space), `written` messages into the file.
     pub fn classify_disk_full(self, written: u64) -> RecordError {
@@ -292,7 +304,7 @@ impl Recording {
     pub fn open(path: &Path) -> Result<Recording, RecordError> {
         let bytes = std::fs::read(path).map_err(|source| RecordError::Read { path: path.into(), source })?;
         if !bytes.starts_with(mcap::MAGIC) {
-            return Err(RecordError::NotMcap { path: path.into() });
+            return Err(RecordError::not_mcap(path, &bytes));
         }
         let mut recording = Recording::default();
         let stream = mcap::MessageStream::new_with_options(&bytes, mcap::read::Options::IgnoreEndMagic.into())
@@ -372,6 +384,20 @@ pub fn read_metadata(bytes: &[u8]) -> BTreeMap<String, BTreeMap<String, String>>
             _ => None,
         })
         .collect()
+}
+
+/// True when `bytes` start as UTF-8 text without NUL bytes (as a CSV does), judged
+/// on the first 4 KiB.
+pub fn looks_like_text(bytes: &[u8]) -> bool {
+    let head = &bytes[..bytes.len().min(4096)];
+    if head.contains(&0) {
+        return false;
+    }
+    match std::str::from_utf8(head) {
+        Ok(_) => true,
+        // A character cut at the 4 KiB boundary is still text.
+        Err(e) => e.error_len().is_none(),
+    }
 }
 
 /// Counts missing `seq` numbers in samples of one publisher.

@@ -105,7 +105,7 @@ impl std::fmt::Display for RecoverReport {
 pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, RecordError> {
     let bytes = std::fs::read(input).map_err(|source| RecordError::Read { path: input.into(), source })?;
     let Some(mut rest) = bytes.strip_prefix(mcap::MAGIC) else {
-        return Err(RecordError::NotMcap { path: input.into() });
+        return Err(RecordError::not_mcap(input, &bytes));
     };
     let file = File::create(output).map_err(|source| RecordError::Create { path: output.into(), source })?;
     let mut copy = Copy {

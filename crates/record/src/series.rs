@@ -1,6 +1,6 @@
 //! Recordings as identification data: time, applied throttle and measured thrust.
 //!
-//! Every offline command reads CSV and MCAP alike (design.md, "Files and formats"):
+//! Every offline command reads CSV and MCAP alike (docs/stack/README.md, "Identification data (CSV)"):
 //!
 //! - CSV: header `time_s,throttle_pct,thrust_n`, extra columns allowed, any order.
 //! - MCAP: `bench/thrust` gives the measured thrust and the time (the sensor's
@@ -19,13 +19,16 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use crate::Recording;
-use jetbench_model::STEP_S;
+use jetbench_model::{STEP_S, THROTTLE_MIN_PCT};
 use jetbench_msgs::{actuation_flags, channels};
 
 /// Largest relative deviation of a step from [`STEP_S`] before the series is split.
 const GAP_FACTOR: f64 = 1.5;
 /// Sampling periods further than this (relative) from [`STEP_S`] are refused.
 const PERIOD_TOLERANCE: f64 = 0.05;
+/// More thrust than this, N, is not a model jet engine in newtons (the largest
+/// engines of the class give a few hundred).
+const MAX_PLAUSIBLE_THRUST_N: f64 = 2000.0;
 
 /// Why a recording cannot be used as identification data.
 #[derive(Debug, thiserror::Error)]
@@ -136,6 +139,67 @@ impl Series {
                     self.t_s[k - 1]
                 )));
             }
+        }
+        Ok(())
+    }
+
+    /// Checks the values the way a test engineer would before trusting them:
+    /// the throttle is a percentage of the ECU's range (0–100 %, the engine idling
+    /// below [`THROTTLE_MIN_PCT`]), the thrust a force in newtons pushing forward.
+    /// Catches a throttle given as a fraction (0–1), a run that never leaves
+    /// idle, and thrust in the wrong unit or with its sign reversed.
+    pub fn check_inputs(&self) -> Result<(), DataError> {
+        let invalid = |message: String| DataError::Invalid { path: self.name.clone(), message };
+        if self.is_empty() {
+            return Ok(());
+        }
+        let (u_min, u_max) = min_max(&self.u_pct);
+        if u_max <= 1.0 && u_min >= 0.0 && u_max > 0.0 {
+            return Err(invalid(format!(
+                "throttle_pct goes from {u_min} to {u_max}: it looks like a fraction (0–1), but the column is in \
+                 percent (0–100 %), so every row would be far below idle ({THROTTLE_MIN_PCT} %); multiply the \
+                 column by 100"
+            )));
+        }
+        if let Some(k) = self.u_pct.iter().position(|u| !(0.0..=100.0).contains(u)) {
+            return Err(invalid(format!(
+                "throttle_pct is {} at row {} (t = {} s), outside 0–100 %: the throttle is a percentage of the ECU's \
+                 range; check the column's unit and scale",
+                self.u_pct[k],
+                k + 2,
+                self.t_s[k]
+            )));
+        }
+        if u_max < THROTTLE_MIN_PCT && self.has_thrust() {
+            return Err(invalid(format!(
+                "every throttle_pct is below idle ({THROTTLE_MIN_PCT} %; the highest is {u_max} %): the engine only \
+                 idled, so the throttle's effect on thrust cannot be seen; record a run that moves the throttle \
+                 between idle and full (`jetbench excite`)"
+            )));
+        }
+        if !self.has_thrust() {
+            return Ok(());
+        }
+        let mut sorted = self.thrust_n.clone();
+        sorted.sort_by(f64::total_cmp);
+        let (lowest, median, highest) = (sorted[0], sorted[sorted.len() / 2], sorted[sorted.len() - 1]);
+        // Noise takes an idling engine's thrust below zero now and then; a reversed
+        // sensor puts the whole run there, its peaks negative.
+        if median < 0.0 && -lowest > 2.0 * highest.max(0.0) {
+            return Err(invalid(format!(
+                "thrust_n is mostly negative (median {median:.3} N, from {lowest:.3} to {highest:.3} N): thrust \
+                 pushes forward and is positive, so the sensor's sign is reversed; multiply the column by −1 (or \
+                 fix the axis sign in [sensor])"
+            )));
+        }
+        // The 1st and 99th percentiles, so that a few spikes of a noisy bus do not count.
+        let at = |q: f64| sorted[((sorted.len() - 1) as f64 * q).round() as usize];
+        let peak = at(0.99).max(-at(0.01));
+        if peak > MAX_PLAUSIBLE_THRUST_N {
+            return Err(invalid(format!(
+                "thrust_n reaches {peak:.0} in 1 % of the rows: a model jet engine gives at most a few hundred newtons, so the column \
+                 is not in newtons; from grams multiply by 0.00981, from millinewtons by 0.001"
+            )));
         }
         Ok(())
     }
@@ -369,34 +433,41 @@ impl Series {
         Ok((series, note))
     }
 
-    /// Loads a CSV or MCAP file (told apart by the MCAP magic bytes).
+    /// Loads a CSV or MCAP file, told apart by content, not by name: the MCAP magic
+    /// bytes, or text (a CSV); anything else is refused as not an MCAP file. The
+    /// values are checked as [`Series::check_inputs`] says.
     pub fn load(path: &Path, require_thrust: bool) -> Result<Series, DataError> {
         let name = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|source| DataError::Read { path: path.into(), source })?;
-        if bytes.starts_with(mcap_magic()) {
+        let bytes = read(path)?;
+        let series = if bytes.starts_with(mcap_magic()) {
             let recording = Recording::open(path)?;
             if recording.truncated {
                 eprintln!("warning: {name} is truncated; using the data up to its last complete chunk");
             }
-            Series::from_recording(&recording, &name)
+            Series::from_recording(&recording, &name)?
         } else {
-            Series::from_csv(bytes.as_slice(), &name, require_thrust)
-        }
+            Series::from_csv(text(path, &bytes)?, &name, require_thrust)?
+        };
+        series.check_inputs()?;
+        Ok(series)
     }
 
     /// Like [`Series::load`], but a CSV at another uniform rate is brought to 100 Hz
     /// ([`Series::to_100hz`]) instead of refused; the note says what was done.
     pub fn load_any_rate(path: &Path, require_thrust: bool) -> Result<(Series, Option<String>), DataError> {
         let name = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|source| DataError::Read { path: path.into(), source })?;
-        if bytes.starts_with(mcap_magic()) {
+        let bytes = read(path)?;
+        let (series, note) = if bytes.starts_with(mcap_magic()) {
             let recording = Recording::open(path)?;
             let (series, note) = Series::from_recording_noted(&recording, &name)?;
             let truncated = recording.truncated.then(|| format!("{name} is truncated; the data up to its last chunk"));
             let notes: Vec<String> = truncated.into_iter().chain(note).collect();
-            return Ok((series, (!notes.is_empty()).then(|| notes.join("; "))));
-        }
-        Series::from_csv_any_rate(bytes.as_slice(), &name, require_thrust)
+            (series, (!notes.is_empty()).then(|| notes.join("; ")))
+        } else {
+            Series::from_csv_any_rate(text(path, &bytes)?, &name, require_thrust)?
+        };
+        series.check_inputs()?;
+        Ok((series, note))
     }
 
     /// Writes `time_s,throttle_pct[,thrust_n]` with the shortest text that reads
@@ -415,6 +486,25 @@ impl Series {
         }
         out.flush()
     }
+}
+
+/// The bytes of `path`, saying which file could not be read.
+fn read(path: &Path) -> Result<Vec<u8>, DataError> {
+    std::fs::read(path).map_err(|source| DataError::Read { path: path.into(), source })
+}
+
+/// `bytes` as CSV text, or the same "not an MCAP file" every command gives.
+fn text<'a>(path: &Path, bytes: &'a [u8]) -> Result<&'a [u8], DataError> {
+    if crate::looks_like_text(bytes) {
+        Ok(bytes)
+    } else {
+        Err(crate::RecordError::not_mcap(path, bytes).into())
+    }
+}
+
+/// Smallest and largest of finite values.
+fn min_max(values: &[f64]) -> (f64, f64) {
+    values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)))
 }
 
 /// The bytes every MCAP file starts with.
@@ -507,6 +597,34 @@ mod tests {
         assert!(e.contains("75.0 Hz") && e.contains("resample it to 100 Hz first"), "{e}");
         // Garbage is still an error.
         assert!(any("time_s,throttle_pct,thrust_n\n0,25,1\n0.005,25,x\n").is_err());
+    }
+
+    #[test]
+    fn inputs_are_checked_as_a_test_engineer_would() {
+        let series = |u: &dyn Fn(usize) -> f64, y: &dyn Fn(usize) -> f64| Series {
+            name: "s.csv".into(),
+            t_s: (0..1000).map(|k| k as f64 * 0.01).collect(),
+            u_pct: (0..1000).map(u).collect(),
+            thrust_n: (0..1000).map(y).collect(),
+        };
+        // An idling engine's noise dips below zero: that is fine.
+        let noisy_idle = |k: usize| if k < 500 { 1.5 + 3.0 * ((k as f64) * 1.7).sin() } else { 60.0 };
+        let step = |k: usize| if k < 500 { 25.0 } else { 75.0 };
+        series(&step, &noisy_idle).check_inputs().unwrap();
+        let err = |s: Series| s.check_inputs().unwrap_err().to_string();
+        let e = err(series(&|k| step(k) / 100.0, &noisy_idle));
+        assert!(e.contains("looks like a fraction") && e.contains("multiply the column by 100"), "{e}");
+        let e = err(series(&|k| if k == 700 { 120.0 } else { step(k) }, &noisy_idle));
+        assert!(e.contains("120 at row 702") && e.contains("outside 0–100 %"), "{e}");
+        let e = err(series(&|_| 10.0, &|_| 1.0));
+        assert!(e.contains("below idle"), "{e}");
+        let e = err(series(&step, &|k| -noisy_idle(k)));
+        assert!(e.contains("sign is reversed"), "{e}");
+        let e = err(series(&step, &|k| noisy_idle(k) * 1000.0 / 9.81));
+        assert!(e.contains("not in newtons"), "{e}");
+        // A throttle profile (no thrust) may stay below idle: it is only an input.
+        let profile = Series { thrust_n: Vec::new(), ..series(&|_| 10.0, &|_| 0.0) };
+        profile.check_inputs().unwrap();
     }
 
     #[test]

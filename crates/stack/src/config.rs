@@ -501,7 +501,7 @@ impl Default for RtSection {
             // Along the control path, each stage above the one that feeds it:
             // a stage that publishes is preempted at once by the stage it woke,
             // so a cycle runs through to the throttle board before any stage's
-            // bookkeeping (heartbeat, next read). See the README's bench PC section.
+            // bookkeeping (heartbeat, next read). See docs/latency/README.md, "Preparing a bench PC".
             priority: PerService {
                 sim_bench: 90,
                 actuation: 80,

@@ -39,7 +39,7 @@ mod service;
 
 pub use channels::BenchChannels;
 pub use live::{ChannelReport, LiveReport, LiveView};
-pub use play::{PlayOptions, PlayReport, Player};
+pub use play::{BusSink, PlayOptions, PlayReport, PlaySink, Player};
 pub use server::{parse_listen, ClientCounts, FoxgloveServer, ServerOptions, DEFAULT_ADDR};
 pub use service::Viewer;
 

@@ -22,7 +22,7 @@ The conditioning reported is that of the ten-parameter regression on this campai
 Example:
   jetbench excite --duration 300 --seed 7 --out campaign.csv")]
 pub struct ExciteArgs {
-    /// Length, s (plant.md asks for at least 300 s, i.e. 30 000 samples).
+    /// Length, s (an identification campaign needs at least 300 s, i.e. 30 000 samples).
     #[arg(long, default_value_t = 300.0, value_name = "SECONDS")]
     duration: f64,
     /// Seed of the random choices: the same seed gives the same campaign.

@@ -7,7 +7,9 @@ use std::time::Duration;
 use anyhow::{bail, Context};
 use clap::ValueEnum;
 use indicatif::{ProgressBar, ProgressStyle};
+use jetbench_ident::excite::MIN_SAMPLES;
 use jetbench_ident::identify::{self, Method, Report};
+use jetbench_model::STEP_S;
 use jetbench_plot::{write_fit_plot, FitPlot};
 use jetbench_record::series::Series;
 
@@ -60,7 +62,7 @@ pub struct IdentifyArgs {
     /// Write the best ten-parameter model here (model-file TOML).
     #[arg(long, value_name = "model.toml")]
     out: Option<PathBuf>,
-    /// Print the result as JSON on stdout (the human report goes to stderr).
+    /// Print the result as JSON on stdout (the human report then goes to stderr).
     #[arg(long)]
     json: bool,
     /// Write plots (PNG and SVG) of every method into this folder.
@@ -134,9 +136,14 @@ pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
     })?;
     bar.finish_and_clear();
 
-    eprint!("{}", report.text(&calibration, &validation));
+    // The report is the command's output (`jetbench identify run.mcap > report.txt`);
+    // with --json the JSON is, and the text goes with the logs.
+    let text = format!("{}{}", amount_note(&calibration), report.text(&calibration, &validation));
     if args.json {
+        eprint!("{text}");
         println!("{}", serde_json::to_string_pretty(&report.to_json())?);
+    } else {
+        print!("{text}");
     }
     if let Some(dir) = &args.plot {
         let written = plot(&report, &calibration, &validation, dir, args.validate.is_empty())?;
@@ -153,6 +160,29 @@ pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// A file's name without its folders, for a title.
+fn short_name(path: &str) -> String {
+    Path::new(path).file_name().map_or_else(|| path.to_string(), |n| n.to_string_lossy().into_owned())
+}
+
+/// How strong an answer the amount of calibration data allows: a campaign of
+/// `jetbench excite` is 300 s; with less the parameters are weakly determined,
+/// and the report says so before its figures.
+fn amount_note(calibration: &[Series]) -> String {
+    let samples: usize = calibration.iter().map(Series::len).sum();
+    if samples >= MIN_SAMPLES {
+        return String::new();
+    }
+    format!(
+        "note: {:.0} s of calibration data ({samples} samples); an identification campaign needs {:.0} s \
+         ({MIN_SAMPLES} samples, `jetbench excite`). With {:.0} % of that the parameters are weakly determined: \
+         trust the validation figures below, not the parameter values.\n\n",
+        samples as f64 * STEP_S,
+        MIN_SAMPLES as f64 * STEP_S,
+        100.0 * samples as f64 / MIN_SAMPLES as f64
+    )
+}
+
 /// Per method: measured vs simulated with the residual, over calibration and
 /// validation (one figure per file when the validation data is the end of it),
 /// and one figure comparing every method on the validation data.
@@ -165,7 +195,15 @@ fn plot(
 ) -> anyhow::Result<usize> {
     let mut written = 0;
     let mut figure = |stem: String, title: String, s: &Series, models: &[(&str, &[f64])], split_s: Option<f64>| {
-        let fig = FitPlot { title: &title, t_s: &s.t_s, measured_n: &s.thrust_n, models, split_s, windows: &[] };
+        let fig = FitPlot {
+            title: &title,
+            t_s: &s.t_s,
+            measured_n: &s.thrust_n,
+            models,
+            split_s,
+            windows: &[],
+            throttle_pct: Some(&s.u_pct),
+        };
         write_fit_plot(dir, &stem, &fig).map(|files| written += files.len())
     };
     for r in &report.results {
@@ -176,12 +214,12 @@ fn plot(
                 let joined = Series {
                     name: cal.name.clone(),
                     t_s: cal.t_s.iter().chain(&val.t_s).copied().collect(),
-                    u_pct: Vec::new(),
+                    u_pct: cal.u_pct.iter().chain(&val.u_pct).copied().collect(),
                     thrust_n: cal.thrust_n.iter().chain(&val.thrust_n).copied().collect(),
                 };
                 let sim: Vec<f64> =
                     r.calibration.thrust_n[i].iter().chain(&r.validation.thrust_n[i]).copied().collect();
-                let title = format!("{name}: {} (validation MAE {})", cal.name, r.score_text());
+                let title = format!("{name}: {}, validation MAE {}", short_name(&cal.name), r.score_text());
                 figure(format!("{name}-{i}"), title, &joined, &[(name, &sim)], val.t_s.first().copied())?;
             }
         } else {
@@ -189,7 +227,7 @@ fn plot(
                 [("calibration", calibration, &r.calibration), ("validation", validation, &r.validation)]
             {
                 for (i, s) in data.iter().enumerate() {
-                    let title = format!("{name} {part}: {}", s.name);
+                    let title = format!("{name}, {part}: {}", short_name(&s.name));
                     figure(format!("{name}-{part}-{i}"), title, s, &[(name, &sim.thrust_n[i])], None)?;
                 }
             }
@@ -198,7 +236,8 @@ fn plot(
     for (i, s) in validation.iter().enumerate() {
         let models: Vec<(&str, &[f64])> =
             report.results.iter().map(|r| (r.method.name(), r.validation.thrust_n[i].as_slice())).collect();
-        figure(format!("validation-all-{i}"), format!("validation, every method: {}", s.name), s, &models, None)?;
+        let title = format!("every method on the validation data: {}", short_name(&s.name));
+        figure(format!("validation-all-{i}"), title, s, &models, None)?;
     }
     Ok(written)
 }

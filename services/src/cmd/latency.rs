@@ -169,6 +169,7 @@ fn write_plot(plot: &Path, campaign: &Campaign) -> anyhow::Result<Vec<PathBuf>> 
             series: &refs,
             hlines: &[],
             log_y: true,
+            log_x: false,
         },
     )?)
 }

@@ -159,6 +159,7 @@ fn plot_runs(dir: &Path, report: &FileReport) -> anyhow::Result<usize> {
             series: &series,
             hlines: &[],
             log_y: false,
+            log_x: false,
         };
         written += write_line_plot(dir, &format!("{stem}-run{}-tracking", run.index), &plot)?.len();
         let title = format!(
@@ -174,6 +175,7 @@ fn plot_runs(dir: &Path, report: &FileReport) -> anyhow::Result<usize> {
             series: &series,
             hlines: &limits,
             log_y: false,
+            log_x: false,
         };
         written += write_line_plot(dir, &format!("{stem}-run{}-throttle", run.index), &plot)?.len();
     }

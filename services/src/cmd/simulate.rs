@@ -56,8 +56,27 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<ExitCode> {
             input.t_s[0] + at
         );
     }
-    if let Some(s) = validate::score(input.thrust_n.iter().copied().zip(run.thrust_n.iter().copied())) {
-        eprintln!("against the measured thrust: MAE {:.3} N, RMSE {:.3} N, fit {:.1} %", s.mae_n, s.rmse_n, s.fit_pct);
+    if input.has_thrust() {
+        // The figures are the report when the CSV goes to a file, a log line beside a CSV on stdout.
+        let line = match validate::score(input.thrust_n.iter().copied().zip(run.thrust_n.iter().copied())) {
+            Some(s) if s.fit_pct.is_finite() => {
+                format!(
+                    "against the measured thrust: MAE {:.3} N, RMSE {:.3} N, fit {:.1} %",
+                    s.mae_n, s.rmse_n, s.fit_pct
+                )
+            }
+            Some(s) => format!(
+                "against the measured thrust: MAE {:.3} N, RMSE {:.3} N; fit not defined (the measured thrust is \
+                 constant)",
+                s.mae_n, s.rmse_n
+            ),
+            None => "against the measured thrust: no figures (no simulated sample to compare)".to_string(),
+        };
+        if args.out.is_some() {
+            println!("{line}");
+        } else {
+            eprintln!("{line}");
+        }
     }
     Ok(ExitCode::SUCCESS)
 }

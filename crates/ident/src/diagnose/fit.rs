@@ -244,7 +244,7 @@ pub(crate) fn fit_bounds(kind: EffectKind, index: usize) -> (f64, f64) {
 }
 
 /// Starting points for a fit of one catalogue effect: a coarse grid over its plausible
-/// range (plant.md), the best of which starts the local search. `peak_hz` is where
+/// range (docs/model/README.md), the best of which starts the local search. `peak_hz` is where
 /// the residual spectrum peaks, a good start for a resonance.
 pub(crate) fn start_grid(kind: EffectKind, peak_hz: Option<f64>) -> Vec<Vec<f64>> {
     let one = |values: &[f64]| values.iter().map(|&v| vec![v]).collect::<Vec<_>>();

@@ -626,6 +626,7 @@ pub fn plots(d: &Diagnosis, data: &[Series], dir: &Path) -> Result<usize, PlotEr
             models: &[("as given", &d.sim_before[i]), ("improved", &d.sim_after[i])],
             split_s: s.t_s.get(d.cut[i]).copied(),
             windows: &windows,
+            throttle_pct: Some(&s.u_pct),
         };
         written += write_fit_plot(dir, &format!("diagnose-fit-{i}"), &fig)?.len();
     }
@@ -673,6 +674,7 @@ pub fn plots(d: &Diagnosis, data: &[Series], dir: &Path) -> Result<usize, PlotEr
             series: &series,
             hlines: &f.hlines,
             log_y: f.log_y,
+            log_x: f.stem == "diagnose-spectrum",
         };
         written += write_line_plot(dir, f.stem, &plot)?.len();
     }

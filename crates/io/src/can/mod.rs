@@ -1,6 +1,6 @@
 //! The force/torque sensor on CAN: frames, codec, pairing, transports.
 //!
-//! Wire contract (design.md, "Bench protocols"): classic frames, 11-bit IDs,
+//! Wire contract (docs/io/README.md): classic frames, 11-bit IDs,
 //! base ID configurable (default `0x100`), little-endian, DLC 8:
 //! - `base+1`: Fx, Fy, Fz as `i16` at 0.01 N/LSB; byte 6 sequence counter; byte 7 status;
 //! - `base+2`: Tx, Ty, Tz as `i16` at 0.001 N·m/LSB; byte 6 the same counter; byte 7 status.
