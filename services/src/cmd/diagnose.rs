@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -89,13 +89,25 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<ExitCode> {
         ProgressStyle::with_template("{spinner} {elapsed:>3} {msg}").unwrap_or(ProgressStyle::default_spinner()),
     );
     bar.enable_steady_tick(Duration::from_millis(100));
-    let result = diagnose::diagnose(&model, &data, &options, &mut |message| bar.set_message(message.to_owned()));
+    // Each stage's wall time at debug level (`RUST_LOG=debug`): where a diagnosis spends it.
+    let mut stage = (String::from("start"), Instant::now());
+    let mut progress = |message: &str| {
+        tracing::debug!(seconds = stage.1.elapsed().as_secs_f64(), "diagnose stage done: {}", stage.0);
+        stage = (message.to_owned(), Instant::now());
+        bar.set_message(message.to_owned());
+    };
+    let result = diagnose::diagnose(&model, &data, &options, &mut progress);
+    progress("end");
     bar.finish_and_clear();
     let d = result?;
 
-    eprint!("{}", report::text(&d, &args.model));
+    // The report is the command's output, on stdout; with --json, stdout is the JSON a
+    // script reads and the human report goes beside the logs, on stderr.
     if args.json {
+        eprint!("{}", report::text(&d, &args.model));
         println!("{}", serde_json::to_string_pretty(&report::to_json(&d))?);
+    } else {
+        print!("{}", report::text(&d, &args.model));
     }
     if let Some(dir) = &args.plot {
         let written = report::plots(&d, &data, dir)?;

@@ -52,7 +52,7 @@ pub mod rivals;
 use std::cell::RefCell;
 use std::collections::BTreeMap;
 
-use jetbench_model::{Effect, EffectKind, ModelFile, Params};
+use jetbench_model::{Effect, EffectKind, ModelFile, Params, STEP_S};
 use serde::Serialize;
 
 use crate::series::Series;
@@ -253,6 +253,9 @@ pub struct Diagnosis {
     pub dominant: bool,
     /// A slow periodic part left in the residual of the improved model, if any.
     pub periodic: Option<residual::Periodic>,
+    /// The sine the periodic rival fitted to the calibration part of the improved model's
+    /// residual (a rival, not a finding: see `rivals`).
+    pub periodic_rival: Option<residual::Periodic>,
     /// The improved model (refitted parameters, effects added).
     #[serde(skip)]
     pub improved: ModelFile,
@@ -461,8 +464,12 @@ pub fn diagnose(
         }
     }
 
+    progress("fitting the close runners-up in place of each effect kept");
+    swap_rivals(&search, &current, &rounds);
     progress("trying play in the throttle path, a rival outside the catalogue");
     throttle_play_rivals(&search, &current);
+    progress("trying a periodic disturbance, a rival that is no engine physics");
+    let sine = periodic_rivals(&search, &before, &current);
     progress("weighing the rival explanations on resampled held-out data");
     let weighed = rivals::weigh(&search.pool.borrow(), &search.entry(&current));
     progress("analysing the improved model");
@@ -511,6 +518,11 @@ pub fn diagnose(
         needed_s: weighed.needed_s,
         dominant: weighed.dominant,
         periodic: residual::periodic(&problem, &current.sim),
+        periodic_rival: sine.map(|s| residual::Periodic {
+            period_s: s.period_s,
+            amplitude_n: s.amplitude_n(),
+            share: s.share,
+        }),
         improved,
         sim_before: problem.per_row(&before.sim),
         sim_after: problem.per_row(&current.sim),
@@ -844,4 +856,93 @@ fn throttle_play_rivals(search: &Search<'_, '_>, current: &Scored) {
         }
     }
     search.pool.borrow_mut().extend(best);
+}
+
+/// A slow periodic force on the stand (or a sensor's thermal cycle) as a rival: a sine fitted
+/// to the calibration part of the residual, carried over the held-out part, on top of the
+/// model as given and of the model found. Something that repeats at its own period is no
+/// engine physics; a term of the model is claimed only when it explains the held-out data
+/// better than the sine does (see [`report::cause`]). Returns the sine on the model found,
+/// when it fits.
+fn periodic_rivals(search: &Search<'_, '_>, before: &Scored, current: &Scored) -> Option<residual::Sine> {
+    let problem = search.problem;
+    let longest_cal = problem.runs.iter().map(|r| r.cut.min(r.y.len())).max().unwrap_or(0) as f64 * STEP_S;
+    let mut found = None;
+    let bases: &[&Scored] = if current.fit.spec == before.fit.spec { &[before] } else { &[before, current] };
+    for (i, base) in bases.iter().enumerate() {
+        let mut calibration = Vec::new();
+        let residuals: Vec<Vec<f64>> = (0..problem.runs.len()).map(|r| problem.residual(r, &base.sim)).collect();
+        for (run, r) in problem.runs.iter().zip(&residuals) {
+            calibration.extend(
+                r.iter()
+                    .enumerate()
+                    .take(run.cut)
+                    .filter(|(_, v)| v.is_finite())
+                    .map(|(k, v)| (run.t0_s + k as f64 * STEP_S, *v)),
+            );
+        }
+        let Some(sine) = residual::fit_sine(&calibration, longest_cal) else { continue };
+        // The residual with the sine taken out: what the model plus the sine leaves.
+        let left: Vec<Vec<f64>> = problem
+            .runs
+            .iter()
+            .zip(&residuals)
+            .map(|(run, r)| r.iter().enumerate().map(|(k, v)| v - sine.at(run.t0_s + k as f64 * STEP_S)).collect())
+            .collect();
+        let mut w = Vec::new();
+        problem.whiten_part(&left, Part::Validation, &mut w);
+        let (mut sum, mut n) = (0.0, 0usize);
+        for (run, r) in problem.runs.iter().zip(&left) {
+            for v in r.iter().skip(run.cut).filter(|v| v.is_finite()) {
+                sum += v.abs();
+                n += 1;
+            }
+        }
+        let spec = &base.fit.spec;
+        let kinds: Vec<EffectKind> = spec.effects.iter().map(|(k, _)| *k).collect();
+        let mut entry = rivals::entry(
+            &kinds,
+            spec.refit,
+            &w,
+            spec.free_count() + 3,
+            spec.prior_cost(),
+            sum / n.max(1) as f64,
+            base.unphysical().is_some(),
+        );
+        entry.effects.push(rivals::PERIODIC);
+        entry.effects.sort_unstable();
+        if entry.score.is_finite() {
+            search.pool.borrow_mut().push(entry);
+        }
+        if i == bases.len() - 1 {
+            found = Some(sine);
+        }
+    }
+    found
+}
+
+/// Runners-up of each catalogue effect kept, fitted in its place with the rest of the
+/// model found: the round that accepted an effect compared the others only on top of what
+/// was kept before it, so an explanation such as "a delay and a gain drift" against "a lag
+/// and a gain drift" would never be fitted, and the weighing could not see it. Each physical
+/// candidate of that round within [`rivals::WINDOW`] score units of the effect kept is fitted
+/// in its place and joins the pool (it is a rival, never a claim by itself).
+fn swap_rivals(search: &Search<'_, '_>, current: &Scored, rounds: &[Round]) {
+    let spec = &current.fit.spec;
+    for (kind, _) in spec.effects.iter().filter(|(k, _)| *k != EffectKind::Discrepancy) {
+        let Some(round) = rounds.iter().rev().find(|r| r.accepted == Some(kind.name())) else { continue };
+        let Some(gain) = round.candidates.iter().find(|c| c.name == kind.name()).and_then(|c| c.score_gain) else {
+            continue;
+        };
+        let without = spec.without(*kind);
+        for c in &round.candidates {
+            let Ok(other) = c.name.parse::<EffectKind>() else { continue };
+            let close = c.score_gain.is_some_and(|g| gain - g <= rivals::WINDOW);
+            if other == *kind || other == EffectKind::Discrepancy || spec.has(other) || c.unphysical.is_some() || !close
+            {
+                continue;
+            }
+            let _ = search.try_effect(&without, other, None);
+        }
+    }
 }

@@ -333,10 +333,43 @@ impl<'a> Problem<'a> {
         }
     }
 
-    /// Innovations (prewhitened residuals) over `part`, in a fixed order.
+    /// Innovations (prewhitened residuals) over `part`, in a fixed order: the same values
+    /// as [`Problem::whiten_part`] of every run's [`Problem::residual`], computed in place
+    /// over `part` alone (every fit evaluates this once per simulation).
     pub fn innovations(&self, sim: &Sim, part: Part, out: &mut Vec<f64>) {
-        let residuals: Vec<Vec<f64>> = (0..self.runs.len()).map(|i| self.residual(i, sim)).collect();
-        self.whiten_part(&residuals, part, out);
+        out.clear();
+        let phi = &self.ar().phi;
+        for (i, run) in self.runs.iter().enumerate() {
+            let m = sim.get(i).map_or(&[][..], Vec::as_slice);
+            let stride = run.stride;
+            // Residual at strided index `j` (grid index `j·stride`), NaN without a sample or a simulation.
+            let r = |j: usize| {
+                let k = j * stride;
+                run.y.get(k).map_or(f64::NAN, |y| y - m.get(k).copied().unwrap_or(f64::NAN))
+            };
+            let n = run.y.len().div_ceil(stride);
+            let split = run.cut.min(run.y.len()).div_ceil(stride);
+            let (lo, hi) = match part {
+                Part::Calibration => (0, split),
+                Part::Validation => (split, n),
+            };
+            'samples: for j in lo.max(phi.len())..hi {
+                let mut w = r(j);
+                if !w.is_finite() {
+                    continue;
+                }
+                for (q, p) in phi.iter().enumerate() {
+                    let past = r(j - 1 - q);
+                    if !past.is_finite() {
+                        continue 'samples;
+                    }
+                    w -= p * past;
+                }
+                if w.is_finite() {
+                    out.push(w);
+                }
+            }
+        }
     }
 
     /// Sum of squared innovations over `part`, and how many.
@@ -471,3 +504,42 @@ const CLIP_MARGIN: usize = 100;
 const CLIP_MIN_ROWS: usize = 20;
 /// Readings this close to the limit count as at it, N (the bench's resolution is 0.01 N).
 const CLIP_RESOLUTION_N: f64 = 0.004;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{excite, synth};
+    use jetbench_model::{Effects, Preset};
+
+    /// The in-place innovations are the residuals whitened run by run, value for value, on a
+    /// recording with coloured noise, lost rows and spikes (strides and gaps included).
+    #[test]
+    fn innovations_in_place_match_the_whitened_residuals() {
+        let plant = Plant::new(Preset::P220Kerosene.params(), Effects::none());
+        let bench = synth::Bench {
+            noise_var_n2: 9.0,
+            noise_ar: vec![0.6, -0.1],
+            spike_fraction: 0.002,
+            drop_fraction: 0.02,
+            ..synth::Bench::default()
+        };
+        let data = [synth::record_bench(&plant, &excite::campaign(120.0, 5).profile, &bench, 6).expect("recording")];
+        let problem = Problem::new(&data, &plant, 0.3).expect("problem");
+        assert!(!problem.ar().phi.is_empty(), "the test needs a coloured noise model");
+        let mut sim = Sim::new();
+        // A slightly different plant, so that the residual is not just noise; calibration only too.
+        let mut other = Preset::P220Kerosene.params().to_array();
+        other[0] *= 1.05;
+        let other = Plant::new(jetbench_model::Params::from_array(other), Effects::none());
+        for calibration_only in [false, true] {
+            problem.simulate(&other, &problem.given_states(), calibration_only, &mut sim).expect("simulates");
+            for part in [Part::Calibration, Part::Validation] {
+                let residuals: Vec<Vec<f64>> = (0..problem.runs.len()).map(|i| problem.residual(i, &sim)).collect();
+                let (mut expected, mut got) = (Vec::new(), Vec::new());
+                problem.whiten_part(&residuals, part, &mut expected);
+                problem.innovations(&sim, part, &mut got);
+                assert_eq!(expected, got, "{part:?}, calibration only {calibration_only}");
+            }
+        }
+    }
+}

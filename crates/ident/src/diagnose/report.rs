@@ -24,6 +24,7 @@ use serde_json::json;
 
 use super::fit::Fit;
 use super::residual::Analysis;
+use super::rivals;
 use super::{named, Cause, Diagnosis, FoundEffect, Kept, Refit, REFIT};
 use crate::series::Series;
 use jetbench_plot::{write_fit_plot, write_line_plot, FitPlot, LinePlot, PlotError};
@@ -284,6 +285,10 @@ fn explain_discrepancy(
 pub(crate) fn cause(d: &Diagnosis) -> Cause {
     if d.held_out_s < d.needed_s {
         Cause::InsufficientData
+    } else if periodic_in_play(d) {
+        // Something that repeats at its own period is no engine physics: a term of the
+        // model is claimed only when it explains the held-out data better than a sine.
+        Cause::Unexplained
     } else if !d.dominant {
         Cause::Ambiguous
     } else if !d.effects.is_empty() {
@@ -295,6 +300,12 @@ pub(crate) fn cause(d: &Diagnosis) -> Cause {
     } else {
         Cause::Unexplained
     }
+}
+
+/// True when the periodic rival (a sine at its own period on what is read) is not
+/// dominated by the search's explanation on the held-out data.
+pub(crate) fn periodic_in_play(d: &Diagnosis) -> bool {
+    d.rivals.iter().any(|r| r.effects.contains(&rivals::PERIODIC) && !r.dominated)
 }
 
 /// What was done to the data, in one sentence (empty when nothing was).
@@ -405,7 +416,19 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
         Cause::Unexplained => {
             let why = d.rounds.last().map_or(String::new(), |r| format!(" ({})", r.reason));
             let mut what: Vec<String> = d.before.findings.clone();
-            if let Some(p) = d.periodic {
+            let in_play = periodic_in_play(d);
+            if in_play && !d.effects.is_empty() {
+                let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
+                what.insert(
+                    0,
+                    format!(
+                        "the search found {}, but a sine at its own period explains the held-out data as well: \
+                         nothing is claimed",
+                        names.join(" + ")
+                    ),
+                );
+            }
+            if let Some(p) = d.periodic.or(d.periodic_rival.filter(|_| in_play)) {
                 what.insert(
                     0,
                     format!(

@@ -658,3 +658,80 @@ pub(crate) fn periodic(problem: &Problem<'_>, sim: &Sim) -> Option<Periodic> {
     }
     best.filter(|p| p.amplitude_n >= 0.5 && p.share >= 0.1)
 }
+
+/// A sine `mean + a·sin(ωt) + b·cos(ωt)` fitted to a residual.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Sine {
+    pub period_s: f64,
+    pub a: f64,
+    pub b: f64,
+    pub mean: f64,
+    /// Share of the residual's variance it explains.
+    pub share: f64,
+}
+
+impl Sine {
+    pub fn at(&self, t_s: f64) -> f64 {
+        let (s, c) = (2.0 * std::f64::consts::PI * t_s / self.period_s).sin_cos();
+        self.mean + self.a * s + self.b * c
+    }
+
+    pub fn amplitude_n(&self) -> f64 {
+        self.a.hypot(self.b)
+    }
+}
+
+/// Least squares of a sine of `period_s` (and a constant) through `(t, r)` samples.
+fn sine_at(samples: &[(f64, f64)], period_s: f64) -> Option<Sine> {
+    let n = samples.len() as f64;
+    let mean = samples.iter().map(|s| s.1).sum::<f64>() / n;
+    let var = samples.iter().map(|s| (s.1 - mean).powi(2)).sum::<f64>() / n;
+    let w = 2.0 * std::f64::consts::PI / period_s;
+    let (mut ss, mut cc, mut sc, mut ys, mut yc, mut s_sum, mut c_sum) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    for &(t, r) in samples {
+        let (s, c) = (w * t).sin_cos();
+        let y = r - mean;
+        ss += s * s;
+        cc += c * c;
+        sc += s * c;
+        ys += y * s;
+        yc += y * c;
+        s_sum += s;
+        c_sum += c;
+    }
+    // Centred regressors: the constant is fitted jointly.
+    let (ss, cc, sc) = (ss - s_sum * s_sum / n, cc - c_sum * c_sum / n, sc - s_sum * c_sum / n);
+    let det = ss * cc - sc * sc;
+    if det.abs() < 1e-9 * n * n {
+        return None;
+    }
+    let a = (ys * cc - yc * sc) / det;
+    let b = (yc * ss - ys * sc) / det;
+    let explained = (a * ys + b * yc) / n;
+    Some(Sine { period_s, a, b, mean: mean - (a * s_sum + b * c_sum) / n, share: explained / var.max(1e-12) })
+}
+
+/// The sine of period 4 s to `longest_s / 2.5` that fits the `(t, r)` samples best (a log grid,
+/// then a golden-section search around the best point), so that its period is precise enough
+/// to be carried over a held-out stretch.
+pub(crate) fn fit_sine(samples: &[(f64, f64)], longest_s: f64) -> Option<Sine> {
+    let (lo, hi) = (4.0_f64, longest_s / 2.5);
+    if samples.len() < 100 || hi <= lo {
+        return None;
+    }
+    let steps = 160;
+    let period = |i: f64| lo * (hi / lo).powf(i / steps as f64);
+    let share = |p: f64| sine_at(samples, p).map_or(f64::NEG_INFINITY, |s| s.share);
+    let best = (0..=steps).map(|i| (i, share(period(i as f64)))).max_by(|a, b| a.1.total_cmp(&b.1))?.0 as f64;
+    let (mut x0, mut x1) = ((best - 1.0).max(0.0), (best + 1.0).min(steps as f64));
+    let g = 0.618_033_988_749_895;
+    for _ in 0..30 {
+        let (m0, m1) = (x1 - g * (x1 - x0), x0 + g * (x1 - x0));
+        if share(period(m0)) >= share(period(m1)) {
+            x1 = m1;
+        } else {
+            x0 = m0;
+        }
+    }
+    sine_at(samples, period(0.5 * (x0 + x1)))
+}

@@ -28,7 +28,9 @@ pub const RIVAL_WIN_SHARE: f64 = 0.05;
 /// Score units (twice a log-likelihood) within which two explanations tie outright.
 pub const TIE: f64 = 2.0;
 /// Explanations further than this behind the best (score units) are not weighed.
-const WINDOW: f64 = 40.0;
+pub const WINDOW: f64 = 40.0;
+/// The name of the periodic rival: a sine at its own period added to what is read.
+pub const PERIODIC: &str = "periodic";
 
 /// One explanation the search fitted: its parts and its held-out innovations.
 #[derive(Clone, Debug)]
@@ -80,6 +82,9 @@ pub struct Rival {
     pub meaning: String,
     /// What would tell it from the explanation the search arrived at (empty for that one).
     pub tells_apart: String,
+    /// True when the search's explanation beats it in at least 95 % of resamples and by
+    /// more than a tie (always false for the search's explanation itself).
+    pub dominated: bool,
 }
 
 /// The rivals, best first, and whether the search's explanation dominates them all.
@@ -115,7 +120,7 @@ impl Rng {
 /// passes through no engine dynamics; an engine effect does.
 pub fn side_of(kind: &str) -> &'static str {
     match kind {
-        "sensor_drift" | "bearing_friction" | "stand_resonance" => "sensor",
+        "sensor_drift" | "bearing_friction" | "stand_resonance" | PERIODIC => "sensor",
         _ => "engine",
     }
 }
@@ -144,6 +149,7 @@ pub fn meaning_of(kind: &str) -> &'static str {
         "stand_resonance" => "the stand and sensor ring after fast thrust changes (sensor side)",
         "discrepancy" => "engine physics outside the catalogue (see its terms)",
         "throttle_play" => "play (backlash) in the throttle path, outside the catalogue: the engine side",
+        PERIODIC => "something on the stand or the sensor repeats at its own period (a force, a thermal cycle): not engine physics",
         _ => "",
     }
 }
@@ -172,6 +178,10 @@ pub fn signature_of(kind: &str) -> &'static str {
         "throttle_play" => {
             "play in the throttle path shifts the steady thrust after a reversal by the same throttle \
              (its thrust effect grows with the map's slope), where friction shifts the reading by the same force"
+        }
+        PERIODIC => {
+            "a periodic disturbance keeps its period whatever the throttle does: hold the throttle constant for a few \
+             periods and it is still there, where engine physics goes quiet"
         }
         REFIT => {
             "parameters that are off act the same at every time of the run and every thrust history: a second \
@@ -273,6 +283,7 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         }
     }
     let share = |c: usize| c as f64 / RESAMPLES as f64;
+    let dominated = |j: usize| share(beats[j]) < RIVAL_WIN_SHARE && entries[j].score - entries[ci].score > TIE;
     let mut rivals: Vec<(usize, Rival)> = entries
         .iter()
         .enumerate()
@@ -292,14 +303,12 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
                 } else {
                     tells_apart((&e.effects, e.refit), (&chosen.effects, chosen.refit))
                 },
+                dominated: j != ci && dominated(j),
             };
             (j, rival)
         })
         .collect();
-    let dominant = n >= MIN_BLOCKS * block
-        && rivals.iter().all(|(j, _)| {
-            *j == ci || (share(beats[*j]) < RIVAL_WIN_SHARE && entries[*j].score - entries[ci].score > TIE)
-        });
+    let dominant = n >= MIN_BLOCKS * block && rivals.iter().all(|(j, r)| *j == ci || r.dominated);
     rivals.sort_by(|a, b| b.1.weight.total_cmp(&a.1.weight).then(a.1.score_behind.total_cmp(&b.1.score_behind)));
     rivals.truncate(6);
     if !rivals.iter().any(|(j, _)| *j == ci) {
@@ -317,6 +326,7 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
                 side: side(&e.effects, e.refit),
                 meaning: meaning(&e.effects, e.refit),
                 tells_apart: String::new(),
+                dominated: false,
             },
         ));
     }
