@@ -17,12 +17,39 @@ use crate::{Engine, Params, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
 /// Why a model is refused for a real engine.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum Implausible {
+    /// Not exactly one stable equilibrium at a throttle: the engine would
+    /// settle at different thrusts for the same command, or at none.
     #[error("{count} stable equilibria at {throttle_pct:.0} % throttle (a plausible engine has exactly one)")]
-    Equilibria { throttle_pct: f64, count: usize },
+    Equilibria {
+        /// The throttle checked, %.
+        throttle_pct: f64,
+        /// How many stable equilibria the model has there.
+        count: usize,
+    },
+    /// A full throttle step makes the simulated thrust run away.
     #[error("a full step {from_pct:.0} → {to_pct:.0} % diverges after {after_s:.2} s")]
-    Diverges { from_pct: f64, to_pct: f64, after_s: f64 },
+    Diverges {
+        /// Throttle before the step, %.
+        from_pct: f64,
+        /// Throttle after the step, %.
+        to_pct: f64,
+        /// Time after the step at which the state stopped being finite or bounded, s.
+        after_s: f64,
+    },
+    /// A full throttle step drives the thrust outside what an engine can make.
     #[error("a full step {from_pct:.0} → {to_pct:.0} % leaves the bounds ({thrust_n:.1} N outside {low_n:.1}..{high_n:.1} N)")]
-    Unbounded { from_pct: f64, to_pct: f64, thrust_n: f64, low_n: f64, high_n: f64 },
+    Unbounded {
+        /// Throttle before the step, %.
+        from_pct: f64,
+        /// Throttle after the step, %.
+        to_pct: f64,
+        /// The thrust that left the band, N.
+        thrust_n: f64,
+        /// The band's lower edge: 10 N below the idle thrust, N.
+        low_n: f64,
+        /// The band's upper edge: twice the full thrust, N.
+        high_n: f64,
+    },
 }
 
 /// Throttles at which the equilibria are checked, %.
