@@ -63,7 +63,10 @@ fn operators_with_trusted_certificates_command_and_anyone_else_only_reaches_the_
     let ns = clients::namespace(SUITE);
     let mut up = in_netns(bench_ns, std::path::Path::new(env!("CARGO_BIN_EXE_jetbench")));
     up.env(jetbench_bus::NAMESPACE_ENV, &ns)
-        .args(["up", "--sim", "--quiet", "--duration", "30", "--zenoh", &tcp, "--record"])
+        // Long enough for every client below on an overloaded two-core machine: the
+        // refused TLS handshakes each wait for their timeout before the plain-TCP
+        // client connects, and the set must still be up then.
+        .args(["up", "--sim", "--quiet", "--duration", "75", "--zenoh", &tcp, "--record"])
         .arg(&record)
         .arg("--config")
         .arg(&config);
@@ -110,7 +113,7 @@ fn operators_with_trusted_certificates_command_and_anyone_else_only_reaches_the_
     ];
     let anyone = zenoh_commands(control_ns, &tcp, None, &anyone_queries).expect("connect over TCP");
 
-    let (up_ok, up_log) = up.wait(Duration::from_secs(120));
+    let (up_ok, up_log) = up.wait(Duration::from_secs(180));
     drop(hosts);
     assert!(up_ok, "jetbench up failed:\n{up_log}");
     assert!(up_log.contains("commands: "), "the bridge reports its commands:\n{up_log}");

@@ -8,7 +8,9 @@ use std::collections::HashMap;
 
 use jetbench_control::recorded::{recording_metrics, ThrustSource};
 use jetbench_control::MetricsOptions;
-use jetbench_msgs::{channels, sim_faults, state_flags, visit_channels, Channel, ChannelVisitor, Sample};
+use jetbench_msgs::{
+    channels, command_flags, sim_faults, state_flags, visit_channels, Channel, ChannelVisitor, Sample,
+};
 use jetbench_record::Recording;
 use jetbench_stack::control::ControlStep;
 use jetbench_stack::replay::{recorded_config, replay_with_alternatives, EstimatorSource, InputRule};
@@ -238,8 +240,11 @@ pub fn spike_effects(recording: &Recording, spike_sizes: &HashMap<u64, f64>) -> 
         // cloned, so each spike replays the run up to it (FBL: microseconds a cycle).
         let replayed = |last: &jetbench_msgs::StateEstimate| -> Result<f64, String> {
             let law = config.control_law().map_err(|e| format!("the recorded controller: {e}"))?;
+            // From the last time the live law was started afresh (the engine
+            // reached run, a trip was cleared): the recording flags that command.
+            let from = seen[..=at].iter().rposition(|(_, c)| c.flags & command_flags::LAW_RESET != 0).unwrap_or(0);
             let mut control = ControlStep::with_law(law, config.reference.clone());
-            for (s, _) in &seen[..at] {
+            for (s, _) in &seen[from..at] {
                 control.step(s).map_err(|e| e.to_string())?;
             }
             Ok(control.step(last).map_err(|e| e.to_string())?.1.throttle_pct)

@@ -814,6 +814,11 @@ pub mod command_flags {
     pub const ECU_START: u64 = 1 << 4;
     /// Control asks actuation to shut the engine down through the ECU.
     pub const ECU_STOP: u64 = 1 << 5;
+    /// The law was started afresh for this command (integral, shaper, predictor
+    /// and profile time): its output reaches the engine again after being held
+    /// at idle, or the operator chose a new profile. A replay of the controller
+    /// resets its law at this command too.
+    pub const LAW_RESET: u64 = 1 << 6;
 }
 
 /// Flags of [`Actuation`](crate::Actuation).

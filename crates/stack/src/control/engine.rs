@@ -48,7 +48,7 @@ struct Stopping {
 pub enum LawChange {
     /// Nothing.
     None,
-    /// Reset it (integral, shaper, profile time): it was gated.
+    /// Reset it (integral, shaper, profile time).
     Reset,
     /// Track this profile from now on (an operator's choice).
     Profile(jetbench_control::Profile),
@@ -399,12 +399,7 @@ impl EngineSupervisor {
             }
             None => {}
         }
-        let free = self.running
-            && !self.monitor.tripped()
-            && self.stopping.is_none()
-            && !self.ended
-            && self.left_run.is_none()
-            && self.mode != Mode::Idle;
+        let free = self.free();
         let throttle = match (free, self.mode) {
             (false, _) => THROTTLE_MIN_PCT,
             (true, Mode::Hold(cap)) => law_pct.min(cap),
@@ -412,10 +407,6 @@ impl EngineSupervisor {
         };
         if throttle < law_pct {
             flags |= command_flags::GATED;
-        }
-        if !free && !self.gated {
-            // Gated from now on: the law starts afresh when it is free again.
-            self.law_change = LawChange::Reset;
         }
         self.gated = !free;
         self.last_throttle_pct = throttle;
@@ -425,9 +416,23 @@ impl EngineSupervisor {
         (throttle, flags)
     }
 
-    /// True while the law runs free (its output reaches the engine).
+    /// True while the law ran free last cycle (its output reached the engine).
     pub fn is_free(&self) -> bool {
         !self.gated
+    }
+
+    /// True when the law's output may reach the engine now: the ECU says run, no
+    /// trip is latched, no stop is under way, the test has not ended and no
+    /// operator holds the engine at idle. The control step resets the law when
+    /// this turns true while [`Self::is_free`] is false, so the law never brings
+    /// to the engine what it integrated while its output was held at idle.
+    pub fn free(&self) -> bool {
+        self.running
+            && !self.monitor.tripped()
+            && self.stopping.is_none()
+            && !self.ended
+            && self.left_run.is_none()
+            && self.mode != Mode::Idle
     }
 }
 

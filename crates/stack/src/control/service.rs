@@ -26,6 +26,9 @@ pub struct ControlService {
     reference: Publisher<Reference>,
     command: Publisher<Command>,
     events: Publisher<Event>,
+    /// The law was reset since its last command: that command carries
+    /// `command_flags::LAW_RESET`, so a replay resets its law there too.
+    law_reset: bool,
 }
 
 impl Service for ControlService {
@@ -72,6 +75,7 @@ impl Service for ControlService {
             reference: bus.publisher(channels::REFERENCE)?,
             command: bus.publisher(channels::COMMAND)?,
             events: bus.publisher(channels::EVENTS)?,
+            law_reset: false,
         };
         Ok((control, state))
     }
@@ -106,8 +110,17 @@ impl Service for ControlService {
                     self.reset_law()?;
                 }
             }
+            if self.engine.free() && !self.engine.is_free() {
+                // The law's output reaches the engine again (the ECU reached run, a
+                // trip was cleared, a hold or stop ended): it starts afresh, never
+                // with what it integrated while its output was held at idle.
+                self.reset_law()?;
+            }
             match self.step.step(&estimate) {
                 Ok((reference, mut command)) => {
+                    if std::mem::take(&mut self.law_reset) {
+                        command.flags |= command_flags::LAW_RESET;
+                    }
                     if command.flags & command_flags::FALLBACK != 0 {
                         ctx.reject("MPC solve", &"fell back to FBL for this cycle");
                     }
@@ -149,6 +162,7 @@ impl ControlService {
     /// The law afresh (integral, shaper, predictor, profile time), tracking `self.profile`.
     fn reset_law(&mut self) -> Result<(), ServiceError> {
         self.step = ControlStep::with_law(self.config.control_law()?, self.profile.clone());
+        self.law_reset = true;
         Ok(())
     }
 }
