@@ -4,6 +4,7 @@
 //! (loopback where this machine cannot make namespaces, said so); certificates made by
 //! the test with `openssl`. What each client may do is checked in the replies and in
 //! the run's recording (`bench/operator`, read back). Hangs are caught by watchdogs.
+#![allow(clippy::unwrap_used)]
 
 use std::time::Duration;
 

@@ -95,7 +95,14 @@ fn latency_under_cpu_load_with_rt_measures_every_cycle() {
     // judged cycle but those of the last half second reached the board.
     let cycles = report["cycles"].as_u64().expect("cycles");
     let expected = (seconds * 100.0) as u64;
-    assert!(cycles.abs_diff(expected) <= expected / 10, "{cycles} cycles judged, expected about {expected}");
+    // A run's duration counts from the engine running: each of the two rounds also
+    // judges the cycles while the set waited for the emulated ECU's first report of
+    // run (actuation polls it at 10 Hz): up to half a second each.
+    let waited = 2 * 50;
+    assert!(
+        cycles + expected / 10 >= expected && cycles <= expected + expected / 10 + waited,
+        "{cycles} cycles judged, expected about {expected} (plus up to {waited} while waiting for run)"
+    );
     let completed = report["completed"].as_u64().expect("completed");
     let unfinished = report["unfinished"].as_u64().expect("unfinished");
     assert!(completed + unfinished <= cycles && completed + 60 >= cycles, "{completed} of {cycles} completed");
