@@ -164,7 +164,8 @@ impl Default for EcuParams {
 }
 
 /// Time constants of the lags, s: RPM, EGT, pump.
-const RPM_TAU_S: f64 = 0.6;
+/// Time constant of the emulated RPM's first-order lag behind its target, s.
+pub const RPM_TAU_S: f64 = 0.6;
 const EGT_TAU_S: f64 = 1.5;
 const EGT_COOL_TAU_S: f64 = 4.0;
 const PUMP_TAU_S: f64 = 0.2;
