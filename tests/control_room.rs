@@ -50,7 +50,12 @@ fn operators_with_trusted_certificates_command_and_anyone_else_only_reaches_the_
     let _ = std::fs::remove_dir_all(&dir);
     let pki = TestPki::make(&dir, &bench_ip, &["alice", "bob"], "alice");
     let (tcp, tls) = (format!("tcp/{bench_ip}:{}", free_port()), format!("tls/{bench_ip}:{}", free_port()));
-    let sim = std::fs::read_to_string(repo_root().join("config/sim.toml")).expect("config/sim.toml");
+    // A stop idles for a minute before the ECU shuts the engine down (which ends the
+    // test): every client below gets its turn with the set still up.
+    let sim = std::fs::read_to_string(repo_root().join("config/sim.toml"))
+        .expect("config/sim.toml")
+        .replace("stop_idle_s = 3.0", "stop_idle_s = 60.0");
+    assert!(sim.contains("stop_idle_s = 60.0"), "config/sim.toml no longer sets [engine] stop_idle_s");
     let config = dir.join("bench.toml");
     std::fs::write(
         &config,
@@ -64,10 +69,7 @@ fn operators_with_trusted_certificates_command_and_anyone_else_only_reaches_the_
     let ns = clients::namespace(SUITE);
     let mut up = in_netns(bench_ns, std::path::Path::new(env!("CARGO_BIN_EXE_jetbench")));
     up.env(jetbench_bus::NAMESPACE_ENV, &ns)
-        // Long enough for every client below on an overloaded two-core machine: the
-        // refused TLS handshakes each wait for their timeout before the plain-TCP
-        // client connects, and the set must still be up then.
-        .args(["up", "--sim", "--quiet", "--duration", "75", "--zenoh", &tcp, "--record"])
+        .args(["up", "--sim", "--quiet", "--duration", "45", "--zenoh", &tcp, "--record"])
         .arg(&record)
         .arg("--config")
         .arg(&config);
@@ -84,7 +86,7 @@ fn operators_with_trusted_certificates_command_and_anyone_else_only_reaches_the_
         op("alice", "heartbeat"),
         op("alice", "stop"),
         op("bob", "start"), // another operator's key: dropped by the access control
-        key("cmd/estop"),   // the anyone path is open to operators too
+        key("cmd/idle"),    // the anyone path is open to operators too
         key("cmd/launch"),  // no such command
         format!("{}=fast", op("alice", "reference")), // not a number
     ];
@@ -171,7 +173,7 @@ fn operators_with_trusted_certificates_command_and_anyone_else_only_reaches_the_
         alice_op(HOLD, 60.0),
         alice_op(HEARTBEAT, 0.0),
         alice_op(STOP, 0.0),
-        anon(STOP_NOW),
+        anon(IDLE),
         anon(STOP),
         anon(START),
         anon(CLEAR_TRIPS),
@@ -268,7 +270,12 @@ fn foxglove_offers_the_safe_commands_to_anyone_and_the_raising_ones_only_to_the_
     let pki = TestPki::make(&dir, "127.0.0.1", &["alice"], "alice");
     let listen = format!("127.0.0.1:{}", free_port());
     let token = "the-operator-token-1234";
-    let sim = std::fs::read_to_string(repo_root().join("config/sim.toml")).expect("config/sim.toml");
+    // A stop idles for a minute before the ECU shuts the engine down (which ends the
+    // test): every client below gets its turn with the set still up.
+    let sim = std::fs::read_to_string(repo_root().join("config/sim.toml"))
+        .expect("config/sim.toml")
+        .replace("stop_idle_s = 3.0", "stop_idle_s = 60.0");
+    assert!(sim.contains("stop_idle_s = 60.0"), "config/sim.toml no longer sets [engine] stop_idle_s");
     let config = dir.join("bench.toml");
     std::fs::write(
         &config,
