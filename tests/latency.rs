@@ -131,7 +131,10 @@ fn latency_under_cpu_load_with_rt_measures_every_cycle() {
     let room = &report["control_room"];
     percentiles_ok(room, "e2e_us");
     let room_cycles = room["cycles"].as_u64().expect("control_room.cycles");
-    assert!(room_cycles.abs_diff(expected) <= expected / 10, "{room_cycles} cycles watched, expected about {expected}");
+    assert!(
+        room_cycles + expected / 10 >= expected && room_cycles <= expected + expected / 10 + waited,
+        "{room_cycles} cycles watched, expected about {expected} (plus up to {waited} while waiting for run)"
+    );
     for clients in room["clients"].as_array().expect("control_room.clients") {
         assert_eq!(clients["errors"], serde_json::json!([]), "control-room clients: {clients}");
         assert!(clients["foxglove_stalled"].as_bool() == Some(true), "the stalled client connected: {clients}");
