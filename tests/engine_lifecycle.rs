@@ -193,7 +193,7 @@ fn up_starts_the_engine_runs_it_and_records_its_cool_down() {
     let mut above = 0;
     for c in commands.iter().filter(|c| c.throttle_pct > IDLE + 1e-9) {
         above += 1;
-        let newest = ecu.iter().filter(|t| t.flags == 0 && t.stamp_ns <= c.stamp_ns).last();
+        let newest = ecu.iter().rfind(|t| t.flags == 0 && t.stamp_ns <= c.stamp_ns);
         if newest.is_none_or(|t| t.state != ecu_states::RUN as u32) {
             violations += 1;
         }

@@ -81,6 +81,10 @@ fn fields_json<T: Sample>(sample: &T) -> Value {
             "float64" => serde_json::json!(f64::from_le_bytes(b8(8).try_into().unwrap())),
             "uint64" => serde_json::json!(u64::from_le_bytes(b8(8).try_into().unwrap())),
             "uint32" => serde_json::json!(u32::from_le_bytes(b8(4).try_into().unwrap())),
+            "int32" => serde_json::json!(i32::from_le_bytes(b8(4).try_into().unwrap())),
+            "int64" => serde_json::json!(i64::from_le_bytes(b8(8).try_into().unwrap())),
+            "uint16" => serde_json::json!(u16::from_le_bytes(b8(2).try_into().unwrap())),
+            "uint8" => serde_json::json!(at[0]),
             other => panic!("add {other} to the test decoder"),
         }
     };
