@@ -16,8 +16,11 @@ use crate::{ekf, ls, IdentError};
 /// An identification method.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Method {
+    /// Least squares on Savitzky–Golay derivatives ([`crate::ls`]).
     Ls,
+    /// An extended Kalman filter with the ten parameters in its state ([`crate::ekf`]).
     Ekf,
+    /// Sparse regression of `T̈` on a polynomial library ([`crate::sindy`]).
     Sindy,
     /// Simulation-error refinement of the other methods' ten parameters (and of a
     /// bounded linear start), plausibility kept as a constraint ([`crate::refine`]).
@@ -29,6 +32,7 @@ impl Method {
     /// on 30 000 samples) and still being proven on engines outside the model class.
     pub const ALL: [Method; 3] = [Method::Ls, Method::Ekf, Method::Sindy];
 
+    /// The method's name on the command line and in reports.
     pub fn name(self) -> &'static str {
         match self {
             Method::Ls => "ls",
@@ -66,10 +70,15 @@ impl Default for SindyOptions {
 /// Everything `identify` can be told.
 #[derive(Clone, Debug)]
 pub struct Options {
+    /// The methods to run, in this order.
     pub methods: Vec<Method>,
+    /// Least-squares settings.
     pub ls: ls::LsOptions,
+    /// EKF settings.
     pub ekf: ekf::EkfOptions,
+    /// SINDy settings.
     pub sindy: SindyOptions,
+    /// Simulation-error refinement settings ([`Method::Oe`]).
     pub refine: crate::refine::RefineOptions,
 }
 
@@ -88,7 +97,9 @@ impl Default for Options {
 /// The identified model of one method.
 #[derive(Clone, Debug)]
 pub enum Fitted {
+    /// The ten parameters of the second-order model (LS, EKF, OE).
     Params(Params),
+    /// A sparse model of `T̈` (SINDy).
     Sindy(Box<JetSindy>),
 }
 
@@ -97,7 +108,9 @@ pub enum Fitted {
 /// the acceleration a term must explain".
 #[derive(Clone, Debug)]
 pub struct JetSindy {
+    /// The fitted sparse model, on standardised variables and scaled `T̈`.
     pub model: SindyModel,
+    /// The scale `T̈` was divided by before the fit, N/s².
     pub scale: f64,
     /// Mean and standard deviation of T, Ṫ and u: the library is built on the
     /// standardised variables `X* = (X − mean) / std`, which keeps the 56
@@ -163,14 +176,21 @@ impl Plausibility {
 /// One method's result.
 #[derive(Clone, Debug)]
 pub struct MethodResult {
+    /// Which method this is.
     pub method: Method,
+    /// The identified model.
     pub model: Fitted,
     /// Parameters (ten) or selected terms (SINDy), for the report.
     pub params: Map<String, Value>,
+    /// Free-run simulation over the calibration data.
     pub calibration: Simulation,
+    /// Free-run simulation over the held-out data.
     pub validation: Simulation,
+    /// Fit figures on the calibration data (None: the simulation diverged).
     pub calibration_score: Option<Score>,
+    /// Fit figures on the held-out data (None: the simulation diverged).
     pub validation_score: Option<Score>,
+    /// Whether the model behaves like an engine (equilibria, rise time, step down).
     pub plausibility: Plausibility,
     /// Wall time of the fit, s (validation excluded).
     pub fit_seconds: f64,
@@ -181,12 +201,18 @@ pub struct MethodResult {
 /// The whole identification.
 #[derive(Clone, Debug)]
 pub struct Report {
+    /// One result per method that ran to the end.
     pub results: Vec<MethodResult>,
     /// Methods that failed, with the reason.
     pub failures: Vec<(Method, String)>,
+    /// The measurement noise floor the fits are judged against.
     pub noise: NoiseFloor,
+    /// The method with the lowest held-out MAE among the models bounded over the whole
+    /// throttle range (among all, when none is).
     pub best: Option<Method>,
+    /// Samples used to fit.
     pub calibration_samples: usize,
+    /// Samples held out to validate.
     pub validation_samples: usize,
     /// A plain statement of how good the best fit is.
     pub verdict: String,

@@ -34,6 +34,7 @@
 //! sample are kept ([`decimate_min_max`]), which draws the same picture as the full series (spikes survive)
 //! at a few thousand points instead of tens of thousands. Non-finite samples are never drawn: they split a
 //! line into separate pieces, so a diverged simulation shows as a gap.
+#![deny(missing_docs)]
 #![doc = include_str!("../README.md")]
 
 use std::io;
