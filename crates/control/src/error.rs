@@ -66,3 +66,15 @@ pub enum ControlError {
         requirement: &'static str,
     },
 }
+
+/// `Ok` when `value` is finite and positive (or, with `zero_ok`, zero); otherwise the
+/// error naming the setting and what it must be.
+pub(crate) fn check_gain(name: &'static str, value: f64, zero_ok: bool) -> Result<(), ControlError> {
+    let ok = value.is_finite() && if zero_ok { value >= 0.0 } else { value > 0.0 };
+    if ok {
+        Ok(())
+    } else {
+        let requirement = if zero_ok { "a number >= 0" } else { "a positive number" };
+        Err(ControlError::SettingOutOfRange { name, value, requirement })
+    }
+}

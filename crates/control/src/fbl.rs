@@ -22,6 +22,16 @@ pub struct FblGains {
     pub ki: f64,
 }
 
+impl FblGains {
+    /// Checks the gains; the error names the first bad one. Positive `kp` and `kd` make
+    /// the error dynamics stable; `ki` may be zero (no integral action).
+    pub fn validate(&self) -> Result<(), ControlError> {
+        crate::error::check_gain("kp", self.kp, false)?;
+        crate::error::check_gain("kd", self.kd, false)?;
+        crate::error::check_gain("ki", self.ki, true)
+    }
+}
+
 impl Default for FblGains {
     /// The study's gains: `kp = 10`, `kd = 2·√kp` (critically damped), no integral.
     fn default() -> Self {

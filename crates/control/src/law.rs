@@ -99,6 +99,29 @@ pub struct LawSettings {
     pub shaping: ShaperSettings,
 }
 
+impl LawSettings {
+    /// Checks every law's settings, the unused laws' too (a typo in a gain is found before
+    /// the day that law is chosen). The error names the sub-table (`fbl`, `smc`, `mpc`,
+    /// `shaping`) and the key.
+    pub fn validate(&self) -> Result<(), LawSettingsError> {
+        let at = |table: &'static str| move |error: ControlError| LawSettingsError { table, error };
+        self.fbl.validate().map_err(at("fbl"))?;
+        self.smc.validate().map_err(at("smc"))?;
+        self.mpc.validate().map_err(at("mpc"))?;
+        self.shaping.validate().map_err(at("shaping"))
+    }
+}
+
+/// A bad setting of [`LawSettings`], with the sub-table of `[control]` it is in.
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+#[error("[control.{table}] {error}")]
+pub struct LawSettingsError {
+    /// `fbl`, `smc`, `mpc` or `shaping`.
+    pub table: &'static str,
+    /// What is wrong, naming the key.
+    pub error: ControlError,
+}
+
 /// One control cycle's result.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LawOutput {

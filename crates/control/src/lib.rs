@@ -44,7 +44,7 @@ mod throttle;
 
 pub use error::ControlError;
 pub use fbl::{Fbl, FblGains, MIN_INPUT_GAIN};
-pub use law::{Controller, Law, LawOutput, LawSettings};
+pub use law::{Controller, Law, LawOutput, LawSettings, LawSettingsError};
 pub use metrics::{
     tracking_metrics, HoldMetrics, MetricsError, MetricsOptions, SolveTimeUs, StepMetrics, ThrottleLimit,
     TrackingMetrics, TrackingSample, TRACKING_BAND_PCT,

@@ -3,7 +3,7 @@
 use jetbench_model::{Params, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
 use serde::{Deserialize, Serialize};
 
-use crate::Reference;
+use crate::{ControlError, Reference};
 
 /// Settings of the [`ReferenceShaper`].
 #[derive(Clone, Copy, Debug, PartialEq, Deserialize, Serialize)]
@@ -17,6 +17,20 @@ pub struct ShaperSettings {
     /// Bandwidth with which the shaped reference closes on the profile, rad/s. Much
     /// faster than the engine, so a feasible profile passes unchanged.
     pub bandwidth_rad_per_s: f64,
+}
+
+impl ShaperSettings {
+    /// Checks the settings; the error names the first bad one.
+    pub fn validate(&self) -> Result<(), ControlError> {
+        if !(self.authority > 0.0 && self.authority <= 1.0) {
+            return Err(ControlError::SettingOutOfRange {
+                name: "authority",
+                value: self.authority,
+                requirement: "in (0, 1]",
+            });
+        }
+        crate::error::check_gain("bandwidth_rad_per_s", self.bandwidth_rad_per_s, false)
+    }
 }
 
 impl Default for ShaperSettings {

@@ -19,6 +19,16 @@ pub struct SmcGains {
     pub k: f64,
 }
 
+impl SmcGains {
+    /// Checks the gains; the error names the first bad one. `beta` may be zero (the
+    /// equivalent control alone).
+    pub fn validate(&self) -> Result<(), ControlError> {
+        crate::error::check_gain("a1", self.a1, false)?;
+        crate::error::check_gain("k", self.k, false)?;
+        crate::error::check_gain("beta", self.beta, true)
+    }
+}
+
 impl Default for SmcGains {
     /// The study's gains: `a1 = 20`, `β = 900`, `K = 0.15`.
     fn default() -> Self {

@@ -94,7 +94,8 @@ impl ObserverConfig {
     pub fn validate(&self) -> Result<(), EstimError> {
         let checks = [
             ("measurement_var_n2", self.measurement_var_n2, true),
-            ("accel_noise_n_per_s2", self.accel_noise_n_per_s2, false),
+            // Zero would make the filter trust the model forever and stop hearing the sensor.
+            ("accel_noise_n_per_s2", self.accel_noise_n_per_s2, true),
             ("disturbance_drift_n_per_s2", self.disturbance_drift_n_per_s2, false),
             ("initial_thrust_var_n2", self.initial_thrust_var_n2, false),
             ("initial_rate_var", self.initial_rate_var, false),

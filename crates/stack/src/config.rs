@@ -294,6 +294,18 @@ impl Default for EstimatorSection {
 }
 
 impl EstimatorSection {
+    /// Checked by the estimator crate ([`jetbench_estim::ObserverConfig::validate`]); the
+    /// error names the key as this section spells it.
+    fn validate(&self) -> Result<(), String> {
+        self.observer_config(0.0).validate().map_err(|e| match e {
+            jetbench_estim::EstimError::InvalidConfig { name, value, requirement } => {
+                let key = if name == "chi2_threshold" { "gate_chi2" } else { name };
+                format!("[estimator] {key} = {value} is invalid: it must be finite and {requirement}")
+            }
+            other => format!("[estimator] {other}"),
+        })
+    }
+
     /// The observer of these settings on a model whose input delay is `input_delay_s`
     /// (the model's, not a setting: [`BenchConfig::estimator`] takes it from `[model]`).
     pub fn observer_config(&self, input_delay_s: f64) -> jetbench_estim::ObserverConfig {
@@ -661,39 +673,9 @@ impl BenchConfig {
                 self.plant.initial_throttle_pct
             )));
         }
-        for (key, v) in [
-            ("[estimator] measurement_var_n2", self.estimator.measurement_var_n2),
-            ("[estimator] accel_noise_n_per_s2", self.estimator.accel_noise_n_per_s2),
-            ("[estimator] gate_chi2", self.estimator.gate_chi2),
-            ("[control.fbl] kp", self.control.fbl.kp),
-            ("[control.fbl] kd", self.control.fbl.kd),
-            ("[control.smc] a1", self.control.smc.a1),
-            ("[control.smc] k", self.control.smc.k),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(invalid(format!("{key} = {v} must be a positive number")));
-            }
-        }
-        for (key, v) in [
-            ("[estimator] disturbance_drift_n_per_s2", self.estimator.disturbance_drift_n_per_s2),
-            ("[control.fbl] ki", self.control.fbl.ki),
-            ("[control.smc] beta", self.control.smc.beta),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(invalid(format!("{key} = {v} must be a number >= 0")));
-            }
-        }
-        let shaping = &self.control.shaping;
-        if !(shaping.authority > 0.0 && shaping.authority <= 1.0) {
-            return Err(invalid(format!("[control.shaping] authority = {} must be in (0, 1]", shaping.authority)));
-        }
-        if !(shaping.bandwidth_rad_per_s.is_finite() && shaping.bandwidth_rad_per_s > 0.0) {
-            return Err(invalid(format!(
-                "[control.shaping] bandwidth_rad_per_s = {} must be a positive number",
-                shaping.bandwidth_rad_per_s
-            )));
-        }
-        self.control.mpc.validate().map_err(|e| invalid(format!("[control.mpc] {e}")))?;
+        // Each section's settings are checked by the crate they configure.
+        self.estimator.validate().map_err(invalid)?;
+        self.control.law_settings().validate().map_err(|e| invalid(e.to_string()))?;
         if self.bench.devices == Devices::Bench && (self.actuation.board_port.is_none() || self.ecu.port.is_none()) {
             return Err(invalid(
                 "devices = \"bench\" needs [actuation] board_port and [ecu] port (e.g. \"/dev/ttyUSB0\", \"/dev/ttyUSB1\")"
@@ -973,6 +955,33 @@ mod tests {
         let text = DEFAULT_SIM_CONFIG.replace("poll_hz = 15.0", "poll_hz = 5.0");
         let e = BenchConfig::from_toml_str(&text, "t.toml", None).unwrap_err().to_string();
         assert!(e.contains("poll_hz"), "{e}");
+    }
+
+    #[test]
+    fn a_bad_gain_or_observer_setting_is_named_by_its_section_and_key() {
+        let bad: [(&[&str], toml::Value, &str); 6] = [
+            (&["control", "fbl", "kp"], (-1.0).into(), "[control.fbl] controller setting kp = -1"),
+            (&["control", "smc", "beta"], (-5.0).into(), "[control.smc] controller setting beta = -5"),
+            (&["control", "shaping", "authority"], 1.5.into(), "[control.shaping] controller setting authority = 1.5"),
+            (&["control", "mpc", "moves"], 0.into(), "[control.mpc] controller setting moves = 0"),
+            (&["estimator", "gate_chi2"], 0.0.into(), "[estimator] gate_chi2 = 0"),
+            (&["estimator", "accel_noise_n_per_s2"], 0.0.into(), "[estimator] accel_noise_n_per_s2 = 0"),
+        ];
+        for (path, value, expected) in bad {
+            let mut doc: toml::Table = toml::from_str(DEFAULT_SIM_CONFIG).expect("sim.toml parses");
+            let (key, tables) = path.split_last().expect("a key");
+            let mut table = &mut doc;
+            for name in tables {
+                table = table.get_mut(*name).and_then(toml::Value::as_table_mut).expect("the section exists");
+            }
+            table.insert((*key).into(), value);
+            let text = toml::to_string(&doc).expect("serialises");
+            let e = match BenchConfig::from_toml_str(&text, "t.toml", None) {
+                Ok(_) => panic!("{path:?} was accepted"),
+                Err(e) => e.to_string(),
+            };
+            assert!(e.contains(expected), "{path:?}: {e}");
+        }
     }
 
     #[test]
