@@ -3,6 +3,9 @@
 
 use jetbench_control::{ControlError, LawSettings};
 
+/// The sub-table, the key, and how to spoil it.
+type Case = (&'static str, &'static str, fn(&mut LawSettings));
+
 #[test]
 fn the_default_settings_are_valid() {
     assert_eq!(LawSettings::default().validate(), Ok(()));
@@ -10,7 +13,7 @@ fn the_default_settings_are_valid() {
 
 #[test]
 fn each_bad_setting_is_named_by_its_table_and_key() {
-    let cases: [(&str, &str, fn(&mut LawSettings)); 8] = [
+    let cases: [Case; 8] = [
         ("fbl", "kp", |s| s.fbl.kp = 0.0),
         ("fbl", "kd", |s| s.fbl.kd = f64::NAN),
         ("fbl", "ki", |s| s.fbl.ki = -0.1),
