@@ -11,4 +11,4 @@ mod service;
 mod step;
 
 pub use service::{SimBenchService, SENSOR_UNPLUGGED_FILE};
-pub use step::{BoardEmulator, SimBenchStep, SimError, SimForceSensor};
+pub use step::{SimBenchStep, SimBoard, SimError, SimForceSensor};

@@ -3,6 +3,8 @@
 //! that never touches the bus; [`super::SimBenchService`] runs it in real time,
 //! [`crate::synthetic`] faster than real time.
 
+use jetbench_io::board::{self, Frame, Throttle};
+use jetbench_io::emulate::BoardFirmware;
 use jetbench_io::ForceReading;
 use jetbench_model::{ModelError, Plant, PlantEngine, PlantSample, State, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
 use jetbench_msgs::SimTruth;
@@ -10,43 +12,51 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
-/// The simulated throttle board: applies valid frames, idles by itself when
-/// none arrive for [`BoardEmulator::WATCHDOG_NS`].
-#[derive(Debug, Clone)]
-pub struct BoardEmulator {
-    throttle_pct: f64,
-    last_frame_ns: Option<u64>,
+/// The throttle board of runs stepped in code (synthetic recordings, the tests): the
+/// board's own firmware ([`BoardFirmware`], the code the live simulated bench runs
+/// behind its pseudo-terminal), fed the frames actuation's driver would send. It is
+/// armed by the first command, outputs the throttle to the board's 0.01 % resolution,
+/// and idles by its own watchdog when frames stop.
+#[derive(Debug, Clone, Default)]
+pub struct SimBoard {
+    firmware: BoardFirmware,
+    seq: u16,
+    frame: Vec<u8>,
+    replies: Vec<u8>,
 }
 
-impl BoardEmulator {
-    /// The board's own watchdog, as on the real board.
-    pub const WATCHDOG_NS: u64 = jetbench_io::board::WATCHDOG_NS;
-
+impl SimBoard {
+    /// Powered up, disarmed.
     pub fn new() -> Self {
-        BoardEmulator { throttle_pct: THROTTLE_MIN_PCT, last_frame_ns: None }
+        Self::default()
     }
 
-    /// Applies a frame received at `now_ns`.
+    /// Sends a throttle command at `now_ns`, arming the board first if it is not; a
+    /// throttle outside 0..=100 % or not finite is no valid frame, as on the wire.
     pub fn receive(&mut self, throttle_pct: f64, now_ns: u64) {
-        if throttle_pct.is_finite() {
-            self.throttle_pct = throttle_pct.clamp(0.0, THROTTLE_MAX_PCT);
-            self.last_frame_ns = Some(now_ns);
+        let Some(throttle) = Throttle::from_pct(throttle_pct.clamp(0.0, THROTTLE_MAX_PCT)) else {
+            return;
+        };
+        if !self.firmware.is_armed() {
+            self.send(Frame::Arm { seq: self.seq }, now_ns);
         }
+        self.send(Frame::SetThrottle { seq: self.seq, throttle }, now_ns);
     }
 
-    /// The throttle the board outputs at `now_ns`; the engine ECU treats
-    /// anything below idle as idle.
-    pub fn output_pct(&self, now_ns: u64) -> f64 {
-        match self.last_frame_ns {
-            Some(t) if now_ns.saturating_sub(t) <= Self::WATCHDOG_NS => self.throttle_pct.max(THROTTLE_MIN_PCT),
-            _ => THROTTLE_MIN_PCT,
-        }
+    fn send(&mut self, frame: Frame, now_ns: u64) {
+        self.seq = self.seq.wrapping_add(1);
+        self.frame.clear();
+        board::encode_into(&frame, &mut self.frame);
+        self.firmware.receive(&self.frame, now_ns, &mut self.replies, |_, _| {});
+        self.replies.clear();
     }
-}
 
-impl Default for BoardEmulator {
-    fn default() -> Self {
-        Self::new()
+    /// The throttle the board drives at `now_ns` (its watchdog run first); the engine
+    /// ECU treats no signal, or anything below idle, as idle.
+    pub fn output_pct(&mut self, now_ns: u64) -> f64 {
+        self.firmware.tick(now_ns, &mut self.replies);
+        self.replies.clear();
+        self.firmware.output(now_ns).map_or(THROTTLE_MIN_PCT, |t| t.pct().max(THROTTLE_MIN_PCT))
     }
 }
 
@@ -112,7 +122,7 @@ impl SimForceSensor {
 #[derive(Debug, Clone)]
 pub struct SimBenchStep {
     engine: PlantEngine,
-    board: BoardEmulator,
+    board: SimBoard,
     sensor: SimForceSensor,
 }
 
@@ -120,7 +130,7 @@ impl SimBenchStep {
     /// `plant` starts at rest at `initial_throttle_pct` (effects settled there),
     /// measured by `sensor`.
     pub fn new(plant: &Plant, sensor: SimForceSensor, initial_throttle_pct: f64) -> Self {
-        SimBenchStep { engine: plant.at_equilibrium(initial_throttle_pct), board: BoardEmulator::new(), sensor }
+        SimBenchStep { engine: plant.at_equilibrium(initial_throttle_pct), board: SimBoard::new(), sensor }
     }
 
     /// One 10 ms step at `now_ns`: apply the newest throttle frame (if any),
@@ -129,7 +139,8 @@ impl SimBenchStep {
         if let Some(t) = throttle_frame {
             self.board.receive(t, now_ns);
         }
-        self.step_driven(now_ns, self.board.output_pct(now_ns))
+        let throttle_pct = self.board.output_pct(now_ns);
+        self.step_driven(now_ns, throttle_pct)
     }
 
     /// One 10 ms step with the engine driven at `throttle_pct` by a board
@@ -168,12 +179,19 @@ mod tests {
 
     #[test]
     fn board_idles_after_its_watchdog() {
-        let mut b = BoardEmulator::new();
+        let mut b = SimBoard::new();
+        assert_eq!(b.output_pct(0), THROTTLE_MIN_PCT, "disarmed at power-up");
         b.receive(80.0, 0);
         assert_eq!(b.output_pct(100_000_000), 80.0);
         assert_eq!(b.output_pct(100_000_001), THROTTLE_MIN_PCT);
         b.receive(f64::NAN, 150_000_000);
         assert_eq!(b.output_pct(150_000_000), THROTTLE_MIN_PCT, "a NaN frame is not a valid frame");
+        b.receive(12.3456, 200_000_000);
+        assert_eq!(b.output_pct(200_000_000), THROTTLE_MIN_PCT, "below idle drives idle");
+        b.receive(73.4567, 210_000_000);
+        assert_eq!(b.output_pct(210_000_000), 73.46, "the board's resolution is 0.01 %");
+        b.receive(130.0, 220_000_000);
+        assert_eq!(b.output_pct(220_000_000), THROTTLE_MAX_PCT, "clamped to the engine's range");
     }
     /// The time the true thrust takes to rise 5 N after a throttle step from idle
     /// to 80 % commanded at 1 s, as the board applies it.
