@@ -24,6 +24,7 @@
 //!   frame was received; downstream samples copy it from their input, so the
 //!   end-to-end latency of any sample is `publish_ns - stamp_ns`.
 //! - `source_seq` is the `seq` of the input sample a sample was computed from.
+#![deny(missing_docs)]
 #![doc = include_str!("../README.md")]
 
 mod schema;
@@ -133,7 +134,9 @@ pub trait Sample: Copy + Default + core::fmt::Debug + ZeroCopySend + 'static {
 pub struct SchemaConstant {
     /// The ros2msg type, e.g. `int32`.
     pub ros_type: &'static str,
+    /// The constant's name, e.g. `KIND_TRIP`.
     pub name: &'static str,
+    /// Its value.
     pub value: i64,
 }
 
@@ -189,7 +192,9 @@ sample! {
     /// Calibrated thrust from the force sensor (`bench/thrust`).
     #[type_name("jetbench_msgs/msg/Thrust")]
     pub struct Thrust {
+        /// Per-publisher sequence number (module docs).
         pub seq: u64,
+        /// Monotonic receive time of the originating sensor frame, ns.
         pub stamp_ns: u64,
         /// Monotonic time this sample was published, ns.
         pub publish_ns: u64,
@@ -212,12 +217,17 @@ sample! {
     /// EKF estimate of thrust and its derivatives (`bench/state`).
     #[type_name("jetbench_msgs/msg/StateEstimate")]
     pub struct StateEstimate {
+        /// Per-publisher sequence number (module docs).
         pub seq: u64,
+        /// Monotonic receive time of the originating sensor frame, ns.
         pub stamp_ns: u64,
+        /// Monotonic time this sample was published, ns.
         pub publish_ns: u64,
         /// `seq` of the thrust sample this estimate used.
         pub source_seq: u64,
+        /// Estimated thrust, N.
         pub thrust_n: f64,
+        /// Estimated thrust rate, N/s.
         pub thrust_rate_n_per_s: f64,
         /// Estimated acceleration, N/s²: the model's at the estimate and
         /// `input_throttle_pct`, plus the estimator's disturbance (the part the model
@@ -229,7 +239,9 @@ sample! {
         pub input_throttle_pct: f64,
         /// Measurement minus prediction, N.
         pub innovation_n: f64,
+        /// Variance of the thrust estimate, N².
         pub thrust_var_n2: f64,
+        /// Variance of the rate estimate, (N/s)².
         pub thrust_rate_var_n2_per_s2: f64,
         /// Estimator flags (see [`state_flags`]).
         pub flags: u64,
@@ -240,15 +252,21 @@ sample! {
     /// The reference the controller tracks (`bench/reference`).
     #[type_name("jetbench_msgs/msg/Reference")]
     pub struct Reference {
+        /// Per-publisher sequence number (module docs).
         pub seq: u64,
+        /// Monotonic receive time of the originating sensor frame, ns.
         pub stamp_ns: u64,
+        /// Monotonic time this sample was published, ns.
         pub publish_ns: u64,
         /// `seq` of the state estimate this reference was evaluated for.
         pub source_seq: u64,
         /// Time since the profile started, s.
         pub profile_time_s: f64,
+        /// Reference thrust, N.
         pub thrust_n: f64,
+        /// Its rate, N/s.
         pub thrust_rate_n_per_s: f64,
+        /// Its acceleration, N/s².
         pub thrust_accel_n_per_s2: f64,
     }
 }
@@ -257,8 +275,11 @@ sample! {
     /// Throttle command from the controller (`bench/command`).
     #[type_name("jetbench_msgs/msg/Command")]
     pub struct Command {
+        /// Per-publisher sequence number (module docs).
         pub seq: u64,
+        /// Monotonic receive time of the originating sensor frame, ns.
         pub stamp_ns: u64,
+        /// Monotonic time this sample was published, ns.
         pub publish_ns: u64,
         /// `seq` of the state estimate this command was computed from.
         pub source_seq: u64,
@@ -282,8 +303,11 @@ sample! {
     /// What the actuator applied (`bench/actuation`).
     #[type_name("jetbench_msgs/msg/Actuation")]
     pub struct Actuation {
+        /// Per-publisher sequence number (module docs).
         pub seq: u64,
+        /// Monotonic receive time of the originating sensor frame, ns.
         pub stamp_ns: u64,
+        /// Monotonic time this sample was published, ns.
         pub publish_ns: u64,
         /// Monotonic time the command frame was handed to the throttle board, ns
         /// (0 when nothing was sent this cycle): the end of the control path.
@@ -307,15 +331,23 @@ sample! {
     /// Engine ECU telemetry (`bench/ecu`).
     #[type_name("jetbench_msgs/msg/EcuTelemetry")]
     pub struct EcuTelemetry {
+        /// Per-publisher sequence number (module docs).
         pub seq: u64,
+        /// Monotonic receive time of the originating sensor frame, ns.
         pub stamp_ns: u64,
+        /// Monotonic time this sample was published, ns.
         pub publish_ns: u64,
+        /// Spool speed, rpm.
         pub rpm: f64,
+        /// Exhaust gas temperature, °C.
         pub egt_c: f64,
+        /// Fuel pump voltage, V.
         pub pump_v: f64,
+        /// Throttle position the ECU reports, %.
         pub throttle_pct: f64,
         /// ECU state code as reported (JetCat's RS232 number, [`ecu_states`]).
         pub state: u32,
+        /// Link flags (see [`ecu_flags`]).
         pub flags: u32,
         /// Why the engine last stopped (JetCat's RS232 number, [`off_conditions`]),
         /// read with `RSS` whenever the ECU is not in run; 0 until then.
@@ -329,7 +361,9 @@ sample! {
     /// One heartbeat per service per cycle (`bench/health`).
     #[type_name("jetbench_msgs/msg/Health")]
     pub struct Health {
+        /// Per-publisher sequence number (module docs).
         pub seq: u64,
+        /// Monotonic receive time of the originating sensor frame, ns.
         pub stamp_ns: u64,
         /// Cycles run since start.
         pub cycles: u64,
@@ -356,9 +390,13 @@ sample! {
     /// Ground truth of the simulated engine (`sim/truth`), for evaluation only.
     #[type_name("jetbench_msgs/msg/SimTruth")]
     pub struct SimTruth {
+        /// Per-publisher sequence number (module docs).
         pub seq: u64,
+        /// Monotonic receive time of the originating sensor frame, ns.
         pub stamp_ns: u64,
+        /// The engine's true thrust, N.
         pub thrust_n: f64,
+        /// Its true rate, N/s.
         pub thrust_rate_n_per_s: f64,
         /// Throttle the engine actually followed, %.
         pub engine_throttle_pct: f64,
@@ -380,9 +418,11 @@ sample! {
     /// so a recording read anywhere says what each event was.
     #[type_name("jetbench_msgs/msg/Event")]
     pub struct Event {
+        /// Per-publisher sequence number (module docs).
         pub seq: u64,
         /// When it happened (monotonic, ns); for a trip, the sample that crossed the limit.
         pub stamp_ns: u64,
+        /// Monotonic time this sample was published, ns.
         pub publish_ns: u64,
         /// The measured value behind it (for a trip, the value past the limit), else 0.
         pub value: f64,
@@ -420,9 +460,11 @@ sample! {
     /// `COMMAND_REFUSED` event on `bench/events` naming the sender.
     #[type_name("jetbench_msgs/msg/OperatorCommand")]
     pub struct OperatorCommand {
+        /// Per-publisher sequence number (module docs).
         pub seq: u64,
         /// When the operator gave it (monotonic, ns).
         pub stamp_ns: u64,
+        /// Monotonic time this sample was published, ns.
         pub publish_ns: u64,
         /// The command's argument: the reference in N (`SET_REFERENCE`), the
         /// profile index (`RUN_PROFILE`), the throttle in % (`HOLD`); else 0.
@@ -511,13 +553,21 @@ pub mod end_reasons {
 
 /// Limits a trip names (the `[limits]` of the bench config).
 pub mod trip_limits {
+    /// `max_thrust_n`: the measured thrust above its limit.
     pub const MAX_THRUST: i32 = 1;
+    /// `max_egt_c`: the exhaust gas temperature above its limit.
     pub const MAX_EGT: i32 = 2;
+    /// `max_egt_rise_c_per_s`: the exhaust heating faster than its limit.
     pub const MAX_EGT_RISE: i32 = 3;
+    /// `max_rpm`: the spool above its speed limit.
     pub const MAX_RPM: i32 = 4;
+    /// `min_rpm`: the spool below its speed limit while running.
     pub const MIN_RPM: i32 = 5;
+    /// `thrust_rpm_band_n`: the measured thrust outside the band the RPM implies.
     pub const THRUST_RPM_MISMATCH: i32 = 6;
+    /// `ecu_silent_s`: no ECU telemetry for longer than its limit.
     pub const ECU_SILENT: i32 = 7;
+    /// `sensor_silent_s`: no thrust sample for longer than its limit.
     pub const SENSOR_SILENT: i32 = 8;
 }
 
@@ -547,9 +597,13 @@ pub mod operator_commands {
     pub const RUN_PROFILE: i32 = 7;
     /// Track a constant reference: `value` in N.
     pub const SET_REFERENCE: i32 = 8;
+    /// Take the operator's lease (free, or its holder's heartbeats lapsed).
     pub const TAKE_CONTROL: i32 = 9;
+    /// Give the operator's lease up.
     pub const RELEASE_CONTROL: i32 = 10;
+    /// Offer the lease to another operator, or accept one offered.
     pub const HANDOVER: i32 = 11;
+    /// The lease holder is still there (the deadman counts from the last one).
     pub const HEARTBEAT: i32 = 12;
 
     /// The command's name (`STOP_NOW`), or `None` for an unknown code.
@@ -594,50 +648,90 @@ pub mod authorities {
 /// The ECU states by JetCat's RS232 number (the state field of `bench/ecu`
 /// and of ECU-state events); named in crates/io's `ecu::state::EcuState`.
 pub mod ecu_states {
+    /// State 0: off.
     pub const OFF: i32 = 0;
+    /// State 1: standby.
     pub const STANDBY: i32 = 1;
+    /// State 2: ignite.
     pub const IGNITE: i32 = 2;
+    /// State 3: accelerate.
     pub const ACCELERATE: i32 = 3;
+    /// State 4: stabilise.
     pub const STABILISE: i32 = 4;
+    /// State 5: learn high.
     pub const LEARN_HIGH: i32 = 5;
+    /// State 6: learn low.
     pub const LEARN_LOW: i32 = 6;
+    /// State 8: slow-down.
     pub const SLOW_DOWN: i32 = 8;
+    /// State 10: auto-off.
     pub const AUTO_OFF: i32 = 10;
+    /// State 11: run.
     pub const RUN: i32 = 11;
+    /// State 12: acceleration delay.
     pub const ACCELERATION_DELAY: i32 = 12;
+    /// State 13: speed control.
     pub const SPEED_CONTROL: i32 = 13;
+    /// State 14: two-shaft regulate.
     pub const TWO_SHAFT_REGULATE: i32 = 14;
+    /// State 15: preheat 1.
     pub const PREHEAT_1: i32 = 15;
+    /// State 16: preheat 2.
     pub const PREHEAT_2: i32 = 16;
+    /// State 17: main fuel start.
     pub const MAIN_FUEL_START: i32 = 17;
+    /// State 19: kerosene full on.
     pub const KEROSENE_FULL_ON: i32 = 19;
 }
 
 /// The ECU's off conditions by JetCat's RS232 number (the `RSS` reply);
 /// named in crates/io's `ecu::state::OffCondition`.
 pub mod off_conditions {
+    /// Off condition 0: none.
     pub const NONE: i32 = 0;
+    /// Off condition 1: shut down via R/C.
     pub const RC_OFF: i32 = 1;
+    /// Off condition 2: over-temperature.
     pub const OVER_TEMPERATURE: i32 = 2;
+    /// Off condition 3: ignition time-out.
     pub const IGNITION_TIMEOUT: i32 = 3;
+    /// Off condition 4: acceleration time-out.
     pub const ACCELERATION_TIMEOUT: i32 = 4;
+    /// Off condition 5: acceleration too slow.
     pub const ACCELERATION_TOO_SLOW: i32 = 5;
+    /// Off condition 6: over-RPM.
     pub const OVER_RPM: i32 = 6;
+    /// Off condition 7: low RPM (flame-out).
     pub const LOW_RPM: i32 = 7;
+    /// Off condition 8: low battery.
     pub const LOW_BATTERY: i32 = 8;
+    /// Off condition 9: auto-off.
     pub const AUTO_OFF: i32 = 9;
+    /// Off condition 10: low temperature.
     pub const LOW_TEMPERATURE: i32 = 10;
+    /// Off condition 11: high temperature.
     pub const HIGH_TEMPERATURE: i32 = 11;
+    /// Off condition 12: glow plug defective.
     pub const GLOW_PLUG: i32 = 12;
+    /// Off condition 13: watchdog.
     pub const WATCHDOG: i32 = 13;
+    /// Off condition 14: fail-safe.
     pub const FAIL_SAFE: i32 = 14;
+    /// Off condition 15: manual off.
     pub const MANUAL_OFF: i32 = 15;
+    /// Off condition 16: power fail.
     pub const POWER_FAIL: i32 = 16;
+    /// Off condition 17: temperature sensor failed.
     pub const TEMP_SENSOR_FAIL: i32 = 17;
+    /// Off condition 18: fuel fail.
     pub const FUEL_FAIL: i32 = 18;
+    /// Off condition 19: propeller fail.
     pub const PROP_FAIL: i32 = 19;
+    /// Off condition 20: second engine failed.
     pub const SECOND_ENGINE_FAIL: i32 = 20;
+    /// Off condition 21: second engine difference too high.
     pub const SECOND_ENGINE_DIFFERENCE: i32 = 21;
+    /// Off condition 22: second engine not communicating.
     pub const SECOND_ENGINE_SILENT: i32 = 22;
 }
 
@@ -756,8 +850,11 @@ pub const OPERATOR_CONSTANTS: &[SchemaConstant] = constants![
 
 /// Sensor status bits, as in the CAN protocol (byte 7).
 pub mod sensor_status {
+    /// A force or torque beyond the sensor's range.
     pub const OVERLOAD: u32 = 1 << 0;
+    /// The sensor's temperature outside its compensated range.
     pub const TEMPERATURE_WARNING: u32 = 1 << 1;
+    /// The sensor's calibration data failed its check.
     pub const CALIBRATION_INVALID: u32 = 1 << 2;
 }
 
@@ -802,7 +899,9 @@ pub mod state_flags {
 
 /// Flags of [`Command`](crate::Command).
 pub mod command_flags {
+    /// The law asked for less than idle; the command is idle.
     pub const SATURATED_LOW: u64 = 1 << 0;
+    /// The law asked for more than full throttle; the command is full throttle.
     pub const SATURATED_HIGH: u64 = 1 << 1;
     /// The configured law failed this cycle (an MPC solve that did not converge in
     /// time); feedback linearisation computed the command instead.
@@ -861,11 +960,17 @@ pub mod health_flags {
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ServiceId {
+    /// The simulated bench (engine, sensor, board, ECU).
     SimBench = 1,
+    /// Force sensor frames to thrust.
     Sensing = 2,
+    /// The thrust observer.
     Estimation = 3,
+    /// The controller and the engine supervisor.
     Control = 4,
+    /// The throttle board and the ECU's commands.
     Actuation = 5,
+    /// Every channel to MCAP.
     Recorder = 6,
     /// The Foxglove live view (off the control path).
     Viewer = 7,
@@ -874,6 +979,7 @@ pub enum ServiceId {
 }
 
 impl ServiceId {
+    /// Every service, in id order.
     pub const ALL: [ServiceId; 8] = [
         ServiceId::SimBench,
         ServiceId::Sensing,
@@ -899,6 +1005,7 @@ impl ServiceId {
         }
     }
 
+    /// The service of a heartbeat's id; `None` for an unknown one.
     pub fn from_u32(id: u32) -> Option<ServiceId> {
         Self::ALL.into_iter().find(|s| *s as u32 == id)
     }
@@ -944,14 +1051,21 @@ impl<T: Sample> Channel<T> {
 pub mod channels {
     use super::*;
 
+    /// Measured thrust, from sensing.
     pub const THRUST: Channel<Thrust> = Channel::new("bench/thrust");
+    /// The estimated thrust and rate, from estimation.
     pub const STATE: Channel<StateEstimate> = Channel::new("bench/state");
+    /// The reference the controller tracks.
     pub const REFERENCE: Channel<Reference> = Channel::new("bench/reference");
+    /// The throttle command, from control.
     pub const COMMAND: Channel<Command> = Channel::new("bench/command");
+    /// The throttle applied by the board, from actuation.
     pub const ACTUATION: Channel<Actuation> = Channel::new("bench/actuation");
+    /// The engine ECU's telemetry, from actuation.
     pub const ECU: Channel<EcuTelemetry> = Channel::new("bench/ecu");
     /// One publisher per service (see [`ServiceId::ALL`]), and two spare.
     pub const HEALTH: Channel<Health> = Channel::with_publishers("bench/health", ServiceId::ALL.len() + 2);
+    /// What the simulated engine really did (the simulated bench only).
     pub const SIM_TRUTH: Channel<SimTruth> = Channel::new("sim/truth");
     /// Trips, ECU state changes, shutdowns, operator commands: published by
     /// several services (control, actuation, the launcher), so room for each.
@@ -966,6 +1080,7 @@ pub mod channels {
 /// Code that must handle every channel (the recorder, `echo`, `hz`) uses this
 /// instead of its own list, so a new channel cannot be forgotten.
 pub trait ChannelVisitor {
+    /// Called once per channel.
     fn visit<T: Sample>(&mut self, channel: Channel<T>);
 }
 

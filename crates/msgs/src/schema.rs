@@ -9,17 +9,26 @@ use core::fmt;
 /// A primitive ros2msg type.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Primitive {
+    /// `uint8`.
     Uint8,
+    /// `uint16`.
     Uint16,
+    /// `uint32`.
     Uint32,
+    /// `uint64`.
     Uint64,
+    /// `int32`.
     Int32,
+    /// `int64`.
     Int64,
+    /// `float32`.
     Float32,
+    /// `float64`.
     Float64,
 }
 
 impl Primitive {
+    /// Bytes of one value.
     pub const fn size(self) -> usize {
         match self {
             Primitive::Uint8 => 1,
@@ -29,6 +38,7 @@ impl Primitive {
         }
     }
 
+    /// The ros2msg name (`float64`).
     pub const fn name(self) -> &'static str {
         match self {
             Primitive::Uint8 => "uint8",
@@ -80,17 +90,21 @@ impl Primitive {
 /// A field type: a primitive or a fixed-size array of one.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RosType {
+    /// One value.
     Scalar(Primitive),
+    /// A fixed number of values (`float64[3]`).
     Array(Primitive, usize),
 }
 
 impl RosType {
+    /// The element type.
     pub const fn primitive(self) -> Primitive {
         match self {
             RosType::Scalar(p) | RosType::Array(p, _) => p,
         }
     }
 
+    /// Values in the field (1 for a scalar).
     pub const fn len(self) -> usize {
         match self {
             RosType::Scalar(_) => 1,
@@ -98,10 +112,12 @@ impl RosType {
         }
     }
 
+    /// True for a zero-length array.
     pub const fn is_empty(self) -> bool {
         self.len() == 0
     }
 
+    /// Bytes of the whole field.
     pub const fn size(self) -> usize {
         self.primitive().size() * self.len()
     }
@@ -151,9 +167,11 @@ ros_field!(u8 => Uint8, u16 => Uint16, u32 => Uint32, u64 => Uint64, i32 => Int3
 /// One field of a sample type, as declared.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct FieldInfo {
+    /// The field's name.
     pub name: &'static str,
     /// Byte offset in the Rust struct.
     pub offset: usize,
+    /// Its ros2msg type.
     pub ros_type: RosType,
 }
 
@@ -161,18 +179,33 @@ pub struct FieldInfo {
 /// after the 4-byte encapsulation header).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct CdrField {
+    /// The field's name.
     pub name: String,
+    /// Its ros2msg type.
     pub ros_type: RosType,
+    /// Byte offset in the CDR body.
     pub offset: usize,
 }
 
 /// Why schema text could not be parsed.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum SchemaError {
+    /// A line that is not `type name` (or a constant).
     #[error("schema line {line}: expected `type name`, found {text:?}")]
-    Malformed { line: usize, text: String },
+    Malformed {
+        /// 1-based line number.
+        line: usize,
+        /// The line.
+        text: String,
+    },
+    /// A type that cannot cross processes (strings, sequences, nested messages).
     #[error("schema line {line}: unsupported type {ty:?} (only fixed-size numeric types cross processes)")]
-    UnsupportedType { line: usize, ty: String },
+    UnsupportedType {
+        /// 1-based line number.
+        line: usize,
+        /// The type as written.
+        ty: String,
+    },
 }
 
 /// Parses ros2msg text made of `type name` lines (comments, blank lines and
