@@ -42,18 +42,32 @@ use crate::runtime::clock::PERIOD_NS;
 /// Why a fault specification was refused.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum InjectError {
+    /// A fault kind the simulated bench does not know.
     #[error(
         "unknown fault `{kind}`; --inject takes spikes, stuck, nan, silence or ecu (e.g. spikes:rate_per_s=2,size_n=30, ecu:flameout_at_s=15)"
     )]
-    UnknownKind { kind: String },
+    UnknownKind {
+        /// The kind as written.
+        kind: String,
+    },
+    /// A key of a known kind is missing, unknown or out of range.
     #[error("--inject {kind}: {message} (keys: {keys})")]
-    Key { kind: &'static str, keys: &'static str, message: String },
+    Key {
+        /// The fault kind.
+        kind: &'static str,
+        /// The keys it takes.
+        keys: &'static str,
+        /// What is wrong.
+        message: String,
+    },
 }
 
 /// When a fault that lasts is on: from `at_s` for `for_s` (at least one frame).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Window {
+    /// Start, s from the start of the run.
     pub at_s: f64,
+    /// Duration, s.
     pub for_s: f64,
 }
 
@@ -71,9 +85,20 @@ fn frame_at(t_s: f64) -> u64 {
 /// One injected fault.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Fault {
-    Spikes { rate_per_s: f64, size_n: f64, seed: u64 },
+    /// Spikes on the thrust axis at random frames.
+    Spikes {
+        /// Mean spikes per second.
+        rate_per_s: f64,
+        /// Size of each spike, N (either sign).
+        size_n: f64,
+        /// Seed of the frames and signs.
+        seed: u64,
+    },
+    /// The sensor repeats one reading.
     Stuck(Window),
+    /// The sensor sends NaN.
     NotANumber(Window),
+    /// The sensor sends nothing.
     Silence(Window),
 }
 
@@ -146,8 +171,11 @@ impl fmt::Display for Fault {
 pub struct FrameFaults {
     /// Added to the thrust axis, N (0: no spike).
     pub spike_n: f64,
+    /// The previous reading is repeated.
     pub stuck: bool,
+    /// The reading is NaN.
     pub nan: bool,
+    /// No frame is sent.
     pub silent: bool,
 }
 
@@ -184,10 +212,12 @@ impl FaultPlan {
         Ok(FaultPlan { faults })
     }
 
+    /// True when no fault is planned.
     pub fn is_empty(&self) -> bool {
         self.faults.is_empty()
     }
 
+    /// The planned faults.
     pub fn faults(&self) -> &[Fault] {
         &self.faults
     }
@@ -254,10 +284,12 @@ pub struct FaultySensor {
 }
 
 impl FaultySensor {
+    /// A sensor that will suffer `plan`.
     pub fn new(plan: FaultPlan) -> Self {
         FaultySensor { plan, ..FaultySensor::default() }
     }
 
+    /// Its plan.
     pub fn plan(&self) -> &FaultPlan {
         &self.plan
     }

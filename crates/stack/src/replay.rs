@@ -79,17 +79,32 @@ pub enum ReplayError {
         "the recording's `{RUN}` metadata `{key}` does not parse: {message}; \
          pass the bench config the run used (jetbench replay --config FILE)"
     )]
-    BadMetadata { key: &'static str, message: String },
+    BadMetadata {
+        /// The metadata key.
+        key: &'static str,
+        /// Why it does not parse.
+        message: String,
+    },
     /// The recording predates `model_toml` and its `[model] model` file is gone.
     #[error(
         "the recording holds no model parameters (`{KEY_MODEL_TOML}`), and its [model] model = {spec:?} \
          cannot be resolved now ({source}); pass a bench config with that model (jetbench replay --config FILE)"
     )]
-    ModelUnavailable { spec: String, source: ModelError },
+    ModelUnavailable {
+        /// The recorded `[model] model`.
+        spec: String,
+        /// Why it cannot be resolved now.
+        source: ModelError,
+    },
     /// Nothing to feed the estimator.
     #[error("the recording has no /bench/thrust samples to replay ({malformed} malformed){}",
         if *truncated { "; the file is truncated" } else { "" })]
-    NoThrust { malformed: usize, truncated: bool },
+    NoThrust {
+        /// Thrust messages that did not decode.
+        malformed: usize,
+        /// The file ends in the middle of a record.
+        truncated: bool,
+    },
     /// [`InputRule::RecordedState`] was asked for, but there is no state.
     #[error(
         "the recorded-state input rule needs /bench/state samples, and the recording has none; use the actuation rule"
@@ -103,7 +118,9 @@ pub enum ReplayError {
 /// The estimator's model and noise settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct EstimatorSetup {
+    /// The model the observer predicts with.
     pub params: Params,
+    /// The observer's noise and gate settings.
     pub observer: ObserverConfig,
 }
 
@@ -233,12 +250,16 @@ impl std::fmt::Display for InputRule {
 /// Messages that did not decode as their channel's type, per channel.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Malformed {
+    /// On `bench/thrust`.
     pub thrust: usize,
+    /// On `bench/state`.
     pub state: usize,
+    /// On `bench/actuation`.
     pub actuation: usize,
 }
 
 impl Malformed {
+    /// On every channel.
     pub fn total(&self) -> usize {
         self.thrust + self.state + self.actuation
     }
@@ -257,6 +278,7 @@ pub struct FirstDifference {
 /// What a replay did and how it compares with the recording.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ReplayReport {
+    /// Where the estimator's model came from.
     pub estimator: EstimatorOrigin,
     /// The rule used ([`InputRule::Auto`] resolved).
     pub inputs: InputRule,
@@ -271,11 +293,13 @@ pub struct ReplayReport {
     /// Recorded states whose thrust sample is not in the recording (the
     /// recorder lost it): the estimates after it cannot match.
     pub states_without_thrust: usize,
+    /// Messages that did not decode, per channel.
     pub malformed: Malformed,
     /// Replayed estimates that had a recorded state to compare with.
     pub compared: usize,
     /// Of those, identical bit for bit (all but `seq` and `publish_ns`).
     pub identical: usize,
+    /// The first replayed estimate that differs, if one does.
     pub first_difference: Option<FirstDifference>,
     /// Largest |replayed - recorded| thrust, N (0 when identical).
     pub max_diff_thrust_n: f64,
@@ -331,6 +355,7 @@ pub struct ReplayedEstimate {
 pub struct ReplayOutcome {
     /// In recorded order of their thrust samples.
     pub estimates: Vec<ReplayedEstimate>,
+    /// How the replay compares with the recording.
     pub report: ReplayReport,
 }
 

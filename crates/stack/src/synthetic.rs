@@ -41,7 +41,14 @@ pub enum SyntheticError {
     ControlSetup(#[from] crate::config::ControlSetupError),
     /// A step refused what the previous one gave it.
     #[error("cycle {cycle}: {service} rejected its input: {message}")]
-    Step { cycle: usize, service: &'static str, message: String },
+    Step {
+        /// The cycle, from 0.
+        cycle: usize,
+        /// The service whose step refused.
+        service: &'static str,
+        /// Its reason.
+        message: String,
+    },
 }
 
 /// A recording of `cycles` cycles of the closed loop, simulated with the live

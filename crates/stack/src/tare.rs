@@ -46,18 +46,47 @@ pub enum TareError {
     Sim(#[from] SimError),
     /// The sensor said nothing.
     #[error("no readings from the sensor on {interface} for 1 s ({counts}): is it powered and is the interface up?")]
-    Silent { interface: CanInterface, counts: RejectCounts },
+    Silent {
+        /// The CAN interface listened on.
+        interface: CanInterface,
+        /// What the decoder rejected meanwhile.
+        counts: RejectCounts,
+    },
+    /// Readings arrived, but none could be averaged.
     #[error("no readings to average: {0}")]
     NoReadings(String),
     /// The config file to write the tare into.
     #[error("cannot read {path}: {source}")]
-    Read { path: PathBuf, source: std::io::Error },
+    Read {
+        /// The config file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The config file is not TOML that can be edited in place.
     #[error("{path} is not TOML that can be edited: {message}")]
-    Edit { path: String, message: String },
+    Edit {
+        /// The config file.
+        path: String,
+        /// The parser's words.
+        message: String,
+    },
+    /// The edited config would not load; the file is left as it was.
     #[error("the config with the new tare does not load, so {path} was left unchanged: {source}")]
-    Invalid { path: PathBuf, source: ConfigError },
+    Invalid {
+        /// The config file.
+        path: PathBuf,
+        /// Why the edited config does not load.
+        source: ConfigError,
+    },
+    /// The edited config could not be written.
     #[error("cannot write {path}: {source}")]
-    Write { path: PathBuf, source: std::io::Error },
+    Write {
+        /// The config file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
 }
 
 /// The axes of a tare, in the order of `[sensor] tare`.
@@ -70,6 +99,7 @@ pub struct TareResult {
     pub offsets: [f64; 6],
     /// Standard deviation of the readings per axis.
     pub std_dev: [f64; 6],
+    /// Readings averaged.
     pub readings: u64,
     /// Frames the decoder rejected meanwhile.
     pub rejected: RejectCounts,
@@ -146,6 +176,7 @@ pub struct RestingSensor {
 }
 
 impl RestingSensor {
+    /// Opens `interface` with the config's codec and starts collecting readings.
     pub fn start(config: &BenchConfig, interface: &CanInterface) -> Result<Self, TareError> {
         let codec = config.sensor.codec().map_err(|e| TareError::Setup(format!("[sensor] {e}")))?;
         let mut sink = CanForceSink::open(interface, codec)?;

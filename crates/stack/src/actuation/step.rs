@@ -16,6 +16,7 @@ pub struct ActuationStep {
 }
 
 impl ActuationStep {
+    /// Idles the engine after `idle_after_missed` cycles without a command (at least 1).
     pub fn new(idle_after_missed: u32) -> Self {
         ActuationStep { idle_after_missed: idle_after_missed.max(1), missed: 0, last: None }
     }

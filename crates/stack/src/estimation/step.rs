@@ -15,6 +15,7 @@ pub struct EstimationStep {
 }
 
 impl EstimationStep {
+    /// The observer of `params` with `config`, before any throttle was applied.
     pub fn new(params: Params, config: ObserverConfig) -> Self {
         EstimationStep { observer: ThrustObserver::new(params, config), applied_pct: None }
     }

@@ -113,7 +113,9 @@ jetbench_bus::from_bus_errors!(ServiceError);
 
 /// What a service is created with.
 pub struct Setup<'a> {
+    /// The bench config.
     pub config: &'a BenchConfig,
+    /// The bus, opened by the runner.
     pub bus: &'a Bus,
     /// The file a service writes (the recorder's MCAP file).
     pub output: Option<&'a Path>,
@@ -154,7 +156,9 @@ impl Inputs for () {
 /// One woken input: every publish on its channel wakes the service, and a
 /// cycle without one within `deadline` is reported as missed.
 pub struct Input<T: Sample> {
+    /// The channel's subscriber.
     pub subscriber: Subscriber<T>,
+    /// How long after the cycle's start a sample may come.
     pub deadline: Duration,
     /// A sample has arrived: before the first, a silent input is the expected
     /// start, not a missed cycle.
@@ -162,6 +166,7 @@ pub struct Input<T: Sample> {
 }
 
 impl<T: Sample> Input<T> {
+    /// An input that has not seen a sample yet.
     pub fn new(subscriber: Subscriber<T>, deadline: Duration) -> Self {
         Input { subscriber, deadline, started: Cell::new(false) }
     }
@@ -263,6 +268,7 @@ impl<'a> Context<'a> {
         Context { bus, health, wake_ns: monotonic_ns(), rejections: Vec::with_capacity(8) }
     }
 
+    /// The bus.
     pub fn bus(&self) -> &'a Bus {
         self.bus
     }

@@ -28,7 +28,9 @@ pub struct RtRequest {
 /// What [`apply`] set, and what it could not set and why.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct RtOutcome {
+    /// Each setting applied, in words (`SCHED_FIFO 80`).
     pub applied: Vec<String>,
+    /// Each setting refused, with the reason.
     pub refused: Vec<String>,
 }
 

@@ -45,7 +45,9 @@ pub struct SpawnOptions {
 #[derive(Debug, thiserror::Error)]
 #[error("cannot start {name}: {source}")]
 pub struct SpawnError {
+    /// The child's name.
     pub name: String,
+    /// Why it did not start.
     #[source]
     pub source: std::io::Error,
 }
@@ -81,6 +83,7 @@ impl Default for Supervisor {
 }
 
 impl Supervisor {
+    /// No children yet.
     pub fn new() -> Self {
         let (lines_tx, lines_rx) = mpsc::channel();
         Supervisor { children: Vec::new(), lines_tx, lines_rx }
@@ -143,18 +146,22 @@ impl Supervisor {
         self.lines_rx.try_recv().ok()
     }
 
+    /// Children started.
     pub fn len(&self) -> usize {
         self.children.len()
     }
 
+    /// True before the first child is started.
     pub fn is_empty(&self) -> bool {
         self.children.is_empty()
     }
 
+    /// The name of child `index`.
     pub fn name(&self, index: usize) -> &str {
         &self.children[index].name
     }
 
+    /// The process id of child `index`.
     pub fn pid(&self, index: usize) -> u32 {
         self.children[index].child.id()
     }
