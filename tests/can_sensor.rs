@@ -151,3 +151,32 @@ fn tare_finds_the_simulated_zero_offset_and_writes_it() {
     );
     assert!(status.success(), "{err}");
 }
+
+/// At the bench, a sensor whose CAN interface cannot be opened is said with
+/// advice for a bench (the modules, the adapter, `ip link set ... up type can
+/// bitrate ...`), not for the simulated bus: `jetbench tare` (the first
+/// command of a bench run) with config/bench.example.toml naming an
+/// interface that does not exist.
+#[test]
+fn a_missing_can_interface_at_the_bench_is_said_with_advice_for_the_bench() {
+    let example = std::fs::read_to_string(common::repo_root().join("config/bench.example.toml")).unwrap();
+    assert!(example.contains("can_interface = \"can0\""), "the example names can0");
+    let config = common::scratch(SUITE, "bench-missing-can.toml");
+    std::fs::write(&config, example.replace("can_interface = \"can0\"", "can_interface = \"jbcan7\"")).unwrap();
+    let (code, out, err) = common::run_jetbench(
+        SUITE,
+        &["tare", "--config", config.to_str().unwrap(), "--seconds", "0.5"],
+        Duration::from_secs(60),
+    );
+    let said = format!("{out}\n{err}");
+    println!("{said}");
+    assert_ne!(code, 0, "a sensor that cannot be opened is an error");
+    assert!(said.contains("jbcan7"), "names the interface");
+    assert!(said.contains("sudo ip link set jbcan7 up type can bitrate"), "says how to bring it up");
+    match jetbench_io::can::socketcan::probe_af_can() {
+        // This kernel: no CAN at all; the advice is the modules and the adapter.
+        Err(_) => assert!(said.contains("modprobe can can_raw") && said.contains("adapter"), "the modules"),
+        // A kernel with CAN: the interface is missing.
+        Ok(()) => assert!(said.contains("No interface `jbcan7`") && said.contains("ip -br link"), "the interface"),
+    }
+}

@@ -238,3 +238,28 @@ fn a_short_soak_under_load_keeps_memory_flat_and_loses_nothing() {
     assert!(soak.memory.len() >= 7 && soak.memory.iter().all(|m| m.rss_kib.len() >= 5), "{:?}", soak.memory);
     assert!(soak.recording_bytes > 0 && soak.messages > 20_000);
 }
+
+/// The CI-sized draw of the campaign's healthy-engine rows (the campaign runs
+/// 10 × 60 s of each profile): a healthy engine on the campaign and steps
+/// profiles, every P100 limit on, must not trip one.
+#[test]
+fn a_healthy_engine_trips_no_limit() {
+    let _alone = ALONE.lock().unwrap_or_else(|e| e.into_inner());
+    let bench = bench();
+    let keys: Vec<&str> = jetbench_stack::limits::LimitKind::ALL.iter().map(|k| k.key()).collect();
+    for profile in jetbench_faults::limits::PROFILES {
+        let run = jetbench_faults::limits::healthy_run(&bench, profile, 20).expect("the run");
+        let fmt = |v: &[Option<f64>; 8]| -> String {
+            keys.iter()
+                .zip(v)
+                .map(|(k, v)| format!("{k} {}", v.map_or("-".into(), |v| format!("{v:.2}"))))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        println!("{profile}: trips {:?}\n  held: {}\n  peak: {}", run.trips, fmt(&run.held), fmt(&run.peak));
+        assert!(run.problems.is_empty(), "{profile}: {:#?}", run.problems);
+        let peak_n = run.peak[jetbench_stack::limits::LimitKind::MaxThrust as usize].unwrap_or(0.0);
+        assert!(peak_n > 40.0, "{profile}: the profile ran (peak thrust {peak_n:.1} N)");
+        assert!(run.held.iter().all(Option::is_some), "{profile}: every limit's quantity measured: {:?}", run.held);
+    }
+}

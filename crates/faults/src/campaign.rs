@@ -8,6 +8,7 @@ use rand_distr::{Distribution, Uniform};
 
 use crate::inject::{bad_data, BadData};
 use crate::kill::{kill_trial, KillTrial, Victim};
+use crate::limits::{healthy_run, HealthyRun, PROFILES};
 use crate::recorder::{disk_full, recorder_crash, DiskFull, RecorderCrash};
 use crate::set::{access_as_another_user, second_up, Access, SecondUp};
 use crate::{Bench, FaultsError};
@@ -22,6 +23,8 @@ pub enum Part {
     Inject,
     SecondUp,
     Access,
+    /// A healthy engine with every limit on: no false trips.
+    Limits,
 }
 
 impl std::str::FromStr for Part {
@@ -35,17 +38,17 @@ impl std::str::FromStr for Part {
             "inject" => Part::Inject,
             "second-up" => Part::SecondUp,
             "access" => Part::Access,
+            "limits" => Part::Limits,
             other => match other.strip_prefix("kill:") {
                 Some(victim) => Part::Kill(Some(victim.parse()?)),
-                None => {
-                    return Err(format!(
-                        "unknown part `{other}`: kill, kill:PROCESS, recorder, disk, inject, second-up or access"
-                    ))
-                }
+                None => return Err(format!("unknown part `{other}`: {PARTS}")),
             },
         })
     }
 }
+
+/// The parts, for messages.
+const PARTS: &str = "kill, kill:PROCESS, recorder, disk, inject, second-up, access or limits";
 
 /// How the campaign runs.
 #[derive(Clone, Debug)]
@@ -59,6 +62,15 @@ pub struct Options {
     pub spike_seconds: u32,
     /// The parts to run; all when empty.
     pub only: Vec<Part>,
+    /// Healthy-engine runs per profile ([`crate::limits::PROFILES`]), and their length, s.
+    pub limits_runs: usize,
+    pub limits_seconds: u32,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options { repeat: 10, seed: 17, spike_seconds: 30, only: Vec::new(), limits_runs: 10, limits_seconds: 60 }
+    }
 }
 
 /// Kills come between these many seconds into a run.
@@ -85,6 +97,10 @@ pub struct Campaign {
     pub bad_data: Vec<BadData>,
     pub second_up: Option<SecondUp>,
     pub access: Option<Access>,
+    /// Healthy-engine runs with every limit on.
+    pub healthy: Vec<HealthyRun>,
+    /// The parts run, when not all were (`--only`).
+    pub only: Vec<Part>,
     /// Experiments that could not run at all (e.g. no tmpfs could be mounted).
     pub not_run: Vec<String>,
 }
@@ -96,7 +112,8 @@ pub fn run(bench: &Bench, options: &Options, progress: &mut dyn FnMut(&str)) -> 
             || options.only.iter().any(|p| *p == part || matches!((p, part), (Part::Kill(None), Part::Kill(_))))
     };
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
-    let mut c = Campaign { repeat: options.repeat, seed: options.seed, ..Campaign::default() };
+    let mut c =
+        Campaign { repeat: options.repeat, seed: options.seed, only: options.only.clone(), ..Campaign::default() };
     let note = |c: &mut Campaign, what: &str, e: FaultsError| c.not_run.push(format!("{what}: {e}"));
     for victim in Victim::ALL.into_iter().filter(|v| wants(Part::Kill(Some(*v)))) {
         let window = Uniform::new(KILL_WINDOW_S.0, KILL_WINDOW_S.1).expect("a valid window");
@@ -155,6 +172,22 @@ pub fn run(bench: &Bench, options: &Options, progress: &mut dyn FnMut(&str)) -> 
         match access_as_another_user(bench) {
             Ok(a) => c.access = Some(a),
             Err(e) => note(&mut c, "access", e),
+        }
+    }
+    if wants(Part::Limits) {
+        for profile in PROFILES {
+            for i in 0..options.limits_runs {
+                progress(&format!(
+                    "healthy engine, every limit on: {profile} {}/{}, {} s",
+                    i + 1,
+                    options.limits_runs,
+                    options.limits_seconds
+                ));
+                match healthy_run(bench, profile, options.limits_seconds) {
+                    Ok(run) => c.healthy.push(run),
+                    Err(e) => note(&mut c, &format!("healthy engine ({profile})"), e),
+                }
+            }
         }
     }
     c

@@ -44,6 +44,8 @@ pub struct BadData {
     /// every other cycle (p50, max): the loop's own movement.
     pub step_at_spike_pct: (f64, f64),
     pub step_elsewhere_pct: (f64, f64),
+    /// The limits that tripped (`bench/events`), in order.
+    pub trips: Vec<&'static str>,
     /// From the first stuck frame to the first state flagged stuck, s.
     pub stuck_flagged_after_s: Option<f64>,
     /// NaN frames injected, and those of them that reached `bench/thrust` (should be none).
@@ -93,7 +95,10 @@ pub fn bad_data(bench: &Bench, inject: &[&str], duration_s: u32, baseline: bool)
             command.args(["--inject", spec]);
         }
         let (status, said) = run_to_end(&mut command, "jetbench up --inject")?;
-        if !status.success() {
+        // A limit that trips on an injected sensor fault (a stuck reading
+        // disagreeing with the RPM) is the stack doing its job: the run is
+        // judged, and its trips are listed.
+        if !status.success() && !said.contains("limits tripped during the run") {
             return Err(FaultsError::Failed { what: format!("jetbench up --inject {inject:?}"), message: said });
         }
         Ok(Recording::open(&record)?)
@@ -130,6 +135,12 @@ pub fn judge(recording: &Recording) -> BadData {
     let frame_of_thrust: HashMap<u64, u64> = thrust.iter().map(|t| (t.seq, t.frame_seq)).collect();
     let state_at = |frame: u64| thrust_of_frame.get(&frame).and_then(|t| state_of_thrust.get(t)).map(|&i| &states[i]);
     let mut out = BadData { mae_n: mae(recording), ..BadData::default() };
+    out.trips = recording
+        .samples(channels::EVENTS)
+        .iter()
+        .filter(|e| e.kind == jetbench_msgs::event_kinds::TRIP)
+        .map(|e| jetbench_stack::limits::LimitKind::from_code(e.code).map_or("unknown limit", |k| k.key()))
+        .collect();
 
     // A spike on a stuck, NaN or silent frame is another fault's frame: a
     // silent one never arrives, and one on a stuck sensor breaks its repeats.

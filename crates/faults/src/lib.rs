@@ -38,6 +38,7 @@ use std::time::Duration;
 pub mod campaign;
 pub mod inject;
 pub mod kill;
+pub mod limits;
 pub mod recorder;
 pub mod report;
 pub mod set;

@@ -35,7 +35,60 @@ impl Campaign {
                 out.push(format!("access: {a:?}"));
             }
         }
+        for h in &self.healthy {
+            out.extend(h.problems.iter().map(|p| format!("healthy engine ({}): {p}", h.profile)));
+        }
         out.extend(self.not_run.iter().map(|n| format!("not run: {n}")));
+        out
+    }
+
+    /// The report for `--report FILE`: the whole report, or, when only some
+    /// parts ran (`--only`) and `existing` is the report of an earlier whole
+    /// campaign, that report with the sections of the parts that ran replaced
+    /// (or added before "Bounds broken"), and their broken bounds added, so a
+    /// part can be measured again without the rest.
+    pub fn report(&self, existing: Option<&str>, machine: &str) -> String {
+        let whole = self.markdown(machine);
+        let Some(existing) = existing.filter(|e| !self.only.is_empty() && e.contains("\n## Bounds broken")) else {
+            return whole;
+        };
+        let sections = |text: &str| -> Vec<String> {
+            let mut out: Vec<String> = Vec::new();
+            for (i, part) in text.split("\n## ").enumerate() {
+                out.push(if i == 0 { part.to_string() } else { format!("## {part}") });
+            }
+            out
+        };
+        let heading = |section: &str| section.lines().next().unwrap_or_default().to_string();
+        let mut merged = sections(existing);
+        for new in sections(&whole).into_iter().skip(1) {
+            let h = heading(&new);
+            if h == "## Bounds broken" {
+                continue;
+            }
+            match merged.iter().position(|old| heading(old) == h) {
+                Some(i) => merged[i] = new.trim_end().to_string(),
+                None => {
+                    let at = merged.iter().position(|old| heading(old) == "## Bounds broken").unwrap_or(merged.len());
+                    merged.insert(at, new.trim_end().to_string());
+                }
+            }
+        }
+        let problems = self.problems();
+        if let (false, Some(bounds)) =
+            (problems.is_empty(), merged.iter_mut().find(|s| heading(s) == "## Bounds broken"))
+        {
+            if bounds.contains("None: every bound of the campaign held.") {
+                *bounds = "## Bounds broken\n".into();
+            }
+            for p in problems {
+                bounds.push_str(&format!("\n- {}", p.lines().next().unwrap_or_default()));
+            }
+        }
+        let mut out = merged.join("\n");
+        if !out.ends_with('\n') {
+            out.push('\n');
+        }
         out
     }
 
@@ -62,6 +115,7 @@ impl Campaign {
         self.write_disk(md)?;
         self.write_bad_data(md)?;
         self.write_set(md)?;
+        self.write_limits(md)?;
         writeln!(md, "\n## Bounds broken\n")?;
         let problems = self.problems();
         if problems.is_empty() {
@@ -267,6 +321,9 @@ impl Campaign {
                 },
             )?;
         }
+        for b in self.bad_data.iter().filter(|b| !b.trips.is_empty()) {
+            writeln!(md, "\nLimits that tripped with `{}`: {}.", b.inject.join(" "), b.trips.join(", "))?;
+        }
         writeln!(
             md,
             "\nReproduce: `jetbench up --sim --duration 32 --record bad.mcap --inject {}`, or `jetbench faults --only \
@@ -306,6 +363,80 @@ impl Campaign {
                 a.loose_modes.len(),
                 a.echo_status,
                 a.echo_said.trim()
+            )?;
+        }
+        Ok(())
+    }
+
+    fn write_limits(&self, md: &mut String) -> std::fmt::Result {
+        if self.healthy.is_empty() {
+            return Ok(());
+        }
+        let runs = |profile: &str| self.healthy.iter().filter(|h| h.profile == profile).count();
+        let seconds = self.healthy.first().map_or(0, |h| h.duration_s);
+        writeln!(md, "\n## No false trips on a healthy engine\n")?;
+        writeln!(
+            md,
+            "`jetbench up --sim --profile P --duration {seconds}` with every limit of the P100 preset on \
+             (`[limits] preset = \"p100\"`, the sensor's silence too) and nothing injected: {} runs of the campaign \
+             profile and {} of the steps profile. Trips are counted from `bench/events`. The margin is the worst \
+             value each limit's quantity held for the limit's hold time while the ECU said run (a trip needs that), \
+             recomputed from the recording as the monitor sees it (the thrust estimate; the ECU's readings; a silence \
+             is the longest gap between samples), worst over the runs; the peak is the worst single value. \
+             (`jetbench faults --only limits --limits-runs {} --limits-seconds {seconds}`)",
+            runs("campaign"),
+            runs("steps"),
+            runs("steps"),
+        )?;
+        writeln!(md)?;
+        writeln!(
+            md,
+            "| limit | P100 limit, hold | trips (campaign / steps) | worst held | worst peak | margin held |"
+        )?;
+        writeln!(md, "|---|---|---|---|---|---|")?;
+        let limits = jetbench_stack::limits::Limits::preset("p100").expect("the p100 preset");
+        for kind in jetbench_stack::limits::LimitKind::ALL {
+            let i = kind as usize;
+            let trips = |profile: &str| -> u32 {
+                self.healthy.iter().filter(|h| h.profile == profile).map(|h| h.trips[i]).sum()
+            };
+            let low = kind == jetbench_stack::limits::LimitKind::MinRpm;
+            let worst = |values: Vec<f64>| -> Option<f64> {
+                values.into_iter().reduce(|a, b| if low { a.min(b) } else { a.max(b) })
+            };
+            let held = worst(self.healthy.iter().filter_map(|h| h.held[i]).collect());
+            let peak = worst(self.healthy.iter().filter_map(|h| h.peak[i]).collect());
+            let unit = kind.unit();
+            let value = |v: Option<f64>| v.map_or("–".into(), |v| format!("{v:.2} {unit}"));
+            let (limit, margin) = match limits.get(kind) {
+                Some(l) => (
+                    format!("{} {unit}, {} s", l.limit, l.hold_s),
+                    held.map_or("–".into(), |h| {
+                        let m = if low { h - l.limit } else { l.limit - h };
+                        format!("{m:.2} {unit} ({:.0} %)", 100.0 * m / l.limit)
+                    }),
+                ),
+                None => ("off".into(), "–".into()),
+            };
+            writeln!(
+                md,
+                "| `{}` | {limit} | {} / {} | {} | {} | {margin} |",
+                kind.key(),
+                trips("campaign"),
+                trips("steps"),
+                value(held),
+                value(peak)
+            )?;
+        }
+        let without: Option<f64> = self.healthy.iter().filter_map(|h| h.band_without_lag).reduce(f64::max);
+        if let (Some(w), Some(band)) = (without, limits.get(jetbench_stack::limits::LimitKind::ThrustRpmBand)) {
+            let lag_s = limits.rpm_map.map_or(0.0, |m| m.lag_s);
+            writeln!(
+                md,
+                "\nThe thrust-against-RPM check compares the RPM's thrust with the thrust estimate passed through \
+                 the RPM's lag ({lag_s} s, `lag_s`; the emulated ECU's RPM lags the thrust so). Without the lag the \
+                 worst disagreement held for {} s would have been {w:.2} N against the {} N band.",
+                band.hold_s, band.limit
             )?;
         }
         Ok(())

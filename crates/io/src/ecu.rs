@@ -5,6 +5,7 @@
 //! |---|---|---|
 //! | `1,RAC,1` ([`POLL`]) | read actual values | `1,HS,OK,<rpm>,<egt_c>,<pump_v>,<state>,<throttle_pct>` |
 //! | `1,RSS,1` ([`STATUS_POLL`]) | read system status | `1,HS,OK,<off_condition>,...` |
+//! | `1,RFI,1` ([`FUEL_POLL`]) | read fuel information | `1,HS,OK,<fuel_ml_min>,<rest_fuel_ml>,<set_rpm>,<battery_v>,<last_run_s>` |
 //! | `1,TCO,1` / `1,TCO,0` | turbine control: start / stop | `1,HS,OK`, or `1,HS,ERR,<n>` |
 //! | `1,WPE,<pct>` | write the throttle, % | `1,HS,OK`, or `1,HS,ERR,<n>` |
 //!
@@ -13,7 +14,9 @@
 //! it, not as a rejection. `RAC` carries shaft speed in rev/min, exhaust gas
 //! temperature in °C, fuel pump voltage in V, the state code (an integer
 //! 0..=255, named by [`state::EcuState`]) and the throttle the ECU sees in %;
-//! `RSS` the off condition ([`state::OffCondition`]). Numbers are plain
+//! `RSS` the off condition ([`state::OffCondition`]); `RFI` (fuel flow, fuel
+//! left, set RPM, the ECU's battery voltage, the last run's time) is read
+//! for the battery voltage, every few polls. Numbers are plain
 //! decimals (`61250`, `612.4`, `3.05`); a line feed after the `\r` is
 //! tolerated. Where this differs from JetCat's document, and why, is in
 //! crates/io/README.md.
@@ -34,6 +37,8 @@ pub mod state;
 pub const POLL: &[u8] = b"1,RAC,1\r";
 /// Read system status: the off condition.
 pub const STATUS_POLL: &[u8] = b"1,RSS,1\r";
+/// Read fuel information: fuel flow, fuel left, set RPM, battery voltage, last run time.
+pub const FUEL_POLL: &[u8] = b"1,RFI,1\r";
 /// The end of every line.
 pub const EOL: u8 = b'\r';
 /// The longest line accepted; longer ones are garbled.
@@ -45,6 +50,7 @@ pub const EGT_MIN_C: f64 = -50.0;
 pub const EGT_MAX_C: f64 = 1_200.0;
 pub const PUMP_MAX_V: f64 = 30.0;
 pub const THROTTLE_MAX_PCT: f64 = 100.0;
+pub const BATTERY_MAX_V: f64 = 30.0;
 
 /// One telemetry reply.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -177,6 +183,8 @@ pub enum PcCommand {
     ReadActual,
     /// `RSS,1`: read system status (the off condition).
     ReadStatus,
+    /// `RFI,1`: read fuel information (for the battery voltage).
+    ReadFuel,
     /// `TCO,1`: start the engine.
     Start,
     /// `TCO,0`: stop the engine.
@@ -191,6 +199,7 @@ impl PcCommand {
         match self {
             PcCommand::ReadActual => "1,RAC,1\r".into(),
             PcCommand::ReadStatus => "1,RSS,1\r".into(),
+            PcCommand::ReadFuel => "1,RFI,1\r".into(),
             PcCommand::Start => "1,TCO,1\r".into(),
             PcCommand::Stop => "1,TCO,0\r".into(),
             PcCommand::Throttle(pct) => format!("1,WPE,{}\r", (pct * 10.0).round() / 10.0),
@@ -202,6 +211,7 @@ impl PcCommand {
         match self {
             PcCommand::ReadActual => Context::Actual,
             PcCommand::ReadStatus => Context::Status,
+            PcCommand::ReadFuel => Context::Fuel,
             _ => Context::Ack,
         }
     }
@@ -252,9 +262,10 @@ pub fn parse_command(line: &[u8]) -> Result<PcCommand, CommandError> {
     match (mnemonic.as_str(), parameter) {
         ("RAC", "1") => Ok(PcCommand::ReadActual),
         ("RSS", "1") => Ok(PcCommand::ReadStatus),
+        ("RFI", "1") => Ok(PcCommand::ReadFuel),
         ("TCO", "1") => Ok(PcCommand::Start),
         ("TCO", "0") => Ok(PcCommand::Stop),
-        ("RAC" | "RSS" | "TCO", _) => Err(out_of_range()),
+        ("RAC" | "RSS" | "RFI" | "TCO", _) => Err(out_of_range()),
         ("WPE", p) => match p.parse::<f64>() {
             Ok(pct) if pct.is_finite() && (0.0..=THROTTLE_MAX_PCT).contains(&pct) => Ok(PcCommand::Throttle(pct)),
             _ => Err(out_of_range()),
@@ -268,6 +279,7 @@ pub fn parse_command(line: &[u8]) -> Result<PcCommand, CommandError> {
 enum Context {
     Actual,
     Status,
+    Fuel,
     Ack,
 }
 
@@ -278,6 +290,8 @@ pub enum EcuReply {
     Actual(EcuReading),
     /// `RSS`: the off condition's code (named by [`state::OffCondition::from_code`]).
     Status { off_condition: u32 },
+    /// `RFI`: the ECU's battery voltage, V (the fuel fields are not used).
+    Fuel { battery_v: f64 },
     /// A command was accepted.
     Ack,
     /// A command was refused, with JetCat's error number.
@@ -288,6 +302,13 @@ pub enum EcuReply {
 /// four speed-control fields, which this ECU leaves at 0.
 pub fn encode_status(off_condition: u8) -> String {
     format!("1,HS,OK,{off_condition},0,0,0,0\r")
+}
+
+/// The reply line for a fuel-information request: fuel flow (ml/min), fuel
+/// left (ml) and set RPM, which this ECU leaves at 0, the battery voltage
+/// to 0.01 V, and the last run's time (s).
+pub fn encode_fuel(battery_v: f64, last_run_s: u32) -> String {
+    format!("1,HS,OK,0,0,0,{:.2},{last_run_s}\r", battery_v)
 }
 
 /// The acknowledgement line.
@@ -323,6 +344,9 @@ fn decode_in_context(line: &[u8], context: Context) -> Result<EcuReply, EcuError
         (Context::Ack, ["1", "HS", "OK"]) => Ok(EcuReply::Ack),
         (Context::Status, ["1", "HS", "OK", off, ..]) => {
             Ok(EcuReply::Status { off_condition: decode_small("off_condition", off)? })
+        }
+        (Context::Fuel, ["1", "HS", "OK", _flow, _rest, _set_rpm, battery, ..]) => {
+            Ok(EcuReply::Fuel { battery_v: number("battery_v", battery, 0.0, BATTERY_MAX_V)? })
         }
         (_, ["1", "HS", ..] | ["1"]) => Err(EcuError::Truncated { fields: fields.len() }),
         _ => Err(EcuError::Unknown(text.chars().take(40).collect())),
@@ -396,7 +420,7 @@ impl LineDecoder {
             Ok(reply) => {
                 match reply {
                     EcuReply::Actual(_) => self.counters.lines += 1,
-                    EcuReply::Status { .. } => self.counters.statuses += 1,
+                    EcuReply::Status { .. } | EcuReply::Fuel { .. } => self.counters.statuses += 1,
                     EcuReply::Ack => self.counters.acks += 1,
                     EcuReply::Refused(_) => self.counters.refusals += 1,
                 }

@@ -256,7 +256,15 @@ pub trait EcuDevice: Send {
     fn off_condition(&self) -> OffCondition;
     /// Applies a command from the PC; a refusal is answered with its number.
     fn command(&mut self, command: EcuCommand) -> Result<(), Refused>;
+    /// The ECU's battery voltage, V (`RFI` answers with it): a healthy
+    /// two-cell pack unless the device says otherwise.
+    fn battery_v(&self) -> f64 {
+        NOMINAL_BATTERY_V
+    }
 }
+
+/// A charged two-cell lithium pack, the ECU's usual supply, V.
+pub const NOMINAL_BATTERY_V: f64 = 7.4;
 
 /// A device whose reading its owner sets; commands are accepted and queued
 /// for the owner ([`PtyEcu::take_commands`]).
@@ -302,6 +310,10 @@ impl EcuDevice for ClockedEmulator {
         self.emulator.off_condition()
     }
 
+    fn battery_v(&self) -> f64 {
+        self.emulator.battery_v()
+    }
+
     fn command(&mut self, command: EcuCommand) -> Result<(), Refused> {
         let now = (self.clock)();
         self.emulator.command(command, now)
@@ -309,7 +321,8 @@ impl EcuDevice for ClockedEmulator {
 }
 
 /// The ECU's firmware: echoes every command line, as JetCat's ECU does, and
-/// answers it: telemetry (`RAC`), the off condition (`RSS`), start and stop
+/// answers it: telemetry (`RAC`), the off condition (`RSS`), the battery
+/// voltage (`RFI`), start and stop
 /// (`TCO`) and throttle (`WPE`) acknowledged or refused with an error number.
 #[derive(Clone, Debug, Default)]
 pub struct EcuFirmware {
@@ -366,6 +379,10 @@ impl EcuFirmware {
             }
             PcCommand::ReadStatus => {
                 replies.extend(ecu::encode_status(device.off_condition().code()).as_bytes());
+                return;
+            }
+            PcCommand::ReadFuel => {
+                replies.extend(ecu::encode_fuel(device.battery_v(), 0).as_bytes());
                 return;
             }
             PcCommand::Start => device.command(EcuCommand::Start),

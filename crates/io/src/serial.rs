@@ -574,6 +574,9 @@ impl Drop for EcuPoller {
     }
 }
 
+/// How often the ECU worker reads the battery voltage (`RFI`), ns.
+const FUEL_PERIOD_NS: u64 = 200_000_000;
+
 struct EcuWorker {
     path: PathBuf,
     baud: u32,
@@ -599,6 +602,10 @@ impl EcuWorker {
         let mut missed: u32 = 0;
         let mut off_condition: u32 = 0;
         let mut refused: u32 = 0;
+        let mut battery_v = 0.0;
+        // The battery voltage (`RFI`) about five times a second, with a poll.
+        let fuel_every = (FUEL_PERIOD_NS / self.period_ns.max(1)).max(1);
+        let mut polls: u64 = 0;
         let mut next_ns = (self.clock)();
         let mut buf = [0u8; 256];
         while !self.stop.load(Ordering::Relaxed) {
@@ -624,6 +631,12 @@ impl EcuWorker {
             // poll's reply), then the poll.
             let mut lines: Vec<u8> = self.commands.try_iter().flat_map(|c| c.encode().into_bytes()).collect();
             lines.extend_from_slice(ecu::POLL);
+            let ask_fuel = polls % fuel_every == 0;
+            polls += 1;
+            if ask_fuel {
+                lines.extend_from_slice(ecu::FUEL_POLL);
+            }
+            let mut fuel = None;
             let mut status = None;
             let mut asked_status = false;
             if let Some(p) = port.as_mut() {
@@ -646,7 +659,7 @@ impl EcuWorker {
                         }
                     }
                 }
-                let done = reading.is_some() && (!want_status || status.is_some());
+                let done = reading.is_some() && (!want_status || status.is_some()) && (!ask_fuel || fuel.is_some());
                 let Some(p) = port.as_mut().filter(|_| !done) else { break };
                 let left_ns = answer_by_ns.saturating_sub((self.clock)());
                 if left_ns == 0 || self.stop.load(Ordering::Relaxed) {
@@ -660,6 +673,7 @@ impl EcuWorker {
                         decoder.push_replies(&buf[..n], |reply| match reply {
                             EcuReply::Actual(r) => reading = Some((r, received_ns)),
                             EcuReply::Status { off_condition } => status = Some(off_condition),
+                            EcuReply::Fuel { battery_v } => fuel = Some(battery_v),
                             EcuReply::Refused(_) => refused = refused.saturating_add(1),
                             EcuReply::Ack => {}
                         });
@@ -676,6 +690,9 @@ impl EcuWorker {
             if let Some(off) = status {
                 off_condition = off;
             }
+            if let Some(v) = fuel {
+                battery_v = v;
+            }
             let sample = match reading {
                 Some((r, received_ns)) => {
                     missed = 0;
@@ -691,6 +708,7 @@ impl EcuWorker {
                         flags: 0,
                         off_condition,
                         refused,
+                        battery_v,
                     };
                     last
                 }

@@ -26,6 +26,7 @@ fn commands_encode_and_parse_as_jetcat_writes_them() {
     for (cmd, line) in [
         (PcCommand::ReadActual, "1,RAC,1\r"),
         (PcCommand::ReadStatus, "1,RSS,1\r"),
+        (PcCommand::ReadFuel, "1,RFI,1\r"),
         (PcCommand::Start, "1,TCO,1\r"),
         (PcCommand::Stop, "1,TCO,0\r"),
         (PcCommand::Throttle(42.5), "1,WPE,42.5\r"),
@@ -155,4 +156,53 @@ fn the_recording_names_every_state_and_off_condition_by_its_code() {
     recorded.sort_unstable();
     ours.sort_unstable();
     assert_eq!(recorded, ours);
+}
+
+#[test]
+fn the_battery_voltage_is_read_with_rfi_and_sags_on_request() {
+    let clock = std::sync::Arc::new(std::sync::Mutex::new(0.0f64));
+    let c = clock.clone();
+    let faults: EcuFaults = "ecu:lowbattery_at_s=2".parse().unwrap();
+    let mut device = ClockedEmulator {
+        emulator: EcuEmulator::running(EcuParams::default(), faults, 0.0),
+        clock: Box::new(move || *c.lock().unwrap()),
+    };
+    let mut fw = EcuFirmware::default();
+    let mut d = LineDecoder::new();
+    let battery = |device: &mut ClockedEmulator, fw: &mut EcuFirmware, d: &mut LineDecoder| match exchange(
+        fw,
+        device,
+        d,
+        PcCommand::ReadFuel,
+    )[..]
+    {
+        [EcuReply::Fuel { battery_v }] => battery_v,
+        ref other => panic!("{other:?}"),
+    };
+    assert_eq!(battery(&mut device, &mut fw, &mut d), 7.4, "a charged pack");
+    let mut t = 0.0;
+    let mut low_at = None;
+    while t < 6.0 {
+        t += 0.01;
+        *clock.lock().unwrap() = t;
+        device.emulator.throttle(30.0, t).unwrap();
+        device.emulator.step(t, 20.0);
+        let v = battery(&mut device, &mut fw, &mut d);
+        if v < 6.4 {
+            low_at.get_or_insert(t);
+        }
+    }
+    let low_at = low_at.expect("the battery sags below 6.4 V");
+    // The ECU shuts the engine down 1 s after the voltage fell below its limit.
+    let down = device.emulator.transitions().iter().find(|(_, s, _)| *s == EcuState::SlowDown).copied();
+    let (at, _, off) = down.expect("the ECU shut the engine down");
+    assert_eq!(off, OffCondition::LowBattery);
+    assert!((at - low_at - 1.0).abs() < 0.02, "shut down {:.2} s after the sag", at - low_at);
+    // A garbled battery field is counted, not misread.
+    let mut wire = b"1,RFI,1\r1,HS,OK,0,0,0,x7.4,0\r".to_vec();
+    wire.extend_from_slice(b"1,RFI,1\r1,HS,OK,0,0,0,99,0\r");
+    let mut replies = Vec::new();
+    d.push_replies(&wire, |r| replies.push(r));
+    assert!(replies.is_empty(), "{replies:?}");
+    assert_eq!(d.counters().rejected(), 2);
 }

@@ -354,6 +354,9 @@ sample! {
         pub off_condition: u32,
         /// Commands (start, stop) the ECU refused so far.
         pub refused: u32,
+        /// The ECU's battery voltage, V, read with `RFI` every few polls (the
+        /// newest reading; 0 until the first).
+        pub battery_v: f64,
     }
 }
 
@@ -869,6 +872,8 @@ pub mod sim_faults {
     pub const NAN: u64 = 1 << 2;
     /// The sensor sent nothing.
     pub const SILENCE: u64 = 1 << 3;
+    /// The reading was shifted by a constant (a mount or calibration fault, `injected_n`).
+    pub const OFFSET: u64 = 1 << 4;
 }
 
 /// Flags of [`Thrust`](crate::Thrust).

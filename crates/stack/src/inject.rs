@@ -10,6 +10,7 @@
 //! | `stuck` | `at_s`, `for_s` | the same reading over and over (frames keep coming) |
 //! | `nan` | `at_s`, `for_s` (0.01) | a reading that is not a number |
 //! | `silence` | `at_s`, `for_s` | no frames at all |
+//! | `offset` | `at_s`, `for_s`, `size_n` | readings shifted by `size_n` on the thrust axis (a mount or calibration fault) |
 //!
 //! Times count from the sensor's first frame (frame `k` at `k`·10 ms), so every
 //! process that sees the frames agrees on them without a shared clock, and the
@@ -44,7 +45,7 @@ use crate::runtime::clock::PERIOD_NS;
 pub enum InjectError {
     /// A fault kind the simulated bench does not know.
     #[error(
-        "unknown fault `{kind}`; --inject takes spikes, stuck, nan, silence or ecu (e.g. spikes:rate_per_s=2,size_n=30, ecu:flameout_at_s=15)"
+        "unknown fault `{kind}`; --inject takes spikes, stuck, nan, silence, offset or ecu (e.g. spikes:rate_per_s=2,size_n=30, ecu:flameout_at_s=15)"
     )]
     UnknownKind {
         /// The kind as written.
@@ -100,6 +101,7 @@ pub enum Fault {
     NotANumber(Window),
     /// The sensor sends nothing.
     Silence(Window),
+    Offset { window: Window, size_n: f64 },
 }
 
 impl Fault {
@@ -109,6 +111,7 @@ impl Fault {
             Fault::Stuck(_) => "stuck",
             Fault::NotANumber(_) => "nan",
             Fault::Silence(_) => "silence",
+            Fault::Offset { .. } => "offset",
         }
     }
 }
@@ -124,6 +127,7 @@ impl FromStr for Fault {
             "stuck" => ("stuck", "at_s, for_s", &[]),
             "nan" => ("nan", "at_s, for_s", &[("for_s", 0.01)]),
             "silence" => ("silence", "at_s, for_s", &[]),
+            "offset" => ("offset", "at_s, for_s, size_n", &[]),
             other => return Err(InjectError::UnknownKind { kind: other.into() }),
         };
         let err = |message: String| InjectError::Key { kind, keys, message };
@@ -148,6 +152,7 @@ impl FromStr for Fault {
             }
             "stuck" => Fault::Stuck(window()?),
             "nan" => Fault::NotANumber(window()?),
+            "offset" => Fault::Offset { window: window()?, size_n: get("size_n")? },
             _ => Fault::Silence(window()?),
         })
     }
@@ -161,6 +166,9 @@ impl fmt::Display for Fault {
             }
             Fault::Stuck(w) | Fault::NotANumber(w) | Fault::Silence(w) => {
                 write!(f, "{}:at_s={},for_s={}", self.kind(), w.at_s, w.for_s)
+            }
+            Fault::Offset { window: w, size_n } => {
+                write!(f, "offset:at_s={},for_s={},size_n={size_n}", w.at_s, w.for_s)
             }
         }
     }
@@ -177,6 +185,8 @@ pub struct FrameFaults {
     pub nan: bool,
     /// No frame is sent.
     pub silent: bool,
+    /// The shift of an `offset` fault, N.
+    pub offset_n: f64,
 }
 
 impl FrameFaults {
@@ -187,6 +197,7 @@ impl FrameFaults {
             (self.stuck, sim_faults::STUCK),
             (self.nan, sim_faults::NAN),
             (self.silent, sim_faults::SILENCE),
+            (self.offset_n != 0.0, sim_faults::OFFSET),
         ]
         .iter()
         .filter(|(on, _)| *on)
@@ -239,6 +250,11 @@ impl FaultPlan {
                 Fault::Stuck(w) => out.stuck |= w.contains(frame),
                 Fault::NotANumber(w) => out.nan |= w.contains(frame),
                 Fault::Silence(w) => out.silent |= w.contains(frame),
+                Fault::Offset { window, size_n } => {
+                    if window.contains(frame) {
+                        out.offset_n += size_n;
+                    }
+                }
             }
         }
         out
@@ -306,7 +322,7 @@ impl FaultySensor {
         } else {
             self.frozen = None;
         }
-        sent.force_n[0] += faults.spike_n;
+        sent.force_n[0] += faults.spike_n + faults.offset_n;
         self.last = Some(reading);
         let injected_n = if faults.silent { 0.0 } else { sent.force_n[0] - reading.force_n[0] };
         Injected { reading: (!faults.silent).then_some(sent), faults: faults.bits(), injected_n }

@@ -15,6 +15,7 @@
 //! trips (`jetbench clear`). [`LimitMonitor`] is plain code, fed the state
 //! estimates and the ECU's telemetry by the control service.
 
+use std::collections::VecDeque;
 use std::fmt;
 
 use jetbench_msgs::{ecu_flags, trip_limits, EcuTelemetry};
@@ -134,11 +135,16 @@ pub struct Limit {
 
 /// How thrust follows RPM, for the thrust-against-RPM check: a turbojet's
 /// thrust grows with the square of its shaft speed above idle,
-/// `thrust ≈ ((rpm − idle_rpm) / rpm_per_sqrt_n)²`.
+/// `thrust ≈ ((rpm − idle_rpm) / rpm_per_sqrt_n)²`, the RPM reading lagging
+/// the thrust by a first-order lag of `lag_s` in `√thrust` (the ECU's
+/// filtering and its poll; the emulated P100's RPM lags by 0.6 s). The
+/// check compares the RPM's thrust with the thrust passed through the same
+/// lag ([`ThrustLag`]), so a step of the engine is no disagreement.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RpmMap {
     pub idle_rpm: f64,
     pub rpm_per_sqrt_n: f64,
+    pub lag_s: f64,
 }
 
 impl RpmMap {
@@ -148,6 +154,38 @@ impl RpmMap {
         above * above
     }
 }
+
+/// The thrust as the RPM reading would show it: `√thrust` through a
+/// first-order lag of [`RpmMap::lag_s`], squared. Fed each thrust estimate.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ThrustLag {
+    lag_s: f64,
+    last: Option<(u64, f64)>,
+}
+
+impl ThrustLag {
+    pub fn new(lag_s: f64) -> Self {
+        ThrustLag { lag_s, last: None }
+    }
+
+    /// The lagged thrust after a thrust estimate at `now_ns`, N.
+    pub fn step(&mut self, now_ns: u64, thrust_n: f64) -> f64 {
+        let x = thrust_n.max(0.0).sqrt();
+        let lagged = match self.last {
+            Some((t0, y)) if self.lag_s > 0.0 => {
+                let dt = now_ns.saturating_sub(t0) as f64 * 1e-9;
+                y + (1.0 - (-dt / self.lag_s).exp()) * (x - y)
+            }
+            _ => x,
+        };
+        self.last = Some((now_ns, lagged));
+        lagged * lagged
+    }
+}
+
+/// How the emulated engine's RPM lags its thrust (its ECU's
+/// [`jetbench_io::ecu::emulator::RPM_TAU_S`]), the presets' `lag_s`.
+pub const EMULATED_RPM_LAG_S: f64 = jetbench_io::ecu::emulator::RPM_TAU_S;
 
 /// The checked `[limits]`.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -161,7 +199,7 @@ pub struct Limits {
 pub enum LimitsError {
     #[error("[limits] unknown key `{key}`{}; the keys are preset, {}", suggest(.suggestion), keys())]
     UnknownKey { key: String, suggestion: Option<&'static str> },
-    #[error("[limits] {entry}: unknown key `{key}`{}; an entry has limit, response and hold_s{}", suggest(.suggestion), if *.entry == "thrust_rpm_band_n" { " (and idle_rpm, rpm_per_sqrt_n)" } else { "" })]
+    #[error("[limits] {entry}: unknown key `{key}`{}; an entry has limit, response and hold_s{}", suggest(.suggestion), if *.entry == "thrust_rpm_band_n" { " (and idle_rpm, rpm_per_sqrt_n, lag_s)" } else { "" })]
     UnknownEntryKey { entry: &'static str, key: String, suggestion: Option<&'static str> },
     #[error("[limits] {key}: {message}")]
     Invalid { key: String, message: String },
@@ -188,7 +226,7 @@ fn closest(key: &str, candidates: &[&'static str]) -> Option<&'static str> {
 }
 
 const ENTRY_KEYS: [&str; 3] = ["limit", "response", "hold_s"];
-const MAP_KEYS: [&str; 2] = ["idle_rpm", "rpm_per_sqrt_n"];
+const MAP_KEYS: [&str; 3] = ["idle_rpm", "rpm_per_sqrt_n", "lag_s"];
 
 impl Limits {
     /// The defaults for a JetCat P100 or P220 (`preset`), with the emulated
@@ -214,7 +252,11 @@ impl Limits {
                 l(0.5, Idle, 0.0),
                 l(0.1, Idle, 0.0),
             ],
-            rpm_map: Some(RpmMap { idle_rpm, rpm_per_sqrt_n: (115_000.0 - idle_rpm) / f64::sqrt(full_n) }),
+            rpm_map: Some(RpmMap {
+                idle_rpm,
+                rpm_per_sqrt_n: (115_000.0 - idle_rpm) / f64::sqrt(full_n),
+                lag_s: EMULATED_RPM_LAG_S,
+            }),
         })
     }
 
@@ -307,6 +349,10 @@ impl Limits {
                 let base = limits.rpm_map;
                 let idle_rpm = number("idle_rpm")?.or(base.map(|m| m.idle_rpm));
                 let per = number("rpm_per_sqrt_n")?.or(base.map(|m| m.rpm_per_sqrt_n));
+                let lag_s = number("lag_s")?.or(base.map(|m| m.lag_s)).unwrap_or(0.0);
+                if !(lag_s.is_finite() && (0.0..=10.0).contains(&lag_s)) {
+                    return Err(invalid(format!("lag_s = {lag_s} must be within 0..10 s")));
+                }
                 match (idle_rpm, per) {
                     (Some(idle_rpm), Some(rpm_per_sqrt_n))
                         if idle_rpm.is_finite()
@@ -314,7 +360,7 @@ impl Limits {
                             && rpm_per_sqrt_n.is_finite()
                             && rpm_per_sqrt_n > 0.0 =>
                     {
-                        limits.rpm_map = Some(RpmMap { idle_rpm, rpm_per_sqrt_n });
+                        limits.rpm_map = Some(RpmMap { idle_rpm, rpm_per_sqrt_n, lag_s });
                     }
                     (Some(_), Some(_)) => {
                         return Err(invalid("idle_rpm must be >= 0 and rpm_per_sqrt_n > 0".into()));
@@ -373,26 +419,39 @@ pub struct LimitMonitor {
     latched: [bool; 8],
     /// The newest thrust estimate and when it came.
     thrust: Option<(u64, f64)>,
+    /// The thrust as the RPM would show it (the map's lag), and the newest.
+    lag: ThrustLag,
+    lagged_n: Option<f64>,
     /// The newest fresh ECU reading and when it came.
     ecu: Option<(u64, EcuTelemetry)>,
-    /// The EGT a rise rate is measured from.
-    egt_from: Option<(u64, f64)>,
+    /// The fresh EGT readings of the last [`EGT_RATE_WINDOW_NS`] (and the one
+    /// before), the rise rate is measured over.
+    egt_history: VecDeque<(u64, f64)>,
     egt_rate: f64,
     started_ns: Option<u64>,
 }
 
-/// The window an EGT rise rate is measured over, ns.
-const EGT_RATE_WINDOW_NS: u64 = 250_000_000;
+/// The window an EGT rise rate is measured over, ns: the rate is the slope
+/// from the newest reading at least this old to the newest reading, so it is
+/// fresh at every reading and a single noisy reading cannot make it.
+pub const EGT_RATE_WINDOW_NS: u64 = 250_000_000;
+
+/// How long the monitor waits for the first sample of the sensor and the ECU
+/// before their silence counts, ns: the services of a set start in any order.
+pub const STARTUP_GRACE_NS: u64 = 2_000_000_000;
 
 impl LimitMonitor {
     pub fn new(limits: Limits) -> Self {
+        let lag = ThrustLag::new(limits.rpm_map.map_or(0.0, |m| m.lag_s));
         LimitMonitor {
             limits,
             since: [None; 8],
             latched: [false; 8],
             thrust: None,
+            lag,
+            lagged_n: None,
             ecu: None,
-            egt_from: None,
+            egt_history: VecDeque::new(),
             egt_rate: 0.0,
             started_ns: None,
         }
@@ -406,6 +465,7 @@ impl LimitMonitor {
     pub fn on_thrust(&mut self, now_ns: u64, thrust_n: f64) {
         if thrust_n.is_finite() {
             self.thrust = Some((now_ns, thrust_n));
+            self.lagged_n = Some(self.lag.step(now_ns, thrust_n));
         }
     }
 
@@ -415,14 +475,18 @@ impl LimitMonitor {
             return;
         }
         self.ecu = Some((now_ns, *t));
-        match self.egt_from {
-            Some((t0, egt0)) if now_ns.saturating_sub(t0) >= EGT_RATE_WINDOW_NS => {
-                self.egt_rate = (t.egt_c - egt0) / (now_ns - t0) as f64 * 1e9;
-                self.egt_from = Some((now_ns, t.egt_c));
-            }
-            Some(_) => {}
-            None => self.egt_from = Some((now_ns, t.egt_c)),
+        let h = &mut self.egt_history;
+        h.push_back((now_ns, t.egt_c));
+        // Keep the newest reading at least a window old, and everything after it.
+        while h.len() > 2 && h[1].0.saturating_add(EGT_RATE_WINDOW_NS) <= now_ns {
+            h.pop_front();
         }
+        self.egt_rate = match h.front() {
+            Some(&(t0, egt0)) if now_ns.saturating_sub(t0) >= EGT_RATE_WINDOW_NS => {
+                (t.egt_c - egt0) / (now_ns - t0) as f64 * 1e9
+            }
+            _ => 0.0,
+        };
     }
 
     /// Any limit latched.
@@ -443,7 +507,12 @@ impl LimitMonitor {
         let mut trips = Vec::new();
         let ecu = self.ecu.map(|(at, t)| (at, t.rpm, t.egt_c));
         let thrust = self.thrust;
-        let age_s = |at: Option<u64>| now_ns.saturating_sub(at.unwrap_or(started)) as f64 * 1e-9;
+        // A silence counts from the last sample; before the first, from the
+        // monitor's start plus the time a set takes to bring its services up
+        // (a sensor never heard still trips, [`STARTUP_GRACE_NS`] late).
+        let age_s = |at: Option<u64>| {
+            now_ns.saturating_sub(at.unwrap_or(started.saturating_add(STARTUP_GRACE_NS))) as f64 * 1e-9
+        };
         for kind in LimitKind::ALL {
             let Some(limit) = self.limits.get(kind) else { continue };
             let value = match kind {
@@ -452,8 +521,8 @@ impl LimitMonitor {
                 LimitKind::MaxEgtRise => Some(self.egt_rate).filter(|r| ecu.is_some() && *r > limit.limit),
                 LimitKind::MaxRpm => ecu.map(|(_, rpm, _)| rpm).filter(|r| *r > limit.limit),
                 LimitKind::MinRpm => ecu.map(|(_, rpm, _)| rpm).filter(|r| running && *r < limit.limit),
-                LimitKind::ThrustRpmBand => match (self.limits.rpm_map, ecu, thrust, running) {
-                    (Some(map), Some((_, rpm, _)), Some((_, t)), true) => {
+                LimitKind::ThrustRpmBand => match (self.limits.rpm_map, ecu, self.lagged_n, running) {
+                    (Some(map), Some((_, rpm, _)), Some(t), true) => {
                         Some((t - map.thrust_n(rpm)).abs()).filter(|d| *d > limit.limit)
                     }
                     _ => None,
@@ -550,7 +619,9 @@ mod tests {
 
     #[test]
     fn silence_and_thrust_against_rpm_trip_and_a_healthy_engine_does_not() {
-        let limits = Limits::preset("p100").unwrap();
+        // RPM that follows thrust at once: no lag in the map.
+        let mut limits = Limits::preset("p100").unwrap();
+        limits.rpm_map = limits.rpm_map.map(|m| RpmMap { lag_s: 0.0, ..m });
         let map = limits.rpm_map.unwrap();
         let mut m = LimitMonitor::new(limits);
         let ms = 1_000_000u64;
@@ -581,5 +652,51 @@ mod tests {
         }
         let silent = silent.expect("sensor silence trips");
         assert!(silent.value > 0.1 && silent.value < 0.12, "{silent}");
+    }
+
+    #[test]
+    fn the_egt_rise_is_a_slope_over_a_quarter_second_fresh_at_every_reading() {
+        let mut m = LimitMonitor::new(Limits::preset("p100").unwrap());
+        let ms = 1_000_000u64;
+        let mut rise = None;
+        // 15 Hz readings (66 ms): steady at 400 °C with one reading 60 °C off
+        // (noise, 230 °C/s over the window: no trip), then from 2 s a rise of
+        // 800 °C/s, levelling off at 770 °C (below max_egt_c).
+        for k in 0..60u64 {
+            let t = k * 66 * ms;
+            let egt = match k {
+                10 => 460.0,
+                _ if t >= 2000 * ms => 400.0 + 0.8 * (t - 2000 * ms) as f64 / ms as f64,
+                _ => 400.0,
+            };
+            m.on_ecu(t, &ecu(90_000.0, egt.min(770.0)));
+            m.on_thrust(t, 50.0);
+            for trip in m.check(t, true) {
+                assert_eq!(trip.kind, LimitKind::MaxEgtRise, "{trip}");
+                rise = rise.or(Some(trip));
+            }
+        }
+        let rise = rise.expect("the rise trips");
+        // Exceeded from the first reading whose window holds the rise long enough, tripped 0.3 s later.
+        assert!(rise.since_ns > 2000 * ms && rise.since_ns < 2300 * ms, "{rise:?}");
+        assert!(rise.at_ns - rise.since_ns >= 300 * ms && rise.at_ns - rise.since_ns < 370 * ms, "{rise:?}");
+    }
+
+    #[test]
+    fn a_sensor_not_yet_heard_trips_only_after_the_startup_grace() {
+        let mut m = LimitMonitor::new(Limits::preset("p100").unwrap());
+        let ms = 1_000_000u64;
+        let mut silent = None;
+        for k in 0..300u64 {
+            let t = k * 10 * ms;
+            m.on_ecu(t, &ecu(40_000.0, 500.0));
+            for trip in m.check(t, true) {
+                silent = silent.or(Some(trip));
+            }
+        }
+        let silent = silent.expect("a sensor never heard trips");
+        assert_eq!(silent.kind, LimitKind::SensorSilent, "{silent}");
+        // The grace (2 s) and the limit (0.1 s): not before 2.1 s.
+        assert!(silent.at_ns > 2100 * ms && silent.at_ns <= 2120 * ms, "{silent:?}");
     }
 }

@@ -14,7 +14,8 @@ use jetbench_faults::Bench;
 Examples:
   jetbench faults --repeat 10 --report docs/faults/REPORT.md   # the whole campaign (scripts/faults.sh)
   jetbench faults --only kill:actuation --repeat 3
-  jetbench faults --only disk --only recorder")]
+  jetbench faults --only disk --only recorder
+  jetbench faults --only limits --limits-runs 10 --limits-seconds 60 --report docs/faults/REPORT.md")]
 pub struct FaultsArgs {
     /// Kill each process, and crash the recorder, this many times at random moments.
     #[arg(long, default_value_t = 10)]
@@ -23,13 +24,20 @@ pub struct FaultsArgs {
     #[arg(long, default_value_t = 17)]
     seed: u64,
     /// Only these parts (repeatable): kill, kill:PROCESS (sensing, estimation, control,
-    /// actuation, sim-bench, recorder, launcher), recorder, disk, inject, second-up, access.
+    /// actuation, sim-bench, recorder, launcher), recorder, disk, inject, second-up, access, limits.
     #[arg(long, value_name = "PART")]
     only: Vec<Part>,
     /// Length of the run with spikes (and of the one without), s.
     #[arg(long, default_value_t = 30)]
     spike_seconds: u32,
-    /// Write the report (Markdown) here.
+    /// Healthy-engine runs per profile (campaign, steps) with every limit on (part `limits`).
+    #[arg(long, default_value_t = 10)]
+    limits_runs: usize,
+    /// Length of each healthy-engine run, s.
+    #[arg(long, default_value_t = 60)]
+    limits_seconds: u32,
+    /// Write the report (Markdown) here. With --only, an existing report keeps
+    /// its other sections: only those of the parts run are replaced.
     #[arg(long, value_name = "FILE.md")]
     report: Option<PathBuf>,
     /// Python with `mcap` installed, to read recovered files independently (scripts/pyenv.sh prints it).
@@ -54,10 +62,17 @@ fn machine() -> String {
 
 pub fn run(args: FaultsArgs) -> anyhow::Result<ExitCode> {
     let bench = bench(args.python)?;
-    let options =
-        Options { repeat: args.repeat.max(1), seed: args.seed, spike_seconds: args.spike_seconds, only: args.only };
+    let options = Options {
+        repeat: args.repeat.max(1),
+        seed: args.seed,
+        spike_seconds: args.spike_seconds,
+        only: args.only,
+        limits_runs: args.limits_runs.max(1),
+        limits_seconds: args.limits_seconds.max(5),
+    };
     let campaign = jetbench_faults::campaign::run(&bench, &options, &mut |what| eprintln!("faults: {what}"));
-    let report = campaign.markdown(&machine());
+    let existing = args.report.as_ref().and_then(|p| std::fs::read_to_string(p).ok());
+    let report = campaign.report(existing.as_deref(), &machine());
     match &args.report {
         Some(path) => {
             std::fs::write(path, &report).with_context(|| format!("cannot write {}", path.display()))?;

@@ -56,24 +56,50 @@ pub fn probe_af_can() -> std::io::Result<()> {
     Ok(())
 }
 
-/// The reason a CAN socket cannot be opened, with what to do about it.
+/// The reason a CAN socket cannot be opened, with what to do about it at a
+/// bench: the kernel's CAN modules, the adapter and its interface, the
+/// bitrate, permissions. (The simulated bench needs none of this: it runs on
+/// a userspace bus, `user:NAME`.)
 fn open_error(ifname: &str, e: &std::io::Error) -> DeviceError {
+    let up = format!("sudo ip link set {ifname} up type can bitrate 1000000   # the sensor's bitrate");
     let hint = match (e.raw_os_error(), probe_af_can()) {
         (_, Err(af)) => format!(
-            " (this kernel has no CAN support: socket(AF_CAN) fails with \"{af}\"; use a userspace bus, `user:NAME`)"
+            ". This kernel has no SocketCAN (socket(AF_CAN) fails: {af}). At the bench: load the CAN modules and \
+             your adapter's driver (`sudo modprobe can can_raw can_dev` and e.g. `gs_usb`, `peak_usb`, or `slcan` \
+             for a serial adapter), plug the adapter in, then `{up}`. (Without kernel CAN only the simulated bench \
+             runs, on a userspace bus: `user:NAME`.)"
         ),
-        (Some(libc::ENODEV), Ok(())) => {
-            " (no such interface: check `ip link`; for a test bus: `ip link add dev vcan0 type vcan`)".into()
-        }
+        (Some(libc::ENODEV), Ok(())) => format!(
+            ". No interface `{ifname}`: is the adapter plugged in and its driver loaded? `ip -br link` lists the \
+             interfaces (a USB adapter appears as can0; a serial slcan adapter after \
+             `sudo slcand -o -s8 /dev/ttyACM0 {ifname}`); then `{up}`."
+        ),
+        (Some(libc::EPERM | libc::EACCES), Ok(())) => format!(
+            ". Not permitted: this user may not open a raw CAN socket on `{ifname}` (a security policy, or a \
+             container without the CAN family); run the bench as a user that may, or allow AF_CAN."
+        ),
+        (Some(libc::ENETDOWN), Ok(())) => format!(". `{ifname}` is down: `{up}`."),
         _ => String::new(),
     };
     DeviceError::Io { device: ifname.into(), reason: format!("cannot open the CAN socket: {e}{hint}") }
+}
+
+/// A warning for an interface that exists but is down (its socket opens, and
+/// no frame will come until it is up), with the command that brings it up.
+pub fn down_warning(ifname: &str) -> Option<String> {
+    let state = std::fs::read_to_string(format!("/sys/class/net/{ifname}/operstate")).ok()?;
+    (state.trim() == "down").then(|| {
+        format!("{ifname} is down: no frame will arrive until `sudo ip link set {ifname} up type can bitrate 1000000`")
+    })
 }
 
 impl SocketCan {
     /// Opens `ifname`; fails if the interface or kernel CAN is missing.
     pub fn open(ifname: &str) -> Result<Self, DeviceError> {
         let socket = CanSocket::open(ifname).map_err(|e| open_error(ifname, &e))?;
+        if let Some(warning) = down_warning(ifname) {
+            tracing::warn!("{warning}");
+        }
         Ok(SocketCan {
             ifname: ifname.into(),
             socket: Some(socket),

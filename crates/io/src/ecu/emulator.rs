@@ -170,11 +170,14 @@ const EGT_TAU_S: f64 = 1.5;
 const EGT_COOL_TAU_S: f64 = 4.0;
 const PUMP_TAU_S: f64 = 0.2;
 const BATTERY_TAU_S: f64 = 1.0;
+/// Time constant of the exhaust's rise in a surge, s.
+const SURGE_TAU_S: f64 = 0.3;
 
 /// Faults the emulated ECU produces on request, each at a time on the
 /// emulator's clock (seconds since it was created): `ecu:KEY=SECONDS,...`
 /// with keys `overtemp_at_s`, `overrpm_at_s`, `flameout_at_s`,
-/// `lowbattery_at_s`, `failsafe_at_s` (the kinds compose).
+/// `lowbattery_at_s`, `failsafe_at_s`, `surge_at_s`, `silent_at_s` (the
+/// kinds compose).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct EcuFaults {
     /// The exhaust heats past the over-temperature limit.
@@ -187,6 +190,13 @@ pub struct EcuFaults {
     pub lowbattery_at_s: Option<f64>,
     /// The throttle signal is lost (commands no longer arrive).
     pub failsafe_at_s: Option<f64>,
+    /// A surge (a compressor stall, or fuel rushing in): the exhaust heats
+    /// fast, towards 300 °C above the over-temperature limit within a few
+    /// tenths of a second.
+    pub surge_at_s: Option<f64>,
+    /// The ECU falls silent on its serial line (its cable or supply lost) and
+    /// answers no poll; the engine runs on.
+    pub silent_at_s: Option<f64>,
 }
 
 /// Why an ECU fault specification was refused.
@@ -198,7 +208,8 @@ pub struct EcuFaultError {
     pub keys: &'static str,
 }
 
-const FAULT_KEYS: &str = "overtemp_at_s, overrpm_at_s, flameout_at_s, lowbattery_at_s, failsafe_at_s";
+const FAULT_KEYS: &str =
+    "overtemp_at_s, overrpm_at_s, flameout_at_s, lowbattery_at_s, failsafe_at_s, surge_at_s, silent_at_s";
 
 impl EcuFaults {
     /// True if `spec` is meant for the ECU (`ecu:...`), so a caller can route it here.
@@ -218,6 +229,13 @@ impl EcuFaults {
         self.flameout_at_s = pick(self.flameout_at_s, other.flameout_at_s);
         self.lowbattery_at_s = pick(self.lowbattery_at_s, other.lowbattery_at_s);
         self.failsafe_at_s = pick(self.failsafe_at_s, other.failsafe_at_s);
+        self.surge_at_s = pick(self.surge_at_s, other.surge_at_s);
+        self.silent_at_s = pick(self.silent_at_s, other.silent_at_s);
+    }
+
+    /// True once an injected silence has begun at `now_s` (the ECU answers no poll).
+    pub fn silent(&self, now_s: f64) -> bool {
+        self.silent_at_s.is_some_and(|t| now_s >= t)
     }
 }
 
@@ -246,6 +264,8 @@ impl FromStr for EcuFaults {
                 "flameout_at_s" => &mut faults.flameout_at_s,
                 "lowbattery_at_s" => &mut faults.lowbattery_at_s,
                 "failsafe_at_s" => &mut faults.failsafe_at_s,
+                "surge_at_s" => &mut faults.surge_at_s,
+                "silent_at_s" => &mut faults.silent_at_s,
                 other => return Err(err(format!("unknown key `{other}`"))),
             };
             if slot.replace(value).is_some() {
@@ -440,6 +460,10 @@ impl EcuEmulator {
         if burning && Self::fault_on(self.faults.overtemp_at_s, now_s) {
             egt_to = p.max_egt_c + 200.0;
         }
+        let surge = burning && Self::fault_on(self.faults.surge_at_s, now_s);
+        if surge {
+            egt_to = p.max_egt_c + 300.0;
+        }
         if burning && Self::fault_on(self.faults.overrpm_at_s, now_s) {
             rpm_to = p.max_rpm * 1.15;
         }
@@ -448,7 +472,13 @@ impl EcuEmulator {
         }
         let battery_to =
             if Self::fault_on(self.faults.lowbattery_at_s, now_s) { p.low_battery_v - 1.0 } else { p.battery_v };
-        let egt_tau = if egt_to < self.egt_c && !burning { EGT_COOL_TAU_S } else { EGT_TAU_S };
+        let egt_tau = if surge {
+            SURGE_TAU_S
+        } else if egt_to < self.egt_c && !burning {
+            EGT_COOL_TAU_S
+        } else {
+            EGT_TAU_S
+        };
         self.rpm = lag(self.rpm, rpm_to, dt, RPM_TAU_S);
         self.egt_c = lag(self.egt_c, egt_to, dt, egt_tau);
         self.pump_v = lag(self.pump_v, pump_to.max(0.0), dt, PUMP_TAU_S);
@@ -520,7 +550,12 @@ impl EcuEmulator {
         }
     }
 
-    /// The ECU's battery voltage, V.
+    /// The injected faults.
+    pub fn faults(&self) -> &EcuFaults {
+        &self.faults
+    }
+
+    /// The ECU's battery voltage, V, to 0.01 V (what `RFI` reports).
     pub fn battery_v(&self) -> f64 {
         (self.battery_v * 100.0).round() / 100.0
     }

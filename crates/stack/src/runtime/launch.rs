@@ -448,7 +448,7 @@ fn start_and_supervise(
     let result = run_engine(options, services, &bus, &mut watch);
     bring_down(options, services, &mut watch, interrupts)?;
     result?;
-    match watch.ended.take() {
+    match watch.outcome() {
         Some((reason, true)) => Err(LaunchError::TestEnded { reason }),
         Some((reason, false)) => {
             println!("test ended: {reason}");

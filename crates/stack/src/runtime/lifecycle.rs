@@ -149,6 +149,9 @@ pub struct EngineWatch {
     pub ended: Option<(String, bool)>,
     /// The newest trip, in words.
     pub last_trip: Option<String>,
+    /// The keys of the limits that tripped during the run, in order (a trip
+    /// cleared by an operator is still counted).
+    pub tripped: Vec<&'static str>,
 }
 
 impl EngineWatch {
@@ -161,6 +164,7 @@ impl EngineWatch {
             state: None,
             ended: None,
             last_trip: None,
+            tripped: Vec::new(),
         })
     }
 
@@ -188,7 +192,10 @@ impl EngineWatch {
             // Above the status line, never through it.
             println!("{}event: {text}", clear_line());
             match e.kind {
-                event_kinds::TRIP => self.last_trip = Some(text),
+                event_kinds::TRIP => {
+                    self.last_trip = Some(text);
+                    self.tripped.push(LimitKind::from_code(e.code).map_or("unknown limit", LimitKind::key));
+                }
                 event_kinds::TEST_ENDED => {
                     let fault = e.code != end_reasons::OPERATOR;
                     self.ended.get_or_insert((end_reason(&e), fault));
@@ -197,6 +204,19 @@ impl EngineWatch {
             }
         }
         Ok(())
+    }
+
+    /// How the run ended: why the test ended early (and whether that was a
+    /// fault), or else the limits that tripped while it ran (a fault too: the
+    /// launcher exits non-zero naming them), or `None` for a clean run.
+    pub fn outcome(&mut self) -> Option<(String, bool)> {
+        if let Some(ended) = self.ended.take() {
+            return Some(ended);
+        }
+        if self.tripped.is_empty() {
+            return None;
+        }
+        Some((format!("limits tripped during the run: {}", self.tripped.join(", ")), true))
     }
 
     /// True while the engine burns fuel or cools down (not yet off or standby).

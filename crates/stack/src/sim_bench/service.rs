@@ -34,7 +34,7 @@ pub struct SimBenchService {
     /// Injected faults between the sensor and its frames (`--inject`).
     faults: FaultySensor,
     /// Frames injected with each fault, by [`jetbench_msgs::sim_faults`] bit.
-    injected: [u64; 4],
+    injected: [u64; 5],
     sensor: CanForceSink,
     unplugged: Unplugged,
     ecu_unplugged: Unplugged,
@@ -78,7 +78,7 @@ impl Service for SimBenchService {
         let bench = SimBenchService {
             sim,
             faults: FaultySensor::new(plan),
-            injected: [0; 4],
+            injected: [0; 5],
             sensor,
             unplugged: Unplugged::new(sim_port_link(SENSOR_UNPLUGGED_FILE), "force sensor"),
             ecu_unplugged: Unplugged::new(sim_port_link(ECU_UNPLUGGED_FILE), "ECU"),
@@ -131,9 +131,10 @@ impl Service for SimBenchService {
             self.ecu.polls()
         );
         if !self.faults.plan().is_empty() {
-            let [spikes, stuck, nan, silent] = self.injected;
+            let [spikes, stuck, nan, silent, offset] = self.injected;
             tracing::info!(
-                "injected sensor faults: {spikes} spikes, {stuck} stuck frames, {nan} NaN frames, {silent} silent frames"
+                "injected sensor faults: {spikes} spikes, {stuck} stuck frames, {nan} NaN frames, {silent} silent frames, \
+                 {offset} offset frames"
             );
         }
         run_down
@@ -173,7 +174,9 @@ impl SimBenchService {
         for (bit, count) in self.injected.iter_mut().enumerate() {
             *count += (injected.faults >> bit) & 1;
         }
-        self.ecu.set_silent(!self.ecu_unplugged.check());
+        // Unplugged by its marker file, or silenced by `--inject ecu:silent_at_s=...`.
+        let injected_silence = self.ecu.with_emulator(|e| e.faults().silent(now_s)).unwrap_or(false);
+        self.ecu.set_silent(!self.ecu_unplugged.check() || injected_silence);
         self.ecu.step(truth.thrust_n);
         self.log_ecu_state();
         if let (true, Some(reading)) = (self.unplugged.check(), injected.reading) {
