@@ -3,7 +3,9 @@
 //! must name exactly the effects the plant had (none where there were none, only
 //! `discrepancy` for physics outside the catalogue), fit every catalogue parameter within
 //! 20 %, give the right cause (none, parameters, missing physics) and bring the validation
-//! MAE within 10 % of the noise floor. Over every case without missing physics (clean,
+//! MAE within 10 % of the noise floor (where nothing is missing, `insufficient_data` naming a
+//! class of effect the recording could not have shown is the honest answer too; `none` must
+//! show every class excluded). Over every case without missing physics (clean,
 //! coloured noise, spikes and lost rows, parameter errors) it must claim no physics at all.
 //! The suite itself is checked to be concealed: the model's MAE before is at most 45 %
 //! above the floor.
@@ -118,8 +120,17 @@ fn judge(case: &Case, d: &Value) -> (Vec<String>, bool) {
             }
         }
     }
-    if d["cause"].as_str() != Some(case.cause.as_str()) {
+    // "Nothing is missing" is a claim: where nothing is, the honest answers are `none` with
+    // every class of effect shown to be excluded, or `insufficient_data` naming a class this
+    // recording could not have shown (at the size that matters) and the experiment that would.
+    let probes = d["detectability"].as_array().cloned().unwrap_or_default();
+    let not_shown = probes.iter().filter(|p| p["would_show"] == Value::Bool(false)).count();
+    let honest_not_shown = case.cause == "none" && d["cause"] == "insufficient_data" && not_shown > 0;
+    if d["cause"].as_str() != Some(case.cause.as_str()) && !honest_not_shown {
         problems.push(format!("cause {}, expected {}", d["cause"], case.cause));
+    }
+    if d["cause"] == "none" && (probes.is_empty() || not_shown > 0) {
+        problems.push(format!("`none` claimed although {not_shown} class(es) could not have shown"));
     }
     if case.cause == "ambiguous"
         && d["rivals"].as_array().is_none_or(|r| r.len() < 2 || r[0]["weight"].as_f64().is_none())
@@ -140,7 +151,7 @@ fn judge(case: &Case, d: &Value) -> (Vec<String>, bool) {
     if d["verdict"].as_str().is_none_or(str::is_empty) {
         problems.push("no verdict".into());
     }
-    if case.cause == "none" {
+    if d["cause"] == "none" {
         // Nothing missing must come with the whiteness evidence.
         if d["after"]["whiteness"]["white"] != Value::Bool(true) {
             problems.push(format!("residual of the true model not white: {}", d["after"]["whiteness"]));

@@ -42,6 +42,7 @@
 //!    MAE and fit before and after, whiteness under the noise model before and after,
 //!    and a verdict in words ([`report`]).
 
+pub mod detect;
 mod discrepancy;
 mod fit;
 pub mod problem;
@@ -251,6 +252,10 @@ pub struct Diagnosis {
     /// True when the search's explanation beats every rival of another kind in at least
     /// 95 % of resamples and by more than a tie.
     pub dominant: bool,
+    /// Before `none`: each class of effect at the size that matters, whether this recording
+    /// would show it and whether the residual carries its shape (empty when something is
+    /// claimed: see [`detect`]).
+    pub detectability: Vec<detect::Detectability>,
     /// A slow periodic part left in the residual of the improved model, if any.
     pub periodic: Option<residual::Periodic>,
     /// The sine the periodic rival fitted to the calibration part of the improved model's
@@ -496,6 +501,7 @@ pub fn diagnose(
             }
         }
     }
+    let effects_empty = effects.is_empty() && refit.is_none();
     let mut d = Diagnosis {
         cause: Cause::None,
         effects,
@@ -517,6 +523,12 @@ pub fn diagnose(
         held_out_s: weighed.held_out_s,
         needed_s: weighed.needed_s,
         dominant: weighed.dominant,
+        detectability: if effects_empty {
+            progress("asking whether this recording could have shown each class of effect");
+            detect::probe_all(&problem, &model.effects, &current.fit.spec, &current.sim, options.strong_evidence)
+        } else {
+            Vec::new()
+        },
         periodic: residual::periodic(&problem, &current.sim),
         periodic_rival: sine.map(|s| residual::Periodic {
             period_s: s.period_s,

@@ -69,7 +69,7 @@ pub(crate) struct Run {
 }
 
 impl Run {
-    fn in_part(&self, k: usize, part: Part) -> bool {
+    pub(crate) fn in_part(&self, k: usize, part: Part) -> bool {
         match part {
             Part::Calibration => k < self.cut,
             Part::Validation => k >= self.cut,

@@ -22,6 +22,7 @@ use jetbench_model::discrepancy::DISCREPANCY_KEYS;
 use jetbench_model::{Effect, EffectKind, ModelFile, Params, Plant, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
 use serde_json::json;
 
+use super::detect;
 use super::fit::Fit;
 use super::residual::Analysis;
 use super::rivals;
@@ -76,6 +77,16 @@ pub(crate) fn found(
         effects.push(FoundEffect { name: kind.name(), params, uncertainty, evidence });
     }
     (effects, refit)
+}
+
+/// A figure with its unit, or `-` when there is none to give (the text around it says why):
+/// never `NaN`.
+fn figure(value: f64, decimals: usize, unit: &str) -> String {
+    if value.is_finite() {
+        format!("{value:.decimals$}{unit}")
+    } else {
+        "-".to_owned()
+    }
 }
 
 /// `0.081 ± 0.006`, with as many decimals as the uncertainty needs.
@@ -296,7 +307,13 @@ pub(crate) fn cause(d: &Diagnosis) -> Cause {
     } else if d.refit.is_some() {
         Cause::Parameters
     } else if d.after.whiteness.white && d.periodic.is_none() && d.mae_after_n <= 1.1 * d.noise_floor_n {
-        Cause::None
+        // "Nothing is missing" is a claim: only when this recording would have shown every
+        // class of effect at the size that matters, and its residual carries none of them.
+        if detect::excluded(&d.detectability) {
+            Cause::None
+        } else {
+            Cause::InsufficientData
+        }
     } else {
         Cause::Unexplained
     }
@@ -367,23 +384,25 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
     };
     let best = d.rounds.first().and_then(|r| r.candidates.first());
     let text = match d.cause {
-        Cause::None => format!(
-            "Nothing left out: {} and no hypothesis improves the held-out fit{}. {mae}: the model explains the \
+        Cause::None => {
+            format!(
+                "Nothing left out: {} and no hypothesis improves the held-out fit{}. {mae}: the model explains the \
              recording.",
-            if after.white {
-                format!("the residual is white under the noise model (Ljung–Box p = {:.2})", after.p_value)
-            } else {
-                format!(
-                    "the residual shows no systematic pattern (its whiteness under the noise model, Ljung–Box p = \
+                if after.white {
+                    format!("the residual is white under the noise model (Ljung–Box p = {:.2})", after.p_value)
+                } else {
+                    format!(
+                        "the residual shows no systematic pattern (its whiteness under the noise model, Ljung–Box p = \
                      {:.1e}, fails only as noise a little more coloured than modelled does)",
-                    after.p_value
-                )
-            },
-            best.map_or(String::new(), |c| format!(
-                " (best candidate {}: validation MAE {:.3} N)",
-                c.name, c.mae_val_n
-            ))
-        ),
+                        after.p_value
+                    )
+                },
+                best.filter(|c| c.mae_val_n.is_finite()).map_or(String::new(), |c| format!(
+                    " (best candidate {}: validation MAE {:.3} N)",
+                    c.name, c.mae_val_n
+                ))
+            ) + &format!(" {}", detectable_above(d))
+        }
         Cause::Parameters => format!(
             "The parameters are off, not the physics: re-identify. {} No effect improves on the refitted model. \
              {mae}; {whiteness}.{}",
@@ -403,16 +422,8 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
             format!("{} {mae}; {whiteness}.{}", text.join(" "), remains())
         }
         Cause::Ambiguous => format!("{} {mae} with the leading explanation.", ambiguous(d)),
-        Cause::InsufficientData => format!(
-            "Not enough data to claim anything: {:.0} s held out ({} validation samples), a claim needs at least \
-             {:.0} s held out (about {:.0} s of recording at this hold-out) so that rival explanations can be \
-             told apart on independent stretches of data. Record a longer campaign (jetbench excite). {mae}.",
-            d.held_out_s,
-            d.validation_samples,
-            d.needed_s,
-            d.needed_s * d.calibration_samples.max(1).saturating_add(d.validation_samples) as f64
-                / d.validation_samples.max(1) as f64
-        ),
+        Cause::InsufficientData if d.held_out_s < d.needed_s => insufficient(d),
+        Cause::InsufficientData => undetectable(d),
         Cause::Unexplained => {
             let why = d.rounds.last().map_or(String::new(), |r| format!(" ({})", r.reason));
             let mut what: Vec<String> = d.before.findings.clone();
@@ -449,6 +460,121 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
     };
     format!("{text}{}", data_note(d))
 }
+
+/// Too little data: how much there is, how much the question needs, and how weak the answer
+/// from this recording would be.
+fn insufficient(d: &Diagnosis) -> String {
+    let recording_s = (d.calibration_samples + d.validation_samples) as f64 * jetbench_model::STEP_S;
+    let share = d.validation_samples.max(1) as f64 / (d.calibration_samples + d.validation_samples).max(1) as f64;
+    let stretches = (d.held_out_s / rivals::BLOCK_S).floor();
+    let leading = {
+        let mut names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
+        if d.refit.is_some() {
+            names.insert(0, "refitted parameters");
+        }
+        if names.is_empty() {
+            String::new()
+        } else {
+            format!(
+                " The best explanation of this stretch ({}, validation MAE {} → {}) is not claimed: with so few \
+                 independent stretches it may fit the chance shape of the noise in them as well as physics.",
+                names.join(" + "),
+                figure(d.mae_before_n, 2, " N"),
+                figure(d.mae_after_n, 2, " N")
+            )
+        }
+    };
+    let campaign = if recording_s < IDENTIFICATION_S {
+        format!(
+            " This recording is {recording_s:.0} s long; a model identified on the same {recording_s:.0} s cannot be \
+             checked on it, and an identification campaign needs {IDENTIFICATION_S:.0} s (jetbench excite \
+             --duration {IDENTIFICATION_S:.0}): record one, identify on it, and diagnose a second recording."
+        )
+    } else {
+        " Record a longer campaign (jetbench excite).".to_owned()
+    };
+    format!(
+        "Not enough data to claim anything: {:.0} s of recording, {:.1} s of it held out ({} validation samples, {} \
+         independent stretches of {:.0} s); telling rival explanations apart needs at least {:.0} s held out ({} \
+         stretches), about {:.0} s of recording at this hold-out.{leading}{campaign}",
+        recording_s,
+        d.held_out_s,
+        d.validation_samples,
+        stretches,
+        rivals::BLOCK_S,
+        d.needed_s,
+        rivals::MIN_BLOCKS,
+        d.needed_s / share,
+    )
+}
+
+/// `Nothing detectable above: …`: the smallest size of each class this recording would show.
+fn detectable_above(d: &Diagnosis) -> String {
+    let sizes: Vec<String> = d
+        .detectability
+        .iter()
+        .filter(|p| p.would_show)
+        .map(|p| match (p.effect, p.smallest) {
+            ("input_delay", Some(v)) => format!("a delay of {:.0} ms", v * 1000.0),
+            ("actuator_lag", Some(v)) => format!("a lag of {:.0} ms", v * 1000.0),
+            ("sensor_drift", Some(v)) => format!("a sensor drift of {:.1} % of thrust (τ 60 s)", v * 100.0),
+            ("gain_drift", Some(v)) => format!("a gain drift of {:.2} %/min", v * 100.0),
+            ("bearing_friction", Some(v)) => format!("a friction band of {v:.2} N"),
+            (rivals::PERIODIC, Some(v)) => format!("a periodic force of {v:.2} N (30 s)"),
+            _ => p.size.clone(),
+        })
+        .collect();
+    if sizes.is_empty() {
+        return String::new();
+    }
+    format!(
+        "Nothing detectable above (held-out energy against the search's threshold, at this noise): {}.",
+        sizes.join(", ")
+    )
+}
+
+/// Nothing found, but this recording could not have shown every class of effect (or its
+/// residual carries one's shape): what could hide, and the experiment that would tell.
+fn undetectable(d: &Diagnosis) -> String {
+    let hidden: Vec<String> = d
+        .detectability
+        .iter()
+        .filter(|p| !p.would_show)
+        .map(|p| format!("{} ({:.0} % of the evidence a claim needs)", p.size, 100.0 * p.energy / p.threshold))
+        .collect();
+    let shaped: Vec<String> = d
+        .detectability
+        .iter()
+        .filter(|p| p.shape_z >= detect::SHAPE_Z)
+        .map(|p| format!("{} (matched filter {:.1} standard deviations)", p.size, p.shape_z))
+        .collect();
+    let mut experiments: Vec<&str> = d
+        .detectability
+        .iter()
+        .filter(|p| !p.would_show || p.shape_z >= detect::SHAPE_Z)
+        .map(|p| p.experiment)
+        .collect();
+    experiments.dedup();
+    let mut parts = Vec::new();
+    if !hidden.is_empty() {
+        parts.push(format!("this recording could not have shown {}", hidden.join(", ")));
+    }
+    if !shaped.is_empty() {
+        parts.push(format!(
+            "the residual carries the shape of {}, too weakly for the search to claim it",
+            shaped.join(", ")
+        ));
+    }
+    format!(
+        "Nothing found, but \"nothing is missing\" cannot be claimed: {}. {} What would tell: {}.",
+        parts.join("; and "),
+        detectable_above(d),
+        experiments.join("; ")
+    )
+}
+
+/// The length of an identification campaign, s (`jetbench excite`'s default).
+const IDENTIFICATION_S: f64 = 300.0;
 
 /// An explanation in a few words: its effects and whether it refits.
 pub fn label(effects: &[&str], refit: bool) -> String {
@@ -538,6 +664,7 @@ pub fn text(d: &Diagnosis, model: &str) -> String {
     for f in &d.before.findings {
         let _ = writeln!(out, "  - {f}");
     }
+    let mut undetermined = false;
     for (i, round) in d.rounds.iter().enumerate() {
         if round.phase == "choice" {
             let _ = writeln!(out, "\nchoice: {}", round.reason);
@@ -556,15 +683,21 @@ pub fn text(d: &Diagnosis, model: &str) -> String {
             } else {
                 c.params
                     .iter()
-                    .map(|(k, v)| format!("{k}={v:.4}±{:.4}", c.uncertainty.get(k).copied().unwrap_or(f64::NAN)))
+                    .map(|(k, v)| match c.uncertainty.get(k).copied().filter(|e| e.is_finite()) {
+                        Some(e) => format!("{k}={v:.4}±{e:.4}"),
+                        None => {
+                            undetermined = true;
+                            format!("{k}={v:.4}±n/a")
+                        }
+                    })
                     .collect()
             };
             let _ = writeln!(
                 out,
-                "  {:<17} score {:>9}  MAE {:.3} N  {}{}{}",
+                "  {:<17} score {:>9}  MAE {}  {}{}{}",
                 c.name,
                 c.score_gain.map_or("-".to_owned(), |g| format!("{g:+.1}")),
-                c.mae_val_n,
+                figure(c.mae_val_n, 3, " N"),
                 params.join(" "),
                 c.unphysical.as_ref().map_or(String::new(), |u| format!("  [unphysical: {u}]"))
                     + &c.note.as_ref().map_or(String::new(), |n| format!("  ({n})")),
@@ -573,6 +706,16 @@ pub fn text(d: &Diagnosis, model: &str) -> String {
         }
         let _ = writeln!(out, "  => {}", round.reason);
     }
+    if d.rounds.iter().flat_map(|r| &r.candidates).any(|c| !c.mae_val_n.is_finite()) {
+        let _ = writeln!(out, "(MAE -: the hypothesis has no fit to score, for the reason in brackets)");
+    }
+    if undetermined {
+        let _ = writeln!(
+            out,
+            "(±n/a: the data give no standard error for that value: it sits on the edge of its range, or changing \
+             it does not change the fit)"
+        );
+    }
     for note in &d.dropped {
         let _ = writeln!(out, "dropped {note}");
     }
@@ -580,15 +723,18 @@ pub fn text(d: &Diagnosis, model: &str) -> String {
     for f in &d.after.findings {
         let _ = writeln!(out, "  - {f}");
     }
+    let fit = if d.fit_before_pct.is_finite() && d.fit_after_pct.is_finite() {
+        format!("fit {:.1} % -> {:.1} %", d.fit_before_pct, d.fit_after_pct)
+    } else {
+        "fit % not given (the held-out thrust does not vary enough to normalise it)".to_owned()
+    };
     let _ = writeln!(
         out,
-        "\ncause: {}; validation MAE {:.3} N -> {:.3} N, fit {:.1} % -> {:.1} % (noise floor {:.3} N)\n\n{}",
+        "\ncause: {}; validation MAE {} -> {}, {fit} (noise floor {})\n\n{}",
         serde_json::to_value(d.cause).ok().and_then(|v| v.as_str().map(str::to_owned)).unwrap_or_default(),
-        d.mae_before_n,
-        d.mae_after_n,
-        d.fit_before_pct,
-        d.fit_after_pct,
-        d.noise_floor_n,
+        figure(d.mae_before_n, 3, " N"),
+        figure(d.mae_after_n, 3, " N"),
+        figure(d.noise_floor_n, 3, " N"),
         d.verdict
     );
     out
