@@ -631,7 +631,7 @@ impl EcuWorker {
             // poll's reply), then the poll.
             let mut lines: Vec<u8> = self.commands.try_iter().flat_map(|c| c.encode().into_bytes()).collect();
             lines.extend_from_slice(ecu::POLL);
-            let ask_fuel = polls % fuel_every == 0;
+            let ask_fuel = polls.is_multiple_of(fuel_every);
             polls += 1;
             if ask_fuel {
                 lines.extend_from_slice(ecu::FUEL_POLL);
