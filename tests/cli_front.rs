@@ -270,11 +270,16 @@ fn a_missing_file_is_said_once() {
         vec!["info", "no-such-run.mcap"],
         vec!["export", "no-such-run.mcap"],
         vec!["play", "no-such-run.mcap"],
+        vec!["diagnose", "--model", "p100-diesel", "no-such-run.mcap"],
+        vec!["simulate", "--model", "p100-diesel", "--input", "no-such-run.mcap"],
+        vec!["replay", "no-such-run.mcap"],
+        vec!["metrics", "no-such-run.mcap"],
     ] {
         let (code, _, err) = run_jetbench(SUITE, &args, LIMIT);
         assert_ne!(code, 0);
         assert!(err.contains("no-such-run.mcap"), "{args:?}: {err}");
         assert_eq!(err.matches("No such file or directory").count(), 1, "{args:?}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: not one line: {err}");
     }
 }
 
@@ -366,4 +371,227 @@ fn simulate_with_out_reports_on_stdout() {
     );
     assert_eq!(code, 0, "{err}");
     assert!(out.contains("against the measured thrust: MAE") && !out.contains("NaN"), "{out}");
+}
+
+/// What a terminal shows of `bytes`: every row as it was each time it was left,
+/// rewritten (`\r`), cleared (`ESC[K`) or the cursor moved off it, in order. A
+/// row that ever holds two things at once (a log line run into the status line)
+/// is among them.
+fn terminal_rows(bytes: &[u8]) -> Vec<String> {
+    let text = String::from_utf8_lossy(bytes);
+    let mut rows: Vec<Vec<char>> = vec![Vec::new()];
+    let (mut row, mut col) = (0usize, 0usize);
+    let mut seen = Vec::new();
+    let snapshot = |rows: &Vec<Vec<char>>, row: usize, seen: &mut Vec<String>| {
+        let line: String = rows[row].iter().collect::<String>().trim_end().to_string();
+        if !line.is_empty() && seen.last() != Some(&line) {
+            seen.push(line);
+        }
+    };
+    let mut chars = text.chars().peekable();
+    while let Some(c) = chars.next() {
+        match c {
+            '\r' => {
+                snapshot(&rows, row, &mut seen);
+                col = 0;
+            }
+            '\n' => {
+                snapshot(&rows, row, &mut seen);
+                row += 1;
+                if rows.len() <= row {
+                    rows.push(Vec::new());
+                }
+            }
+            '\x1b' => {
+                // CSI: ESC [ params final.
+                if chars.peek() != Some(&'[') {
+                    chars.next();
+                    continue;
+                }
+                chars.next();
+                let mut params = String::new();
+                let mut last = ' ';
+                for p in chars.by_ref() {
+                    if p.is_ascii_alphabetic() || p == '~' {
+                        last = p;
+                        break;
+                    }
+                    params.push(p);
+                }
+                let n: usize = params.trim_start_matches('?').parse().unwrap_or(0);
+                match last {
+                    'K' => {
+                        snapshot(&rows, row, &mut seen);
+                        match n {
+                            0 => rows[row].truncate(col),
+                            1 => rows[row].iter_mut().take(col + 1).for_each(|c| *c = ' '),
+                            _ => rows[row].clear(),
+                        }
+                    }
+                    'A' => {
+                        snapshot(&rows, row, &mut seen);
+                        row = row.saturating_sub(n.max(1));
+                    }
+                    'B' => {
+                        snapshot(&rows, row, &mut seen);
+                        row += n.max(1);
+                        while rows.len() <= row {
+                            rows.push(Vec::new());
+                        }
+                    }
+                    'G' => col = n.max(1) - 1,
+                    'J' => {
+                        snapshot(&rows, row, &mut seen);
+                        rows[row].truncate(col);
+                        rows.truncate(row + 1);
+                    }
+                    _ => {}
+                }
+            }
+            c if !c.is_control() => {
+                let line = &mut rows[row];
+                if line.len() <= col {
+                    line.resize(col, ' ');
+                    line.push(c);
+                } else {
+                    line[col] = c;
+                }
+                col += 1;
+            }
+            _ => {}
+        }
+    }
+    snapshot(&rows, row, &mut seen);
+    seen
+}
+
+#[test]
+fn terminal_rows_show_a_log_line_run_into_a_status_line() {
+    let into = terminal_rows(b"   1.0 s | ECU run\r\x1b[2K   2.0 s | ECU runsensing: WARN rejected\r\n");
+    assert!(into.iter().any(|r| r.contains("s | ECU") && r.contains("rejected")), "{into:?}");
+    let above = terminal_rows(b"   1.0 s | ECU run\r\x1b[2Ksensing: WARN rejected\r\n   2.0 s | ECU run");
+    assert_eq!(above, ["   1.0 s | ECU run", "sensing: WARN rejected", "   2.0 s | ECU run"]);
+}
+
+/// `jetbench up` on a terminal (a real pty): the status line names the engine,
+/// the throttle path, thrust against its target and one health judgement; a
+/// service's log line (sensing rejecting the NaN readings injected) and an
+/// event are printed above it, never run into it.
+#[test]
+fn up_on_a_terminal_prints_log_lines_above_the_status_line() {
+    let (mut master, mut slave) = (0, 0);
+    let size = libc::winsize { ws_row: 50, ws_col: 250, ws_xpixel: 0, ws_ypixel: 0 };
+    // SAFETY: openpty writes two descriptors; null name and termios are allowed, size is valid.
+    let rc = unsafe { libc::openpty(&mut master, &mut slave, std::ptr::null_mut(), std::ptr::null(), &size) };
+    assert_eq!(rc, 0, "openpty: {}", std::io::Error::last_os_error());
+    // SAFETY: both descriptors are fresh and owned here alone.
+    let (master, slave) = unsafe {
+        use std::os::fd::FromRawFd;
+        (std::fs::File::from_raw_fd(master), std::os::fd::OwnedFd::from_raw_fd(slave))
+    };
+    let mut child = jetbench(SUITE)
+        .args(["up", "--sim", "--duration", "8", "--inject", "nan:at_s=3,for_s=0.03"])
+        .env("RUST_LOG", "info")
+        .stdin(Stdio::null())
+        .stdout(slave.try_clone().expect("dup"))
+        .stderr(slave)
+        .spawn()
+        .expect("start jetbench up");
+    let reader = std::thread::spawn(move || {
+        let mut bytes = Vec::new();
+        // Ends with EIO once the last holder of the pty's other end is gone.
+        let _ = std::io::Read::read_to_end(&mut &master, &mut bytes);
+        bytes
+    });
+    // An operator command mid-run: its event is a log line of the launcher's own.
+    std::thread::sleep(Duration::from_secs(6));
+    let (code, _, err) = run_jetbench(SUITE, &["hold"], LIMIT);
+    assert_eq!(code, 0, "jetbench hold: {err}");
+    let status = wait_with_watchdog(&mut child, LIMIT, "jetbench up on a pty");
+    let bytes = reader.join().expect("pty reader");
+    let rows = terminal_rows(&bytes);
+    let shown = rows.join("\n");
+    assert!(status.success(), "jetbench up failed:\n{shown}");
+    let is_status = |r: &str| r.contains(" s | ECU ");
+    let status_rows: Vec<&String> = rows.iter().filter(|r| is_status(r)).collect();
+    assert!(status_rows.len() >= 3, "the status line was shown every second:\n{shown}");
+    let last = status_rows.last().expect("a status line");
+    for part in [" s | ECU run ", " rpm ", " °C | armed", " | thrust ", " N target ", " N, throttle ", " % | health"] {
+        assert!(last.contains(part), "no {part:?} in the status line {last:?}");
+    }
+    assert!(!last.contains("ref ") && !last.contains("NaN"), "{last}");
+    let logs: Vec<&String> = rows.iter().filter(|r| r.contains("rejected") || r.contains("event: ")).collect();
+    assert!(logs.iter().any(|r| r.starts_with("sensing: ") && r.contains("rejected")), "no sensing log:\n{shown}");
+    assert!(logs.iter().any(|r| r.starts_with("event: HOLD")), "no event line:\n{shown}");
+    for row in &rows {
+        let log = row.contains("rejected") || row.contains("event: ") || row.contains("started ");
+        assert!(!(is_status(row) && log), "a log line ran into the status line: {row:?}\n{shown}");
+    }
+}
+
+/// `jetbench identify run.mcap > report.txt`: the report is in the file (stdout),
+/// the progress and logs are not.
+#[test]
+fn identify_of_a_recording_redirected_to_a_file_writes_the_report() {
+    let record = live_recording();
+    let report = scratch(SUITE, "report.txt");
+    let file = std::fs::File::create(&report).expect("create report.txt");
+    let out = jetbench(SUITE)
+        .args(["identify", "--method", "ls", path_str(record)])
+        .stdin(Stdio::null())
+        .stdout(file)
+        .stderr(Stdio::piped())
+        .output()
+        .expect("run jetbench identify");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    let text = std::fs::read_to_string(&report).expect("read report.txt");
+    assert!(text.contains("noise floor") && text.contains("val MAE N"), "report.txt holds no report:\n{text}");
+    assert!(text.contains("needs 300 s"), "a 4 s recording is said to be too short:\n{text}");
+    assert!(!text.contains("NaN"), "{text}");
+}
+
+/// `identify --plot`: every method's figure has the throttle in a panel of its own.
+#[test]
+fn identify_plots_show_the_throttle() {
+    let csv = scenario_rows("plot-in.csv", 6000, |u, y| (u, y));
+    let dir = scratch(SUITE, "plots");
+    let _ = std::fs::remove_dir_all(&dir);
+    let (code, _, err) =
+        run_jetbench(SUITE, &["identify", "--method", "ls", path_str(&csv), "--plot", path_str(&dir)], LIMIT);
+    assert_eq!(code, 0, "{err}");
+    let svgs: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .expect("the plot folder")
+        .map(|e| e.expect("entry").path())
+        .filter(|p| p.extension().is_some_and(|e| e == "svg"))
+        .collect();
+    assert!(!svgs.is_empty(), "no SVG written: {err}");
+    for svg in svgs {
+        let text = std::fs::read_to_string(&svg).expect("read SVG");
+        assert!(text.contains("throttle (%)") && text.contains("thrust (N)"), "no throttle panel in {}", svg.display());
+    }
+}
+
+/// The software that wrote a recording is in its MCAP header, as `jetbench
+/// --version` names it (the commit included), read back by the reference
+/// Python reader, and `info` shows it.
+#[test]
+fn the_recording_names_the_software_and_commit_that_wrote_it() {
+    let record = live_recording();
+    let (code, version, _) = run_jetbench(SUITE, &["--version"], LIMIT);
+    assert_eq!(code, 0);
+    let version = version.trim();
+    assert!(version.contains("commit "), "{version}");
+    let script = "import sys\nfrom mcap.reader import make_reader\n\
+                  with open(sys.argv[1], 'rb') as f:\n    print(make_reader(f).get_header().library)\n";
+    let out = std::process::Command::new(common::python())
+        .args(["-c", script])
+        .arg(record)
+        .output()
+        .expect("run the Python MCAP reader");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(String::from_utf8_lossy(&out.stdout).trim(), version, "the header's library");
+    let (code, info, err) = run_jetbench(SUITE, &["info", path_str(record)], LIMIT);
+    assert_eq!(code, 0, "{err}");
+    assert!(info.contains(&format!("written by  {version}")), "{info}");
 }

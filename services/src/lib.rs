@@ -5,13 +5,18 @@ use std::process::ExitCode;
 
 use jetbench_stack::runtime::{run, RunOptions, Service};
 
+/// `jetbench --version`, and the software named in every recording's header:
+/// the release, the commit and the build date.
+pub const VERSION: &str =
+    concat!(env!("CARGO_PKG_VERSION"), " (", env!("JETBENCH_COMMIT"), ", built ", env!("JETBENCH_BUILD_DATE"), ")");
+
 /// Sets up logging to stderr (`RUST_LOG` overrides the `info` default).
 pub fn init_logging() {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_log_filter()));
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
-        .with_writer(std::io::stderr)
+        .with_writer(|| jetbench_stack::runtime::status::ConsoleStderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_target(false)
         .try_init();
@@ -72,6 +77,7 @@ pub fn service_main<S: Service>(about: &'static str) -> ExitCode {
         Err(e) => e.exit(),
     };
     init_logging();
+    jetbench_record::set_software_version(VERSION);
     let span = tracing::info_span!("service", name);
     let _entered = span.enter();
     match run::<S>(&RunOptions { config: args.config, rt: args.rt, output: args.out, listen: args.listen }) {

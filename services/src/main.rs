@@ -7,9 +7,7 @@ use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 mod cmd;
 
-/// `jetbench --version`: the release, the commit and the build date.
-const VERSION: &str =
-    concat!(env!("CARGO_PKG_VERSION"), " (", env!("JETBENCH_COMMIT"), ", built ", env!("JETBENCH_BUILD_DATE"), ")");
+use jetbench::VERSION;
 
 /// Control stack for model-jet-engine thrust benches.
 #[derive(Parser)]
@@ -144,6 +142,7 @@ fn main() -> ExitCode {
     // SAFETY: restoring the default disposition of SIGPIPE before any thread starts.
     unsafe { libc::signal(libc::SIGPIPE, libc::SIG_DFL) };
     jetbench::init_logging();
+    jetbench_record::set_software_version(VERSION);
     match run() {
         Ok(code) => code,
         Err(e) => {

@@ -598,7 +598,7 @@ fn spawn_stage(options: &ChainOptions, spec: &SpawnSpec, children: &mut Supervis
         });
     }
     // A stage must not outlive its parent: it would hold the chain's CPU at its priority.
-    let spawn = SpawnOptions { stdin: k == 0, parent_death_signal: Some(libc::SIGTERM) };
+    let spawn = SpawnOptions { stdin: k == 0, parent_death_signal: Some(libc::SIGTERM), ..SpawnOptions::default() };
     children.spawn(format!("latency stage {k} ({})", STAGE_SERVICES[k].name()), &mut command, spawn).map_err(|e| {
         ChainError::Spawn { stage: k, service: STAGE_SERVICES[k].name(), exe: options.exe.clone(), source: e.source }
     })?;

@@ -132,13 +132,27 @@ impl CdrMessage {
     }
 }
 
+/// The software version this process writes into the header of each MCAP file
+/// (`jetbench <version>`), set once by the program at its start.
+static SOFTWARE: std::sync::OnceLock<&'static str> = std::sync::OnceLock::new();
+
+/// Names the software that writes this process's recordings: the version
+/// `jetbench --version` prints, with its commit and build date. Set once, at
+/// the start of the program (later calls are ignored); without it the header
+/// names the release only.
+pub fn set_software_version(version: &'static str) {
+    let _ = SOFTWARE.set(version);
+}
+
+/// The `library` field of every MCAP header this process writes.
+pub fn software() -> String {
+    format!("jetbench {}", SOFTWARE.get().copied().unwrap_or(env!("CARGO_PKG_VERSION")))
+}
+
 /// How every jetbench MCAP file is written: zstd chunks, the `ros2` profile,
-/// the library named.
+/// the library named with its version and commit ([`set_software_version`]).
 pub(crate) fn write_options() -> mcap::WriteOptions {
-    mcap::WriteOptions::new()
-        .compression(Some(mcap::Compression::Zstd))
-        .profile(PROFILE)
-        .library(concat!("jetbench ", env!("CARGO_PKG_VERSION")))
+    mcap::WriteOptions::new().compression(Some(mcap::Compression::Zstd)).profile(PROFILE).library(software())
 }
 
 /// Writes bus samples into an MCAP file with every channel registered up front.

@@ -3,7 +3,6 @@
 //! live status line, and stops them all in order at the end, on Ctrl-C/SIGTERM,
 //! or when one dies.
 
-use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -12,7 +11,8 @@ use jetbench_bus::{Bus, BusError, Flow, Subscriber};
 use jetbench_msgs::{channels, Health, Sample, ServiceId};
 
 use crate::config::{EngineSection, EngineStart};
-use crate::runtime::lifecycle::{clear_line, EngineWatch, Interrupts};
+use crate::runtime::lifecycle::{EngineWatch, Interrupts};
+use crate::runtime::status::{self, EngineView, LiveLine, StatusView};
 use crate::runtime::supervise::{describe_exit, SpawnOptions, StopOrder, Supervisor};
 
 /// How long a service may take to create its ports.
@@ -185,7 +185,9 @@ impl Services {
         // reaches only the launcher, which then stops the services in order (so the
         // recorder sees the last samples). Should the launcher die (SIGKILL), each
         // service gets SIGTERM from the kernel and stops safely on its own.
-        let spawn = SpawnOptions { parent_death_signal: Some(libc::SIGTERM), ..SpawnOptions::default() };
+        // Their logs (stderr) come to the launcher, which prints them above the status line.
+        let spawn =
+            SpawnOptions { parent_death_signal: Some(libc::SIGTERM), stderr_lines: true, ..SpawnOptions::default() };
         let index = self
             .children
             .spawn(id.name(), &mut command, spawn)
@@ -207,9 +209,12 @@ impl Services {
             } else if let Some(why) = line.strip_prefix(crate::runtime::FAILED_PREFIX) {
                 self.failures[i] = Some(why.to_string());
             } else {
-                println!("{}: {line}", self.ids[i].name());
+                status::say(&format!("{}: {line}", self.ids[i].name()));
             }
             next = self.children.try_line();
+        }
+        while let Some((i, line)) = self.children.try_err_line() {
+            status::say_err(&format!("{}: {line}", self.ids[i].name()));
         }
         ready
     }
@@ -248,7 +253,8 @@ impl Services {
             (0..self.ids.len()).rev().filter(|&i| Some(i) != control && Some(i) != actuation && Some(i) != recorder);
         let order = actuation.into_iter().chain(rest).chain(recorder).collect();
         failure = failure.or(self.children.stop(StopOrder::InTurn(order), STOP_TIMEOUT));
-        self.pump_lines(Duration::ZERO);
+        // Their last words may still be on the way from the pipes' readers.
+        self.pump_lines(Duration::from_millis(50));
         failure.map(|(i, how)| (self.ids[i], how))
     }
 }
@@ -263,7 +269,18 @@ struct ChannelCounts {
     actuation: u64,
 }
 
-/// Live counts for the status line. Its subscribers are polled on the
+/// A service's heartbeat totals.
+#[derive(Clone, Copy, Debug, Default)]
+struct ServiceTotals {
+    misses: u64,
+    gaps: u64,
+    flags: u32,
+}
+
+/// Slots for services by id (ids start at 1).
+const SERVICE_SLOTS: usize = ServiceId::ALL.len() + 1;
+
+/// What the status line is made from. Its subscribers are polled on the
 /// launcher's 20 ms tick, so their queues never fill: a full queue would make
 /// every publish on the control path take back its oldest sample.
 struct Status {
@@ -274,13 +291,13 @@ struct Status {
     actuation: Subscriber<jetbench_msgs::Actuation>,
     health: Subscriber<Health>,
     counts: ChannelCounts,
-    /// `counts` when the last line was printed.
+    /// `counts` when the last line was made.
     printed: ChannelCounts,
-    /// Deadline misses by service id (ids start at 1).
-    misses: [u64; ServiceId::ALL.len() + 1],
-    last_thrust_n: f64,
-    last_reference_n: f64,
-    last_throttle_pct: f64,
+    /// Heartbeat totals by service id, now and when the last line was made.
+    services: [Option<ServiceTotals>; SERVICE_SLOTS],
+    services_printed: [Option<ServiceTotals>; SERVICE_SLOTS],
+    misses: status::MissWatch,
+    view: StatusView,
 }
 
 impl Status {
@@ -298,10 +315,10 @@ impl Status {
             health: bus.polled_subscriber(channels::HEALTH, 8 * Self::DEPTH)?,
             counts: ChannelCounts::default(),
             printed: ChannelCounts::default(),
-            misses: [0; ServiceId::ALL.len() + 1],
-            last_thrust_n: f64::NAN,
-            last_reference_n: f64::NAN,
-            last_throttle_pct: f64::NAN,
+            services: [None; SERVICE_SLOTS],
+            services_printed: [None; SERVICE_SLOTS],
+            misses: status::MissWatch::default(),
+            view: StatusView::default(),
         })
     }
 
@@ -315,50 +332,63 @@ impl Status {
 
     /// Takes everything queued since the last tick.
     fn drain(&mut self) -> Result<(), BusError> {
+        let view = &mut self.view;
         Self::drain_one(&self.thrust, &mut self.counts.thrust, |_| {})?;
-        Self::drain_one(&self.state, &mut self.counts.state, |s| self.last_thrust_n = s.thrust_n)?;
-        Self::drain_one(&self.reference, &mut self.counts.reference, |r| self.last_reference_n = r.thrust_n)?;
-        Self::drain_one(&self.command, &mut self.counts.command, |_| {})?;
-        Self::drain_one(&self.actuation, &mut self.counts.actuation, |a| self.last_throttle_pct = a.applied_pct)?;
+        Self::drain_one(&self.state, &mut self.counts.state, |s| view.thrust_n = Some(s.thrust_n))?;
+        Self::drain_one(&self.reference, &mut self.counts.reference, |r| view.target_n = Some(r.thrust_n))?;
+        Self::drain_one(&self.command, &mut self.counts.command, |c| view.command_flags = Some(c.flags))?;
+        Self::drain_one(&self.actuation, &mut self.counts.actuation, |a| {
+            view.throttle_pct = Some(a.applied_pct);
+            view.actuation_flags = Some(a.flags);
+        })?;
         while let Some(h) = self.health.try_recv()? {
-            if let Some(slot) = self.misses.get_mut(h.service_id as usize) {
-                *slot = h.deadline_misses;
+            if let Some(slot) = self.services.get_mut(h.service_id as usize) {
+                *slot = Some(ServiceTotals { misses: h.deadline_misses, gaps: h.input_gaps, flags: h.flags });
             }
         }
         Ok(())
     }
 
-    /// The line for the `window` since the last one.
-    fn line(&mut self, elapsed: Duration, window: Duration) -> String {
+    /// The line for the `window` since the last one, and the explanation of
+    /// deadline misses when they rose.
+    fn line(&mut self, elapsed: Duration, window: Duration, watch: &EngineWatch) -> (String, Option<String>) {
         let before = std::mem::replace(&mut self.printed, self.counts);
         let secs = window.as_secs_f64().max(1e-3);
-        let rate = |count: fn(&ChannelCounts) -> u64| (count(&self.counts) - count(&before)) as f64 / secs;
-        format!(
-            "{:>6.1} s | Hz thrust {:>5.1} state {:>5.1} ref {:>5.1} cmd {:>5.1} act {:>5.1} | T {:>6.1} N ref {:>6.1} N u {:>5.1} % | misses {}",
-            elapsed.as_secs_f64(),
-            rate(|c| c.thrust),
-            rate(|c| c.state),
-            rate(|c| c.reference),
-            rate(|c| c.command),
-            rate(|c| c.actuation),
-            self.last_thrust_n,
-            self.last_reference_n,
-            self.last_throttle_pct,
-            self.misses.iter().sum::<u64>(),
-        )
-    }
-}
-
-/// The engine's part of the status line: the ECU's state, RPM, EGT, and the
-/// latest trip.
-fn engine_status(watch: &EngineWatch) -> String {
-    let ecu = match (watch.state(), watch.latest) {
-        (Some(s), Some(t)) => format!(" | ECU {s} {:.0} rpm {:.0} °C", t.rpm, t.egt_c),
-        _ => " | ECU -".into(),
-    };
-    match &watch.last_trip {
-        Some(trip) => format!("{ecu} | {trip}"),
-        None => ecu,
+        let counts = self.counts;
+        let rate = |channel: &'static str, count: fn(&ChannelCounts) -> u64| status::ChannelRate {
+            channel,
+            hz: (count(&counts) - count(&before)) as f64 / secs,
+        };
+        let rates = [
+            rate(channels::THRUST.name, |c| c.thrust),
+            rate(channels::STATE.name, |c| c.state),
+            rate(channels::REFERENCE.name, |c| c.reference),
+            rate(channels::COMMAND.name, |c| c.command),
+            rate(channels::ACTUATION.name, |c| c.actuation),
+        ];
+        let services_before = std::mem::replace(&mut self.services_printed, self.services);
+        let mut windows = Vec::new();
+        let mut totals = Vec::new();
+        for id in ServiceId::ALL {
+            let Some(now) = self.services[id as usize] else { continue };
+            let then = services_before[id as usize].unwrap_or_default();
+            windows.push(status::ServiceWindow {
+                service: id,
+                new_misses: now.misses.saturating_sub(then.misses),
+                new_gaps: now.gaps.saturating_sub(then.gaps),
+                flags: now.flags,
+            });
+            totals.push((id, now.misses));
+        }
+        let view = &mut self.view;
+        view.elapsed_s = elapsed.as_secs_f64();
+        view.health = status::judge_health(&rates, &windows);
+        view.engine = match (watch.state(), watch.latest) {
+            (Some(s), Some(t)) => Some(EngineView { state: s.to_string(), rpm: t.rpm, egt_c: t.egt_c }),
+            _ => None,
+        };
+        view.last_trip.clone_from(&watch.last_trip);
+        (view.line(), self.misses.update(view.elapsed_s, &totals))
     }
 }
 
@@ -595,10 +625,11 @@ fn run_engine(
 ) -> Result<(), LaunchError> {
     // No status line, no subscribers: a quiet run adds nothing to the control path.
     let mut status = if options.status { Some(Status::new(bus)?) } else { None };
+    // On a terminal the line is redrawn in place every second; in a log it is a
+    // line of its own every 5 s.
+    let live = if options.status { LiveLine::start() } else { None };
+    let status_every = if live.is_some() { Duration::from_secs(1) } else { Duration::from_secs(5) };
     let started = Instant::now();
-    let tty = std::io::stderr().is_terminal();
-    // A terminal gets a line rewritten every second, a log a line every 5 s.
-    let status_every = if tty { Duration::from_secs(1) } else { Duration::from_secs(5) };
     let mut last_status = started;
     let mut failure = None;
     bus.run(&[], Some(Duration::from_millis(20)), |_| {
@@ -617,10 +648,14 @@ fn run_engine(
         let now = Instant::now();
         if let Some(status) = status.as_mut() {
             if status.drain().is_ok() && now - last_status >= status_every {
-                let line = format!("{}{}", status.line(now - started, now - last_status), engine_status(watch));
-                let mut err = std::io::stderr().lock();
-                let _ = if tty { write!(err, "{}{line}", clear_line()) } else { writeln!(err, "{line}") };
-                let _ = err.flush();
+                let (line, misses) = status.line(now - started, now - last_status, watch);
+                if let Some(misses) = misses {
+                    status::say(&misses);
+                }
+                match &live {
+                    Some(live) => live.set(line),
+                    None => status::say_err(&line),
+                }
                 last_status = now;
             }
         }
@@ -629,9 +664,7 @@ fn run_engine(
             _ => Flow::Continue,
         }
     })?;
-    if tty && options.status {
-        eprintln!();
-    }
+    drop(live);
     match failure {
         Some(e) => Err(e),
         None => Ok(()),

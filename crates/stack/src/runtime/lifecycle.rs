@@ -190,7 +190,7 @@ impl EngineWatch {
         while let Some(e) = self.events.try_recv()? {
             let text = describe_event(&e);
             // Above the status line, never through it.
-            println!("{}event: {text}", clear_line());
+            crate::runtime::status::say(&format!("event: {text}"));
             match e.kind {
                 event_kinds::TRIP => {
                     self.last_trip = Some(text);

@@ -69,6 +69,7 @@ pub mod launch;
 pub mod lifecycle;
 mod reader;
 pub mod rt;
+pub mod status;
 pub mod supervise;
 
 pub use reader::{ChannelReader, Reader};

@@ -31,6 +31,17 @@ use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
+/// Hands each line read from `pipe` to `tx` as child `index`'s, on a thread of its own.
+fn forward_lines(pipe: impl std::io::Read + Send + 'static, index: usize, tx: mpsc::Sender<(usize, String)>) {
+    std::thread::spawn(move || {
+        for line in BufReader::new(pipe).lines().map_while(Result::ok) {
+            if tx.send((index, line)).is_err() {
+                break;
+            }
+        }
+    });
+}
+
 /// How a child is started.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct SpawnOptions {
@@ -39,6 +50,10 @@ pub struct SpawnOptions {
     /// Signal the child receives when the parent dies (`PR_SET_PDEATHSIG`), so
     /// it cannot outlive the run; `None` leaves it running.
     pub parent_death_signal: Option<i32>,
+    /// Read the child's stderr line by line too ([`Supervisor::try_err_line`])
+    /// instead of letting it write to the parent's: the parent prints it where
+    /// it belongs (above a live status line). Without it, stderr is inherited.
+    pub stderr_lines: bool,
 }
 
 /// Why a child could not be started.
@@ -74,6 +89,8 @@ pub struct Supervisor {
     children: Vec<Supervised>,
     lines_tx: mpsc::Sender<(usize, String)>,
     lines_rx: mpsc::Receiver<(usize, String)>,
+    err_lines_tx: mpsc::Sender<(usize, String)>,
+    err_lines_rx: mpsc::Receiver<(usize, String)>,
 }
 
 impl Default for Supervisor {
@@ -86,11 +103,13 @@ impl Supervisor {
     /// No children yet.
     pub fn new() -> Self {
         let (lines_tx, lines_rx) = mpsc::channel();
-        Supervisor { children: Vec::new(), lines_tx, lines_rx }
+        let (err_lines_tx, err_lines_rx) = mpsc::channel();
+        Supervisor { children: Vec::new(), lines_tx, lines_rx, err_lines_tx, err_lines_rx }
     }
 
     /// Starts `command` as child `name` in its own process group, its stdout
-    /// read line by line (stderr is inherited). Returns the child's index.
+    /// read line by line (stderr is inherited unless [`SpawnOptions::stderr_lines`]).
+    /// Returns the child's index.
     pub fn spawn(
         &mut self,
         name: impl Into<String>,
@@ -98,7 +117,8 @@ impl Supervisor {
         options: SpawnOptions,
     ) -> Result<usize, SpawnError> {
         let name = name.into();
-        command.process_group(0).stdout(Stdio::piped()).stderr(Stdio::inherit());
+        let stderr = if options.stderr_lines { Stdio::piped() } else { Stdio::inherit() };
+        command.process_group(0).stdout(Stdio::piped()).stderr(stderr);
         command.stdin(if options.stdin { Stdio::piped() } else { Stdio::null() });
         if let Some(signal) = options.parent_death_signal {
             let parent = std::process::id() as libc::pid_t;
@@ -122,14 +142,10 @@ impl Supervisor {
         let mut child = command.spawn().map_err(|source| SpawnError { name: name.clone(), source })?;
         let index = self.children.len();
         if let Some(stdout) = child.stdout.take() {
-            let tx = self.lines_tx.clone();
-            std::thread::spawn(move || {
-                for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                    if tx.send((index, line)).is_err() {
-                        break;
-                    }
-                }
-            });
+            forward_lines(stdout, index, self.lines_tx.clone());
+        }
+        if let Some(stderr) = child.stderr.take() {
+            forward_lines(stderr, index, self.err_lines_tx.clone());
         }
         let stdin = child.stdin.take();
         self.children.push(Supervised { name, child, stdin, exited: None });
@@ -144,6 +160,12 @@ impl Supervisor {
     /// A line a child printed, if one is waiting.
     pub fn try_line(&self) -> Option<(usize, String)> {
         self.lines_rx.try_recv().ok()
+    }
+
+    /// A line a child printed on stderr, if one is waiting (children spawned
+    /// with [`SpawnOptions::stderr_lines`]).
+    pub fn try_err_line(&self) -> Option<(usize, String)> {
+        self.err_lines_rx.try_recv().ok()
     }
 
     /// Children started.
