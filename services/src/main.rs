@@ -24,17 +24,17 @@ enum Cmd {
     /// Example: jetbench up --sim --duration 10 --record run.mcap
     Up(cmd::up::UpArgs),
     /// Start the engine through the ECU (it must be in standby).
-    Start,
+    Start(cmd::command::RemoteArgs),
     /// Run a reference profile once the engine runs, e.g. `jetbench run --profile steps`.
     Run(cmd::command::RunArgs),
     /// Hold the throttle at or below its current value (or PERCENT).
     Hold(cmd::command::HoldArgs),
     /// Idle the engine and keep it there.
-    Idle,
+    Idle(cmd::command::RemoteArgs),
     /// Stop the test: idle, then shut down through the ECU with its cool-down (--now: at once).
     Stop(cmd::command::StopArgs),
     /// Clear the latched trips, so the throttle may rise again.
-    Clear,
+    Clear(cmd::command::RemoteArgs),
     /// List the channels and bus nodes that exist now.
     List,
     /// Print the samples of a channel as they arrive, e.g. `jetbench echo bench/thrust`.
@@ -231,12 +231,12 @@ fn run() -> anyhow::Result<ExitCode> {
     jetbench_bus::namespace()?;
     match cli.command {
         Cmd::Up(args) => cmd::up::run(args),
-        Cmd::Start => cmd::command::start(),
+        Cmd::Start(remote) => cmd::command::start(remote),
         Cmd::Run(args) => cmd::command::run(args),
         Cmd::Hold(args) => cmd::command::hold(args),
-        Cmd::Idle => cmd::command::idle(),
+        Cmd::Idle(remote) => cmd::command::idle(remote),
         Cmd::Stop(args) => cmd::command::stop(args),
-        Cmd::Clear => cmd::command::clear(),
+        Cmd::Clear(remote) => cmd::command::clear(remote),
         Cmd::List => cmd::bus::list(),
         Cmd::Echo { channel, count, csv, json, remote } => {
             let format = match (csv, json) {

@@ -126,19 +126,26 @@ pub struct TwoHosts {
     pub bench: String,
     pub control_room: String,
     pub bench_ip: String,
+    /// The bench's end of the veth pair.
+    bench_link: String,
 }
 
 impl TwoHosts {
     /// `Err` with the reason when this machine cannot make them (not root, no `ip`).
     pub fn create() -> Result<TwoHosts, String> {
-        let id = std::process::id();
+        // Unique per test of this process too: tests run side by side.
+        static MADE: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+        let n = MADE.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let id = format!("{}x{n}", std::process::id());
+        let subnet = (std::process::id() + n) % 250;
+        let (a, b) = (format!("jbv{id}a"), format!("jbv{id}b"));
         let hosts = TwoHosts {
             bench: format!("jbbench{id}"),
             control_room: format!("jbctl{id}"),
-            bench_ip: format!("10.199.{}.1", id % 250),
+            bench_ip: format!("10.199.{subnet}.1"),
+            bench_link: a.clone(),
         };
-        let peer_ip = format!("10.199.{}.2", id % 250);
-        let (a, b) = (format!("jbv{id}a"), format!("jbv{id}b"));
+        let peer_ip = format!("10.199.{subnet}.2");
         let steps: Vec<Vec<&str>> = vec![
             vec!["netns", "add", &hosts.bench],
             vec!["netns", "add", &hosts.control_room],
@@ -173,6 +180,33 @@ impl TwoHosts {
             run(&full)?;
         }
         Ok(hosts)
+    }
+}
+
+impl TwoHosts {
+    /// Takes the bench's end of the link down, as a pulled network cable does.
+    #[allow(dead_code)]
+    pub fn pull_cable(&self) -> Result<(), String> {
+        self.bench_link("down")
+    }
+
+    /// Brings it up again.
+    #[allow(dead_code)]
+    pub fn plug_cable(&self) -> Result<(), String> {
+        self.bench_link("up")
+    }
+
+    fn bench_link(&self, state: &str) -> Result<(), String> {
+        let veth = &self.bench_link;
+        let out = Command::new("ip")
+            .args(["-n", &self.bench, "link", "set", &veth, state])
+            .output()
+            .map_err(|e| format!("ip link set {veth} {state}: {e}"))?;
+        if out.status.success() {
+            Ok(())
+        } else {
+            Err(format!("ip link set {veth} {state}: {}", String::from_utf8_lossy(&out.stderr).trim()))
+        }
     }
 }
 
@@ -455,6 +489,10 @@ pub fn zenoh_commands(
         let v: Value = serde_json::from_str(line).unwrap();
         if let Some(e) = v["connect_error"].as_str() {
             return Err(e.to_string());
+        }
+        if let Some(s) = v["slept"].as_f64() {
+            answers.push((format!("sleep={s}"), Vec::new()));
+            continue;
         }
         let replies = v["replies"].as_array().unwrap().iter().map(|r| r.as_str().unwrap().to_string()).collect();
         answers.push((v["key"].as_str().unwrap().to_string(), replies));

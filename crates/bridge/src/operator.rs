@@ -306,11 +306,157 @@ pub struct ClientTls {
 /// How long [`send_command`] waits for the bench's answer.
 pub const ANSWER_TIMEOUT: Duration = Duration::from_secs(3);
 
+/// How often an [`OperatorLink`] holding control sends its heartbeat: a quarter of the
+/// default deadman window, so one lost heartbeat never idles the engine.
+pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(250);
+
+/// A control room's link to a bench over Zenoh, as an operator's tool holds it: one
+/// session, commands sent in turn, and while a `take` (or an accepted handover) holds
+/// control, a heartbeat every [`HEARTBEAT_PERIOD`] on a thread of its own until a
+/// `release` or the link is dropped. Dropping it stops the heartbeats: the bench's
+/// deadman then idles the engine after its window, as it does for a pulled cable.
+pub struct OperatorLink {
+    session: zenoh::Session,
+    endpoint: crate::Endpoint,
+    namespace: String,
+    operator: Option<String>,
+    heartbeat: Option<(std::sync::Arc<std::sync::atomic::AtomicBool>, std::thread::JoinHandle<()>)>,
+}
+
+impl OperatorLink {
+    /// Connects to `endpoint`; `operator` names the operator's path
+    /// (`jetbench/<ns>/op/<operator>/cmd/...`, which needs `tls` with that operator's
+    /// certificate), `None` anyone's path.
+    pub fn connect(
+        endpoint: &crate::Endpoint,
+        tls: Option<&ClientTls>,
+        namespace: &str,
+        operator: Option<&str>,
+    ) -> Result<OperatorLink, BridgeError> {
+        let mut extra = Vec::new();
+        if let Some(t) = tls {
+            let path = |p: &std::path::Path| json!(p.to_string_lossy()).to_string();
+            extra.push(("transport/link/tls/root_ca_certificate", path(&t.ca)));
+            extra.push(("transport/link/tls/connect_certificate", path(&t.certificate)));
+            extra.push(("transport/link/tls/connect_private_key", path(&t.private_key)));
+            extra.push(("transport/link/tls/enable_mtls", "true".into()));
+        }
+        let session = crate::open_session_with(crate::Role::Connect, std::slice::from_ref(endpoint), &extra)?;
+        Ok(OperatorLink {
+            session,
+            endpoint: endpoint.clone(),
+            namespace: namespace.into(),
+            operator: operator.map(String::from),
+            heartbeat: None,
+        })
+    }
+
+    fn key(&self, command: &str) -> String {
+        match &self.operator {
+            Some(name) => operator_command_key(&self.namespace, name, command),
+            None => command_key(&self.namespace, command),
+        }
+    }
+
+    /// Whether this link sends heartbeats now (it holds control, as far as it knows).
+    pub fn holds_control(&self) -> bool {
+        self.heartbeat.is_some()
+    }
+
+    /// Sends `command` (`stop`, `take`, `run`, ...) with `value` (profile index, N, %)
+    /// and returns the bench's answer (`accepted`, `refused: ...`, `forwarded: ...`).
+    pub fn send(&mut self, command: &str, value: Option<f64>) -> Result<String, BridgeError> {
+        if command_code(command).is_none() {
+            let names: Vec<&str> = COMMANDS.iter().map(|(n, _)| *n).collect();
+            return Err(BridgeError::Command(format!(
+                "unknown command {command:?}; commands are {}",
+                names.join(", ")
+            )));
+        }
+        let key = self.key(command);
+        let answer = ask(&self.session, &key, value, ANSWER_TIMEOUT)?.ok_or_else(|| {
+            BridgeError::Command(format!(
+                "no answer from the bench at {} to {key} within {} s: check that the bench runs `jetbench up \
+                 --zenoh` with an [operator] section, that its namespace is {:?}, and that this session may send \
+                 it (an operator's key needs that operator's certificate over tls/)",
+                self.endpoint,
+                ANSWER_TIMEOUT.as_secs(),
+                self.namespace
+            ))
+        })?;
+        let accepted = answer == "accepted";
+        match command {
+            "take" | "handover" if accepted && self.operator.is_some() => self.start_heartbeat(),
+            "release" if accepted => self.stop_heartbeat(),
+            _ => {}
+        }
+        Ok(answer)
+    }
+
+    fn start_heartbeat(&mut self) {
+        if self.heartbeat.is_some() {
+            return;
+        }
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let (session, key, flag) = (self.session.clone(), self.key("heartbeat"), stop.clone());
+        let thread = std::thread::spawn(move || {
+            while !flag.load(std::sync::atomic::Ordering::Relaxed) {
+                std::thread::sleep(HEARTBEAT_PERIOD);
+                if let Err(e) = ask(&session, &key, None, HEARTBEAT_PERIOD) {
+                    tracing::warn!("heartbeat to {key}: {e}");
+                }
+            }
+        });
+        self.heartbeat = Some((stop, thread));
+    }
+
+    fn stop_heartbeat(&mut self) {
+        if let Some((stop, thread)) = self.heartbeat.take() {
+            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+            let _ = thread.join();
+        }
+    }
+}
+
+impl Drop for OperatorLink {
+    fn drop(&mut self) {
+        self.stop_heartbeat();
+        let _ = self.session.close().wait();
+    }
+}
+
+/// One query on `key` (payload `value`): the first answer, `None` if nothing answered
+/// within `timeout`.
+fn ask(
+    session: &zenoh::Session,
+    key: &str,
+    value: Option<f64>,
+    timeout: Duration,
+) -> Result<Option<String>, BridgeError> {
+    let mut get = session.get(key).timeout(timeout);
+    if let Some(v) = value {
+        get = get.payload(v.to_string());
+    }
+    let replies =
+        get.wait().map_err(|source| BridgeError::Declare { what: "a command query", key: key.into(), source })?;
+    let mut answer = None;
+    while let Ok(reply) = replies.recv() {
+        let text = match reply.result() {
+            Ok(sample) => sample.payload().try_to_string().map(|t| t.into_owned()).unwrap_or_default(),
+            Err(e) => format!("error: {}", e.payload().try_to_string().map(|t| t.into_owned()).unwrap_or_default()),
+        };
+        answer.get_or_insert(text);
+    }
+    Ok(answer)
+}
+
 /// Sends one command to a bench over Zenoh, as the control room's tools do, and returns
 /// the bench's answer (`accepted`, `refused: ...`, `forwarded: ...`). `operator` names
 /// the operator's path (`jetbench/<ns>/op/<operator>/cmd/...`, which needs `tls` with
 /// that operator's certificate); `None` is anyone's path. `value` is the command's
-/// argument (profile index, N, %).
+/// argument (profile index, N, %). One command, one session: a `take` sent this way
+/// holds control only as long as the bench hears from the operator otherwise; a tool
+/// that keeps control uses an [`OperatorLink`], which sends the heartbeats.
 pub fn send_command(
     endpoint: &crate::Endpoint,
     tls: Option<&ClientTls>,
@@ -323,41 +469,7 @@ pub fn send_command(
         let names: Vec<&str> = COMMANDS.iter().map(|(n, _)| *n).collect();
         return Err(BridgeError::Command(format!("unknown command {command:?}; commands are {}", names.join(", "))));
     }
-    let key = match operator {
-        Some(name) => operator_command_key(namespace, name, command),
-        None => command_key(namespace, command),
-    };
-    let mut extra = Vec::new();
-    if let Some(t) = tls {
-        let path = |p: &std::path::Path| json!(p.to_string_lossy()).to_string();
-        extra.push(("transport/link/tls/root_ca_certificate", path(&t.ca)));
-        extra.push(("transport/link/tls/connect_certificate", path(&t.certificate)));
-        extra.push(("transport/link/tls/connect_private_key", path(&t.private_key)));
-        extra.push(("transport/link/tls/enable_mtls", "true".into()));
-    }
-    let session = crate::open_session_with(crate::Role::Connect, std::slice::from_ref(endpoint), &extra)?;
-    let mut get = session.get(key.clone()).timeout(ANSWER_TIMEOUT);
-    if let Some(v) = value {
-        get = get.payload(v.to_string());
-    }
-    let replies =
-        get.wait().map_err(|source| BridgeError::Declare { what: "a command query", key: key.clone(), source })?;
-    let mut answer = None;
-    while let Ok(reply) = replies.recv() {
-        let text = match reply.result() {
-            Ok(sample) => sample.payload().try_to_string().map(|t| t.into_owned()).unwrap_or_default(),
-            Err(e) => format!("error: {}", e.payload().try_to_string().map(|t| t.into_owned()).unwrap_or_default()),
-        };
-        answer.get_or_insert(text);
-    }
-    let _ = session.close().wait();
-    answer.ok_or_else(|| {
-        BridgeError::Command(format!(
-            "no answer from the bench to {key} within {} s: is the bench's [operator] section set, and may this \
-             session send it (an operator's key needs that operator's certificate over tls/)?",
-            ANSWER_TIMEOUT.as_secs()
-        ))
-    })
+    OperatorLink::connect(endpoint, tls, namespace, operator)?.send(command, value)
 }
 
 /// Whether `command` can make the engine run (only the operator's are accepted).

@@ -607,6 +607,9 @@ pub fn refusal_text(refusal: i32, command: i32) -> String {
         r::BAD_VALUE => format!("the value of {name} is out of range"),
         r::UNKNOWN => "the bench does not know this command".into(),
         r::TRIPPED => "trips are latched: clear them first".into(),
+        r::HELD_BY_ANOTHER => "another operator holds control (ask them to hand over)".into(),
+        r::NOT_IN_CONTROL => format!("{name} is for the operator in control: take control first"),
+        r::NO_HANDOVER_OFFER => "no handover is offered by the operator in control".into(),
         other => format!("{name} refused by the control service (reason code {other})"),
     }
 }

@@ -526,6 +526,15 @@ pub mod event_kinds {
     /// ([`super::end_reasons`]); for a trip `previous` names the limit, for a
     /// shutdown the ECU made `previous` is its off condition.
     pub const TEST_ENDED: u32 = 7;
+    /// The deadman idled the engine: the operator holding control was silent longer
+    /// than the window while the engine ran above idle. `identity` is the operator,
+    /// `value` how long they had been silent, s, `limit` the window, s. Latched: the
+    /// engine stays at idle until an operator in control raises it again.
+    pub const DEADMAN: u32 = 8;
+    /// Control moved (taken, released, offered, handed over): `code` is the command
+    /// that moved it ([`super::operator_commands`]), `identity` the holder now (empty
+    /// when nobody holds it), `previous` 1 when it was taken from a lapsed holder.
+    pub const CONTROL: u32 = 9;
 }
 
 /// Why an operator command was refused (`previous` of a `COMMAND_REFUSED` event).
@@ -542,6 +551,13 @@ pub mod refusals {
     pub const UNKNOWN: i32 = 5;
     /// Trips are latched: clear them first.
     pub const TRIPPED: i32 = 6;
+    /// Another operator holds control and their link is alive.
+    pub const HELD_BY_ANOTHER: i32 = 7;
+    /// It is the holder's to send (a raising command, release, heartbeat), and the
+    /// sender does not hold control: take it first.
+    pub const NOT_IN_CONTROL: i32 = 8;
+    /// A handover was accepted with no open offer.
+    pub const NO_HANDOVER_OFFER: i32 = 9;
 }
 
 /// Why a test ended ([`event_kinds::TEST_ENDED`]'s code).
@@ -754,6 +770,8 @@ pub const EVENT_CONSTANTS: &[SchemaConstant] = constants![
     event_kinds::COMMAND_ACCEPTED as "KIND_": "uint32",
     event_kinds::COMMAND_REFUSED as "KIND_": "uint32",
     event_kinds::TEST_ENDED as "KIND_": "uint32",
+    event_kinds::DEADMAN as "KIND_": "uint32",
+    event_kinds::CONTROL as "KIND_": "uint32",
     end_reasons::OPERATOR as "END_": "int32",
     end_reasons::ECU_SHUTDOWN as "END_": "int32",
     end_reasons::TRIP as "END_": "int32",
@@ -763,6 +781,9 @@ pub const EVENT_CONSTANTS: &[SchemaConstant] = constants![
     refusals::BAD_VALUE as "REFUSED_": "int32",
     refusals::UNKNOWN as "REFUSED_": "int32",
     refusals::TRIPPED as "REFUSED_": "int32",
+    refusals::HELD_BY_ANOTHER as "REFUSED_": "int32",
+    refusals::NOT_IN_CONTROL as "REFUSED_": "int32",
+    refusals::NO_HANDOVER_OFFER as "REFUSED_": "int32",
     trip_limits::MAX_THRUST as "LIMIT_": "int32",
     trip_limits::MAX_EGT as "LIMIT_": "int32",
     trip_limits::MAX_EGT_RISE as "LIMIT_": "int32",

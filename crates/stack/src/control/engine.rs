@@ -13,12 +13,24 @@
 //!   engine down through the ECU and ends the test.
 //! - Operator commands follow one rule: anyone may make the engine safer;
 //!   only an authenticated operator may make it run harder.
+//! - With the config's `[operator]` section, control is a lease
+//!   ([`jetbench_control::operator::Lease`]): one operator at a time holds it
+//!   (taken, released, handed over, each recorded), and only the holder's
+//!   raising commands are accepted; the bench PC's own commands raise only
+//!   while no operator in the control room holds control. The deadman idles
+//!   the engine when the holder's heartbeats lapse for the window while it
+//!   runs above idle, latched until the holder raises it again, with a
+//!   `DEADMAN` event naming who went silent and for how long.
+//! - A stop idles the engine for `[engine] stop_idle_s`, then asks the ECU to
+//!   shut it down; the test ends then (an emergency stop ends it at once), so
+//!   the set stays up until the ECU has been asked.
 
+use jetbench_control::operator::{Identity, Lease, LeaseChange, LeaseRefusal, LeaseSettings};
 use jetbench_io::ecu::state::{EcuState, OffCondition};
 use jetbench_model::THROTTLE_MIN_PCT;
 use jetbench_msgs::{
-    authorities, command_flags, ecu_flags, end_reasons, event_kinds, identity, operator_commands as op, refusals,
-    EcuTelemetry, Event, OperatorCommand, ServiceId,
+    authorities, command_flags, ecu_flags, end_reasons, event_kinds, identity, operator_commands as op, origins,
+    refusals, EcuTelemetry, Event, OperatorCommand, ServiceId,
 };
 
 use crate::config::{EngineReference, EngineSection};
@@ -41,6 +53,8 @@ struct Stopping {
     since_ns: u64,
     /// At once (`STOP_NOW`, a `shutdown` trip) or after the idle time.
     now: bool,
+    /// The operator's command (`STOP`, `STOP_NOW`), or 0 for a trip.
+    command: i32,
 }
 
 /// What the control step should do about the law this cycle.
@@ -77,6 +91,8 @@ pub struct EngineSupervisor {
     events: Vec<Event>,
     /// Builds the profile of `RUN_PROFILE` (index) or `SET_REFERENCE` (N); `None` if invalid.
     profiles: ProfileSource,
+    /// Who holds control, with `[operator]`; without it any operator authority raises.
+    lease: Option<Lease>,
 }
 
 /// Where operator-chosen profiles come from.
@@ -137,7 +153,20 @@ impl EngineSupervisor {
             last_reference_n: 0.0,
             events: Vec::new(),
             profiles,
+            lease: None,
         }
+    }
+
+    /// With the config's `[operator]` section: control is a lease held by one
+    /// operator at a time, and the deadman watches the holder's heartbeats.
+    pub fn with_lease(mut self, settings: LeaseSettings) -> Self {
+        self.lease = Some(Lease::new(settings));
+        self
+    }
+
+    /// Who holds control (alive or lapsed), with `[operator]`.
+    pub fn holder(&self) -> Option<Identity> {
+        self.lease.as_ref().and_then(Lease::holder)
     }
 
     pub fn mode(&self) -> Mode {
@@ -239,6 +268,26 @@ impl EngineSupervisor {
         for trip in self.monitor.check(now_ns, self.running) {
             self.on_trip(&trip);
         }
+        if let Some(s) = self.stopping {
+            if s.command != 0 && (s.now || now_ns.saturating_sub(s.since_ns) >= self.stop_idle_ns) {
+                // The ECU is asked to shut down from this cycle on: the test is over.
+                self.end(now_ns, end_reasons::OPERATOR, s.command, 0.0, 0.0);
+            }
+        }
+        self.deadman(now_ns);
+    }
+
+    /// The deadman: the holder silent longer than the window while the engine
+    /// runs above idle idles it, latched (until the holder raises it again),
+    /// with a `DEADMAN` event naming who and for how long.
+    fn deadman(&mut self, now_ns: u64) {
+        let above_idle = self.free() && self.last_throttle_pct > THROTTLE_MIN_PCT + 1e-6;
+        let Some(reason) = self.lease.as_mut().and_then(|l| l.deadman(now_ns, above_idle)) else { return };
+        tracing::error!("deadman: {reason}; the engine goes to idle until the operator in control raises it again");
+        self.mode = Mode::Idle;
+        let e = self.event(now_ns, event_kinds::DEADMAN, 0);
+        (e.value, e.limit) = (reason.silent_ns as f64 * 1e-9, reason.window_ns as f64 * 1e-9);
+        e.identity = reason.holder.field();
     }
 
     fn on_trip(&mut self, trip: &Trip) {
@@ -250,7 +299,7 @@ impl EngineSupervisor {
             Response::Shutdown => 1,
         };
         if trip.response == Response::Shutdown && !self.ended {
-            self.stopping = Some(Stopping { since_ns: trip.at_ns, now: true });
+            self.stopping = Some(Stopping { since_ns: trip.at_ns, now: true, command: 0 });
             self.end(trip.at_ns, end_reasons::TRIP, trip.kind.code(), trip.value, trip.limit);
         }
     }
@@ -258,6 +307,12 @@ impl EngineSupervisor {
     /// An operator command: accepted or refused by the authority rule and the
     /// engine's state, with an event either way.
     pub fn on_command(&mut self, now_ns: u64, c: &OperatorCommand) {
+        if let (Some(lease), Some(who)) = (self.lease.as_mut(), Identity::from_field(c.identity)) {
+            // Any command from the holder is a sign of their link's life.
+            if c.authority == authorities::OPERATOR && lease.holder() == Some(who) && c.command != op::RELEASE_CONTROL {
+                let _ = lease.heartbeat(now_ns, who);
+            }
+        }
         let result = self.apply(now_ns, c);
         let who = jetbench_msgs::identity_text(&c.identity);
         let name = op::name(c.command).unwrap_or("unknown command");
@@ -290,20 +345,39 @@ impl EngineSupervisor {
             }
         };
         let ended = |s: &Self| -> Result<(), (i32, String)> {
-            if s.ended {
+            if s.ended || s.stopping.is_some() {
                 Err((refusals::TEST_ENDED, "the test has ended; the engine is being brought down".into()))
             } else {
                 Ok(())
             }
+        };
+        let who = Identity::from_field(c.identity);
+        // With a lease, a raising command needs control on top of the authority:
+        // the holder's (with a live link), or the bench PC's while nobody holds it.
+        let in_control = |s: &Self, what: &str| -> Result<(), (i32, String)> {
+            let Some(lease) = &s.lease else { return Ok(()) };
+            let live_holder = lease.holder().filter(|_| !lease.lapsed(now_ns));
+            match (live_holder, who) {
+                (Some(h), Some(w)) if h == w && c.origin != origins::LOCAL => Ok(()),
+                (None, _) if c.origin == origins::LOCAL => Ok(()),
+                (Some(h), _) => Err((refusals::HELD_BY_ANOTHER, format!("{what}: {h} holds control"))),
+                (None, _) => Err((refusals::NOT_IN_CONTROL, format!("{what} needs control: take it first"))),
+            }
+        };
+        let raise = |s: &Self, what: &str| -> Result<(), (i32, String)> {
+            need_operator(what)?;
+            in_control(s, what)
         };
         match c.command {
             op::STOP | op::STOP_NOW => {
                 let now = c.command == op::STOP_NOW;
                 match self.stopping {
                     Some(s) if s.now || !now => {}
-                    _ => self.stopping = Some(Stopping { since_ns: now_ns, now }),
+                    _ => self.stopping = Some(Stopping { since_ns: now_ns, now, command: c.command }),
                 }
-                self.end(now_ns, end_reasons::OPERATOR, c.command, 0.0, 0.0);
+                if now {
+                    self.end(now_ns, end_reasons::OPERATOR, c.command, 0.0, 0.0);
+                }
                 Ok(if now { ": shutting down now".into() } else { ": idle, then shutdown".into() })
             }
             op::IDLE => {
@@ -316,25 +390,21 @@ impl EngineSupervisor {
                     return Err((refusals::BAD_VALUE, format!("hold at {cap} %")));
                 }
                 if cap > self.last_throttle_pct + 1e-9 {
-                    need_operator("a hold above the current throttle")?;
+                    raise(self, "a hold above the current throttle")?;
                 }
                 self.mode = Mode::Hold(cap.max(THROTTLE_MIN_PCT));
                 Ok(format!(": throttle at most {cap:.1} %"))
             }
-            op::HEARTBEAT | op::RELEASE_CONTROL => Ok(": recorded (operator leases are not kept yet)".into()),
-            op::TAKE_CONTROL | op::HANDOVER => {
-                need_operator("control")?;
-                Ok(": recorded (operator leases are not kept yet)".into())
-            }
+            op::HEARTBEAT | op::RELEASE_CONTROL | op::TAKE_CONTROL | op::HANDOVER => self.lease_command(now_ns, c, who),
             op::CLEAR_TRIPS => {
-                need_operator("clearing trips")?;
+                raise(self, "clearing trips")?;
                 ended(self)?;
                 self.monitor.clear();
                 let _ = self.event(now_ns, event_kinds::TRIP_CLEARED, 0);
                 Ok(String::new())
             }
             op::START => {
-                need_operator("a start")?;
+                raise(self, "a start")?;
                 ended(self)?;
                 if self.monitor.tripped() {
                     return Err((refusals::TRIPPED, "a trip is latched; clear it first".into()));
@@ -355,7 +425,7 @@ impl EngineSupervisor {
                 }
             }
             op::RUN_PROFILE => {
-                need_operator("a profile")?;
+                raise(self, "a profile")?;
                 ended(self)?;
                 let (name, profile) = self
                     .profiles
@@ -366,8 +436,9 @@ impl EngineSupervisor {
                 Ok(format!(": {name}"))
             }
             op::SET_REFERENCE => {
-                if c.value > self.last_reference_n + 1e-9 {
-                    need_operator("a higher reference")?;
+                if c.value > self.last_reference_n + 1e-9 || self.mode == Mode::Idle {
+                    // From idle any reference raises the engine.
+                    raise(self, "a higher reference")?;
                 }
                 ended(self)?;
                 let profile = self.profiles.constant(c.value).ok_or_else(|| {
@@ -379,6 +450,60 @@ impl EngineSupervisor {
             }
             other => Err((refusals::UNKNOWN, format!("unknown command {other}"))),
         }
+    }
+
+    /// `TAKE_CONTROL`, `RELEASE_CONTROL`, `HANDOVER`, `HEARTBEAT` on the lease,
+    /// with a `CONTROL` event when control moved.
+    fn lease_command(
+        &mut self,
+        now_ns: u64,
+        c: &OperatorCommand,
+        who: Option<Identity>,
+    ) -> Result<String, (i32, String)> {
+        let Some(lease) = self.lease.as_mut() else {
+            return Ok(": recorded (control is not leased on a bench without [operator])".into());
+        };
+        if c.command != op::HEARTBEAT && c.command != op::RELEASE_CONTROL && c.authority != authorities::OPERATOR {
+            return Err((refusals::NOT_AUTHORISED, "control needs an authenticated operator".into()));
+        }
+        let Some(who) = who else {
+            return Err((refusals::BAD_VALUE, "the command names nobody (empty identity)".into()));
+        };
+        let change = match c.command {
+            op::TAKE_CONTROL => lease.take(now_ns, who),
+            op::RELEASE_CONTROL => lease.release(now_ns, who),
+            op::HANDOVER => lease.handover(now_ns, who),
+            _ => lease.heartbeat(now_ns, who),
+        }
+        .map_err(|refusal| {
+            let code = match refusal {
+                LeaseRefusal::HeldBy { .. } => refusals::HELD_BY_ANOTHER,
+                LeaseRefusal::NotHolder { .. } => refusals::NOT_IN_CONTROL,
+                LeaseRefusal::NoOffer { .. } => refusals::NO_HANDOVER_OFFER,
+            };
+            (code, refusal.to_string())
+        })?;
+        let (holder, lapsed_from, note) = match change {
+            LeaseChange::Taken { by, from } => (
+                Some(by),
+                from.is_some(),
+                match from {
+                    Some(f) => format!(": {by} took control from {f}, whose link had lapsed"),
+                    None => format!(": {by} holds control"),
+                },
+            ),
+            LeaseChange::Released { by } => (None, false, format!(": {by} released control")),
+            LeaseChange::Offered { by } => {
+                (Some(by), false, format!(": {by} offers control to the next operator who accepts"))
+            }
+            LeaseChange::HandedOver { from, to } => (Some(to), false, format!(": {from} handed control over to {to}")),
+            LeaseChange::AlreadyHeld | LeaseChange::Heartbeat => return Ok(String::new()),
+        };
+        let e = self.event(now_ns, event_kinds::CONTROL, c.command);
+        e.identity = holder.map_or([0; jetbench_msgs::IDENTITY_LEN], |h| h.field());
+        e.previous = i32::from(lapsed_from);
+        e.origin = c.origin;
+        Ok(note)
     }
 
     /// The throttle the engine gets this cycle from the law's `law_pct` (and
@@ -556,6 +681,145 @@ mod tests {
         s.on_ecu(3_100 * MS, &ecu(ecu_states::SLOW_DOWN, 15, 3_100 * MS));
         s.check(3_100 * MS);
         assert!(!s.take_events().iter().any(|e| e.kind == event_kinds::SHUTDOWN));
+    }
+
+    fn from(who: &str, command: i32, value: f64) -> OperatorCommand {
+        OperatorCommand { identity: identity(who), ..self::command(command, value, authorities::OPERATOR) }
+    }
+
+    fn verdicts(s: &mut EngineSupervisor) -> Vec<(u32, i32, String, i32)> {
+        s.take_events()
+            .iter()
+            .filter(|e| e.kind != event_kinds::ECU_STATE)
+            .map(|e| (e.kind, e.code, jetbench_msgs::identity_text(&e.identity), e.previous))
+            .collect()
+    }
+
+    #[test]
+    fn one_operator_holds_control_and_hands_it_over_only_by_accepting_an_offer() {
+        let mut s = supervisor(EngineReference::Idle, Limits::default()).with_lease(LeaseSettings::default());
+        s.on_ecu(0, &ecu(ecu_states::RUN, 0, 0));
+        let (ok, no, moved) = (event_kinds::COMMAND_ACCEPTED, event_kinds::COMMAND_REFUSED, event_kinds::CONTROL);
+        // An operator's raise without control is refused; so is the bench PC's while alice holds it.
+        s.on_command(MS, &from("alice", op::RUN_PROFILE, 0.0));
+        s.on_command(2 * MS, &from("alice", op::TAKE_CONTROL, 0.0));
+        s.on_command(3 * MS, &from("bob", op::TAKE_CONTROL, 0.0));
+        s.on_command(4 * MS, &from("bob", op::RUN_PROFILE, 0.0));
+        s.on_command(5 * MS, &OperatorCommand { origin: origins::LOCAL, ..from("local:root", op::RUN_PROFILE, 0.0) });
+        s.on_command(6 * MS, &from("alice", op::RUN_PROFILE, 0.0));
+        assert_eq!(s.mode(), Mode::Profile);
+        // bob accepts with no offer open; alice offers; bob accepts; alice is out.
+        s.on_command(7 * MS, &from("bob", op::HANDOVER, 0.0));
+        s.on_command(8 * MS, &from("alice", op::HANDOVER, 0.0));
+        s.on_command(9 * MS, &from("bob", op::HANDOVER, 0.0));
+        s.on_command(10 * MS, &from("alice", op::SET_REFERENCE, 90.0));
+        s.on_command(11 * MS, &from("bob", op::RELEASE_CONTROL, 0.0));
+        // Anyone may not take control; a heartbeat from who does not hold it is refused.
+        s.on_command(12 * MS, &command(op::TAKE_CONTROL, 0.0, authorities::ANYONE));
+        s.on_command(13 * MS, &from("alice", op::HEARTBEAT, 0.0));
+        let r = refusals::NOT_AUTHORISED;
+        assert_eq!(
+            verdicts(&mut s),
+            vec![
+                (no, op::RUN_PROFILE, "alice".into(), refusals::NOT_IN_CONTROL),
+                (moved, op::TAKE_CONTROL, "alice".into(), 0),
+                (ok, op::TAKE_CONTROL, "alice".into(), 0),
+                (no, op::TAKE_CONTROL, "bob".into(), refusals::HELD_BY_ANOTHER),
+                (no, op::RUN_PROFILE, "bob".into(), refusals::HELD_BY_ANOTHER),
+                (no, op::RUN_PROFILE, "local:root".into(), refusals::HELD_BY_ANOTHER),
+                (ok, op::RUN_PROFILE, "alice".into(), 0),
+                (no, op::HANDOVER, "bob".into(), refusals::NO_HANDOVER_OFFER),
+                (moved, op::HANDOVER, "alice".into(), 0),
+                (ok, op::HANDOVER, "alice".into(), 0),
+                (moved, op::HANDOVER, "bob".into(), 0),
+                (ok, op::HANDOVER, "bob".into(), 0),
+                (no, op::SET_REFERENCE, "alice".into(), refusals::HELD_BY_ANOTHER),
+                (moved, op::RELEASE_CONTROL, "".into(), 0),
+                (ok, op::RELEASE_CONTROL, "bob".into(), 0),
+                (no, op::TAKE_CONTROL, "tester".into(), r),
+                (no, op::HEARTBEAT, "alice".into(), refusals::NOT_IN_CONTROL),
+            ]
+        );
+    }
+
+    #[test]
+    fn the_deadman_idles_the_engine_when_the_holders_link_lapses_above_idle_and_latches() {
+        let mut s = supervisor(EngineReference::Idle, Limits::default()).with_lease(LeaseSettings::default());
+        s.on_ecu(0, &ecu(ecu_states::RUN, 0, 0));
+        s.on_command(0, &from("alice", op::TAKE_CONTROL, 0.0));
+        s.on_command(0, &from("alice", op::RUN_PROFILE, 0.0));
+        let _ = s.take_events();
+        let mut t = 0;
+        // Heartbeats every 100 ms for 3 s: the engine follows the law.
+        while t < 3_000 * MS {
+            if t % (100 * MS) == 0 {
+                s.on_command(t, &from("alice", op::HEARTBEAT, 0.0));
+            }
+            s.check(t);
+            assert_eq!(s.gate(t, 70.0, 80.0).0, 70.0, "at {t} ns");
+            t += 10 * MS;
+        }
+        let last_heard = t - 10 * MS - (t - 10 * MS) % (100 * MS);
+        // The link goes: the first tick past the window idles the engine.
+        let mut idled_at = None;
+        while t < 6_000 * MS {
+            s.check(t);
+            if s.gate(t, 70.0, 80.0).0 == THROTTLE_MIN_PCT && idled_at.is_none() {
+                idled_at = Some(t);
+            }
+            t += 10 * MS;
+        }
+        let idled_at = idled_at.expect("the deadman idled the engine");
+        assert!(idled_at > last_heard + 1_000 * MS && idled_at <= last_heard + 1_010 * MS + 10 * MS, "{idled_at}");
+        let events: Vec<Event> =
+            s.take_events().into_iter().filter(|e| e.kind != event_kinds::COMMAND_ACCEPTED).collect();
+        assert_eq!(events.len(), 1, "{events:?}");
+        let e = &events[0];
+        assert_eq!((e.kind, jetbench_msgs::identity_text(&e.identity)), (event_kinds::DEADMAN, "alice".to_string()));
+        assert!(e.value > 1.0 && e.value < 1.02 && (e.limit - 1.0).abs() < 1e-9, "{e:?}");
+        // Latched: alice's late heartbeat does not raise it, her profile does.
+        s.on_command(t, &from("alice", op::HEARTBEAT, 0.0));
+        s.check(t);
+        assert_eq!(s.gate(t, 70.0, 80.0).0, THROTTLE_MIN_PCT);
+        // Anyone's lower reference does not bring it out of idle either.
+        s.on_command(t, &command(op::SET_REFERENCE, 10.0, authorities::ANYONE));
+        assert_eq!(s.mode(), Mode::Idle);
+        s.on_command(t, &from("alice", op::RUN_PROFILE, 0.0));
+        assert_eq!(s.gate(t, 70.0, 80.0).0, 70.0);
+        // At idle the deadman does not fire: silence is harmless there.
+        s.on_command(t, &from("alice", op::IDLE, 0.0));
+        let _ = s.take_events();
+        for _ in 0..300 {
+            t += 10 * MS;
+            s.check(t);
+            s.gate(t, 70.0, 80.0);
+        }
+        assert!(s.take_events().iter().all(|e| e.kind != event_kinds::DEADMAN));
+    }
+
+    #[test]
+    fn a_stop_ends_the_test_when_the_ecu_is_asked_an_emergency_stop_at_once() {
+        let mut s = supervisor(EngineReference::Profile, Limits::default());
+        s.on_ecu(0, &ecu(ecu_states::RUN, 0, 0));
+        s.on_command(0, &command(op::STOP, 0.0, authorities::ANYONE));
+        s.check(MS);
+        assert!(!s.ended(), "idling: the set stays up until the ECU is asked");
+        s.on_command(2 * MS, &command(op::RUN_PROFILE, 0.0, authorities::OPERATOR));
+        s.check(2_999 * MS);
+        assert!(!s.ended());
+        s.check(3_000 * MS);
+        assert!(s.ended());
+        let ended: Vec<(i32, i32)> = s
+            .take_events()
+            .iter()
+            .filter(|e| e.kind == event_kinds::TEST_ENDED || e.kind == event_kinds::COMMAND_REFUSED)
+            .map(|e| (e.code, e.previous))
+            .collect();
+        assert_eq!(ended, vec![(op::RUN_PROFILE, refusals::TEST_ENDED), (end_reasons::OPERATOR, op::STOP)]);
+        let mut s = supervisor(EngineReference::Profile, Limits::default());
+        s.on_ecu(0, &ecu(ecu_states::RUN, 0, 0));
+        s.on_command(0, &command(op::STOP_NOW, 0.0, authorities::ANYONE));
+        assert!(s.ended());
     }
 
     #[test]

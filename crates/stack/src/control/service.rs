@@ -68,7 +68,10 @@ impl Service for ControlService {
             step: ControlStep::with_law(law, config.reference.clone()),
             config: config.clone(),
             profile: config.reference.clone(),
-            engine: EngineSupervisor::new(&config.engine, limits, profiles),
+            engine: match &config.operator {
+                Some(operator) => EngineSupervisor::new(&config.engine, limits, profiles).with_lease(operator.lease()),
+                None => EngineSupervisor::new(&config.engine, limits, profiles),
+            },
             // Polled every cycle: ECU samples come at 10–50 Hz, commands rarely.
             ecu: bus.polled_subscriber(channels::ECU, 64)?,
             operator: bus.polled_subscriber(channels::OPERATOR, 64)?,

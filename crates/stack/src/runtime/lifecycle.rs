@@ -60,6 +60,11 @@ pub fn describe_event(e: &Event) -> String {
         event_kinds::COMMAND_ACCEPTED => format!("{} from {who}: accepted", command()),
         event_kinds::COMMAND_REFUSED => format!("{} from {who}: refused ({})", command(), refusal_name(e.previous)),
         event_kinds::TEST_ENDED => format!("test ended: {}", end_reason(e)),
+        event_kinds::DEADMAN => {
+            format!("DEADMAN: operator {who} silent for {:.2} s (window {:.2} s); engine at idle", e.value, e.limit)
+        }
+        event_kinds::CONTROL if who.is_empty() => format!("control released ({})", command()),
+        event_kinds::CONTROL => format!("control: {who} ({})", command()),
         other => format!("event of kind {other}"),
     }
 }
@@ -108,6 +113,9 @@ fn refusal_name(code: i32) -> &'static str {
         refusals::BAD_VALUE => "value out of range",
         refusals::UNKNOWN => "unknown command",
         refusals::TRIPPED => "a trip is latched",
+        refusals::HELD_BY_ANOTHER => "another operator holds control",
+        refusals::NOT_IN_CONTROL => "not in control",
+        refusals::NO_HANDOVER_OFFER => "no handover offered",
         _ => "no reason given",
     }
 }
