@@ -67,10 +67,10 @@ impl Campaign {
                 continue;
             }
             match merged.iter().position(|old| heading(old) == h) {
-                Some(i) => merged[i] = new.trim_end().to_string(),
+                Some(i) => merged[i] = format!("{}\n", new.trim_end()),
                 None => {
                     let at = merged.iter().position(|old| heading(old) == "## Bounds broken").unwrap_or(merged.len());
-                    merged.insert(at, new.trim_end().to_string());
+                    merged.insert(at, format!("{}\n", new.trim_end()));
                 }
             }
         }

@@ -603,7 +603,7 @@ impl EcuWorker {
         let mut off_condition: u32 = 0;
         let mut refused: u32 = 0;
         let mut battery_v = 0.0;
-        // The battery voltage (`RFI`) about five times a second, with a poll.
+        // The battery voltage (`RFI`) about five times a second, after a poll.
         let fuel_every = (FUEL_PERIOD_NS / self.period_ns.max(1)).max(1);
         let mut polls: u64 = 0;
         let mut next_ns = (self.clock)();
@@ -659,7 +659,10 @@ impl EcuWorker {
                         }
                     }
                 }
-                let done = reading.is_some() && (!want_status || status.is_some()) && (!ask_fuel || fuel.is_some());
+                // The battery's reply is not waited for: it comes after the
+                // telemetry's and is taken whenever it arrives (this poll's
+                // read or the next), so it never delays a sample.
+                let done = reading.is_some() && (!want_status || status.is_some());
                 let Some(p) = port.as_mut().filter(|_| !done) else { break };
                 let left_ns = answer_by_ns.saturating_sub((self.clock)());
                 if left_ns == 0 || self.stop.load(Ordering::Relaxed) {
