@@ -273,6 +273,16 @@ fn foxglove_offers_the_safe_commands_to_anyone_and_the_raising_ones_only_to_the_
     assert_eq!(got.len(), 1, "{got:?}");
     assert_eq!((got[0].0, got[0].2), (operator_commands::STOP, authorities::ANYONE), "{got:?}");
     assert!(got[0].1.starts_with("foxglove:client-"), "{got:?}");
+    // The stop idles the engine: from the command's arrival on the bus to the first
+    // command at idle, the engine above idle until then.
+    let recording = Recording::open(&record).expect("read the recording");
+    let stop = recording.samples(channels::OPERATOR).into_iter().find(|c| c.origin == origins::FOXGLOVE).unwrap();
+    let commands = recording.samples(channels::COMMAND);
+    let before = commands.iter().rfind(|c| c.stamp_ns < stop.stamp_ns).expect("a command before the stop");
+    assert!(before.throttle_pct > jetbench_model::THROTTLE_MIN_PCT + 1.0, "above idle before the stop: {before:?}");
+    let stop_ms = idle_after(&commands, stop.stamp_ns).expect("idle after the Foxglove stop");
+    println!("Foxglove stop: idle {stop_ms:.1} ms after the command reached the bus");
+    assert!(stop_ms <= 100.0, "idle {stop_ms:.1} ms after the Foxglove stop");
 
     // With [operator] and the viewer bound to its address: every service; the token
     // gives the operator's authority, a call without it anyone's.

@@ -199,7 +199,7 @@ impl TwoHosts {
     fn bench_link(&self, state: &str) -> Result<(), String> {
         let veth = &self.bench_link;
         let out = Command::new("ip")
-            .args(["-n", &self.bench, "link", "set", &veth, state])
+            .args(["-n", &self.bench, "link", "set", veth, state])
             .output()
             .map_err(|e| format!("ip link set {veth} {state}: {e}"))?;
         if out.status.success() {
