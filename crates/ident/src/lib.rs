@@ -2,7 +2,6 @@
 //!
 //! [`SavitzkyGolay`] smooths and differentiates whole recordings (thrust rate and
 //! acceleration for LS and SINDy), with scipy's `savgol_filter` edge handling.
-#![warn(missing_docs)]
 #![doc = include_str!("../README.md")]
 
 pub mod diagnose;
