@@ -101,7 +101,10 @@ pub enum Fault {
     NotANumber(Window),
     /// The sensor sends nothing.
     Silence(Window),
-    Offset { window: Window, size_n: f64 },
+    Offset {
+        window: Window,
+        size_n: f64,
+    },
 }
 
 impl Fault {
