@@ -272,6 +272,8 @@ fn a_missing_file_is_said_once() {
         vec!["play", "no-such-run.mcap"],
         vec!["diagnose", "--model", "p100-diesel", "no-such-run.mcap"],
         vec!["simulate", "--model", "p100-diesel", "--input", "no-such-run.mcap"],
+        vec!["replay", "no-such-run.mcap"],
+        vec!["metrics", "no-such-run.mcap"],
     ] {
         let (code, _, err) = run_jetbench(SUITE, &args, LIMIT);
         assert_ne!(code, 0);

@@ -90,7 +90,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<ExitCode> {
         Ok(true) => Ok(ExitCode::SUCCESS),
         Ok(false) => Ok(ExitCode::from(EXIT_DIFFERS)),
         Err(e) => {
-            eprintln!("jetbench: error: {e:#}");
+            eprintln!("jetbench: error: {}", crate::error_text(&e));
             Ok(ExitCode::from(EXIT_ERROR))
         }
     }
