@@ -345,6 +345,9 @@ sample! {
         pub pump_v: f64,
         /// Throttle position the ECU reports, %.
         pub throttle_pct: f64,
+        /// The ECU's battery voltage, V, read with `RFI` every few polls (the
+        /// newest reading; 0 until the first).
+        pub battery_v: f64,
         /// ECU state code as reported (JetCat's RS232 number, [`ecu_states`]).
         pub state: u32,
         /// Link flags (see [`ecu_flags`]).
@@ -354,9 +357,6 @@ sample! {
         pub off_condition: u32,
         /// Commands (start, stop) the ECU refused so far.
         pub refused: u32,
-        /// The ECU's battery voltage, V, read with `RFI` every few polls (the
-        /// newest reading; 0 until the first).
-        pub battery_v: f64,
     }
 }
 
