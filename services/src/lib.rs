@@ -19,6 +19,11 @@ pub fn init_logging() {
         .with_writer(|| jetbench_stack::runtime::status::ConsoleStderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_target(false)
+        // A log line that cannot be written is dropped. Reporting it would print to
+        // the same broken stderr, and a service whose launcher was killed (stderr a
+        // closed pipe) would panic in its stop, before disarming the board and
+        // recording the disarm.
+        .log_internal_errors(false)
         .try_init();
 }
 

@@ -101,7 +101,9 @@ impl ChannelReader for RecorderService {
     fn finish(&mut self) -> Result<(), ServiceError> {
         let Some(writer) = self.writer.take() else {
             if let Some(e) = &self.failed {
-                eprintln!("recorder: the recording stopped early and the run went on without it: {e}");
+                crate::runtime::status::say_err(&format!(
+                    "recorder: the recording stopped early and the run went on without it: {e}"
+                ));
             }
             return Ok(());
         };
@@ -117,7 +119,9 @@ impl ChannelReader for RecorderService {
             written: stats.written,
             dropped_full,
         };
-        eprint!("{report}");
+        // Not `eprint!`: with the launcher gone, stderr is a closed pipe, and the
+        // recording is already closed and whole.
+        crate::runtime::status::say_err(report.to_string().trim_end());
         if report.dropped_full > 0 {
             return Err(ServiceError::Dropped(report.dropped_full));
         }
