@@ -8,6 +8,7 @@
 //! ```sh
 //! cargo bench -p jetbench-ident --bench diagnose
 //! ```
+#![allow(missing_docs, reason = "criterion_group! defines a public function it cannot document")]
 
 use std::hint::black_box;
 use std::time::Duration;

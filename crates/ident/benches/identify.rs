@@ -5,6 +5,7 @@
 //! ```sh
 //! cargo bench -p jetbench-ident --bench identify
 //! ```
+#![allow(missing_docs, reason = "criterion_group! defines a public function it cannot document")]
 
 use std::hint::black_box;
 

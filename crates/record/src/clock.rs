@@ -63,7 +63,9 @@ impl LogClock {
 /// The two clocks read together, ns.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ClockOrigin {
+    /// `CLOCK_MONOTONIC`, ns.
     pub monotonic_ns: u64,
+    /// `CLOCK_REALTIME`, ns since the Unix epoch.
     pub realtime_ns: u64,
 }
 
@@ -77,6 +79,7 @@ impl ClockOrigin {
 /// How to turn a recording's log times into wall-clock times.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct TimeBase {
+    /// The clock the log times were taken on.
     pub log_clock: LogClock,
     /// Where the recording says both clocks stood at its start.
     pub origin: Option<ClockOrigin>,

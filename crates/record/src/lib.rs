@@ -48,18 +48,52 @@ pub const PROFILE: &str = "ros2";
 /// Why a recording could not be written or read.
 #[derive(Debug, thiserror::Error)]
 pub enum RecordError {
+    /// The file could not be created, written or flushed.
     #[error("cannot create {path}: {source}")]
-    Create { path: PathBuf, source: std::io::Error },
+    Create {
+        /// The recording being written.
+        path: PathBuf,
+        /// What the operating system said.
+        source: std::io::Error,
+    },
+    /// The file could not be opened or read.
     #[error("cannot read {path}: {source}")]
-    Read { path: PathBuf, source: std::io::Error },
+    Read {
+        /// The recording being read.
+        path: PathBuf,
+        /// What the operating system said.
+        source: std::io::Error,
+    },
+    /// The MCAP library rejected a record while writing or reading.
     #[error("MCAP error in {path}: {source}")]
-    Mcap { path: PathBuf, source: mcap::McapError },
+    Mcap {
+        /// The recording concerned.
+        path: PathBuf,
+        /// The MCAP library's error.
+        source: mcap::McapError,
+    },
+    /// The file is something else than MCAP.
     #[error("{path} is not an MCAP file (it does not start with the MCAP magic bytes); {what}")]
-    NotMcap { path: PathBuf, what: &'static str },
+    NotMcap {
+        /// The file that was given.
+        path: PathBuf,
+        /// What its first bytes look like instead (a CSV, a TOML file, ...).
+        what: &'static str,
+    },
+    /// A message was logged on a topic that was not registered first.
     #[error("channel {0} is not registered in this recording")]
     UnknownChannel(String),
+    /// A sample does not fit the fixed-size slot the recorder copies it into.
     #[error("sample of {channel} is {size} bytes, larger than the {max}-byte record slot")]
-    SampleTooLarge { channel: String, size: usize, max: usize },
+    SampleTooLarge {
+        /// The channel's topic.
+        channel: String,
+        /// The sample's size in bytes.
+        size: usize,
+        /// The slot's size in bytes.
+        max: usize,
+    },
+    /// The background writer thread ended (its error, or why it is gone).
     #[error("the recorder's writer thread stopped: {0}")]
     WriterGone(String),
     /// The disk holding the recording is full (or its quota or the file size
@@ -68,7 +102,14 @@ pub enum RecordError {
         "the disk holding {path} is full ({source}): recording stopped after {written} messages; everything \
          flushed before is in the file (`jetbench recover {path} --out FIXED.mcap`, on another disk, rewrites it whole)"
     )]
-    DiskFull { path: PathBuf, written: u64, source: std::io::Error },
+    DiskFull {
+        /// The recording being written.
+        path: PathBuf,
+        /// Messages written before the disk filled.
+        written: u64,
+        /// What the operating system said.
+        source: std::io::Error,
+    },
 }
 
 impl RecordError {
@@ -127,6 +168,7 @@ impl CdrMessage {
         Some(CdrMessage { len: 4 + body.len(), bytes })
     }
 
+    /// The message's bytes: the CDR header, then the sample.
     pub fn as_bytes(&self) -> &[u8] {
         &self.bytes[..self.len]
     }
@@ -276,9 +318,13 @@ impl McapWriter {
 /// One recorded message.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RecordedMessage {
+    /// The channel's topic (`bench/state`, ...).
     pub topic: String,
+    /// The ROS 2 message type of its schema (`jetbench_msgs/msg/BenchState`, ...).
     pub schema_name: String,
+    /// When the recorder logged it, ns on the bench's monotonic clock.
     pub log_time_ns: u64,
+    /// The sample's own stamp, ns on the same clock.
     pub publish_time_ns: u64,
     /// The CDR message (header plus body).
     pub data: Vec<u8>,
@@ -304,6 +350,7 @@ impl RecordedMessage {
 /// A recording read into memory.
 #[derive(Clone, Debug, Default)]
 pub struct Recording {
+    /// Every message, in the order of the file.
     pub messages: Vec<RecordedMessage>,
     /// The file ended early (e.g. the recorder was killed): the messages up to
     /// the last complete chunk are present.
@@ -422,7 +469,9 @@ pub fn seq_gaps<T: Sample>(samples: &[T]) -> u64 {
 /// One channel of a recording at a glance (`jetbench info`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct ChannelSummary {
+    /// The channel's topic.
     pub topic: String,
+    /// Messages on it.
     pub messages: usize,
     /// Messages per second of log time.
     pub rate_hz: f64,

@@ -43,13 +43,17 @@ pub const KEY_REALTIME_NS_AT_START: &str = "realtime_ns_at_start";
 /// The entries of the [`RUN`] record, typed.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct RunMetadata {
+    /// The bench configuration the run used, as TOML.
     pub config_toml: String,
     /// Absent in recordings of older runs.
     pub model_toml: Option<String>,
+    /// How the samples' stamps were taken (the clock's name).
     pub clock: String,
     /// [`KEY_LOG_TIME_CLOCK`]; empty in older recordings.
     pub log_time_clock: String,
+    /// `CLOCK_MONOTONIC` when the recording started, ns; absent in older recordings.
     pub monotonic_ns_at_start: Option<u64>,
+    /// `CLOCK_REALTIME` at the same moment, ns since the Unix epoch.
     pub realtime_ns_at_start: Option<u64>,
 }
 

@@ -47,7 +47,9 @@ const DATA_RECORDS: [u8; 6] = [op::SCHEMA, op::CHANNEL, op::MESSAGE, op::CHUNK, 
 pub struct RecoverReport {
     /// Messages written to the new file.
     pub messages: u64,
+    /// Metadata records copied.
     pub metadata: usize,
+    /// Attachments copied.
     pub attachments: usize,
     /// Chunks read whole.
     pub chunks: usize,

@@ -33,10 +33,23 @@ const MAX_PLAUSIBLE_THRUST_N: f64 = 2000.0;
 /// Why a recording cannot be used as identification data.
 #[derive(Debug, thiserror::Error)]
 pub enum DataError {
+    /// The file (a CSV) could not be read.
     #[error("cannot read {path}: {source}")]
-    Read { path: PathBuf, source: std::io::Error },
+    Read {
+        /// The file given.
+        path: PathBuf,
+        /// What the operating system said.
+        source: std::io::Error,
+    },
+    /// The rows cannot be used (too few, not monotonic, a throttle out of range, ...).
     #[error("{path}: {message}")]
-    Invalid { path: String, message: String },
+    Invalid {
+        /// The file given.
+        path: String,
+        /// What is wrong and what to do.
+        message: String,
+    },
+    /// The recording itself could not be read.
     #[error(transparent)]
     Mcap(#[from] crate::RecordError),
 }
@@ -55,10 +68,12 @@ pub struct Series {
 }
 
 impl Series {
+    /// Rows (10 ms samples).
     pub fn len(&self) -> usize {
         self.t_s.len()
     }
 
+    /// No rows at all.
     pub fn is_empty(&self) -> bool {
         self.t_s.is_empty()
     }

@@ -23,11 +23,17 @@ pub const FLUSH_EVERY: Duration = Duration::from_millis(500);
 /// One sample on its way to disk; fixed size, so sending allocates nothing.
 #[derive(Clone, Copy, Debug)]
 pub struct RawRecord {
+    /// The channel's topic.
     pub channel: &'static str,
+    /// The MCAP message sequence number.
     pub seq: u64,
+    /// When the recorder took it, ns (monotonic).
     pub log_time_ns: u64,
+    /// The sample's own stamp, ns (monotonic).
     pub publish_time_ns: u64,
+    /// Bytes used in `bytes`.
     pub len: usize,
+    /// The CDR message, `len` bytes of it used.
     pub bytes: [u8; MAX_SAMPLE_BYTES],
 }
 
@@ -46,7 +52,9 @@ impl RawRecord {
 /// What the writer thread did, returned when it ends.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct WriterStats {
+    /// Messages written.
     pub written: u64,
+    /// Times the file was flushed to disk.
     pub flushes: u64,
 }
 

@@ -8,6 +8,7 @@
 //! The input is built once, in memory, by simulating the closed loop with the
 //! live step structs ([`synthetic_recording`]); only [`replay`] is measured.
 //! Criterion reports the throughput in samples (elements) per second.
+#![allow(missing_docs, reason = "criterion_group! defines a public function it cannot document")]
 
 use std::hint::black_box;
 

@@ -17,48 +17,80 @@ pub const DEFAULT_SIM_CONFIG: &str = include_str!("../../../config/sim.toml");
 pub enum ConfigError {
     /// The file cannot be read.
     #[error("cannot read the bench config {path}: {source}")]
-    Read { path: PathBuf, source: std::io::Error },
+    Read {
+        /// The file given.
+        path: PathBuf,
+        /// What the operating system said.
+        source: std::io::Error,
+    },
     /// Not TOML, or a key that does not exist (the message names it).
     #[error("bench config {origin}: {message}")]
-    Parse { origin: String, message: String },
+    Parse {
+        /// Where the text came from (a path, or what built it).
+        origin: String,
+        /// The TOML parser's message, naming the line and key.
+        message: String,
+    },
     /// A value out of range, or settings that contradict each other.
     #[error("bench config {origin}: {message}")]
-    Invalid { origin: String, message: String },
+    Invalid {
+        /// Where the text came from (a path, or what built it).
+        origin: String,
+        /// Which section and key, what is wrong, and what is allowed.
+        message: String,
+    },
 }
 
 /// Why the control law could not be set up.
 #[derive(Debug, thiserror::Error)]
 pub enum ControlSetupError {
+    /// The model file the controller plans with is unusable.
     #[error("controller model: {0}")]
     Model(#[from] jetbench_model::ModelError),
+    /// The open-loop throttle profile could not be read.
     #[error("throttle profile: {0}")]
     Profile(#[from] jetbench_record::series::DataError),
+    /// The law refused its settings.
     #[error("controller: {0}")]
     Law(#[from] jetbench_control::ControlError),
 }
 
+/// The bench configuration (`config/bench.example.toml`): one section per
+/// concern, each checked by what it configures when the file loads.
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct BenchConfig {
+    /// `[bench]`: simulated or real devices.
     pub bench: BenchSection,
+    /// `[plant]`: the simulated engine (used only with `devices = "sim"`).
     pub plant: PlantSection,
+    /// `[model]`: the model the estimator and the controller use.
     pub model: ModelSection,
+    /// `[sensor]`: the force/torque sensor's link and calibration.
     #[serde(default)]
     pub sensor: SensorSection,
+    /// `[estimator]`: the observer's noise settings.
     #[serde(default)]
     pub estimator: EstimatorSection,
+    /// `[control]`: which law runs and every law's tunables.
     #[serde(default)]
     pub control: ControlSection,
+    /// `[actuation]`: the throttle board and its watchdog.
     #[serde(default)]
     pub actuation: ActuationSection,
+    /// `[ecu]`: the engine ECU's telemetry port.
     #[serde(default)]
     pub ecu: EcuSection,
+    /// `[reference]`: the thrust profile a run tracks.
     #[serde(default)]
     pub reference: Profile,
+    /// `[recorder]`: queue size and what a write error does.
     #[serde(default)]
     pub recorder: RecorderSection,
+    /// `[rt]`: real-time priorities, CPUs and memory locking.
     #[serde(default)]
     pub rt: RtSection,
+    /// `[engine]`: how the engine starts, what it tracks, how a run ends.
     #[serde(default)]
     pub engine: EngineSection,
     /// The operating envelope, checked and typed by [`BenchConfig::limits`]
@@ -70,6 +102,7 @@ pub struct BenchConfig {
     pub operator: Option<jetbench_control::operator::OperatorSettings>,
 }
 
+/// `[bench]`.
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct BenchSection {
@@ -89,6 +122,7 @@ pub struct BenchSection {
     pub group: Option<String>,
 }
 
+/// `[bench] devices`: what the services talk to.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Devices {
@@ -151,6 +185,7 @@ fn default_idle() -> f64 {
     jetbench_model::THROTTLE_MIN_PCT
 }
 
+/// `[model]`.
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ModelSection {
@@ -158,16 +193,21 @@ pub struct ModelSection {
     pub model: String,
 }
 
+/// A force axis of the sensor's calibrated frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Deserialize, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Axis {
+    /// Fx, the usual thrust axis.
     #[default]
     X,
+    /// Fy.
     Y,
+    /// Fz.
     Z,
 }
 
 impl Axis {
+    /// Its index in a `[Fx, Fy, Fz, Tx, Ty, Tz]` reading.
     pub fn index(self) -> usize {
         self as usize
     }
@@ -250,6 +290,7 @@ impl SensorSection {
         Ok(interface.in_namespace(&bus_namespace()))
     }
 
+    /// The frame codec for the sensor's CAN identifiers (`can_base_id`).
     pub fn codec(&self) -> Result<jetbench_io::can::Codec, jetbench_io::can::CodecError> {
         jetbench_io::can::Codec::new(self.can_base_id)
     }
@@ -265,10 +306,13 @@ impl SensorSection {
     }
 }
 
+/// `[estimator]`: the observer's settings (checked by [`jetbench_estim`]).
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EstimatorSection {
+    /// Variance of the thrust measurement's noise, N².
     pub measurement_var_n2: f64,
+    /// Process noise: the thrust's unmodelled acceleration, N/s² (> 0).
     pub accel_noise_n_per_s2: f64,
     /// Drift of the disturbance state over one second, N/s² (0: no disturbance state).
     pub disturbance_drift_n_per_s2: f64,
@@ -331,10 +375,15 @@ impl EstimatorSection {
 #[derive(Clone, Debug, PartialEq, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ControlSection {
+    /// The law that runs.
     pub controller: Controller,
+    /// `[control.fbl]`: feedback linearisation's gains.
     pub fbl: FblGains,
+    /// `[control.smc]`: sliding mode's gains.
     pub smc: SmcGains,
+    /// `[control.mpc]`: the predictive controller's horizon and weights.
     pub mpc: MpcSettings,
+    /// `[control.shaping]`: the reference shaper in front of every law.
     pub shaping: ShaperSettings,
     /// CSV `time_s,throttle_pct` at 100 Hz (e.g. from `jetbench excite`), for `open-loop`.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -348,9 +397,11 @@ impl ControlSection {
     }
 }
 
+/// `[actuation]`: the throttle board and the actuation watchdog.
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ActuationSection {
+    /// Command idle after this many 10 ms cycles without a control sample.
     pub idle_after_missed_cycles: u32,
     /// Serial port of the throttle board, e.g. `/dev/ttyUSB0`. Unset with
     /// `devices = "sim"`: the pty link sim-bench publishes ([`sim_port_link`]).
@@ -407,8 +458,11 @@ impl Default for EngineSection {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum EngineStart {
+    /// Someone starts the engine (the ECU's panel, or `jetbench start`).
     Wait,
+    /// `jetbench up` starts it through the ECU.
     Auto,
+    /// The emulated engine is already running (simulated bench only).
     Running,
 }
 
@@ -416,7 +470,9 @@ pub enum EngineStart {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum EngineReference {
+    /// Idle until an operator runs a profile.
     Idle,
+    /// Track `[reference]` from the moment the engine runs.
     Profile,
 }
 
@@ -460,9 +516,12 @@ pub fn bus_namespace() -> String {
     jetbench_bus::namespace_name().unwrap_or_else(|_| "default".into())
 }
 
+/// `[recorder]`.
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RecorderSection {
+    /// Samples the queue between the recorder and its writer thread holds: it
+    /// absorbs a disk stall of `queue` divided by the samples recorded per second.
     pub queue: usize,
     /// What a run does when the recording cannot be written (a full disk).
     pub on_error: OnRecordError,
@@ -548,20 +607,29 @@ impl Default for RtSection {
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct PerService<T> {
+    /// `sim-bench`, the simulated devices.
     #[serde(rename = "sim-bench")]
     pub sim_bench: T,
+    /// `sensing`.
     pub sensing: T,
+    /// `estimation`.
     pub estimation: T,
+    /// `control`.
     pub control: T,
+    /// `actuation`.
     pub actuation: T,
+    /// `recorder`.
     pub recorder: T,
+    /// `viewer`, the Foxglove server (optional).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub viewer: Option<T>,
+    /// `bridge`, the control room's gateway (optional).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bridge: Option<T>,
 }
 
 impl<T> PerService<T> {
+    /// The value for `id`; `None` for an optional service without one.
     pub fn get(&self, id: ServiceId) -> Option<&T> {
         match id {
             ServiceId::SimBench => Some(&self.sim_bench),
@@ -626,6 +694,8 @@ impl BenchConfig {
         }
     }
 
+    /// Parses and checks a configuration; relative paths in it are taken from
+    /// `base_dir` (the config file's folder). `origin` names the text in errors.
     pub fn from_toml_str(text: &str, origin: &str, base_dir: Option<&Path>) -> Result<Self, ConfigError> {
         let mut config: BenchConfig =
             toml::from_str(text).map_err(|e| ConfigError::Parse { origin: origin.into(), message: e.to_string() })?;

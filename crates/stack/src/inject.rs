@@ -101,8 +101,11 @@ pub enum Fault {
     NotANumber(Window),
     /// The sensor sends nothing.
     Silence(Window),
+    /// The sensor's zero shifts by `size_n` (a knocked mount, a thermal shift).
     Offset {
+        /// When.
         window: Window,
+        /// The shift, N on the thrust axis.
         size_n: f64,
     },
 }

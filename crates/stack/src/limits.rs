@@ -41,17 +41,26 @@ impl fmt::Display for Response {
 /// The limits of `[limits]`, by their key.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LimitKind {
+    /// `max_thrust_n`: the stand's rating, N.
     MaxThrust,
+    /// `max_egt_c`: the exhaust gas temperature, °C.
     MaxEgt,
+    /// `max_egt_rise_c_per_s`: how fast the exhaust heats, °C/s.
     MaxEgtRise,
+    /// `max_rpm`: shaft overspeed.
     MaxRpm,
+    /// `min_rpm`: the shaft too slow while the engine runs (a flame-out).
     MinRpm,
+    /// `thrust_rpm_band_n`: thrust and RPM disagree by more than this, N.
     ThrustRpmBand,
+    /// `ecu_silent_s`: no ECU telemetry for this long, s.
     EcuSilent,
+    /// `sensor_silent_s`: no force sample for this long, s.
     SensorSilent,
 }
 
 impl LimitKind {
+    /// Every limit, in the order of `[limits]`' documentation.
     pub const ALL: [LimitKind; 8] = [
         LimitKind::MaxThrust,
         LimitKind::MaxEgt,
@@ -116,6 +125,7 @@ impl LimitKind {
         }
     }
 
+    /// The limit with this code in `bench/events`.
     pub fn from_code(code: i32) -> Option<LimitKind> {
         Self::ALL.into_iter().find(|k| k.code() == code)
     }
@@ -128,8 +138,11 @@ impl LimitKind {
 /// One limit: its threshold, its response and how long it must be exceeded.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Limit {
+    /// The threshold, in the limit's [`LimitKind::unit`].
     pub limit: f64,
+    /// What a trip does.
     pub response: Response,
+    /// How long the threshold must be passed before it trips, s.
     pub hold_s: f64,
 }
 
@@ -142,8 +155,11 @@ pub struct Limit {
 /// lag ([`ThrustLag`]), so a step of the engine is no disagreement.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RpmMap {
+    /// Shaft speed at zero thrust, rpm.
     pub idle_rpm: f64,
+    /// RPM above idle per √N of thrust.
     pub rpm_per_sqrt_n: f64,
+    /// The RPM reading's lag behind the thrust, s.
     pub lag_s: f64,
 }
 
@@ -164,6 +180,7 @@ pub struct ThrustLag {
 }
 
 impl ThrustLag {
+    /// A lag of `lag_s` (0: none), starting at the first thrust it is fed.
     pub fn new(lag_s: f64) -> Self {
         ThrustLag { lag_s, last: None }
     }
@@ -191,18 +208,40 @@ pub const EMULATED_RPM_LAG_S: f64 = jetbench_io::ecu::emulator::RPM_TAU_S;
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Limits {
     entries: [Option<Limit>; 8],
+    /// The engine's thrust–RPM relation, needed by `thrust_rpm_band_n`.
     pub rpm_map: Option<RpmMap>,
 }
 
 /// A `[limits]` that cannot be used: which key, and why.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum LimitsError {
+    /// A key `[limits]` does not have (a typo, usually).
     #[error("[limits] unknown key `{key}`{}; the keys are preset, {}", suggest(.suggestion), keys())]
-    UnknownKey { key: String, suggestion: Option<&'static str> },
+    UnknownKey {
+        /// The key as written.
+        key: String,
+        /// The nearest key there is.
+        suggestion: Option<&'static str>,
+    },
+    /// A key a limit's table does not have.
     #[error("[limits] {entry}: unknown key `{key}`{}; an entry has limit, response and hold_s{}", suggest(.suggestion), if *.entry == "thrust_rpm_band_n" { " (and idle_rpm, rpm_per_sqrt_n, lag_s)" } else { "" })]
-    UnknownEntryKey { entry: &'static str, key: String, suggestion: Option<&'static str> },
+    UnknownEntryKey {
+        /// The limit's key.
+        entry: &'static str,
+        /// The key as written inside it.
+        key: String,
+        /// The nearest key there is.
+        suggestion: Option<&'static str>,
+    },
+    /// A value out of range or of the wrong type.
     #[error("[limits] {key}: {message}")]
-    Invalid { key: String, message: String },
+    Invalid {
+        /// The key concerned.
+        key: String,
+        /// What is wrong and what is allowed.
+        message: String,
+    },
+    /// `preset` names no preset.
     #[error("[limits] preset = {0:?} is not a preset; the presets are \"p100\" and \"p220\"")]
     UnknownPreset(String),
 }
@@ -265,10 +304,12 @@ impl Limits {
         self.entries.iter().all(Option::is_none)
     }
 
+    /// The limit of `kind`, if set.
     pub fn get(&self, kind: LimitKind) -> Option<Limit> {
         self.entries[kind.index()]
     }
 
+    /// Sets (or, with `None`, clears) the limit of `kind`.
     pub fn set(&mut self, kind: LimitKind, limit: Option<Limit>) {
         self.entries[kind.index()] = limit;
     }
@@ -384,13 +425,17 @@ impl Limits {
 /// A limit that tripped.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Trip {
+    /// Which limit.
     pub kind: LimitKind,
+    /// What the trip does.
     pub response: Response,
-    /// The value past the limit, and the limit.
+    /// The value past the limit, in the limit's unit.
     pub value: f64,
+    /// The limit it passed.
     pub limit: f64,
-    /// When the limit was first exceeded, and when it tripped (monotonic ns).
+    /// When the limit was first exceeded, monotonic ns.
     pub since_ns: u64,
+    /// When it tripped (after its hold), monotonic ns.
     pub at_ns: u64,
 }
 
@@ -441,6 +486,7 @@ pub const EGT_RATE_WINDOW_NS: u64 = 250_000_000;
 pub const STARTUP_GRACE_NS: u64 = 2_000_000_000;
 
 impl LimitMonitor {
+    /// A monitor of `limits`, nothing seen yet.
     pub fn new(limits: Limits) -> Self {
         let lag = ThrustLag::new(limits.rpm_map.map_or(0.0, |m| m.lag_s));
         LimitMonitor {
@@ -457,6 +503,7 @@ impl LimitMonitor {
         }
     }
 
+    /// The limits it watches.
     pub fn limits(&self) -> &Limits {
         &self.limits
     }

@@ -132,20 +132,27 @@ impl ChannelReader for RecorderService {
 /// Per-channel counts the recorder reports at exit.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct ChannelReport {
+    /// The channel's topic.
     pub channel: &'static str,
+    /// Samples taken from the bus.
     pub received: u64,
+    /// Samples missing by their sequence numbers.
     pub gaps: u64,
 }
 
 /// What the recorder did, printed at exit.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct RecorderReport {
+    /// Every recorded channel.
     pub channels: Vec<ChannelReport>,
+    /// Messages written to the file.
     pub written: u64,
+    /// Samples dropped because the writer's queue was full.
     pub dropped_full: u64,
 }
 
 impl RecorderReport {
+    /// Gaps over every channel.
     pub fn total_gaps(&self) -> u64 {
         self.channels.iter().map(|c| c.gaps).sum()
     }

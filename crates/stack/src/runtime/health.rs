@@ -13,6 +13,7 @@ pub struct HealthReporter {
 }
 
 impl HealthReporter {
+    /// Publishes `service`'s heartbeats on `bench/health`.
     pub fn new(bus: &Bus, service: ServiceId) -> Result<Self, BusError> {
         Ok(HealthReporter {
             publisher: bus.publisher(channels::HEALTH)?,
@@ -64,6 +65,7 @@ impl HealthReporter {
         }
     }
 
+    /// The counters as last published (misses, gaps, flags).
     pub fn counters(&self) -> &Health {
         &self.sample
     }

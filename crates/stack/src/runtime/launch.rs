@@ -29,29 +29,73 @@ const FAILSAFE_GRACE: Duration = Duration::from_millis(150);
 /// Why `jetbench up` failed.
 #[derive(Debug, thiserror::Error)]
 pub enum LaunchError {
+    /// A service's binary is not where the launcher looks.
     #[error("cannot find the service binary {path}: {hint}")]
-    MissingBinary { path: PathBuf, hint: String },
+    MissingBinary {
+        /// Where it was looked for.
+        path: PathBuf,
+        /// How to build or point to it.
+        hint: String,
+    },
+    /// The operating system refused to start a service.
     #[error("cannot start service `{service}`: {source}")]
-    Spawn { service: &'static str, source: std::io::Error },
+    Spawn {
+        /// The service's name.
+        service: &'static str,
+        /// What the operating system said.
+        source: std::io::Error,
+    },
+    /// A service started but never said it was ready.
     #[error("service `{service}` did not report ready within {timeout:?}; see its log above")]
-    NotReady { service: &'static str, timeout: Duration },
+    NotReady {
+        /// The service's name.
+        service: &'static str,
+        /// How long the launcher waited.
+        timeout: Duration,
+    },
+    /// A service exited during the run.
     #[error("service `{service}` {how}; the other services were stopped")]
-    ServiceDied { service: &'static str, how: String },
+    ServiceDied {
+        /// The service's name.
+        service: &'static str,
+        /// Its exit status or signal, in words.
+        how: String,
+    },
+    /// A service did not stop cleanly when asked.
     #[error("service `{service}` {how} while stopping")]
-    StopFailed { service: &'static str, how: String },
+    StopFailed {
+        /// The service's name.
+        service: &'static str,
+        /// Its exit status or signal, in words.
+        how: String,
+    },
     /// The test ended before its time: the ECU shut the engine down, or a
     /// limit tripped with the response `shutdown`.
     #[error("the test ended: {reason}")]
-    TestEnded { reason: String },
+    TestEnded {
+        /// The trip or the ECU's state, in words.
+        reason: String,
+    },
     /// The engine did not get to run.
     #[error("the engine did not run within {timeout_s} s (the ECU says {state}); {hint}")]
-    NotRunning { timeout_s: f64, state: String, hint: String },
+    NotRunning {
+        /// How long the launcher waited, s.
+        timeout_s: f64,
+        /// The ECU's last state.
+        state: String,
+        /// What to check.
+        hint: String,
+    },
+    /// The signal handler for Ctrl-C could not be installed.
     #[error("cannot count Ctrl-C: {0}")]
     Signals(std::io::Error),
+    /// The bus could not be opened or used.
     #[error(transparent)]
     Bus(#[from] BusError),
+    /// Another set runs in this bus namespace.
     #[error(transparent)]
     Lock(#[from] jetbench_bus::lock::LockError),
+    /// `[bench] group` cannot be used.
     #[error(transparent)]
     Group(#[from] jetbench_bus::access::GroupError),
 }

@@ -139,6 +139,7 @@ impl Interrupts {
         Ok(Interrupts(count))
     }
 
+    /// SIGINT and SIGTERM received so far.
     pub fn count(&self) -> usize {
         self.0.load(Ordering::Relaxed)
     }
@@ -163,6 +164,7 @@ pub struct EngineWatch {
 }
 
 impl EngineWatch {
+    /// Watches the ECU telemetry and events on `bus`.
     pub fn new(bus: &Bus) -> Result<Self, BusError> {
         Ok(EngineWatch {
             ecu: bus.polled_subscriber(channels::ECU, 64)?,
@@ -232,6 +234,7 @@ impl EngineWatch {
         self.state.is_some_and(|s| s.is_burning() || s.is_stopping())
     }
 
+    /// The ECU reports the engine running.
     pub fn running(&self) -> bool {
         self.state.is_some_and(EcuState::is_running)
     }

@@ -42,7 +42,9 @@ pub const MISS_REMINDER: Duration = Duration::from_secs(30);
 pub struct EngineView {
     /// The ECU's state by name (`run`, `ignition`, ...).
     pub state: String,
+    /// Shaft speed, rpm.
     pub rpm: f64,
+    /// Exhaust gas temperature, °C.
     pub egt_c: f64,
 }
 
@@ -122,13 +124,16 @@ impl StatusView {
 /// One control-path channel's rate over the last window.
 #[derive(Clone, Copy, Debug)]
 pub struct ChannelRate {
+    /// The channel's topic.
     pub channel: &'static str,
+    /// Samples per second over the window.
     pub hz: f64,
 }
 
 /// One service's state over the last window, from its `bench/health` heartbeats.
 #[derive(Clone, Copy, Debug)]
 pub struct ServiceWindow {
+    /// Which service.
     pub service: ServiceId,
     /// Deadline misses in the window.
     pub new_misses: u64,

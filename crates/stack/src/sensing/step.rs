@@ -13,6 +13,7 @@ use crate::runtime::clock::PERIOD_NS;
 /// Why sensing rejected a reading.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SensingError {
+    /// A force component is NaN or infinite (`[Fx, Fy, Fz]`).
     #[error("force reading is not finite: {0:?}")]
     NonFinite([f64; 3]),
 }
