@@ -642,6 +642,22 @@ mod tests {
         EcuTelemetry { rpm, egt_c, state: 11, ..Default::default() }
     }
 
+    /// Feeds cycles `ks` (10 ms apart) with `feed` and checks after each: the first trip of `kind`.
+    fn first_trip(
+        m: &mut LimitMonitor,
+        ks: std::ops::Range<u64>,
+        kind: LimitKind,
+        mut feed: impl FnMut(&mut LimitMonitor, u64),
+    ) -> Option<Trip> {
+        let mut first = None;
+        for k in ks {
+            let t = k * 10_000_000;
+            feed(m, t);
+            first = first.or(m.check(t, true).into_iter().find(|trip| trip.kind == kind));
+        }
+        first
+    }
+
     #[test]
     fn a_limit_trips_after_its_hold_once_and_latches_until_cleared() {
         let mut m = LimitMonitor::new(Limits::preset("p100").unwrap());
@@ -681,22 +697,14 @@ mod tests {
             assert_eq!(m.check(t, true), vec![], "at {k}");
         }
         // The sensor reads 40 N too much: the band trips after its 1 s hold.
-        let mut band = None;
-        for k in 300..500u64 {
-            let t = k * 10 * ms;
+        let band = first_trip(&mut m, 300..500, LimitKind::ThrustRpmBand, |m, t| {
             m.on_thrust(t, 80.0);
             m.on_ecu(t, &ecu(map.idle_rpm + map.rpm_per_sqrt_n * 40f64.sqrt(), 600.0));
-            band = band.or(m.check(t, true).into_iter().find(|t| t.kind == LimitKind::ThrustRpmBand));
-        }
+        });
         let band = band.expect("the band trips");
         assert_eq!(band.at_ns - band.since_ns, 1000 * ms);
         // Then the sensor falls silent: 0.1 s later it trips.
-        let mut silent = None;
-        for k in 500..600u64 {
-            let t = k * 10 * ms;
-            m.on_ecu(t, &ecu(90_000.0, 600.0));
-            silent = silent.or(m.check(t, true).into_iter().find(|t| t.kind == LimitKind::SensorSilent));
-        }
+        let silent = first_trip(&mut m, 500..600, LimitKind::SensorSilent, |m, t| m.on_ecu(t, &ecu(90_000.0, 600.0)));
         let silent = silent.expect("sensor silence trips");
         assert!(silent.value > 0.1 && silent.value < 0.12, "{silent}");
     }

@@ -26,6 +26,29 @@ pub const SENSOR_UNPLUGGED_FILE: &str = "sensor-unplugged";
 /// like an ECU that lost power or its cable), in the run's sim folder.
 pub const ECU_UNPLUGGED_FILE: &str = "ecu-unplugged";
 
+/// Frames sent with each kind of injected sensor fault, reported at exit.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct InjectedCounts {
+    spikes: u64,
+    stuck: u64,
+    nan: u64,
+    silent: u64,
+    offset: u64,
+}
+
+impl InjectedCounts {
+    /// Counts one frame by its [`jetbench_msgs::sim_faults`] flags.
+    fn count(&mut self, faults: u64) {
+        use jetbench_msgs::sim_faults as f;
+        let add = |count: &mut u64, flag: u64| *count += u64::from(faults & flag != 0);
+        add(&mut self.spikes, f::SPIKE);
+        add(&mut self.stuck, f::STUCK);
+        add(&mut self.nan, f::NAN);
+        add(&mut self.silent, f::SILENCE);
+        add(&mut self.offset, f::OFFSET);
+    }
+}
+
 /// Sim-bench: the engine ([`SimBenchStep`]) stepped on its own clock, its
 /// force sensor sending real CAN frames, the throttle board and the ECU each
 /// on its own pty pair, published where actuation opens them.
@@ -33,8 +56,8 @@ pub struct SimBenchService {
     sim: SimBenchStep,
     /// Injected faults between the sensor and its frames (`--inject`).
     faults: FaultySensor,
-    /// Frames injected with each fault, by [`jetbench_msgs::sim_faults`] bit.
-    injected: [u64; 5],
+    /// Frames sent with each injected fault.
+    injected: InjectedCounts,
     sensor: CanForceSink,
     unplugged: Unplugged,
     ecu_unplugged: Unplugged,
@@ -78,7 +101,7 @@ impl Service for SimBenchService {
         let bench = SimBenchService {
             sim,
             faults: FaultySensor::new(plan),
-            injected: [0; 5],
+            injected: InjectedCounts::default(),
             sensor,
             unplugged: Unplugged::new(sim_port_link(SENSOR_UNPLUGGED_FILE), "force sensor"),
             ecu_unplugged: Unplugged::new(sim_port_link(ECU_UNPLUGGED_FILE), "ECU"),
@@ -131,7 +154,7 @@ impl Service for SimBenchService {
             self.ecu.polls()
         );
         if !self.faults.plan().is_empty() {
-            let [spikes, stuck, nan, silent, offset] = self.injected;
+            let InjectedCounts { spikes, stuck, nan, silent, offset } = self.injected;
             tracing::info!(
                 "injected sensor faults: {spikes} spikes, {stuck} stuck frames, {nan} NaN frames, {silent} silent frames, \
                  {offset} offset frames"
@@ -171,9 +194,7 @@ impl SimBenchService {
         })?;
         let injected = self.faults.apply(reading);
         (truth.faults, truth.injected_n) = (injected.faults, injected.injected_n);
-        for (bit, count) in self.injected.iter_mut().enumerate() {
-            *count += (injected.faults >> bit) & 1;
-        }
+        self.injected.count(injected.faults);
         // Unplugged by its marker file, or silenced by `--inject ecu:silent_at_s=...`.
         let injected_silence = self.ecu.with_emulator(|e| e.faults().silent(now_s)).unwrap_or(false);
         self.ecu.set_silent(!self.ecu_unplugged.check() || injected_silence);
