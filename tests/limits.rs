@@ -277,30 +277,29 @@ fn a_surge_trips_the_egt_rise_then_the_egt_and_shuts_the_engine_down() {
     assert!(!run.events.iter().any(|e| e.kind == event_kinds::SHUTDOWN), "the ECU did not have to shut down itself");
 }
 
+/// A cause the emulated ECU shows on request (`inject`): `kind` trips on the
+/// first fresh reading `past` its limit, within its hold, the throttle goes to
+/// idle, and as a `shutdown` limit it shuts the engine down through the ECU
+/// and ends the test, the launcher naming the limit.
+fn trips_and_shuts_down(name: &'static str, inject: &str, kind: LimitKind, past: impl Fn(&EcuTelemetry, f64) -> bool) {
+    let _one = SETS.lock().unwrap_or_else(|e| e.into_inner());
+    let limit = preset().get(kind).expect("the preset sets every limit");
+    assert_eq!(limit.response, Response::Shutdown, "{} is a shutdown limit in the preset", kind.key());
+    let run = up(name, 14, &[inject]);
+    run.exit_names(&format!("limit {} tripped", kind.key()));
+    run.ended_by(kind);
+    let cause = first_ecu(&run, 0, |t| past(t, limit.limit));
+    run.no_trip_before(cause);
+    run.throttle_above_idle_before(cause);
+    run.judge(kind, cause, limit.hold_s);
+}
+
 #[test]
 fn an_overspeed_trips_max_rpm_and_shuts_the_engine_down() {
-    let _one = SETS.lock().unwrap_or_else(|e| e.into_inner());
-    let limits = preset();
-    let run = up("overspeed", 14, &["ecu:overrpm_at_s=5"]);
-    run.exit_names("limit max_rpm tripped");
-    run.ended_by(LimitKind::MaxRpm);
-    let max = limits.get(LimitKind::MaxRpm).unwrap();
-    let fast = first_ecu(&run, 0, |t| t.rpm > max.limit);
-    run.no_trip_before(fast);
-    run.throttle_above_idle_before(fast);
-    run.judge(LimitKind::MaxRpm, fast, max.hold_s);
+    trips_and_shuts_down("overspeed", "ecu:overrpm_at_s=5", LimitKind::MaxRpm, |t, limit| t.rpm > limit);
 }
 
 #[test]
 fn a_flame_out_trips_min_rpm_and_shuts_the_engine_down() {
-    let _one = SETS.lock().unwrap_or_else(|e| e.into_inner());
-    let limits = preset();
-    let run = up("flameout", 14, &["ecu:flameout_at_s=5"]);
-    run.exit_names("limit min_rpm tripped");
-    run.ended_by(LimitKind::MinRpm);
-    let min = limits.get(LimitKind::MinRpm).unwrap();
-    let slow = first_ecu(&run, 0, |t| t.rpm < min.limit);
-    run.no_trip_before(slow);
-    run.throttle_above_idle_before(slow);
-    run.judge(LimitKind::MinRpm, slow, min.hold_s);
+    trips_and_shuts_down("flameout", "ecu:flameout_at_s=5", LimitKind::MinRpm, |t, limit| t.rpm < limit);
 }

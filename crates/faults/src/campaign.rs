@@ -18,10 +18,15 @@ use crate::{Bench, FaultsError};
 pub enum Part {
     /// Kills of one process, or of each (`kill`, `kill:control`, ...).
     Kill(Option<Victim>),
+    /// The recorder killed mid-run and its file recovered (`recorder`).
     Recorder,
+    /// The recording's disk filled, with each `on_error` (`disk`).
     Disk,
+    /// Bad sensor data injected into the live loop (`inject`).
     Inject,
+    /// A second set in a namespace in use (`second-up`).
     SecondUp,
+    /// Another user against a running set's files (`access`).
     Access,
     /// A healthy engine with every limit on: no false trips.
     Limits,
@@ -62,8 +67,9 @@ pub struct Options {
     pub spike_seconds: u32,
     /// The parts to run; all when empty.
     pub only: Vec<Part>,
-    /// Healthy-engine runs per profile ([`crate::limits::PROFILES`]), and their length, s.
+    /// Healthy-engine runs per profile ([`crate::limits::PROFILES`]).
     pub limits_runs: usize,
+    /// Length of each healthy-engine run, s.
     pub limits_seconds: u32,
 }
 
@@ -89,13 +95,21 @@ pub const ALL_KINDS: [&str; 4] =
 /// What the campaign measured.
 #[derive(Debug, Default)]
 pub struct Campaign {
+    /// Kills and recorder crashes per kind ([`Options::repeat`]).
     pub repeat: usize,
+    /// Seed of the random kill moments, to run the same campaign again.
     pub seed: u64,
+    /// Every process killed, one trial per kill.
     pub kills: Vec<KillTrial>,
+    /// The recorder killed mid-run and its file recovered.
     pub crashes: Vec<RecorderCrash>,
+    /// Runs whose recording's disk filled, per `[recorder] on_error`.
     pub disk: Vec<DiskFull>,
+    /// Runs with bad sensor data injected into the live loop.
     pub bad_data: Vec<BadData>,
+    /// A second set in a namespace in use (`None`: not run).
     pub second_up: Option<SecondUp>,
+    /// Another user against a running set's files (`None`: not run).
     pub access: Option<Access>,
     /// Healthy-engine runs with every limit on.
     pub healthy: Vec<HealthyRun>,

@@ -21,49 +21,59 @@ use crate::{p50_max, Bench, FaultsError};
 /// What bad data did to a live run.
 #[derive(Clone, Debug, Default)]
 pub struct BadData {
+    /// Length of the run, s.
     pub duration_s: f64,
     /// `--inject` specifications of the run.
     pub inject: Vec<String>,
-    /// Frames with a spike (and no other fault) that reached the estimator, and
-    /// those whose state was flagged rejected.
+    /// Frames with a spike (and no other fault) that reached the estimator.
     pub spikes: usize,
+    /// Those of them whose state was flagged rejected.
     pub spikes_rejected: usize,
     /// Spikes on a frame with another fault (stuck, NaN, silent): not judged.
     pub spikes_in_other_faults: usize,
     /// States flagged rejected without a spike in their frame.
     pub other_rejections: usize,
-    /// Tracking MAE (true thrust against the reference), N; and of the same run without faults.
+    /// Tracking MAE (true thrust against the reference), N.
     pub mae_n: f64,
+    /// Tracking MAE of the same run without faults, N.
     pub baseline_mae_n: f64,
     /// What each spike did to the throttle, % (p50, max): the recorded command at the
     /// spike against the command the same controller, with the same history, computes
     /// from the estimate the clean reading would have given ([`spike_effects`]); or why
     /// the recording cannot say.
     pub spike_effect: SpikeEffect,
-    /// |throttle step| of the command computed at a spike, % (p50, max), and at
-    /// every other cycle (p50, max): the loop's own movement.
+    /// |throttle step| of the command computed at a spike, % (p50, max).
     pub step_at_spike_pct: (f64, f64),
+    /// |throttle step| at every other cycle, % (p50, max): the loop's own movement.
     pub step_elsewhere_pct: (f64, f64),
     /// The limits that tripped (`bench/events`), in order.
     pub trips: Vec<&'static str>,
     /// From the first stuck frame to the first state flagged stuck, s.
     pub stuck_flagged_after_s: Option<f64>,
-    /// NaN frames injected, and those of them that reached `bench/thrust` (should be none).
+    /// NaN frames injected.
     pub nan_frames: usize,
+    /// NaN frames that reached `bench/thrust` (should be none).
     pub nan_published: usize,
     /// Recorded samples holding NaN or an infinity, on any channel.
     pub non_finite_samples: usize,
-    /// Silent frames; actuation idled meanwhile (its fail-safe).
+    /// Frames the sensor left out (silence injected).
     pub silent_frames: usize,
+    /// Actuation idled while the sensor was silent (its fail-safe).
     pub idled_in_silence: bool,
+    /// Every bound this run broke, in words (empty: all held).
     pub problems: Vec<String>,
 }
 
 /// What the spikes of a run did to the commanded throttle ([`spike_effects`]).
 #[derive(Clone, Debug, PartialEq)]
 pub enum SpikeEffect {
-    /// p50 and max over the spikes, %.
-    Measured { p50_pct: f64, max_pct: f64 },
+    /// Measured over the spikes of the run.
+    Measured {
+        /// The median effect, %.
+        p50_pct: f64,
+        /// The largest effect, %.
+        max_pct: f64,
+    },
     /// Why the recording cannot say (no spike, or a loop it does not reproduce).
     Unknown(String),
 }

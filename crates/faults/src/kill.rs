@@ -37,16 +37,24 @@ pub const WATCHDOG_BOUND_MS: f64 = (WATCHDOG_NS as f64 + 2.0 * jetbench_model::S
 /// A process of the set.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Victim {
+    /// The sensing service (the force sensor's reader).
     Sensing,
+    /// The estimation service (the thrust observer).
     Estimation,
+    /// The control service (the loop's controller).
     Control,
+    /// The actuation service (the throttle board and the ECU's poller).
     Actuation,
+    /// The simulated bench (the engine, the sensor, the board and the ECU behind their ports).
     SimBench,
+    /// The recorder (the MCAP file).
     Recorder,
+    /// The launcher, `jetbench up` itself.
     Launcher,
 }
 
 impl Victim {
+    /// Every process the campaign kills, in the report's order.
     pub const ALL: [Victim; 7] = [
         Victim::Sensing,
         Victim::Estimation,
@@ -104,6 +112,7 @@ impl std::str::FromStr for Victim {
 /// One kill and what followed.
 #[derive(Clone, Debug)]
 pub struct KillTrial {
+    /// The process killed (SIGKILL).
     pub victim: Victim,
     /// When it was killed, s after the set was ready.
     pub at_s: f64,
@@ -117,7 +126,9 @@ pub struct KillTrial {
     pub named: bool,
     /// Processes of the set still running 10 s after the launcher ended.
     pub orphans: Vec<u32>,
+    /// The run's recording opened and read to its end.
     pub readable: bool,
+    /// The recording was left unfinished (no summary): `jetbench recover` rewrites it.
     pub truncated: bool,
     /// `seq` gaps in the recording (samples lost between the services and the recorder).
     pub seq_gaps: u64,
@@ -128,6 +139,7 @@ pub struct KillTrial {
 }
 
 impl KillTrial {
+    /// Every bound held.
     pub fn ok(&self) -> bool {
         self.problems.is_empty()
     }

@@ -13,6 +13,8 @@
 //! - [`inject`]: bad sensor data in the live loop (`--inject`);
 //! - [`set`]: a running set, a second set in the same namespace, and who may
 //!   read its files;
+//! - [`limits`]: a healthy engine with every `[limits]` entry on: trips
+//!   counted, the margin each limit kept, the pauses in the telemetry;
 //! - [`soak`]: the set for minutes under load, its memory over time;
 //! - [`campaign`]: the campaign runner, every fault at random moments;
 //! - [`report`]: its report.
@@ -29,6 +31,7 @@
 //! # }
 //! ```
 #![doc = include_str!("../README.md")]
+#![deny(missing_docs)]
 
 use std::cell::Cell;
 use std::path::{Path, PathBuf};
@@ -47,16 +50,41 @@ pub mod soak;
 /// Why an experiment could not be run (a fault it measures is a result, not an error).
 #[derive(Debug, thiserror::Error)]
 pub enum FaultsError {
+    /// A process could not be started.
     #[error("cannot run {what}: {source}")]
-    Start { what: String, source: std::io::Error },
+    Start {
+        /// The process, e.g. `jetbench up`.
+        what: String,
+        /// Why the operating system refused.
+        source: std::io::Error,
+    },
+    /// A process ran past its time and was killed.
     #[error("{what} did not end within {limit:?} (a hang); it was killed")]
-    Hang { what: String, limit: Duration },
+    Hang {
+        /// The process, e.g. `jetbench up (healthy engine)`.
+        what: String,
+        /// The time it had.
+        limit: Duration,
+    },
+    /// A step of an experiment failed (a set that never became ready, a tool missing).
     #[error("{what}: {message}")]
-    Failed { what: String, message: String },
+    Failed {
+        /// The step.
+        what: String,
+        /// What went wrong, as its tool said it.
+        message: String,
+    },
+    /// A recording could not be read.
     #[error(transparent)]
     Record(#[from] jetbench_record::RecordError),
+    /// A scratch file or folder could not be written or read.
     #[error("{path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        /// The file or folder.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
 }
 
 /// Where and how experiments run `jetbench`: the binary (its services next to
@@ -64,6 +92,7 @@ pub enum FaultsError {
 /// Python with the reference MCAP reader (if any).
 #[derive(Debug)]
 pub struct Bench {
+    /// The `jetbench` binary the experiments run.
     pub exe: PathBuf,
     namespace: String,
     scratch: PathBuf,
@@ -103,6 +132,7 @@ impl Bench {
         path
     }
 
+    /// The folder the experiments' files go to (configs, recordings, logs).
     pub fn scratch_dir(&self) -> &Path {
         &self.scratch
     }

@@ -21,7 +21,9 @@ pub const PROFILES: [&str; 2] = ["campaign", "steps"];
 /// One healthy run.
 #[derive(Clone, Debug, Default)]
 pub struct HealthyRun {
+    /// The reference profile run (`campaign` or `steps`).
     pub profile: String,
+    /// Length of the run, s.
     pub duration_s: u32,
     /// Trips in `bench/events`, by [`LimitKind::ALL`] order.
     pub trips: [u32; 8],
@@ -34,8 +36,34 @@ pub struct HealthyRun {
     /// no lag (thrust compared with the RPM's thrust as they come), N: what
     /// the lag saves.
     pub band_without_lag: Option<f64>,
+    /// Gaps between fresh ECU readings while the ECU said run that are
+    /// longer than [`ECU_GAP_FLOOR_S`] (a poll missed or late), s.
+    pub ecu_gaps: Vec<f64>,
+    /// Gaps between force-sensor samples while the engine ran that are
+    /// longer than [`SENSOR_GAP_FLOOR_S`] (a frame missed or late), s.
+    pub sensor_gaps: Vec<f64>,
+    /// The sensor's silence as control's limit monitor judges it, longer than
+    /// [`SENSOR_GAP_FLOOR_S`], s: at each command, its publish time less the
+    /// stamp of the estimate before it (the monitor checks before it takes the
+    /// new estimate, so a stall of control or estimation counts, not only of
+    /// the sensor).
+    pub monitor_ages: Vec<f64>,
+    /// Time the ECU said run, s: what the gaps are counted over.
+    pub running_s: f64,
+    /// Polls in that time the ECU did not answer within the poll (samples
+    /// flagged stale): a gap with them is the ECU's (or its line's) lateness,
+    /// one without them the poller's own delay.
+    pub ecu_stale: u32,
+    /// What was wrong with the run (a trip, a failed launcher), in words.
     pub problems: Vec<String>,
 }
+
+/// An ECU gap worth counting, s: one and a half polls at the presets' 15 Hz
+/// (a reading on time is 67 ms after the last; a missed poll makes 133 ms).
+pub const ECU_GAP_FLOOR_S: f64 = 0.1;
+
+/// A force-sensor gap worth counting, s: two frames at 100 Hz.
+pub const SENSOR_GAP_FLOOR_S: f64 = 0.02;
 
 /// The bench config of these runs: config/sim.toml with `[limits]` the P100
 /// preset, every limit on.
@@ -152,6 +180,25 @@ pub fn judge(recording: &Recording, limits: &Limits) -> HealthyRun {
     };
     let ecu_gaps = gaps(&ecu.iter().map(|t| t.stamp_ns).collect::<Vec<_>>());
     let sensor_gaps = gaps(&thrust.iter().map(|t| t.stamp_ns).filter(|t| running(*t)).collect::<Vec<_>>());
+    run.ecu_gaps = ecu_gaps.iter().map(|g| g.1).filter(|g| *g > ECU_GAP_FLOOR_S).collect();
+    run.sensor_gaps = sensor_gaps.iter().map(|g| g.1).filter(|g| *g > SENSOR_GAP_FLOOR_S).collect();
+    run.running_s = (last.stamp_ns - first.stamp_ns) as f64 * 1e-9;
+    let commands: Vec<(u64, u64)> = recording
+        .samples(channels::COMMAND)
+        .iter()
+        .filter(|c| running(c.publish_ns))
+        .map(|c| (c.stamp_ns, c.publish_ns))
+        .collect();
+    run.monitor_ages = commands
+        .windows(2)
+        .map(|w| w[1].1.saturating_sub(w[0].0) as f64 * 1e-9)
+        .filter(|a| *a > SENSOR_GAP_FLOOR_S)
+        .collect();
+    run.ecu_stale = recording
+        .samples::<EcuTelemetry>(channels::ECU)
+        .iter()
+        .filter(|t| t.flags & jetbench_msgs::ecu_flags::STALE != 0 && running(t.stamp_ns))
+        .count() as u32;
     for kind in LimitKind::ALL {
         let (series, high): (&[(u64, f64)], bool) = match kind {
             LimitKind::MaxThrust => (&estimate, true),

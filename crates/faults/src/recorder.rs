@@ -22,7 +22,9 @@ use crate::{Bench, FaultsError};
 /// An offline command run on a truncated recording.
 #[derive(Clone, Debug)]
 pub struct TruncatedRead {
+    /// The command, e.g. `jetbench info crashed.mcap`.
     pub command: String,
+    /// Its exit status (`None`: killed by a signal, e.g. a crash).
     pub status: Option<i32>,
     /// It said the file is truncated.
     pub warned: bool,
@@ -37,12 +39,15 @@ pub struct RecorderCrash {
     pub lost_s: f64,
     /// Messages in the truncated file.
     pub messages: usize,
+    /// `jetbench recover`'s exit status: 0 nothing lost, 3 data lost.
     pub recover_status: Option<i32>,
     /// Messages in the recovered file.
     pub recovered: usize,
     /// What Python's `mcap` reader made of the recovered file: messages and chunk indexes.
     pub python: Option<Result<(usize, usize), String>>,
+    /// The offline commands run on the truncated file, and what each did.
     pub readers: Vec<TruncatedRead>,
+    /// Every bound this crash broke, in words (empty: all held).
     pub problems: Vec<String>,
 }
 
@@ -146,6 +151,7 @@ pub fn python_read(python: &Path, path: &Path) -> Result<(usize, usize), String>
 /// A run whose recording's disk filled.
 #[derive(Clone, Debug)]
 pub struct DiskFull {
+    /// The recorder's `[recorder] on_error` setting in this run.
     pub on_error: OnRecordError,
     /// Size of the tmpfs the recording went to, KiB.
     pub disk_kib: u64,
@@ -155,18 +161,24 @@ pub struct DiskFull {
     pub said: String,
     /// From the message to the launcher's exit, ms (`stop`: the safe stop).
     pub stopped_after_ms: Option<f64>,
+    /// The launcher's exit status (`None`: killed by a signal).
     pub exit_status: Option<i32>,
     /// Commands published from the recorder's message to the last one (the
     /// safe stop, or the end of the run), as `jetbench echo bench/command` saw
     /// them from outside: their number, their rate (Hz) and the longest
     /// interval between two (ms), on their own `publish_ns`.
     pub commands_after_full: usize,
+    /// Their rate, Hz (100 while the loop runs on).
     pub rate_after_full_hz: f64,
+    /// The longest interval between two of them, ms.
     pub max_interval_after_full_ms: f64,
     /// Actuation disarmed the board, acknowledged.
     pub disarmed: bool,
+    /// `jetbench recover`'s exit status on the file (0: nothing lost).
     pub recover_status: Option<i32>,
+    /// Messages in the recovered file.
     pub recovered: usize,
+    /// Every bound this run broke, in words (empty: all held).
     pub problems: Vec<String>,
 }
 

@@ -128,6 +128,11 @@ impl Campaign {
     }
 
     fn write_kills(&self, md: &mut String) -> std::fmt::Result {
+        // No kills (`--only` other parts): no section, so a spliced report
+        // keeps its earlier table instead of an empty one.
+        if self.kills.is_empty() {
+            return Ok(());
+        }
         writeln!(md, "\n## Every process killed\n")?;
         writeln!(
             md,
@@ -368,6 +373,70 @@ impl Campaign {
         Ok(())
     }
 
+    /// How often the telemetry paused on the healthy engine, against the
+    /// silence limits: every gap over a floor, binned, over the time in run.
+    fn write_gaps(&self, md: &mut String) -> std::fmt::Result {
+        use crate::limits::{ECU_GAP_FLOOR_S, SENSOR_GAP_FLOOR_S};
+        let running_s: f64 = self.healthy.iter().map(|h| h.running_s).sum();
+        if running_s <= 0.0 {
+            return Ok(());
+        }
+        let limits = jetbench_stack::limits::Limits::preset("p100").expect("the p100 preset");
+        let limit_of = |kind| limits.get(kind).map_or(f64::INFINITY, |l| l.limit + l.hold_s);
+        let ecu_limit = limit_of(jetbench_stack::limits::LimitKind::EcuSilent);
+        let sensor_limit = limit_of(jetbench_stack::limits::LimitKind::SensorSilent);
+        writeln!(
+            md,
+            "\nPauses in the telemetry over the same {} runs ({:.1} min in run), against the silence limits: every \
+             gap between fresh ECU readings (67 ms at 15 Hz when on time), between force samples (10 ms), and the \
+             sensor's age as control's limit monitor judges it (a command's publish time less the stamp of the \
+             estimate before it: an upper bound, the monitor checks just before).\n",
+            self.healthy.len(),
+            running_s / 60.0,
+        )?;
+        writeln!(
+            md,
+            "| telemetry | gaps by length | runs with one over the floor / over the limit | longest | limit |"
+        )?;
+        writeln!(md, "|---|---|---|---|---|")?;
+        let ecu_bins = [ECU_GAP_FLOOR_S, 0.15, 0.2, 0.3, ecu_limit];
+        let sensor_bins = [SENSOR_GAP_FLOOR_S, 0.03, 0.05, 0.075, sensor_limit];
+        let rows: [(&str, &[f64], Vec<&Vec<f64>>); 3] = [
+            ("ECU (`bench/ecu`, fresh readings)", &ecu_bins, self.healthy.iter().map(|h| &h.ecu_gaps).collect()),
+            (
+                "force sensor (`bench/thrust` stamps)",
+                &sensor_bins,
+                self.healthy.iter().map(|h| &h.sensor_gaps).collect(),
+            ),
+            (
+                "force sensor as control's monitor sees it",
+                &sensor_bins,
+                self.healthy.iter().map(|h| &h.monitor_ages).collect(),
+            ),
+        ];
+        for (name, bins, per_run) in rows {
+            let all: Vec<f64> = per_run.iter().flat_map(|g| g.iter().copied()).collect();
+            let mut by_length = Vec::new();
+            for w in bins.windows(2) {
+                let n = all.iter().filter(|g| **g > w[0] && **g <= w[1]).count();
+                by_length.push(format!("{}–{} s: {n}", w[0], w[1]));
+            }
+            let last = bins[bins.len() - 1];
+            by_length.push(format!("over {last} s: {}", all.iter().filter(|g| **g > last).count()));
+            let longest = all.iter().copied().reduce(f64::max).map_or("–".into(), |g| format!("{g:.3} s"));
+            writeln!(
+                md,
+                "| {name} | {} | {} / {} | {longest} | {last} s |",
+                by_length.join(", "),
+                per_run.iter().filter(|g| !g.is_empty()).count(),
+                per_run.iter().filter(|g| g.iter().any(|x| *x > last)).count(),
+            )?;
+        }
+        let stale: u32 = self.healthy.iter().map(|h| h.ecu_stale).sum();
+        writeln!(md, "\nPolls the ECU did not answer within their poll (flagged stale) in that time: {stale}.")?;
+        Ok(())
+    }
+
     fn write_limits(&self, md: &mut String) -> std::fmt::Result {
         if self.healthy.is_empty() {
             return Ok(());
@@ -439,6 +508,28 @@ impl Campaign {
                 band.hold_s, band.limit
             )?;
         }
-        Ok(())
+        self.write_gaps(md)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::campaign::Part;
+    use crate::limits::HealthyRun;
+
+    #[test]
+    fn a_part_run_again_replaces_its_section_and_keeps_every_other() {
+        let existing = "# Faults at the bench: the campaign\n\nintro\n\n## Every process killed\n\n| killed |\n|---|\n\
+                        | sensing |\n\n## Disk full\n\nfull rows\n\n## No false trips on a healthy engine\n\nold rows\n\n\
+                        ## Bounds broken\n\nNone: every bound of the campaign held.\n";
+        let run = HealthyRun { profile: "steps".into(), duration_s: 60, running_s: 55.0, ..HealthyRun::default() };
+        let campaign = Campaign { only: vec![Part::Limits], healthy: vec![run], ..Campaign::default() };
+        let report = campaign.report(Some(existing), "2 CPUs");
+        assert!(report.contains("| sensing |"), "the kills table is kept:\n{report}");
+        assert!(report.contains("full rows"), "{report}");
+        assert!(!report.contains("old rows"), "the healthy-engine section is replaced:\n{report}");
+        assert!(report.contains("No false trips on a healthy engine") && report.contains("Pauses in the telemetry"));
+        assert!(report.contains("None: every bound of the campaign held."), "{report}");
     }
 }

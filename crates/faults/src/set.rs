@@ -16,7 +16,9 @@ const READY_LIMIT: Duration = Duration::from_secs(60);
 /// One line the launcher (or one of its services) printed, and when it came.
 #[derive(Clone, Debug)]
 pub struct Line {
+    /// The line, without its end.
     pub text: String,
+    /// When it was read.
     pub at: Instant,
     /// `CLOCK_MONOTONIC` when it was read, ns: the clock of the samples' stamps.
     pub mono_ns: u64,
@@ -29,6 +31,7 @@ pub struct RunningSet {
     log: Vec<Line>,
     /// Service name -> pid, as the launcher printed them.
     pids: BTreeMap<String, u32>,
+    /// The bus namespace the set runs in (`JETBENCH_BUS`).
     pub namespace: String,
 }
 
@@ -117,6 +120,7 @@ impl RunningSet {
         self.pids.iter().map(|(n, p)| (n.clone(), *p)).collect()
     }
 
+    /// The pid of the launcher, `jetbench up` itself.
     pub fn launcher_pid(&self) -> u32 {
         self.child.id()
     }
@@ -225,6 +229,7 @@ pub struct SecondUp {
     pub status: Option<i32>,
     /// It said which set holds the namespace, with that set's pid.
     pub names_the_first: bool,
+    /// The second launcher's line saying the namespace is in use.
     pub message: String,
     /// A set in another namespace ran beside the first meanwhile.
     pub side_by_side: bool,
@@ -266,6 +271,7 @@ pub struct Access {
     pub open_to_others: Vec<String>,
     /// `jetbench echo` as another user: its exit status and what it said.
     pub echo_status: Option<i32>,
+    /// What that `jetbench echo` printed (its error).
     pub echo_said: String,
     /// Files whose mode gives anything to group or others.
     pub loose_modes: Vec<String>,

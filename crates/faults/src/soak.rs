@@ -16,6 +16,7 @@ use crate::{Bench, FaultsError};
 /// One process's resident memory over the run.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Memory {
+    /// The service's name, e.g. `recorder`.
     pub process: String,
     /// (s since ready, RSS KiB), one per sample.
     pub rss_kib: Vec<(f64, u64)>,
@@ -52,16 +53,23 @@ impl Memory {
 /// What a soak run showed.
 #[derive(Clone, Debug)]
 pub struct Soak {
+    /// Length of the run, min.
     pub minutes: f64,
+    /// The load beside it, as given (`none`, `cpu`, ...).
     pub load: String,
+    /// The services ran with their real-time settings (SCHED_FIFO, affinity, mlockall).
     pub rt: bool,
+    /// Every process's resident memory over the run.
     pub memory: Vec<Memory>,
     /// Samples lost between the services and the recorder (`seq` gaps), per channel.
     pub gaps: BTreeMap<String, u64>,
     /// Deadline misses per service, from its last heartbeat.
     pub misses: BTreeMap<String, u64>,
+    /// Messages in the recording.
     pub messages: u64,
+    /// Size of the recording, bytes.
     pub recording_bytes: u64,
+    /// The launcher exited 0.
     pub exit_ok: bool,
 }
 

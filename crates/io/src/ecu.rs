@@ -44,37 +44,69 @@ pub const EOL: u8 = b'\r';
 /// The longest line accepted; longer ones are garbled.
 pub const MAX_LINE: usize = 96;
 
-/// Valid ranges, inclusive.
+// Valid ranges of the reply fields, inclusive: a value outside is counted
+// as out of range and the line rejected (a garbled digit, not an engine).
+
+/// The highest shaft speed a reply may carry, rev/min (from 0; the P100 runs
+/// at about 120 000).
 pub const RPM_MAX: f64 = 300_000.0;
+/// The lowest exhaust gas temperature a reply may carry, °C (a cold winter bench).
 pub const EGT_MIN_C: f64 = -50.0;
+/// The highest exhaust gas temperature a reply may carry, °C (beyond any engine's).
 pub const EGT_MAX_C: f64 = 1_200.0;
+/// The highest fuel pump voltage a reply may carry, V (from 0).
 pub const PUMP_MAX_V: f64 = 30.0;
+/// The highest throttle a reply may carry, % (from 0).
 pub const THROTTLE_MAX_PCT: f64 = 100.0;
+/// The highest battery voltage an `RFI` reply may carry, V (from 0).
 pub const BATTERY_MAX_V: f64 = 30.0;
 
 /// One telemetry reply.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct EcuReading {
+    /// Shaft speed, rev/min.
     pub rpm: f64,
+    /// Exhaust gas temperature, °C.
     pub egt_c: f64,
+    /// Fuel pump voltage, V.
     pub pump_v: f64,
+    /// The ECU's state code, 0..=255 ([`state::EcuState`] names it).
     pub state: u32,
+    /// The throttle the ECU sees, %.
     pub throttle_pct: f64,
 }
 
 /// Why a line was rejected. Each kind has its own counter in [`EcuCounters`].
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum EcuError {
+    /// A line that is no reply this decoder knows (not `1,HS,...`), as received.
     #[error("not a telemetry reply: {0:?}")]
     Unknown(String),
+    /// A reply cut short: a poll's answer window closed mid-line, or fields missing.
     #[error("truncated reply: {fields} of 8 fields")]
-    Truncated { fields: usize },
+    Truncated {
+        /// The comma-separated fields the line had.
+        fields: usize,
+    },
+    /// A reply whose fields do not parse (line noise, a wrong baud rate), and why.
     #[error("garbled reply: {0}")]
     Garbled(String),
+    /// A number outside its field's valid range (e.g. above [`RPM_MAX`]).
     #[error("{field} = {value} is out of range")]
-    OutOfRange { field: &'static str, value: String },
+    OutOfRange {
+        /// The field, e.g. `rpm`.
+        field: &'static str,
+        /// Its text as received.
+        value: String,
+    },
+    /// A field that reads as a number but not a finite one (`NaN`, `inf`, `1e999`).
     #[error("{field} is not a finite number: {value:?}")]
-    NonFinite { field: &'static str, value: String },
+    NonFinite {
+        /// The field, e.g. `egt_c`.
+        field: &'static str,
+        /// Its text as received.
+        value: String,
+    },
 }
 
 /// Rejections by kind, and lines accepted.
@@ -82,19 +114,28 @@ pub enum EcuError {
 pub struct EcuCounters {
     /// Telemetry replies accepted.
     pub lines: u64,
-    /// Command echoes, status replies, acknowledgements and refusals seen.
+    /// Command echoes seen (the ECU repeats every command line before its reply).
     pub echoes: u64,
+    /// Status (`RSS`) and fuel-information (`RFI`) replies accepted.
     pub statuses: u64,
+    /// Commands acknowledged (`1,HS,OK`).
     pub acks: u64,
+    /// Commands refused (`1,HS,ERR,<n>`).
     pub refusals: u64,
+    /// Lines rejected as [`EcuError::Unknown`].
     pub unknown: u64,
+    /// Lines rejected as [`EcuError::Truncated`].
     pub truncated: u64,
+    /// Lines rejected as [`EcuError::Garbled`].
     pub garbled: u64,
+    /// Lines rejected as [`EcuError::OutOfRange`].
     pub out_of_range: u64,
+    /// Lines rejected as [`EcuError::NonFinite`].
     pub non_finite: u64,
 }
 
 impl EcuCounters {
+    /// Lines rejected, all kinds together.
     pub fn rejected(&self) -> u64 {
         self.unknown + self.truncated + self.garbled + self.out_of_range + self.non_finite
     }
@@ -220,12 +261,16 @@ impl PcCommand {
 /// Why a command line was not understood, with JetCat's error number.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum CommandError {
+    /// Not `<address>,<MNEMONIC>,<parameter>` at all, the line as received.
     #[error("not a command line: {0:?}")]
     NotACommand(String),
+    /// A mnemonic this ECU does not know (e.g. `XYZ`).
     #[error("unknown command {0}")]
     Unknown(String),
+    /// A known mnemonic with too few or too many parameters.
     #[error("{0}: wrong parameter count")]
     ParameterCount(String),
+    /// A known mnemonic with a parameter it cannot take (e.g. `WPE,150`).
     #[error("{0}: parameter out of range")]
     OutOfRange(String),
 }
@@ -289,9 +334,15 @@ pub enum EcuReply {
     /// `RAC`: the telemetry.
     Actual(EcuReading),
     /// `RSS`: the off condition's code (named by [`state::OffCondition::from_code`]).
-    Status { off_condition: u32 },
-    /// `RFI`: the ECU's battery voltage, V (the fuel fields are not used).
-    Fuel { battery_v: f64 },
+    Status {
+        /// JetCat's off-condition number, 0..=255.
+        off_condition: u32,
+    },
+    /// `RFI`: the ECU's battery voltage (the fuel fields are not used).
+    Fuel {
+        /// The battery voltage, V, to 0.01 V.
+        battery_v: f64,
+    },
     /// A command was accepted.
     Ack,
     /// A command was refused, with JetCat's error number.
@@ -367,6 +418,8 @@ pub struct LineDecoder {
 }
 
 impl LineDecoder {
+    /// A decoder at the start of a line, with no reply expected yet (the
+    /// first reply without an echo before it is taken as telemetry).
     pub fn new() -> Self {
         Self::default()
     }
@@ -445,10 +498,12 @@ impl LineDecoder {
         }
     }
 
+    /// Lines accepted and rejected so far, by kind.
     pub fn counters(&self) -> &EcuCounters {
         &self.counters
     }
 
+    /// Why the latest rejected line was rejected (`None` if none was).
     pub fn last_error(&self) -> Option<&EcuError> {
         self.last_error.as_ref()
     }

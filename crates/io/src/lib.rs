@@ -21,6 +21,7 @@
 //! # }
 //! ```
 #![doc = include_str!("../README.md")]
+#![deny(missing_docs)]
 
 pub mod board;
 pub mod calib;

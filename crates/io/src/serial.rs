@@ -577,6 +577,78 @@ impl Drop for EcuPoller {
 /// How often the ECU worker reads the battery voltage (`RFI`), ns.
 const FUEL_PERIOD_NS: u64 = 200_000_000;
 
+/// What polling the ECU at a rate costs its serial line, worked out from the
+/// poller's own schedule (an `RAC` poll every period, an `RFI` after every
+/// [`FUEL_PERIOD_NS`]'s worth of polls) and the longest lines the codec
+/// accepts in practice; a pseudo-terminal has no baud rate, so the emulated
+/// ECU never shows this, a real line at 9600 baud does.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EcuLineBudget {
+    /// `RFI` requests per second (the battery voltage).
+    pub fuel_hz: f64,
+    /// Share of the ECU-to-PC direction the echoes and replies take, 0..1
+    /// (above 1 the replies fall behind without end).
+    pub rx_share: f64,
+    /// From a poll to its whole reply on an idle line, s: the poll sent, then
+    /// the echo and the reply received.
+    pub reply_s: f64,
+    /// The same for the poll after an `RFI`, whose reply waits for the
+    /// `RFI`'s to finish, s: the slowest reply.
+    pub reply_after_fuel_s: f64,
+    /// How long the poller waits for a reply, s (nine tenths of the period);
+    /// a reply later than this makes the poll's sample stale.
+    pub answer_window_s: f64,
+}
+
+impl EcuLineBudget {
+    /// The longest telemetry reply in practice: full speed, a hot exhaust,
+    /// a 12 V pump, the run state and full throttle (34 bytes with its `\r`).
+    fn longest_reply() -> usize {
+        ecu::encode_reply(&ecu::EcuReading {
+            rpm: 125_000.0,
+            egt_c: 799.9,
+            pump_v: 12.34,
+            state: 10,
+            throttle_pct: 100.0,
+        })
+        .len()
+    }
+
+    /// JetCat's fuel-information reply with every field in use (the emulated
+    /// ECU leaves the fuel fields at 0; a real one fills them): 38 bytes.
+    const FUEL_REPLY: &'static str = "1,HS,OK,1234,12345,123456,12.34,12345\r";
+
+    /// The budget of polling at `poll_hz` on a line at `baud` (8N1: ten bits
+    /// a byte, each way).
+    pub fn new(baud: u32, poll_hz: f64) -> Self {
+        let byte_s = 10.0 / f64::from(baud.max(1));
+        let period_ns = (1e9 / poll_hz) as u64;
+        let fuel_every = (FUEL_PERIOD_NS / period_ns.max(1)).max(1);
+        let fuel_hz = poll_hz / fuel_every as f64;
+        let poll = ecu::POLL.len() as f64;
+        let reply = poll + Self::longest_reply() as f64; // the echo, then the reply
+        let fuel = ecu::FUEL_POLL.len() as f64 + Self::FUEL_REPLY.len() as f64;
+        let period_s = period_ns as f64 * 1e-9;
+        let reply_s = (poll + reply) * byte_s;
+        // The ECU answers a command once it has it whole, and sends one line
+        // at a time: after an RFI its line is busy until the RFI's reply is out.
+        let busy_until_s = (poll + reply + fuel) * byte_s;
+        let next_heard_s = (period_s + poll * byte_s).max(busy_until_s);
+        EcuLineBudget {
+            fuel_hz,
+            rx_share: (poll_hz * reply + fuel_hz * fuel) * byte_s,
+            reply_s,
+            reply_after_fuel_s: next_heard_s + reply * byte_s - period_s,
+            answer_window_s: period_s * 0.9,
+        }
+    }
+
+    /// Every poll, the one after an `RFI` too, is answered within its window.
+    pub fn fits(&self) -> bool {
+        self.rx_share < 1.0 && self.reply_after_fuel_s <= self.answer_window_s
+    }
+}
+
 struct EcuWorker {
     path: PathBuf,
     baud: u32,
@@ -748,5 +820,29 @@ impl EcuWorker {
                 next_ns = now_ns;
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn polling_at_9600_baud_fits_at_10_hz_and_not_at_15() {
+        let ten = EcuLineBudget::new(9600, 10.0);
+        // 10 polls of 50 bytes (echo 8, longest reply 34, the poll 8 the other way).
+        assert!((ten.reply_s - 0.0521).abs() < 1e-3, "{ten:?}");
+        assert!(ten.fits() && ten.rx_share < 0.7, "{ten:?}");
+        let fifteen = EcuLineBudget::new(9600, 15.0);
+        assert_eq!(fifteen.fuel_hz, 5.0);
+        assert!(fifteen.rx_share > 0.85 && fifteen.rx_share < 0.95, "{fifteen:?}");
+        // The poll after an RFI is answered after its window: stale every third poll.
+        assert!(fifteen.reply_after_fuel_s > fifteen.answer_window_s, "{fifteen:?}");
+        assert!(!fifteen.fits());
+        // Above about 17 Hz not even a lone reply fits in the window.
+        let twenty = EcuLineBudget::new(9600, 20.0);
+        assert!(twenty.reply_s > twenty.answer_window_s && twenty.rx_share > 1.0, "{twenty:?}");
+        // A faster line takes the presets' 15 Hz easily.
+        assert!(EcuLineBudget::new(57_600, 15.0).fits());
     }
 }

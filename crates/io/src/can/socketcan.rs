@@ -61,13 +61,17 @@ pub fn probe_af_can() -> std::io::Result<()> {
 /// bitrate, permissions. (The simulated bench needs none of this: it runs on
 /// a userspace bus, `user:NAME`.)
 fn open_error(ifname: &str, e: &std::io::Error) -> DeviceError {
-    let up = format!("sudo ip link set {ifname} up type can bitrate 1000000   # the sensor's bitrate");
+    let up = up_command(ifname);
     let hint = match (e.raw_os_error(), probe_af_can()) {
         (_, Err(af)) => format!(
             ". This kernel has no SocketCAN (socket(AF_CAN) fails: {af}). At the bench: load the CAN modules and \
              your adapter's driver (`sudo modprobe can can_raw can_dev` and e.g. `gs_usb`, `peak_usb`, or `slcan` \
              for a serial adapter), plug the adapter in, then `{up}`. (Without kernel CAN only the simulated bench \
              runs, on a userspace bus: `user:NAME`.)"
+        ),
+        (Some(libc::ENODEV), Ok(())) if link_kind(ifname) == LinkKind::Virtual => format!(
+            ". No interface `{ifname}`: a virtual CAN bus is made with `sudo modprobe vcan && sudo ip link add dev \
+             {ifname} type vcan`; then `{up}`."
         ),
         (Some(libc::ENODEV), Ok(())) => format!(
             ". No interface `{ifname}`: is the adapter plugged in and its driver loaded? `ip -br link` lists the \
@@ -88,9 +92,57 @@ fn open_error(ifname: &str, e: &std::io::Error) -> DeviceError {
 /// no frame will come until it is up), with the command that brings it up.
 pub fn down_warning(ifname: &str) -> Option<String> {
     let state = std::fs::read_to_string(format!("/sys/class/net/{ifname}/operstate")).ok()?;
-    (state.trim() == "down").then(|| {
-        format!("{ifname} is down: no frame will arrive until `sudo ip link set {ifname} up type can bitrate 1000000`")
-    })
+    (state.trim() == "down").then(|| format!("{ifname} is down: no frame will arrive until `{}`", up_command(ifname)))
+}
+
+/// What kind of CAN interface a name stands for, which decides how it is
+/// brought up: only a controller on the wire has a bitrate to set.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LinkKind {
+    /// A CAN controller (a USB or PCI adapter): `type can bitrate ...`.
+    Controller,
+    /// A virtual bus (`vcan`): no wire, no bitrate.
+    Virtual,
+    /// A serial adapter through `slcand` (`slcan`): the bitrate is slcand's
+    /// `-s` option (`-s8` for 1 Mbit/s), set when it is attached.
+    Serial,
+    /// An interface with no controller behind it (no kernel device: a `vcan`
+    /// or an `slcand` interface under another name): no bitrate to set here.
+    Unwired,
+}
+
+/// The kind of interface `ifname`: a `vcan*` or `slcan*` name, or, for an
+/// interface that exists, whether a controller is behind it
+/// (`/sys/class/net/IF/device` links an adapter's; a virtual bus and an
+/// `slcand` interface have none); otherwise a controller.
+pub fn link_kind(ifname: &str) -> LinkKind {
+    if ifname.starts_with("vcan") {
+        return LinkKind::Virtual;
+    }
+    if ifname.starts_with("slcan") {
+        return LinkKind::Serial;
+    }
+    let sys = std::path::Path::new("/sys/class/net").join(ifname);
+    if sys.exists() && !sys.join("device").exists() {
+        return LinkKind::Unwired;
+    }
+    LinkKind::Controller
+}
+
+/// The command that brings `ifname` up, for its kind ([`link_kind`]).
+pub fn up_command(ifname: &str) -> String {
+    match link_kind(ifname) {
+        LinkKind::Controller => {
+            format!("sudo ip link set {ifname} up type can bitrate 1000000   # the sensor's bitrate")
+        }
+        LinkKind::Virtual => format!("sudo ip link set {ifname} up   # a virtual bus: no bitrate"),
+        LinkKind::Serial => {
+            format!("sudo ip link set {ifname} up   # the bitrate is slcand's -s option (-s8: 1 Mbit/s)")
+        }
+        LinkKind::Unwired => {
+            format!("sudo ip link set {ifname} up   # no controller behind it: vcan, or slcand's -s sets the bitrate")
+        }
+    }
 }
 
 impl SocketCan {
@@ -206,5 +258,25 @@ impl CanTransport for SocketCan {
 
     fn link_stats(&self) -> LinkStats {
         LinkStats { errors: self.link_errors, reopens: self.reopens }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_a_controller_is_told_to_set_a_bitrate() {
+        assert_eq!(link_kind("vcan0"), LinkKind::Virtual);
+        assert!(!up_command("vcan0").contains("bitrate 1000000"), "{}", up_command("vcan0"));
+        assert_eq!(link_kind("slcan0"), LinkKind::Serial);
+        assert!(up_command("slcan0").contains("-s8"), "{}", up_command("slcan0"));
+        // An interface that exists with no device behind it (the loopback
+        // here stands for a vcan or slcand interface named otherwise).
+        assert_eq!(link_kind("lo"), LinkKind::Unwired);
+        assert!(!up_command("lo").contains("type can"));
+        // A name that is no interface here: an adapter to plug in.
+        assert_eq!(link_kind("jbcan7"), LinkKind::Controller);
+        assert!(up_command("jbcan7").contains("sudo ip link set jbcan7 up type can bitrate 1000000"));
     }
 }

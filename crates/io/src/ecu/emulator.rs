@@ -69,8 +69,11 @@ impl fmt::Display for EcuCommand {
 /// Why a command was refused, with JetCat's error number.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum Refused {
+    /// The command is not allowed in the ECU's current state (e.g. a start
+    /// while already running), which it names.
     #[error("not allowed in state {0}")]
     NotInState(EcuState),
+    /// The parameter is outside what the command takes (a throttle above 100 %).
     #[error("parameter out of range")]
     OutOfRange,
 }
@@ -88,10 +91,15 @@ impl Refused {
 /// One start phase: its state, how long it lasts and where it takes the engine.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Phase {
+    /// The state the ECU reports through this phase.
     pub state: EcuState,
+    /// How long the phase lasts, s.
     pub duration_s: f64,
+    /// The shaft speed the phase brings the engine to, rev/min.
     pub rpm: f64,
+    /// The exhaust gas temperature the phase brings the engine to, °C.
     pub egt_c: f64,
+    /// The fuel pump voltage through the phase, V.
     pub pump_v: f64,
 }
 
@@ -100,19 +108,23 @@ pub struct Phase {
 pub struct EcuParams {
     /// The start sequence, in order; run follows the last phase.
     pub phases: Vec<Phase>,
-    /// Idle and maximum shaft speed, rev/min.
+    /// Idle shaft speed, rev/min: run at idle throttle.
     pub idle_rpm: f64,
+    /// Maximum shaft speed, rev/min: run at full throttle.
     pub max_rpm: f64,
-    /// Over-temperature limit, °C, and how long it may be exceeded.
+    /// Over-temperature limit, °C: the ECU shuts down above it.
     pub max_egt_c: f64,
+    /// How long the exhaust may be above `max_egt_c` before the ECU shuts down, s.
     pub over_temp_hold_s: f64,
     /// Over-RPM: 5 % above `max_rpm` for this long.
     pub over_rpm_hold_s: f64,
     /// Low RPM: 10 % below idle while running for this long (a flame-out).
     pub low_rpm_hold_s: f64,
-    /// Battery: nominal and low voltage, V, and how long it may be low.
+    /// The battery's nominal voltage, V (what `RFI` reports when healthy).
     pub battery_v: f64,
+    /// The battery voltage below which the ECU shuts down, V.
     pub low_battery_v: f64,
+    /// How long the battery may be below `low_battery_v` before the ECU shuts down, s.
     pub low_battery_hold_s: f64,
     /// Fail-safe: the longest the throttle signal may be missing while burning.
     pub failsafe_s: f64,
@@ -120,13 +132,16 @@ pub struct EcuParams {
     pub cool_egt_c: f64,
     /// Rotor speed the starter holds while cooling, rev/min.
     pub cooling_rpm: f64,
+    /// The air around the engine, °C: the exhaust of a cold engine.
     pub ambient_c: f64,
     /// From off to standby (the ECU's self-test, or re-arming after a stop).
     pub arm_s: f64,
     /// In run, RPM is `idle_rpm + rpm_per_sqrt_n · √thrust` and the exhaust
     /// settles at `idle_egt_c + egt_per_n · thrust`.
     pub rpm_per_sqrt_n: f64,
+    /// The exhaust's settled temperature at idle, °C.
     pub idle_egt_c: f64,
+    /// The exhaust's settled rise per newton of thrust in run, °C/N.
     pub egt_per_n: f64,
 }
 
@@ -163,7 +178,6 @@ impl Default for EcuParams {
     }
 }
 
-/// Time constants of the lags, s: RPM, EGT, pump.
 /// Time constant of the emulated RPM's first-order lag behind its target, s.
 pub const RPM_TAU_S: f64 = 0.6;
 const EGT_TAU_S: f64 = 1.5;
@@ -203,8 +217,11 @@ pub struct EcuFaults {
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 #[error("--inject {spec:?}: {reason} (ecu:KEY=SECONDS,... with keys {keys})")]
 pub struct EcuFaultError {
+    /// The specification as given, e.g. `ecu:overtemp_at_s=x`.
     pub spec: String,
+    /// What is wrong with it.
     pub reason: String,
+    /// The keys an ECU fault may have, for the message.
     pub keys: &'static str,
 }
 
@@ -217,6 +234,7 @@ impl EcuFaults {
         spec.trim().split(':').next() == Some("ecu")
     }
 
+    /// True if no fault is asked for: the ECU runs healthy.
     pub fn is_empty(&self) -> bool {
         *self == EcuFaults::default()
     }
@@ -351,6 +369,7 @@ impl EcuEmulator {
         ecu
     }
 
+    /// The state the ECU reports now.
     pub fn state(&self) -> EcuState {
         self.state
     }
@@ -360,6 +379,7 @@ impl EcuEmulator {
         self.off
     }
 
+    /// The engine and ECU settings this emulator runs with.
     pub fn params(&self) -> &EcuParams {
         &self.params
     }
