@@ -107,3 +107,169 @@ fn live_campaign_identifies_to_the_noise_floor_from_mcap_and_csv_alike() {
     assert!(out.lines().count() > 29_000, "simulate printed {} lines", out.lines().count());
     assert!(err.contains("MAE"), "{err}");
 }
+
+/// config/sim.toml with the turbojet as `[plant]` and `[limits]` replaced by `limits` (the
+/// `p100` limit preset is sized to the ten-parameter plant's emulated RPM map, 122 000 rpm
+/// at most; this engine runs to 154 000 rpm).
+fn turbojet_config(name: &str, limits: &str) -> PathBuf {
+    let text = std::fs::read_to_string(common::repo_root().join("config/sim.toml")).unwrap();
+    let (head, tail) = text.split_once("\n[plant]").unwrap();
+    let tail = tail.replacen("model = \"p100-diesel\"", "model = \"turbojet-p100\"", 1);
+    let base = format!("{head}\n[plant]{tail}");
+    let base = base.split("\n[limits]").next().unwrap();
+    let path = scratch(name);
+    std::fs::write(&path, format!("{base}\n[limits]\n{limits}\n")).unwrap();
+    path
+}
+
+/// The simulated bench runs the turbojet plant: its thrust follows the throttle to the
+/// turbojet's rest thrusts (not the ten-parameter model's), and the ECU reports the spool's
+/// RPM and exhaust temperature consistent with that thrust.
+#[test]
+fn the_bench_runs_the_turbojet_plant_and_its_ecu_reports_the_spool() {
+    use jetbench_model::turbojet::TurbojetParams;
+    use jetbench_msgs::{channels, ecu_states};
+    let p = |x: &PathBuf| x.to_str().unwrap().to_owned();
+    let profile = scratch("turbojet-steps.csv");
+    let mut csv = String::from("time_s,throttle_pct\n");
+    for k in 0..1400 {
+        let u = match k {
+            0..=199 => 25.0,
+            200..=599 => 100.0,
+            600..=999 => 40.0,
+            _ => 70.0,
+        };
+        csv.push_str(&format!("{:.2},{u}\n", k as f64 * 0.01));
+    }
+    std::fs::write(&profile, csv).unwrap();
+    let config = turbojet_config("turbojet.toml", "sensor_silent_s = \"off\"");
+    let recording = scratch("turbojet.mcap");
+    let (code, out, err) = run(
+        &[
+            "up",
+            "--sim",
+            "--config",
+            &p(&config),
+            "--open-loop",
+            &p(&profile),
+            "--duration",
+            "15",
+            "--record",
+            &p(&recording),
+            "--quiet",
+        ],
+        Duration::from_secs(120),
+    );
+    assert_eq!(code, 0, "up failed:\n{out}\n{err}");
+    let rec = jetbench_record::Recording::open(&recording).unwrap();
+    let truth = rec.samples(channels::SIM_TRUTH);
+    let ecu: Vec<_> =
+        rec.samples(channels::ECU).into_iter().filter(|t| t.flags == 0 && t.state == ecu_states::RUN as u32).collect();
+    assert!(truth.len() > 1000 && ecu.len() > 100, "{} truth, {} ECU samples", truth.len(), ecu.len());
+    let tj = TurbojetParams::p100();
+    // Settled holds (the engine's throttle unchanged for 2 s): the turbojet's rest thrust.
+    let mut held = 0usize;
+    let mut checked = [false; 3];
+    for w in truth.windows(2) {
+        held = if (w[1].engine_throttle_pct - w[0].engine_throttle_pct).abs() < 1e-9 { held + 1 } else { 0 };
+        let u = w[1].engine_throttle_pct;
+        if held >= 250 {
+            let want = tj.rest_thrust_n(u);
+            assert!((w[1].thrust_n - want).abs() < 0.2, "{u} %: thrust {} N, turbojet at rest {want} N", w[1].thrust_n);
+            for (i, level) in [100.0, 40.0, 70.0].iter().enumerate() {
+                checked[i] |= (u - level).abs() < 1e-6;
+            }
+        }
+    }
+    assert_eq!(checked, [true; 3], "every hold of the profile settled on the bench");
+    // The ECU's RPM is the spool's: the speed that gives the true thrust of the same moment.
+    let mut worst = 0.0f64;
+    let mut top = 0.0f64;
+    for t in &ecu {
+        let i = truth.partition_point(|s| s.stamp_ns < t.stamp_ns).min(truth.len() - 1);
+        let near = &truth[i.saturating_sub(3)..(i + 3).min(truth.len())];
+        let gap = near
+            .iter()
+            .map(|s| (t.rpm - tj.speed_at_thrust(s.thrust_n) * tj.rpm_max).abs())
+            .fold(f64::INFINITY, f64::min);
+        worst = worst.max(gap);
+        top = top.max(t.rpm);
+        assert!((300.0..800.0).contains(&t.egt_c), "EGT {} °C", t.egt_c);
+    }
+    eprintln!("turbojet bench: ECU RPM within {worst:.0} rpm of the spool speed of the true thrust, top {top:.0} rpm");
+    assert!(worst < 0.02 * tj.rpm_max, "RPM off the spool's by {worst:.0} rpm");
+    assert!(top > 0.97 * tj.rpm_max, "the ECU reports the spool at full speed: {top:.0} rpm");
+}
+
+/// `sim-record --plant turbojet-p100` writes the turbojet's run; a plant file with a
+/// `[turbojet]` table and effects works the same; a discrepancy is refused.
+#[test]
+fn sim_record_writes_the_turbojet_plant() {
+    let p = |x: &PathBuf| x.to_str().unwrap().to_owned();
+    let out = scratch("turbojet-sim.csv");
+    let (code, stdout, err) = run(
+        &[
+            "sim-record",
+            "--plant",
+            "turbojet-p100",
+            "--duration",
+            "60",
+            "--seed",
+            "4",
+            "--noise-var",
+            "0",
+            "--out",
+            &p(&out),
+        ],
+        Duration::from_secs(60),
+    );
+    assert_eq!(code, 0, "{err}");
+    assert!(stdout.contains("6000 samples of turbojet-p100"), "{stdout}");
+    let series = jetbench_record::series::Series::load(&out, true).unwrap();
+    let tj = jetbench_model::turbojet::TurbojetParams::p100();
+    let plant = jetbench_model::Plant::with_turbojet(tj, jetbench_model::Effects::none());
+    let mut engine = plant.at_equilibrium(series.u_pct[0]);
+    for k in 1..series.len() {
+        let want = engine.step(series.u_pct[k - 1]).unwrap().measured_n;
+        assert!((series.thrust_n[k] - want).abs() <= 0.006, "row {k}: {} vs {want}", series.thrust_n[k]);
+    }
+    let file = scratch("plant.toml");
+    std::fs::write(&file, "[turbojet]\nbase = \"p100\"\n\n[effects.input_delay]\ndelay_s = 0.08\n").unwrap();
+    let delayed = scratch("turbojet-delayed.csv");
+    let (code, stdout, err) = run(
+        &[
+            "sim-record",
+            "--plant",
+            &p(&file),
+            "--duration",
+            "60",
+            "--seed",
+            "4",
+            "--noise-var",
+            "0",
+            "--out",
+            &p(&delayed),
+        ],
+        Duration::from_secs(60),
+    );
+    assert_eq!(code, 0, "{err}");
+    assert!(stdout.contains("input_delay"), "{stdout}");
+    let later = jetbench_record::series::Series::load(&delayed, true).unwrap();
+    for k in 0..later.len() - 8 {
+        assert!((later.thrust_n[k + 8] - series.thrust_n[k]).abs() <= 0.011, "row {k}: the delay shifts the run");
+    }
+    let (code, _, err) = run(
+        &[
+            "sim-record",
+            "--plant",
+            "turbojet-p100",
+            "--effect",
+            "discrepancy:map_below=1,knot_below_pct=45",
+            "--out",
+            &p(&delayed),
+        ],
+        Duration::from_secs(60),
+    );
+    assert_ne!(code, 0);
+    assert!(err.contains("turbojet"), "{err}");
+}

@@ -80,6 +80,10 @@ pub struct Options {
     pub sindy: SindyOptions,
     /// Simulation-error refinement settings ([`Method::Oe`]).
     pub refine: crate::refine::RefineOptions,
+    /// When no ten-parameter model of the chosen methods is bounded (plausible over the
+    /// throttle range and bounded on the validation data), refine them ([`Method::Oe`])
+    /// to repair them, so that a bounded model comes out whenever one can describe the data.
+    pub repair: bool,
 }
 
 impl Default for Options {
@@ -90,6 +94,7 @@ impl Default for Options {
             ekf: ekf::EkfOptions::default(),
             sindy: SindyOptions::default(),
             refine: crate::refine::RefineOptions::default(),
+            repair: true,
         }
     }
 }
@@ -163,13 +168,17 @@ pub struct Plausibility {
     pub min_after_step_down_n: Option<f64>,
     /// Every concern, in words; empty when the model is plausible.
     pub warnings: Vec<String>,
+    /// How many checks that keep a simulation bounded fail: each throttle of the 2.5 % grid
+    /// without exactly one stable equilibrium, each full step that diverges or undershoots
+    /// far below idle, a step that never settles (0: bounded).
+    pub broken_rules: usize,
 }
 
 impl Plausibility {
     /// True when no rule that keeps a simulation bounded is broken (a rise time outside
     /// the plausible band is a warning only).
     pub fn is_bounded(&self) -> bool {
-        self.warnings.iter().all(|w| w.starts_with("rise time"))
+        self.broken_rules == 0
     }
 }
 
@@ -216,6 +225,9 @@ pub struct Report {
     pub validation_samples: usize,
     /// A plain statement of how good the best fit is.
     pub verdict: String,
+    /// Why the refinement ran to repair the chosen methods' models, when it did (none of
+    /// them was bounded).
+    pub repair: Option<String>,
 }
 
 /// Best validation MAE over the noise floor above which the fit is called poor.
@@ -254,7 +266,29 @@ pub fn identify(
     let mut methods = options.methods.clone();
     methods.sort();
     methods.dedup();
-    for method in methods {
+    let mut repair = None;
+    let mut next = 0;
+    loop {
+        if next == methods.len() {
+            // Every chosen method ran: if none gave a bounded ten-parameter model, the
+            // refinement repairs them (once).
+            let unbounded: Vec<String> = results
+                .iter()
+                .filter(|r| matches!(r.model, Fitted::Params(_)))
+                .map(|r| format!("{}: {}", r.method.name(), r.unbounded_reason().unwrap_or_default()))
+                .collect();
+            if !options.repair || methods.contains(&Method::Oe) || results.iter().any(MethodResult::is_bounded_params) {
+                break;
+            }
+            repair = Some(if unbounded.is_empty() {
+                "no chosen method gave a ten-parameter model".to_string()
+            } else {
+                format!("no chosen method's model is bounded ({})", unbounded.join("; "))
+            });
+            methods.push(Method::Oe);
+        }
+        let method = methods[next];
+        next += 1;
         progress(method, "fitting");
         let started = Instant::now();
         let mut notes = Vec::new();
@@ -359,7 +393,15 @@ pub fn identify(
     };
     let best = lowest(true).or_else(|| lowest(false));
     let verdict = verdict(&results, best, &noise);
+    if let (Some(why), Some(r)) = (&mut repair, results.iter().find(|r| r.method == Method::Oe)) {
+        why.push_str(if r.is_bounded_params() {
+            "; the refinement repaired them: its model is bounded"
+        } else {
+            "; the refinement could not make one bounded either"
+        });
+    }
     Ok(Report {
+        repair,
         calibration_samples: calibration.iter().map(Series::len).sum(),
         validation_samples: validation.iter().map(Series::len).sum(),
         results,
@@ -481,14 +523,30 @@ pub fn fit_sindy(data: &[Series], options: &SindyOptions) -> Result<JetSindy, Id
 /// equilibrium per throttle, no fall far below idle, 10–90 % in roughly 0.5–2 s).
 pub fn plausibility(p: &Params) -> Plausibility {
     let mut out = Plausibility::default();
-    for u in [25.0, 50.0, 75.0, 100.0] {
+    // One stable equilibrium at every throttle in range, checked every 2.5 %; each broken
+    // rule is one warning naming the throttles where it is broken.
+    let (mut none, mut several) = (Vec::new(), Vec::new());
+    for i in 0..=30 {
+        let u = THROTTLE_MIN_PCT + 2.5 * f64::from(i);
         let stable: Vec<f64> = p.equilibria(u).into_iter().filter(|e| e.stable).map(|e| e.thrust_n).collect();
         if stable.is_empty() {
-            out.warnings.push(format!("no stable equilibrium at {u:.0} %"));
+            none.push(u);
         } else if stable.len() > 1 {
-            out.warnings.push(format!("{} stable equilibria at {u:.0} %", stable.len()));
+            several.push((u, stable.len()));
         }
-        out.equilibria_n.push((u, stable.iter().copied().reduce(f64::max)));
+        if [25.0, 50.0, 75.0, 100.0].contains(&u) {
+            out.equilibria_n.push((u, stable.iter().copied().reduce(f64::max)));
+        }
+    }
+    out.broken_rules = none.len() + several.len();
+    let at = |us: &[f64]| us.iter().map(|u| format!("{u}")).collect::<Vec<_>>().join(", ");
+    if !none.is_empty() {
+        out.warnings.push(format!("no stable equilibrium at {} %", at(&none)));
+    }
+    if !several.is_empty() {
+        let most = several.iter().map(|s| s.1).max().unwrap_or(2);
+        let us: Vec<f64> = several.iter().map(|s| s.0).collect();
+        out.warnings.push(format!("{most} stable equilibria at {} %", at(&us)));
     }
     let levels = [THROTTLE_MIN_PCT, 50.0, 70.0, THROTTLE_MAX_PCT];
     for &from in &levels {
@@ -502,6 +560,7 @@ pub fn plausibility(p: &Params) -> Plausibility {
                 match engine.step(to) {
                     Ok(s) => lowest = lowest.min(s.thrust_n),
                     Err(e) => {
+                        out.broken_rules += 1;
                         out.warnings.push(format!(
                             "only locally valid: a step {from:.0} → {to:.0} % diverges ({})",
                             e.to_string().split(':').next().unwrap_or("diverged")
@@ -514,6 +573,7 @@ pub fn plausibility(p: &Params) -> Plausibility {
                 out.min_after_step_down_n = Some(lowest);
                 let idle = p.stable_equilibrium(THROTTLE_MIN_PCT).unwrap_or(0.0);
                 if lowest < idle - 10.0 {
+                    out.broken_rules += 1;
                     out.warnings
                         .push(format!("a full step down undershoots to {lowest:.1} N, far below idle ({idle:.1} N)"));
                 }
@@ -527,13 +587,33 @@ pub fn plausibility(p: &Params) -> Plausibility {
                 out.warnings.push(format!("rise time 25 → 100 % is {rise:.2} s, outside the plausible 0.3–3 s"));
             }
         }
-        Ok(None) => out.warnings.push("a step 25 → 100 % does not settle within 30 s".into()),
+        Ok(None) => {
+            out.broken_rules += 1;
+            out.warnings.push("a step 25 → 100 % does not settle within 30 s".into());
+        }
         Err(_) => {} // divergence is already reported by the step test
     }
     out
 }
 
 impl MethodResult {
+    /// True for a ten-parameter model that is plausible over the whole throttle range
+    /// (one stable equilibrium per throttle, full steps both ways bounded) and stayed
+    /// bounded on the validation data: the only kind `identify` writes.
+    pub fn is_bounded_params(&self) -> bool {
+        matches!(self.model, Fitted::Params(_)) && self.plausibility.is_bounded() && self.validation_score.is_some()
+    }
+
+    /// Why this model is not bounded, in words (None: it is).
+    pub fn unbounded_reason(&self) -> Option<String> {
+        let mut why: Vec<String> =
+            self.plausibility.warnings.iter().filter(|w| !w.starts_with("rise time")).cloned().collect();
+        if self.validation_score.is_none() {
+            why.push(format!("its free run on the validation data diverged ({})", self.diverged_text()));
+        }
+        (!why.is_empty()).then(|| why.join(", "))
+    }
+
     /// The validation MAE, or where the free run diverged.
     pub fn score_text(&self) -> String {
         self.validation_score.map_or_else(|| self.diverged_text(), |s| format!("{:.2} N", s.mae_n))
@@ -580,6 +660,8 @@ impl Report {
             "calibration_samples": self.calibration_samples,
             "validation_samples": self.validation_samples,
             "verdict": self.verdict,
+            "repair": self.repair,
+            "written": self.best_params().map(|(r, _)| r.method.name()),
         })
     }
 
@@ -589,7 +671,7 @@ impl Report {
     pub fn best_params(&self) -> Option<(&MethodResult, Params)> {
         self.results
             .iter()
-            .filter(|r| r.plausibility.is_bounded())
+            .filter(|r| r.is_bounded_params())
             .filter_map(|r| match (&r.model, r.validation_score) {
                 (Fitted::Params(p), Some(s)) => Some((r, *p, s.mae_n)),
                 _ => None,
@@ -673,8 +755,40 @@ impl Report {
                  with the thrust's variation) is not defined; judge by the MAE"
             );
         }
+        if let Some(why) = &self.repair {
+            let _ = writeln!(out, "\nrefinement run to repair: {why}");
+        }
         let _ = writeln!(out, "\n{}", self.verdict);
+        let _ = writeln!(out, "{}", self.written_text());
         out
+    }
+
+    /// Which model a model file gets and why, in one line: the best bounded one, the
+    /// models passed over for it with the reason, or why none can be written.
+    pub fn written_text(&self) -> String {
+        let Some((chosen, _)) = self.best_params() else {
+            let why: Vec<String> = self
+                .results
+                .iter()
+                .filter(|r| matches!(r.model, Fitted::Params(_)))
+                .map(|r| format!("{}: {}", r.method.name(), r.unbounded_reason().unwrap_or_default()))
+                .collect();
+            return format!(
+                "model file: none can be written, no ten-parameter model is bounded over the throttle range{}",
+                if why.is_empty() { String::new() } else { format!(" ({})", why.join("; ")) }
+            );
+        };
+        let passed_over: Vec<String> = self
+            .results
+            .iter()
+            .filter(|r| matches!(r.model, Fitted::Params(_)) && !r.is_bounded_params())
+            .map(|r| format!("{} ({})", r.method.name(), r.unbounded_reason().unwrap_or_default()))
+            .collect();
+        let mut text = format!("model file: the {} model, the best bounded one", chosen.method.name());
+        if !passed_over.is_empty() {
+            text.push_str(&format!("; passed over as not bounded: {}", passed_over.join("; ")));
+        }
+        text
     }
 }
 

@@ -65,11 +65,11 @@ pub struct Refined {
     pub iterations: usize,
 }
 
-/// Number of plausibility rules `p` breaks: missing or extra stable equilibria, full steps
-/// that diverge or fall far below idle. (A rise time outside the plausible band is a
+/// Number of plausibility checks `p` fails: throttles (on a 2.5 % grid) without exactly one
+/// stable equilibrium, full steps that diverge or fall far below idle. (A rise time outside the plausible band is a
 /// warning, not a broken rule: a slow engine is still bounded.)
 pub fn broken_rules(p: &Params) -> usize {
-    plausibility(p).warnings.iter().filter(|w| !w.starts_with("rise time")).count()
+    plausibility(p).broken_rules
 }
 
 /// A critically damped linear model (natural frequency 5 rad/s) whose rest thrust follows

@@ -6,6 +6,7 @@ use std::path::Path;
 
 use serde::Deserialize;
 
+use crate::turbojet::TurbojetParams;
 use crate::{Effects, ModelError, Params, Plant, Preset};
 
 /// A model file:
@@ -127,5 +128,106 @@ pub fn resolve_model(spec: &str) -> Result<ModelFile, ModelError> {
             Err(ModelError::UnknownSpec { spec: spec.to_owned(), valid: Preset::valid_names(), source })
         }
         Err(e) => Err(e),
+    }
+}
+
+/// The simulated bench's turbojet plants by name: a physically based engine that is not
+/// the ten-parameter model ([`crate::turbojet`]).
+pub const TURBOJET_PLANTS: [&str; 2] = ["turbojet-p100", "turbojet-p220"];
+
+/// The engine a simulated bench runs, from "a turbojet plant (`turbojet-p100`,
+/// `turbojet-p220`), a model preset, or a path": a plant file with a `[turbojet]` table
+/// (`base` and any constant of [`TurbojetParams::NAMES`]) and optional `[effects.<name>]`
+/// tables is a turbojet; any other file is a model file ([`resolve_model`]). Effects a
+/// turbojet cannot take (a discrepancy) are an error.
+pub fn resolve_plant(spec: &str) -> Result<Plant, ModelError> {
+    let wanted = spec.trim().to_ascii_lowercase();
+    if let Some(base) = wanted.strip_prefix("turbojet-").and_then(TurbojetParams::preset) {
+        return Ok(Plant::with_turbojet(base, Effects::none()));
+    }
+    if spec.parse::<Preset>().is_ok() {
+        return resolve_model(spec).map(|file| file.plant());
+    }
+    let path = Path::new(spec);
+    let text = match std::fs::read_to_string(path) {
+        Ok(text) => text,
+        Err(source) if source.kind() == std::io::ErrorKind::NotFound => {
+            let valid = format!("{}, {}", TURBOJET_PLANTS.join(", "), Preset::valid_names());
+            return Err(ModelError::UnknownSpec { spec: spec.to_owned(), valid, source });
+        }
+        Err(source) => return Err(ModelError::Io { path: path.to_path_buf(), source }),
+    };
+    let origin = path.display().to_string();
+    let parse_error = |message: String| ModelError::Parse { path: origin.clone(), message };
+    let table: toml::Table = toml::from_str(&text).map_err(|e| parse_error(e.to_string().trim_end().to_owned()))?;
+    let Some(turbojet) = table.get("turbojet") else {
+        return ModelFile::parse(&text, &origin).map(|file| file.plant());
+    };
+    let turbojet = turbojet.as_table().ok_or_else(|| parse_error("[turbojet] must be a table".into()))?;
+    let params = TurbojetParams::from_table(turbojet).map_err(|e| parse_error(format!("[turbojet] {e}")))?;
+    let mut effects = BTreeMap::new();
+    for (key, value) in &table {
+        match (key.as_str(), value) {
+            ("turbojet", _) => {}
+            ("effects", toml::Value::Table(tables)) => {
+                for (name, t) in tables {
+                    let t = t.as_table().ok_or_else(|| parse_error(format!("[effects.{name}] must be a table")))?;
+                    effects.insert(name.clone(), t.clone());
+                }
+            }
+            _ => return Err(parse_error(format!("unknown key `{key}` in a turbojet plant file (turbojet, effects)"))),
+        }
+    }
+    let plant = Plant::with_turbojet(params, Effects::from_tables(&effects)?);
+    match plant.turbojet_conflict() {
+        Some(message) => Err(ModelError::EffectParam { effect: "discrepancy", message }),
+        None => Ok(plant),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(name: &str, text: &str) -> std::path::PathBuf {
+        let path = std::env::temp_dir().join(format!("jetbench-plant-{}-{name}.toml", std::process::id()));
+        std::fs::write(&path, text).unwrap();
+        path
+    }
+
+    #[test]
+    fn plants_resolve_by_name_and_from_files() {
+        let p100 = resolve_plant("turbojet-p100").unwrap();
+        assert_eq!(p100.turbojet, Some(TurbojetParams::p100()));
+        assert_eq!(resolve_plant(" Turbojet-P220 ").unwrap().turbojet, Some(TurbojetParams::p220()));
+        assert_eq!(resolve_plant("p100-diesel").unwrap(), resolve_model("p100-diesel").unwrap().plant());
+        let file = write(
+            "ok",
+            "[turbojet]\nbase = \"p220\"\nspool_time_constant_s = 0.3\n\n[effects.input_delay]\ndelay_s = 0.08\n",
+        );
+        let plant = resolve_plant(&file.display().to_string()).unwrap();
+        let mut want = TurbojetParams::p220();
+        want.spool_time_constant_s = 0.3;
+        assert_eq!(plant.turbojet, Some(want));
+        assert_eq!(plant.effects.input_delay_s(), 0.08);
+        let model = write("model", &ModelFile::new(Preset::P220Kerosene.params()).to_toml_string());
+        assert_eq!(resolve_plant(&model.display().to_string()).unwrap().turbojet, None);
+        for (name, text, says) in [
+            ("typo", "[turbojet]\nspool_time_constant = 0.3\n", "spool_time_constant"),
+            ("base", "[turbojet]\nbase = \"p300\"\n", "p300"),
+            ("bad", "[turbojet]\nrpm_idle = 200000\n", "rpm_idle"),
+            ("text", "[turbojet]\nrpm_idle = \"fast\"\n", "rpm_idle"),
+            ("extra", "[turbojet]\n[model]\nK_T = 1\n", "model"),
+            ("disc", "[turbojet]\n[effects.discrepancy]\nmap_below = 1\nknot_below_pct = 45\n", "discrepancy"),
+        ] {
+            let path = write(name, text);
+            let err = resolve_plant(&path.display().to_string()).unwrap_err().to_string();
+            assert!(err.contains(says), "{name}: {err}");
+            let _ = std::fs::remove_file(path);
+        }
+        let err = resolve_plant("turbojet-p999").unwrap_err().to_string();
+        assert!(err.contains("turbojet-p100") && err.contains("p100-diesel"), "{err}");
+        let _ = std::fs::remove_file(file);
+        let _ = std::fs::remove_file(model);
     }
 }

@@ -40,7 +40,7 @@ pub use engine::{
     MAX_SETTLING_RUN_S,
 };
 pub use error::ModelError;
-pub use file::{resolve_model, resolve_params, ModelFile};
+pub use file::{resolve_model, resolve_params, resolve_plant, ModelFile, TURBOJET_PLANTS};
 pub use params::{AccelPartials, Equilibrium, Params};
 pub use plant::{Plant, PlantEngine, PlantSample};
 pub use preset::Preset;

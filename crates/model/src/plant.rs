@@ -29,18 +29,29 @@
 
 use crate::discrepancy::DiscrepancyLaw;
 use crate::throttle_path::{ThrottlePath, Window};
+use crate::turbojet::{Turbojet, TurbojetParams, TurbojetSample};
 use crate::{
     rk4_step, EffectKind, Effects, ModelError, Params, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S,
     SUBSTEPS,
 };
 
 /// The engine model with its effects.
+///
+/// The engine is the ten-parameter model of [`Plant::params`], or, when
+/// [`Plant::turbojet`] is set, a physically based turbojet
+/// ([`crate::turbojet`]) that is not the model: the simulated bench's engine out of
+/// the model's class. Either way the throttle path, the gain drift and the sensor-side
+/// effects apply to it alike; a discrepancy (extra terms of the ten-parameter model)
+/// has nothing to act on in a turbojet and is ignored there
+/// ([`Plant::turbojet_conflict`] says so before a run).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Plant {
-    /// The ten coefficients.
+    /// The ten coefficients (not used to step a turbojet plant).
     pub params: Params,
     /// What the ten coefficients leave out.
     pub effects: Effects,
+    /// The turbojet that replaces the ten-parameter engine, if any.
+    pub turbojet: Option<TurbojetParams>,
 }
 
 /// One 10 ms step of a [`PlantEngine`].
@@ -58,7 +69,23 @@ impl Plant {
     /// The engine of `params` with `effects` (use [`Effects::none`] for the ten
     /// parameters alone).
     pub fn new(params: Params, effects: Effects) -> Self {
-        Self { params, effects }
+        Self { params, effects, turbojet: None }
+    }
+
+    /// The turbojet of `params` with `effects` (its ten coefficients are all zero and
+    /// not used).
+    pub fn with_turbojet(params: TurbojetParams, effects: Effects) -> Self {
+        Self { params: Params::from_array([0.0; 10]), effects, turbojet: Some(params) }
+    }
+
+    /// Why these effects cannot run on this plant's engine, if they cannot: a
+    /// discrepancy names terms of the ten-parameter model, which a turbojet does not have.
+    pub fn turbojet_conflict(&self) -> Option<String> {
+        (self.turbojet.is_some() && self.effects.get(EffectKind::Discrepancy).is_some()).then(|| {
+            "the discrepancy effect adds terms to the ten-parameter model; a turbojet plant has no such \
+             terms (use the catalogue's other effects)"
+                .to_owned()
+        })
     }
 
     /// A stepping simulator started at `initial` with every effect at rest for the
@@ -81,6 +108,9 @@ impl Plant {
     /// ten-parameter stable equilibrium, refined by Newton's method on the whole
     /// acceleration with the thrust history at rest too.
     pub fn rest_thrust_n(&self, u0_pct: f64) -> f64 {
+        if let Some(turbojet) = &self.turbojet {
+            return turbojet.rest_thrust_n(u0_pct);
+        }
         let thrust_n = self.params.stable_equilibrium(u0_pct).unwrap_or(0.0);
         let Some(e) = self.effects.get(EffectKind::Discrepancy) else { return thrust_n };
         let law = DiscrepancyLaw::new(e.values());
@@ -241,6 +271,8 @@ pub struct PlantEngine {
     play_n: Option<f64>,
     stand: Option<Stand>,
     drift: Option<(f64, FirstOrder)>,
+    /// The turbojet that replaces the ten-parameter engine, if any.
+    turbojet: Option<Turbojet>,
     // Effect states.
     frame_n: f64,
     sensor_n: f64,
@@ -259,6 +291,8 @@ struct Drive {
 
 impl PlantEngine {
     fn new(plant: &Plant, initial: State, u0_pct: f64, t0_s: f64, substeps: usize) -> Self {
+        // A turbojet's pump and governor are stiffer than the model: always 1 kHz.
+        let substeps = if plant.turbojet.is_some() { SUBSTEPS } else { substeps };
         let substeps = [10, 5, 2, 1].into_iter().find(|&d| d <= substeps.max(1)).unwrap_or(1);
         let ticks = SUBSTEPS / substeps;
         let h = STEP_S / substeps as f64;
@@ -276,7 +310,7 @@ impl PlantEngine {
             failed: false,
             path,
             gain_per_s: values(EffectKind::GainDrift).map_or(0.0, |v| v[0] / 60.0),
-            discrepancy: values(EffectKind::Discrepancy).map(|v| {
+            discrepancy: values(EffectKind::Discrepancy).filter(|_| plant.turbojet.is_none()).map(|v| {
                 let law = DiscrepancyLaw::new(v);
                 Discrepancy {
                     law,
@@ -288,6 +322,7 @@ impl PlantEngine {
             play_n: values(EffectKind::BearingFriction).map(|v| v[0]),
             stand: values(EffectKind::StandResonance).map(|v| Stand::new(v[0], v[1], h)),
             drift: values(EffectKind::SensorDrift).map(|v| (v[0], FirstOrder::new(v[1], h))),
+            turbojet: plant.turbojet.map(|params| Turbojet::at_thrust(params, initial.thrust_n, u0_pct)),
             frame_n: initial.thrust_n,
             sensor_n: initial.thrust_n,
             sensor_rate_n_per_s: 0.0,
@@ -311,8 +346,17 @@ impl PlantEngine {
     /// Clears a divergence.
     pub fn set_state(&mut self, state: State) {
         self.state = state;
+        if let Some(turbojet) = &mut self.turbojet {
+            turbojet.set_thrust(state.thrust_n);
+        }
         self.frame_n = state.thrust_n;
         self.failed = false;
+    }
+
+    /// What the turbojet does now (its spool speed and exhaust temperature, what its ECU
+    /// reports), when the plant is one.
+    pub fn turbojet(&self) -> Option<TurbojetSample> {
+        self.turbojet.as_ref().map(Turbojet::sample)
     }
 
     /// Time since the start of the recording, s.
@@ -328,6 +372,9 @@ impl PlantEngine {
         }
         if self.failed {
             return Err(self.diverged(self.time_s()));
+        }
+        if let Some(engine) = self.turbojet {
+            return self.step_turbojet(engine, throttle_pct);
         }
         let h = STEP_S / self.substeps as f64;
         self.path.push(throttle_pct);
@@ -361,6 +408,39 @@ impl PlantEngine {
             self.sense(t_start, t);
         }
         self.state = State { thrust_n: t, thrust_rate_n_per_s: d };
+        self.steps += 1;
+        Ok(PlantSample {
+            state: self.state,
+            measured_n: self.measured_n(),
+            engine_throttle_pct: if shaped { self.path.followed_pct() } else { throttle_pct },
+        })
+    }
+
+    /// [`PlantEngine::step`] of a turbojet plant: the throttle path tick by tick, one RK4
+    /// step of the turbojet per tick, the gain drift as a sagging combustion efficiency.
+    fn step_turbojet(&mut self, mut engine: Turbojet, throttle_pct: f64) -> Result<PlantSample, ModelError> {
+        let h = STEP_S / SUBSTEPS as f64;
+        self.path.push(throttle_pct);
+        let shaped = self.path.shapes();
+        for i in 0..SUBSTEPS {
+            let u = if shaped { self.path.tick(i) } else { throttle_pct };
+            if self.gain_per_s != 0.0 {
+                let t_mid = self.t0_s + self.steps as f64 * STEP_S + (i as f64 + 0.5) * h;
+                engine.set_efficiency(1.0 - self.gain_per_s * t_mid);
+            }
+            let t_start = engine.params().thrust_at_speed_n(engine.state().speed);
+            engine.substep(u, h);
+            let t = engine.params().thrust_at_speed_n(engine.state().speed);
+            if !t.is_finite() {
+                self.failed = true;
+                let at = self.time_s() + (i + 1) as f64 * h;
+                return Err(self.diverged(at));
+            }
+            self.sense(t_start, t);
+        }
+        let sample = engine.sample();
+        self.turbojet = Some(engine);
+        self.state = State { thrust_n: sample.thrust_n, thrust_rate_n_per_s: sample.thrust_rate_n_per_s };
         self.steps += 1;
         Ok(PlantSample {
             state: self.state,
@@ -656,5 +736,63 @@ mod tests {
             engine.step(90.0).unwrap();
         }
         assert!((engine.measured_n() - rest).abs() < 1e-6, "at rest: {} vs {rest}", engine.measured_n());
+    }
+
+    fn turbojet_run(effects: &[&str], u: &[f64]) -> Vec<f64> {
+        run(&Plant::with_turbojet(TurbojetParams::p100(), with(effects)), u)
+    }
+
+    #[test]
+    fn a_turbojet_plant_without_effects_is_the_turbojet_bit_for_bit() {
+        let u = step_input();
+        let sim = turbojet_run(&[], &u);
+        let mut engine = Turbojet::at_rest(TurbojetParams::p100(), u[0]);
+        assert_eq!(sim[0], engine.sample().thrust_n);
+        for (k, &uk) in u.iter().enumerate().take(u.len() - 1) {
+            assert_eq!(engine.step(uk).thrust_n.to_bits(), sim[k + 1].to_bits(), "row {k}");
+        }
+        let plant = Plant::with_turbojet(TurbojetParams::p100(), Effects::none());
+        assert_eq!(plant.rest_thrust_n(100.0), 100.0);
+        let mut e = plant.at_equilibrium(60.0);
+        let s = e.step(60.0).unwrap();
+        assert!((s.state.thrust_n - plant.rest_thrust_n(60.0)).abs() < 1e-9, "at rest: {:?}", s.state);
+        let spool = e.turbojet().expect("a turbojet plant reports its spool");
+        assert!((spool.rpm - TurbojetParams::p100().governed_speed(60.0) * 154_000.0).abs() < 1.0);
+        assert!(Plant::new(Preset::P100Diesel.params(), Effects::none()).at_equilibrium(60.0).turbojet().is_none());
+    }
+
+    #[test]
+    fn the_catalogue_applies_to_a_turbojet_plant() {
+        let u = step_input();
+        let nominal = turbojet_run(&[], &u);
+        let delayed = turbojet_run(&["input_delay:delay_s=0.08"], &u);
+        for k in 0..u.len() - 8 {
+            assert!((delayed[k + 8] - nominal[k]).abs() < 1e-9, "row {k}: {} vs {}", delayed[k + 8], nominal[k]);
+        }
+        let lagged = turbojet_run(&["actuator_lag:time_constant_s=0.3"], &u);
+        assert!(lagged[130] < nominal[130] - 5.0 && (lagged[799] - nominal[799]).abs() < 0.05);
+        let friction = turbojet_run(&["bearing_friction:force_n=2"], &u);
+        assert!((friction[300] - nominal[300] + 2.0).abs() < 1e-9, "rising: trails by the band");
+        assert!((friction[1200] - nominal[1200] - 2.0).abs() < 1e-9, "falling: trails from above");
+        let sag = turbojet_run(&["gain_drift:per_minute=0.05"], &vec![60.0; 12_000]);
+        let rest = TurbojetParams::p100().rest_thrust_n(60.0);
+        assert!(sag[6000] < rest - 1.0, "the speed sags until the governor's integral catches up: {}", sag[6000]);
+        let warm = turbojet_run(&["sensor_drift:gain=0.05,time_constant_s=5"], &vec![90.0; 6000]);
+        assert!((warm[5999] - 1.05 * TurbojetParams::p100().rest_thrust_n(90.0)).abs() < 0.05);
+        let plant = Plant::with_turbojet(TurbojetParams::p100(), with(&["discrepancy:map_below=1,knot_below_pct=45"]));
+        assert!(plant.turbojet_conflict().is_some_and(|m| m.contains("turbojet")));
+    }
+
+    #[test]
+    fn a_reanchored_turbojet_settles_from_the_new_thrust() {
+        let plant = Plant::with_turbojet(TurbojetParams::p100(), Effects::none());
+        let mut e = plant.at_equilibrium(50.0);
+        e.set_state(State { thrust_n: 60.0, thrust_rate_n_per_s: 0.0 });
+        let first = e.step(50.0).unwrap().state.thrust_n;
+        assert!((first - 60.0).abs() < 3.0, "starts near the new thrust: {first}");
+        for _ in 0..1000 {
+            e.step(50.0).unwrap();
+        }
+        assert!((e.state().thrust_n - plant.rest_thrust_n(50.0)).abs() < 0.01);
     }
 }

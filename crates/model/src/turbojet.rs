@@ -128,6 +128,86 @@ impl TurbojetParams {
         }
     }
 
+    /// The names of the constants as a plant file's `[turbojet]` table spells them.
+    pub const NAMES: [&'static str; 15] = [
+        "rpm_max",
+        "rpm_idle",
+        "max_thrust_n",
+        "idle_thrust_n",
+        "spool_time_constant_s",
+        "accel_margin",
+        "decel_margin",
+        "governor_kp",
+        "governor_ki_per_s",
+        "pump_time_constant_s",
+        "ambient_c",
+        "egt_idle_c",
+        "egt_full_c",
+        "egt_overfuel_c",
+        "egt_time_constant_s",
+    ];
+
+    /// The constant called `name` (one of [`TurbojetParams::NAMES`]), to read or set.
+    pub fn field_mut(&mut self, name: &str) -> Option<&mut f64> {
+        Some(match name {
+            "rpm_max" => &mut self.rpm_max,
+            "rpm_idle" => &mut self.rpm_idle,
+            "max_thrust_n" => &mut self.max_thrust_n,
+            "idle_thrust_n" => &mut self.idle_thrust_n,
+            "spool_time_constant_s" => &mut self.spool_time_constant_s,
+            "accel_margin" => &mut self.accel_margin,
+            "decel_margin" => &mut self.decel_margin,
+            "governor_kp" => &mut self.governor_kp,
+            "governor_ki_per_s" => &mut self.governor_ki_per_s,
+            "pump_time_constant_s" => &mut self.pump_time_constant_s,
+            "ambient_c" => &mut self.ambient_c,
+            "egt_idle_c" => &mut self.egt_idle_c,
+            "egt_full_c" => &mut self.egt_full_c,
+            "egt_overfuel_c" => &mut self.egt_overfuel_c,
+            "egt_time_constant_s" => &mut self.egt_time_constant_s,
+            _ => return None,
+        })
+    }
+
+    /// A preset by name: `p100` or `p220` (ASCII case ignored).
+    pub fn preset(name: &str) -> Option<Self> {
+        match name.trim().to_ascii_lowercase().as_str() {
+            "p100" => Some(Self::p100()),
+            "p220" => Some(Self::p220()),
+            _ => None,
+        }
+    }
+
+    /// The constants of a plant file's `[turbojet]` table: `base = "p100"` (the default)
+    /// or `"p220"`, then any constant of [`TurbojetParams::NAMES`] overriding the base's;
+    /// an unknown key, a value that is not a number or constants that fail
+    /// [`TurbojetParams::check`] are an error naming the key.
+    pub fn from_table(table: &toml::Table) -> Result<Self, String> {
+        let mut params = match table.get("base") {
+            None => Self::p100(),
+            Some(toml::Value::String(name)) => {
+                Self::preset(name).ok_or_else(|| format!("base = \"{name}\" is not a turbojet (p100, p220)"))?
+            }
+            Some(other) => return Err(format!("base = {other} must be \"p100\" or \"p220\"")),
+        };
+        for (key, value) in table {
+            if key == "base" {
+                continue;
+            }
+            let number = match value {
+                toml::Value::Float(x) => *x,
+                toml::Value::Integer(i) => *i as f64,
+                other => return Err(format!("{key} = {other} must be a number")),
+            };
+            let slot = params
+                .field_mut(key)
+                .ok_or_else(|| format!("unknown key `{key}`; valid keys: base, {}", Self::NAMES.join(", ")))?;
+            *slot = number;
+        }
+        params.check()?;
+        Ok(params)
+    }
+
     /// What is wrong with these constants, in words naming the field, if anything.
     pub fn check(&self) -> Result<(), String> {
         let positive = [
@@ -185,7 +265,7 @@ impl TurbojetParams {
     }
 
     /// Idle speed per unit of full speed.
-    fn idle_speed(&self) -> f64 {
+    pub fn idle_speed(&self) -> f64 {
         self.rpm_idle / self.rpm_max
     }
 
@@ -201,6 +281,14 @@ impl TurbojetParams {
         let u = throttle_pct.clamp(THROTTLE_MIN_PCT, THROTTLE_MAX_PCT);
         let n_idle = self.idle_speed();
         n_idle + (1.0 - n_idle) * (u - THROTTLE_MIN_PCT) / (THROTTLE_MAX_PCT - THROTTLE_MIN_PCT)
+    }
+
+    /// The spool speed (per unit) at which the engine gives `thrust_n` (clamped to zero
+    /// speed below the thrust formula's zero): the inverse of
+    /// [`TurbojetParams::thrust_at_speed_n`].
+    pub fn speed_at_thrust(&self, thrust_n: f64) -> f64 {
+        let nz2 = self.zero_thrust_speed_sq();
+        (nz2 + thrust_n * (1.0 - nz2) / self.max_thrust_n).max(1e-6).sqrt()
     }
 
     /// Thrust at spool speed `n` (per unit), N.
@@ -253,7 +341,7 @@ pub struct TurbojetSample {
 }
 
 /// The simulated turbojet: RK4 at 1 kHz, 10 ms per [`Turbojet::step`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Turbojet {
     params: TurbojetParams,
     state: TurbojetState,
@@ -271,6 +359,35 @@ impl Turbojet {
         let n = params.governed_speed(u);
         let state = TurbojetState { speed: n, fuel: n * n, integral: 0.0, egt_c: params.egt_target_c(n, n * n) };
         Self { params, state, throttle_pct: u, efficiency: 1.0 }
+    }
+
+    /// The engine spinning at the speed that gives `thrust_n`, with the fuel flow that
+    /// holds that speed and the governor's integral set so that, at `throttle_pct`, the
+    /// governor asks for that flow: at rest if `thrust_n` is the rest thrust of the
+    /// throttle, otherwise on its way there. A thrust or throttle that is not a number
+    /// gives the engine at rest at idle.
+    pub fn at_thrust(params: TurbojetParams, thrust_n: f64, throttle_pct: f64) -> Self {
+        let mut engine = Self::at_rest(params, throttle_pct);
+        if thrust_n.is_finite() && thrust_n != engine.sample().thrust_n {
+            engine.set_thrust(thrust_n);
+        }
+        engine
+    }
+
+    /// Moves the spool to the speed that gives `thrust_n` (see [`Turbojet::at_thrust`]),
+    /// keeping the throttle: how a predictor re-anchors the engine on a measured thrust.
+    /// Not a number leaves the engine as it is.
+    pub fn set_thrust(&mut self, thrust_n: f64) {
+        if !thrust_n.is_finite() {
+            return;
+        }
+        let p = self.params;
+        let n = p.speed_at_thrust(thrust_n);
+        let n_ref = p.governed_speed(self.throttle_pct);
+        self.state.speed = n;
+        self.state.fuel = n * n;
+        self.state.integral = n * n - n_ref * n_ref - p.governor_kp * (n_ref - n);
+        self.state.egt_c = p.egt_target_c(n, n * n);
     }
 
     /// The constants.
@@ -309,11 +426,21 @@ impl Turbojet {
     /// One 10 ms step with `throttle_pct` held (clamped to 25–100 %; not a number holds the
     /// previous throttle).
     pub fn step(&mut self, throttle_pct: f64) -> TurbojetSample {
+        let h = STEP_S / SUBSTEPS as f64;
+        for _ in 0..SUBSTEPS {
+            self.substep(throttle_pct, h);
+        }
+        self.sample()
+    }
+
+    /// One classic RK4 step of `h` seconds with `throttle_pct` held (clamped to 25–100 %;
+    /// not a number holds the previous throttle): what [`Turbojet::step`] does ten times,
+    /// and what a plant whose throttle path moves within a step calls once per tick.
+    pub fn substep(&mut self, throttle_pct: f64, h: f64) {
         if throttle_pct.is_finite() {
             self.throttle_pct = throttle_pct.clamp(THROTTLE_MIN_PCT, THROTTLE_MAX_PCT);
         }
-        let h = STEP_S / SUBSTEPS as f64;
-        for _ in 0..SUBSTEPS {
+        {
             let x = self.to_array();
             let k1 = self.derivative_of(&x);
             let k2 = self.derivative_of(&add(&x, &k1, h / 2.0));
@@ -328,7 +455,6 @@ impl Turbojet {
             next[1] = next[1].max(0.0);
             self.state = TurbojetState { speed: next[0], fuel: next[1], integral: next[2], egt_c: next[3] };
         }
-        self.sample()
     }
 
     fn to_array(&self) -> [f64; 4] {

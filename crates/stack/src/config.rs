@@ -701,7 +701,9 @@ impl BenchConfig {
             toml::from_str(text).map_err(|e| ConfigError::Parse { origin: origin.into(), message: e.to_string() })?;
         if let Some(dir) = base_dir {
             for spec in [&mut config.plant.model, &mut config.model.model] {
-                if spec.parse::<jetbench_model::Preset>().is_err() && Path::new(spec.as_str()).is_relative() {
+                let named = spec.parse::<jetbench_model::Preset>().is_ok()
+                    || jetbench_model::TURBOJET_PLANTS.iter().any(|name| spec.trim().eq_ignore_ascii_case(name));
+                if !named && Path::new(spec.as_str()).is_relative() {
                     *spec = dir.join(spec.as_str()).display().to_string();
                 }
             }
@@ -798,7 +800,7 @@ impl BenchConfig {
             }
             (_, _) => {}
         }
-        self.plant_model().map_err(|e| invalid(format!("[plant] model: {e}")))?;
+        self.plant().map_err(|e| invalid(format!("[plant] model: {e}")))?;
         let model =
             jetbench_model::resolve_model(&self.model.model).map_err(|e| invalid(format!("[model] model: {e}")))?;
         if !model.effects.is_empty() && self.control.controller != Controller::Mpc {
@@ -828,19 +830,11 @@ impl BenchConfig {
         }
     }
 
-    /// Parameters of the simulated engine (its effects left out; see [`BenchConfig::plant`]).
-    pub fn plant_params(&self) -> Result<Params, jetbench_model::ModelError> {
-        jetbench_model::resolve_params(&self.plant.model)
-    }
-
-    /// The simulated engine's model file: parameters and effects.
-    pub fn plant_model(&self) -> Result<ModelFile, jetbench_model::ModelError> {
-        jetbench_model::resolve_model(&self.plant.model)
-    }
-
-    /// The simulated engine with its effects, as the sim-bench runs it.
+    /// The simulated engine with its effects, as the sim-bench runs it: a model preset or
+    /// file, or a turbojet (`turbojet-p100`, `turbojet-p220`, or a plant file with a
+    /// `[turbojet]` table; see [`jetbench_model::resolve_plant`]).
     pub fn plant(&self) -> Result<Plant, jetbench_model::ModelError> {
-        self.plant_model().map(|file| file.plant())
+        jetbench_model::resolve_plant(&self.plant.model)
     }
 
     /// The throttle board's serial port: the configured one, else (simulated bench) sim-bench's pty link.

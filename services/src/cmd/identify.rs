@@ -150,8 +150,10 @@ pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
         eprintln!("plots: {} files in {}", written, dir.display());
     }
     if let Some(path) = &args.out {
+        // Only a bounded model is ever written: one stable equilibrium per throttle, full
+        // steps both ways bounded, bounded on the validation data.
         let Some((result, params)) = report.best_params() else {
-            bail!("no ten-parameter model stayed bounded on the validation data; nothing written to {}", path.display())
+            bail!("nothing written to {}: {}", path.display(), report.written_text().trim_start_matches("model file: "))
         };
         let text = identify::model_file_text(result, params);
         std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))?;

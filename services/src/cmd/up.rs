@@ -48,7 +48,8 @@ pub struct UpArgs {
     #[arg(long, value_name = "PRESET|FILE")]
     model: Option<String>,
     /// Simulated engine, overriding `[plant] model` (with --sim): a preset or a model
-    /// file, which may carry effects (`[effects.input_delay]`, ...).
+    /// file, which may carry effects (`[effects.input_delay]`, ...), or a turbojet that is
+    /// not the model (`turbojet-p100`, `turbojet-p220`, a plant file with `[turbojet]`).
     #[arg(long, value_name = "PRESET|FILE", requires = "sim")]
     plant: Option<String>,
     /// Built-in reference profile, scaled to the model's thrust range, overriding
@@ -120,7 +121,8 @@ impl UpArgs {
 
 /// A preset name as it is, a model file as an absolute path (the services run elsewhere).
 fn model_spec(spec: &str) -> String {
-    if spec.parse::<jetbench_model::Preset>().is_ok() {
+    let turbojet = jetbench_model::TURBOJET_PLANTS.iter().any(|name| spec.trim().eq_ignore_ascii_case(name));
+    if turbojet || spec.parse::<jetbench_model::Preset>().is_ok() {
         return spec.to_string();
     }
     std::path::absolute(spec).map_or_else(|_| spec.to_string(), |p| p.display().to_string())

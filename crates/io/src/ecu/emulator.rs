@@ -447,6 +447,14 @@ impl EcuEmulator {
     /// Advances to `now_s`; `thrust_n` is the engine's thrust (what RPM and
     /// EGT follow in run). Non-finite inputs or time going back are ignored.
     pub fn step(&mut self, now_s: f64, thrust_n: f64) {
+        self.step_with_engine(now_s, thrust_n, None);
+    }
+
+    /// Like [`EcuEmulator::step`], for an engine simulated with its own spool and
+    /// exhaust: in run, the ECU reports `engine`'s `(rpm, egt_c)` as they are (the
+    /// engine's model holds their lags), not the RPM and EGT it derives from the
+    /// thrust; injected faults still override them. `None` is [`EcuEmulator::step`].
+    pub fn step_with_engine(&mut self, now_s: f64, thrust_n: f64, engine: Option<(f64, f64)>) {
         if !now_s.is_finite() || now_s < self.last_s {
             return;
         }
@@ -476,19 +484,31 @@ impl EcuEmulator {
                 (ph.rpm, ph.egt_c, ph.pump_v)
             }
         };
+        // The engine's own spool and exhaust, in run: reported as they are.
+        let (mut rpm_now, mut egt_now) = match engine {
+            Some((rpm, egt_c)) if self.state.is_running() && rpm.is_finite() && egt_c.is_finite() => {
+                (rpm_to, egt_to) = (rpm, egt_c);
+                (true, true)
+            }
+            _ => (false, false),
+        };
         let burning = self.state.is_burning();
         if burning && Self::fault_on(self.faults.overtemp_at_s, now_s) {
             egt_to = p.max_egt_c + 200.0;
+            egt_now = false;
         }
         let surge = burning && Self::fault_on(self.faults.surge_at_s, now_s);
         if surge {
             egt_to = p.max_egt_c + 300.0;
+            egt_now = false;
         }
         if burning && Self::fault_on(self.faults.overrpm_at_s, now_s) {
             rpm_to = p.max_rpm * 1.15;
+            rpm_now = false;
         }
         if burning && Self::fault_on(self.faults.flameout_at_s, now_s) {
             (rpm_to, egt_to, pump_to) = (0.0, p.ambient_c, pump_to);
+            (rpm_now, egt_now) = (false, false);
         }
         let battery_to =
             if Self::fault_on(self.faults.lowbattery_at_s, now_s) { p.low_battery_v - 1.0 } else { p.battery_v };
@@ -499,8 +519,8 @@ impl EcuEmulator {
         } else {
             EGT_TAU_S
         };
-        self.rpm = lag(self.rpm, rpm_to, dt, RPM_TAU_S);
-        self.egt_c = lag(self.egt_c, egt_to, dt, egt_tau);
+        self.rpm = if rpm_now { rpm_to } else { lag(self.rpm, rpm_to, dt, RPM_TAU_S) };
+        self.egt_c = if egt_now { egt_to } else { lag(self.egt_c, egt_to, dt, egt_tau) };
         self.pump_v = lag(self.pump_v, pump_to.max(0.0), dt, PUMP_TAU_S);
         self.battery_v = lag(self.battery_v, battery_to, dt, BATTERY_TAU_S);
 

@@ -198,7 +198,14 @@ impl SimBenchService {
         // Unplugged by its marker file, or silenced by `--inject ecu:silent_at_s=...`.
         let injected_silence = self.ecu.with_emulator(|e| e.faults().silent(now_s)).unwrap_or(false);
         self.ecu.set_silent(!self.ecu_unplugged.check() || injected_silence);
-        self.ecu.step(truth.thrust_n);
+        match self.sim.turbojet() {
+            // A turbojet plant has its own spool and exhaust: the ECU reports them.
+            Some(engine) => {
+                let now_s = monotonic_ns().saturating_sub(self.ecu_t0_ns) as f64 * 1e-9;
+                self.ecu.with_emulator(|e| e.step_with_engine(now_s, truth.thrust_n, Some((engine.rpm, engine.egt_c))));
+            }
+            None => self.ecu.step(truth.thrust_n),
+        }
         self.log_ecu_state();
         if let (true, Some(reading)) = (self.unplugged.check(), injected.reading) {
             self.sensor.emit(&reading, start_ns)?;
@@ -241,11 +248,21 @@ impl SimBenchService {
         if !faults.is_empty() {
             tracing::warn!("injecting ECU faults: {faults:?}");
         }
-        let full_n = config.plant_params()?.stable_equilibrium(jetbench_model::THROTTLE_MAX_PCT).unwrap_or(100.0);
-        let full_n = full_n.max(1.0);
+        let plant = config.plant()?;
+        let full_n = plant.rest_thrust_n(jetbench_model::THROTTLE_MAX_PCT);
+        let full_n = if full_n.is_finite() { full_n.max(1.0) } else { 100.0 };
         let mut params = EcuParams::default();
         params.rpm_per_sqrt_n = (FULL_RPM - params.idle_rpm) / full_n.sqrt();
         params.egt_per_n = (FULL_EGT_C - params.idle_egt_c) / full_n;
+        if let Some(turbojet) = &plant.turbojet {
+            // The ECU of that engine: its idle and full speed, its idle exhaust; the
+            // start sequence ends at its idle speed.
+            for phase in params.phases.iter_mut().filter(|p| p.rpm == params.idle_rpm) {
+                phase.rpm = turbojet.rpm_idle;
+            }
+            (params.idle_rpm, params.max_rpm) = (turbojet.rpm_idle, turbojet.rpm_max);
+            params.idle_egt_c = turbojet.egt_idle_c;
+        }
         let t0 = monotonic_ns();
         let clock = move || monotonic_ns().saturating_sub(t0) as f64 * 1e-9;
         let emulator = if config.engine.start == crate::config::EngineStart::Running {

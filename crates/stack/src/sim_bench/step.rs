@@ -133,6 +133,12 @@ impl SimBenchStep {
         SimBenchStep { engine: plant.at_equilibrium(initial_throttle_pct), board: SimBoard::new(), sensor }
     }
 
+    /// What the engine's spool and exhaust do now, when the plant is a turbojet (the
+    /// ten-parameter model has neither: the ECU derives them from the thrust).
+    pub fn turbojet(&self) -> Option<jetbench_model::turbojet::TurbojetSample> {
+        self.engine.turbojet()
+    }
+
     /// One 10 ms step at `now_ns`: apply the newest throttle frame (if any),
     /// advance the engine, and sample the sensor (its reading, effects included).
     pub fn step(&mut self, now_ns: u64, throttle_frame: Option<f64>) -> Result<(ForceReading, SimTruth), ModelError> {
