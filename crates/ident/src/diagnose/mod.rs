@@ -42,6 +42,7 @@
 //!    MAE and fit before and after, whiteness under the noise model before and after,
 //!    and a verdict in words ([`report`]).
 
+pub mod design;
 pub mod detect;
 mod discrepancy;
 mod fit;

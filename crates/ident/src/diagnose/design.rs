@@ -1,0 +1,692 @@
+//! The experiment that separates rivals: a throttle campaign on which the explanations a
+//! diagnosis could not tell apart predict the most different thrust, against the noise.
+//!
+//! ```no_run
+//! use jetbench_ident::diagnose::design::{self, DesignOptions};
+//! use jetbench_model::resolve_model;
+//!
+//! let model = resolve_model("p100-diesel")?;
+//! let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string("diagnosis.json")?)?;
+//! let rivals = design::rivals_from_json(&model, &json)?;
+//! let noise = design::Noise::from_json(&json)?;
+//! let d = design::design(&rivals.models, &noise, &DesignOptions::default())?;
+//! println!("decisive after {:.0} s", d.decisive_after_s.unwrap_or(f64::NAN));
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+//!
+//! 1. **Rebuild.** Each rival the diagnosis kept (not dominated) becomes a plant: the
+//!    given model with the rival's effects added at the values the diagnosis fitted them
+//!    (the search's explanation from its findings, another rival from the last round that
+//!    fitted each of its effects), and with the ten refitted parameters when it refits.
+//! 2. **Separate.** For two rivals `a`, `b` on a campaign, the expected difference of
+//!    their held-out scores (`N·ln(SSE/N)`, twice a log-likelihood) is
+//!    `S_ab = Σ_k w_k² / σ_e²`, with `w` the predicted thrust difference `ŷ_a − ŷ_b`
+//!    whitened by the noise's AR model and `σ_e` its innovation standard deviation.
+//! 3. **Design.** The campaign grows greedily from idle: at each step every candidate
+//!    segment (holds at levels across the limits, steps both ways, fast doublets, slow
+//!    ramps, a chirp, long high and idle dwells for slow drifts) is simulated from each
+//!    rival's current state, and the one that raises `Σ_pairs ln(1 + S_ab)` the most per
+//!    second is kept: the concave sum spends the time on the weakest pair.
+//! 4. **Decide how long.** A diagnosis scores the held-out share of each recording, so the
+//!    campaign is decisive once the weakest pair's `holdout · S_ab` reaches the diagnosis's
+//!    strong evidence (40 score units: a likelihood ratio of e²⁰). The rivals are refitted
+//!    on the new data, which absorbs part of the difference; the margin is that.
+
+use std::fmt;
+
+use jetbench_model::discrepancy::{DISCREPANCY_DEFAULTS, DISCREPANCY_KEYS};
+use jetbench_model::{
+    Effect, EffectKind, ModelFile, Params, Plant, PlantEngine, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT,
+};
+use serde_json::Value;
+
+use crate::series::Series;
+
+/// Why no campaign was designed.
+#[derive(Debug, thiserror::Error)]
+pub enum DesignError {
+    /// The file is not what `jetbench diagnose --json` writes.
+    #[error("not a diagnosis (`jetbench diagnose --json` output): {0}")]
+    NotADiagnosis(String),
+    /// Fewer than two rivals can be simulated: nothing to separate.
+    #[error("{0}")]
+    TooFewRivals(String),
+    /// Settings out of range.
+    #[error("{0}")]
+    Options(String),
+    /// The limits and duration cannot make the weakest pair decisive.
+    #[error("{0}")]
+    CannotSeparate(String),
+}
+
+/// One rival explanation, rebuilt as a plant.
+#[derive(Clone, Debug)]
+pub struct RivalModel {
+    /// A short name: its effects joined with `+`, `refit` when it re-identifies, `nothing`.
+    pub label: String,
+    /// Its weight in the diagnosis (share of resampled held-out data it fits best).
+    pub weight: f64,
+    /// The plant it predicts with: given model, refitted parameters, its effects.
+    pub plant: Plant,
+}
+
+/// The rivals rebuilt from a diagnosis, and the ones that could not be.
+#[derive(Clone, Debug)]
+pub struct Rivals {
+    /// Rivals the campaign separates, best weight first.
+    pub models: Vec<RivalModel>,
+    /// What was left out and why (a rival outside the catalogue, a dominated one).
+    pub notes: Vec<String>,
+}
+
+/// The sensor noise the diagnosis modelled: what a thrust difference is judged against.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Noise {
+    /// AR coefficients (`r_k = Σ φ_i r_{k−1−i} + e_k`), empty for white noise.
+    pub ar: Vec<f64>,
+    /// Standard deviation of the innovations `e`, N.
+    pub innovation_sigma_n: f64,
+}
+
+impl Noise {
+    /// White noise of standard deviation `sigma_n`, N.
+    pub fn white(sigma_n: f64) -> Self {
+        Self { ar: Vec::new(), innovation_sigma_n: sigma_n }
+    }
+
+    /// The noise model in a diagnosis (`noise.ar`, `noise.innovation_sigma_n`).
+    pub fn from_json(json: &Value) -> Result<Self, DesignError> {
+        let noise = &json["noise"];
+        let sigma = noise["innovation_sigma_n"]
+            .as_f64()
+            .filter(|s| s.is_finite() && *s > 0.0)
+            .ok_or_else(|| DesignError::NotADiagnosis("no positive `noise.innovation_sigma_n`".into()))?;
+        let ar = match &noise["ar"] {
+            Value::Array(a) => a.iter().map(|x| x.as_f64().filter(|v| v.is_finite())).collect::<Option<Vec<f64>>>(),
+            Value::Null => Some(Vec::new()),
+            _ => None,
+        }
+        .ok_or_else(|| DesignError::NotADiagnosis("`noise.ar` is not a list of numbers".into()))?;
+        Ok(Self { ar, innovation_sigma_n: sigma })
+    }
+}
+
+/// Settings of a design.
+#[derive(Clone, Debug)]
+pub struct DesignOptions {
+    /// Length of the campaign, s.
+    pub duration_s: f64,
+    /// Throttle limits, %.
+    pub min_pct: f64,
+    pub max_pct: f64,
+    /// Share at the end of a recording the diagnosis holds out (its `--holdout`).
+    pub holdout: f64,
+    /// Score units the weakest pair needs on the held-out part for a decisive answer.
+    pub decisive: f64,
+}
+
+impl Default for DesignOptions {
+    fn default() -> Self {
+        Self { duration_s: 120.0, min_pct: THROTTLE_MIN_PCT, max_pct: THROTTLE_MAX_PCT, holdout: 0.3, decisive: 40.0 }
+    }
+}
+
+/// How far apart one pair of rivals is on the campaign.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PairSeparation {
+    /// The two rivals' labels.
+    pub a: String,
+    pub b: String,
+    /// Expected held-out score difference (`holdout · S_ab`, score units) on the campaign.
+    pub held_out_score: f64,
+    /// RMS of their predicted thrust difference over the campaign, N.
+    pub rms_difference_n: f64,
+}
+
+/// A designed campaign.
+#[derive(Clone, Debug)]
+pub struct Design {
+    /// The throttle profile (`time_s`, `throttle_pct`; no thrust).
+    pub profile: Series,
+    /// One line per segment: what it is and when.
+    pub segments: Vec<String>,
+    /// Every pair of rivals, weakest first.
+    pub pairs: Vec<PairSeparation>,
+    /// When the weakest pair becomes decisive on this campaign, s from its start.
+    pub decisive_after_s: Option<f64>,
+}
+
+impl fmt::Display for PairSeparation {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "{} vs {}: expected held-out score difference {:.0} (thrust differs by {:.2} N RMS)",
+            self.a, self.b, self.held_out_score, self.rms_difference_n
+        )
+    }
+}
+
+fn label(effects: &[String], refit: bool) -> String {
+    let mut parts: Vec<&str> = effects.iter().map(String::as_str).collect();
+    if refit {
+        parts.push("refit");
+    }
+    if parts.is_empty() {
+        "nothing".to_owned()
+    } else {
+        parts.join("+")
+    }
+}
+
+/// The values of `kind` from a JSON map of its keys (a discrepancy's absent terms at rest).
+fn effect_from(kind: EffectKind, params: &Value) -> Option<Effect> {
+    let keys = kind.keys();
+    let values: Option<Vec<f64>> = keys
+        .iter()
+        .enumerate()
+        .map(|(i, key)| match params[*key].as_f64() {
+            Some(v) => Some(v),
+            None if kind == EffectKind::Discrepancy && DISCREPANCY_KEYS.get(i) == Some(key) => {
+                Some(DISCREPANCY_DEFAULTS[i])
+            }
+            None => None,
+        })
+        .collect();
+    Effect::new(kind, &values?).ok()
+}
+
+fn params_from(params: &Value) -> Option<Params> {
+    let mut a = [0.0; 10];
+    for (slot, key) in a.iter_mut().zip(Params::NAMES) {
+        *slot = params[key].as_f64().filter(|v| v.is_finite())?;
+    }
+    Some(Params::from_array(a))
+}
+
+/// The fitted values of effect `name`: the search's finding first, else the last round
+/// that fitted it within its physical range, else the last round that fitted it at all.
+fn fitted_effect(json: &Value, kind: EffectKind) -> Option<Effect> {
+    let name = kind.name();
+    let found = json["effects"].as_array().into_iter().flatten().find(|e| e["name"].as_str() == Some(name));
+    if let Some(e) = found.and_then(|e| effect_from(kind, &e["params"])) {
+        return Some(e);
+    }
+    let candidates: Vec<&Value> = json["rounds"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .flat_map(|r| r["candidates"].as_array().into_iter().flatten())
+        .filter(|c| c["name"].as_str() == Some(name))
+        .collect();
+    let physical = candidates.iter().rev().find(|c| c["unphysical"].is_null());
+    physical.into_iter().chain(candidates.iter().rev()).find_map(|c| effect_from(kind, &c["params"]))
+}
+
+fn fitted_params(json: &Value) -> Option<Params> {
+    params_from(&json["refit"]["params"]).or_else(|| {
+        json["rounds"]
+            .as_array()?
+            .iter()
+            .rev()
+            .flat_map(|r| r["candidates"].as_array().into_iter().flatten())
+            .filter(|c| c["name"].as_str() == Some(super::REFIT))
+            .find_map(|c| params_from(&c["params"]))
+    })
+}
+
+/// Every live rival of a diagnosis (`jetbench diagnose --json`), rebuilt on `model` (the
+/// model the diagnosis was given). A dominated rival is left out; so is one that cannot be
+/// simulated (outside the catalogue, or no fitted values in the file), with a note.
+pub fn rivals_from_json(model: &ModelFile, json: &Value) -> Result<Rivals, DesignError> {
+    let list = json["rivals"]
+        .as_array()
+        .ok_or_else(|| DesignError::NotADiagnosis("no `rivals` list (a diagnosis from an older jetbench?)".into()))?;
+    let mut models = Vec::new();
+    let mut notes = Vec::new();
+    for r in list {
+        let effects: Vec<String> =
+            r["effects"].as_array().into_iter().flatten().filter_map(|e| e.as_str().map(str::to_owned)).collect();
+        let refit = r["refit"].as_bool().unwrap_or(false);
+        let name = label(&effects, refit);
+        let weight = r["weight"].as_f64().unwrap_or(0.0);
+        if r["dominated"].as_bool() == Some(true) {
+            notes.push(format!("{name} (weight {weight:.2}) is dominated already: left out"));
+            continue;
+        }
+        let mut plant_effects = model.effects.clone();
+        let mut missing = Vec::new();
+        for e in &effects {
+            match e.parse::<EffectKind>().ok().and_then(|k| fitted_effect(json, k)) {
+                Some(effect) => plant_effects = plant_effects.with(effect),
+                None => missing.push(e.as_str()),
+            }
+        }
+        let params = if refit { fitted_params(json) } else { Some(model.model) };
+        match params {
+            Some(params) if missing.is_empty() => {
+                models.push(RivalModel { label: name, weight, plant: Plant::new(params, plant_effects) })
+            }
+            Some(_) => notes.push(format!(
+                "{name} (weight {weight:.2}) cannot be simulated: no fitted values for {} in the file (outside the \
+                 catalogue or never fitted alone): left out",
+                missing.join(", ")
+            )),
+            None => notes.push(format!("{name} (weight {weight:.2}): the file has no refitted parameters: left out")),
+        }
+    }
+    if models.len() < 2 {
+        let cause = json["cause"].as_str().unwrap_or("?");
+        let only = models.first().map_or("none".to_owned(), |m| format!("only {} (weight {:.2})", m.label, m.weight));
+        let why = if notes.is_empty() { String::new() } else { format!(" ({})", notes.join("; ")) };
+        return Err(DesignError::TooFewRivals(format!(
+            "the diagnosis (cause `{cause}`) leaves fewer than two rivals to separate: {only}{why}; an experiment \
+             to separate explanations needs an ambiguous diagnosis"
+        )));
+    }
+    Ok(Rivals { models, notes })
+}
+
+/// A candidate segment: its throttle samples and a description.
+struct Segment {
+    u: Vec<f64>,
+    what: String,
+}
+
+fn hold(u: &mut Vec<f64>, level: f64, seconds: f64) {
+    u.extend(std::iter::repeat_n(level, (seconds / STEP_S).round() as usize));
+}
+
+/// Every segment the design chooses from, starting at throttle `now`, at most `left_s` long.
+fn candidates(lo: f64, hi: f64, now: f64, left_s: f64) -> Vec<Segment> {
+    let span = hi - lo;
+    let mid = 0.5 * (lo + hi);
+    let mut out = Vec::new();
+    for f in [0.0, 0.25, 0.5, 0.75, 1.0] {
+        let level = lo + f * span;
+        for seconds in [1.0, 3.0] {
+            let mut u = Vec::new();
+            hold(&mut u, level, seconds);
+            out.push(Segment { u, what: format!("step {now:.0} → {level:.0} %, hold {seconds:.0} s") });
+        }
+    }
+    for (a, b) in [(lo, hi), (lo + 0.25 * span, lo + 0.75 * span), (mid - 0.1 * span, mid + 0.1 * span)] {
+        for half_s in [0.2_f64, 0.5, 1.5] {
+            let mut u = Vec::new();
+            let cycles = (6.0 / (2.0 * half_s)).round().max(1.0) as usize;
+            for _ in 0..cycles {
+                hold(&mut u, b, half_s);
+                hold(&mut u, a, half_s);
+            }
+            out.push(Segment { u, what: format!("doublets {a:.0} ↔ {b:.0} %, {half_s} s each way") });
+        }
+    }
+    for target in [lo, hi] {
+        for ramp_s in [3.0, 10.0] {
+            let n = (ramp_s / STEP_S).round() as usize;
+            let mut u: Vec<f64> = (1..=n).map(|k| now + (target - now) * k as f64 / n as f64).collect();
+            hold(&mut u, target, 1.0);
+            out.push(Segment { u, what: format!("ramp {now:.0} → {target:.0} % over {ramp_s:.0} s") });
+        }
+    }
+    {
+        // A chirp across the band where lags, delays and stand modes differ: 0.1 → 4 Hz.
+        let (f0, f1, seconds) = (0.1_f64, 4.0_f64, 15.0);
+        let n = (seconds / STEP_S).round() as usize;
+        let k = (f1 / f0).ln() / seconds;
+        let u = (0..n)
+            .map(|i| {
+                let t = i as f64 * STEP_S;
+                mid + 0.45 * span * (2.0 * std::f64::consts::PI * f0 * ((k * t).exp() - 1.0) / k).sin()
+            })
+            .collect();
+        out.push(Segment { u, what: format!("chirp 0.1 → 4 Hz around {mid:.0} % ± {:.0} %", 0.45 * span) });
+    }
+    for dwell_s in [20.0, 60.0] {
+        for (a, b) in [(hi, lo), (lo, hi)] {
+            let mut u = Vec::new();
+            hold(&mut u, a, dwell_s);
+            hold(&mut u, b, dwell_s);
+            out.push(Segment {
+                u,
+                what: format!("dwell {a:.0} % for {dwell_s:.0} s, then {b:.0} % for {dwell_s:.0} s"),
+            });
+        }
+    }
+    let max = (left_s / STEP_S).round() as usize;
+    for s in &mut out {
+        s.u.truncate(max.max(1));
+    }
+    out
+}
+
+/// Running separation of one pair: the whitened difference's sum of squares and the AR
+/// filter's memory of past differences.
+#[derive(Clone)]
+struct Pair {
+    a: usize,
+    b: usize,
+    s: f64,
+    sq_n2: f64,
+    past: Vec<f64>,
+}
+
+impl Pair {
+    fn add(&mut self, noise: &Noise, diff_n: f64) {
+        let mut w = diff_n;
+        for (phi, p) in noise.ar.iter().zip(&self.past) {
+            w -= phi * p;
+        }
+        if !noise.ar.is_empty() {
+            self.past.rotate_right(1);
+            self.past[0] = diff_n;
+        }
+        self.s += w * w / (noise.innovation_sigma_n * noise.innovation_sigma_n);
+        self.sq_n2 += diff_n * diff_n;
+    }
+}
+
+/// Each rival's engine stepped through `u` from its state: measured thrust per sample, or
+/// `None` when one diverges.
+fn run(engines: &mut [PlantEngine], u: &[f64]) -> Option<Vec<Vec<f64>>> {
+    engines
+        .iter_mut()
+        .map(|e| u.iter().map(|&x| e.step(x).ok().map(|s| s.measured_n).filter(|y| y.is_finite())).collect())
+        .collect()
+}
+
+fn objective(pairs: &[Pair]) -> f64 {
+    pairs.iter().map(|p| p.s.ln_1p()).sum()
+}
+
+/// The campaign that separates `rivals` best within the options' limits and duration,
+/// and how long it needs for a decisive answer.
+pub fn design(rivals: &[RivalModel], noise: &Noise, options: &DesignOptions) -> Result<Design, DesignError> {
+    let (lo, hi) = (options.min_pct, options.max_pct);
+    if !(lo.is_finite() && hi.is_finite() && THROTTLE_MIN_PCT <= lo && lo < hi && hi <= THROTTLE_MAX_PCT) {
+        return Err(DesignError::Options(format!(
+            "throttle limits {lo} – {hi} % must satisfy {THROTTLE_MIN_PCT} ≤ min < max ≤ {THROTTLE_MAX_PCT} (percent, \
+             not a fraction)"
+        )));
+    }
+    if hi - lo < 5.0 {
+        return Err(DesignError::Options(format!(
+            "throttle limits {lo} – {hi} % leave less than 5 % to move in: nothing could excite a difference"
+        )));
+    }
+    if !(options.duration_s.is_finite() && (10.0..=86_400.0).contains(&options.duration_s)) {
+        return Err(DesignError::Options(format!(
+            "--duration {} must be between 10 s and one day",
+            options.duration_s
+        )));
+    }
+    if !(options.holdout > 0.05 && options.holdout < 0.95) {
+        return Err(DesignError::Options(format!("--holdout {} must be in (0.05, 0.95)", options.holdout)));
+    }
+    if rivals.len() < 2 {
+        return Err(DesignError::TooFewRivals("fewer than two rivals: nothing to separate".into()));
+    }
+    if !(noise.innovation_sigma_n.is_finite() && noise.innovation_sigma_n > 0.0) {
+        return Err(DesignError::Options("the noise's standard deviation must be positive".into()));
+    }
+    let mut engines: Vec<PlantEngine> = rivals.iter().map(|r| r.plant.at_equilibrium(lo)).collect();
+    let mut pairs: Vec<Pair> = (0..rivals.len())
+        .flat_map(|a| (a + 1..rivals.len()).map(move |b| (a, b)))
+        .map(|(a, b)| Pair { a, b, s: 0.0, sq_n2: 0.0, past: vec![0.0; noise.ar.len()] })
+        .collect();
+    let target = options.decisive / options.holdout;
+    // Beyond the duration asked for, the design goes on (up to 4×, at least 10 min, at most a
+    // day) only to say how long a decisive answer would need.
+    let horizon_s = (4.0 * options.duration_s).clamp(600.0, 86_400.0).max(options.duration_s);
+    let horizon = (horizon_s / STEP_S).round() as usize;
+    let wanted = (options.duration_s / STEP_S).round() as usize;
+    let mut u: Vec<f64> = Vec::with_capacity(horizon);
+    let mut segments = Vec::new();
+    let mut decisive_at: Option<usize> = None;
+    let mut at_duration: Option<Vec<Pair>> = None;
+    let mut now = lo;
+    while u.len() < horizon && decisive_at.is_none_or(|_| u.len() < wanted) {
+        let left_s = ((if u.len() < wanted { wanted } else { horizon }) - u.len()) as f64 * STEP_S;
+        let base = objective(&pairs);
+        let mut best: Option<(f64, Segment, Vec<PlantEngine>, Vec<Pair>)> = None;
+        for seg in candidates(lo, hi, now, left_s) {
+            let mut trial = engines.clone();
+            let Some(y) = run(&mut trial, &seg.u) else { continue };
+            let mut next = pairs.clone();
+            for p in &mut next {
+                for k in 0..seg.u.len() {
+                    p.add(noise, y[p.a][k] - y[p.b][k]);
+                }
+            }
+            let rate = (objective(&next) - base) / (seg.u.len() as f64 * STEP_S);
+            if best.as_ref().is_none_or(|b| rate > b.0) {
+                best = Some((rate, seg, trial, next));
+            }
+        }
+        let Some((_, seg, trial, next)) = best else {
+            return Err(DesignError::CannotSeparate(
+                "every candidate segment makes a rival's model diverge: check the model and the limits".into(),
+            ));
+        };
+        // When the weakest pair crosses the target inside this segment, find the sample.
+        if decisive_at.is_none() && next.iter().all(|p| p.s >= target) {
+            let mut probe = pairs.clone();
+            let mut e = engines.clone();
+            if let Some(y) = run(&mut e, &seg.u) {
+                for k in 0..seg.u.len() {
+                    for p in &mut probe {
+                        p.add(noise, y[p.a][k] - y[p.b][k]);
+                    }
+                    if probe.iter().all(|p| p.s >= target) {
+                        decisive_at = Some(u.len() + k + 1);
+                        break;
+                    }
+                }
+            }
+        }
+        now = seg.u.last().copied().unwrap_or(now);
+        let start_s = u.len() as f64 * STEP_S;
+        u.extend(&seg.u);
+        if u.len() <= wanted {
+            segments.push(format!("{start_s:6.1}–{:6.1} s  {}", u.len() as f64 * STEP_S, seg.what));
+        }
+        engines = trial;
+        pairs = next;
+        if u.len() >= wanted && at_duration.is_none() {
+            at_duration = Some(pairs.clone());
+            if pairs.iter().any(|p| p.s < 1e-9) {
+                // Two rivals predict the same thrust on everything tried: no longer campaign helps.
+                break;
+            }
+        }
+    }
+    let weakest = |ps: &[Pair]| {
+        ps.iter()
+            .min_by(|x, y| x.s.total_cmp(&y.s))
+            .map(|p| (rivals[p.a].label.clone(), rivals[p.b].label.clone(), p.s))
+    };
+    let final_pairs = at_duration.unwrap_or_else(|| pairs.clone());
+    let decisive_s = decisive_at.map(|k| k as f64 * STEP_S);
+    if decisive_at.is_none_or(|k| k > wanted) {
+        let (a, b, s) = weakest(&final_pairs).unwrap_or_default();
+        let have = options.holdout * s;
+        let advice = match decisive_s {
+            Some(t) => format!("about {:.0} s would (rerun with --duration {:.0})", t, (t * 1.1 / 10.0).ceil() * 10.0),
+            None => format!(
+                "not even {horizon_s:.0} s within {lo:.0} – {hi:.0} % would: these limits cannot separate them (widen \
+                 them, or the rivals predict the same thrust on every campaign this bench can run)"
+            ),
+        };
+        return Err(DesignError::CannotSeparate(format!(
+            "in {:.0} s within {lo:.0} – {hi:.0} % the weakest pair ({a} vs {b}) reaches an expected held-out score \
+             difference of {have:.1}, short of the {:.0} a decisive answer needs; {advice}",
+            options.duration_s, options.decisive
+        )));
+    }
+    u.truncate(wanted);
+    let mut report: Vec<PairSeparation> = final_pairs
+        .iter()
+        .map(|p| PairSeparation {
+            a: rivals[p.a].label.clone(),
+            b: rivals[p.b].label.clone(),
+            held_out_score: options.holdout * p.s,
+            rms_difference_n: (p.sq_n2 / wanted.max(1) as f64).sqrt(),
+        })
+        .collect();
+    report.sort_by(|x, y| x.held_out_score.total_cmp(&y.held_out_score));
+    let t_s = (0..u.len()).map(|k| k as f64 * STEP_S).collect();
+    Ok(Design {
+        profile: Series { name: "discriminating campaign".into(), t_s, u_pct: u, thrust_n: Vec::new() },
+        segments,
+        pairs: report,
+        decisive_after_s: decisive_s,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use jetbench_model::{resolve_model, Effects};
+
+    fn with(model: &ModelFile, effect: &str) -> Plant {
+        let e: Effect = effect.parse().expect("effect");
+        Plant::new(model.model, model.effects.with(e))
+    }
+
+    fn rivals(a: &str, b: &str) -> Vec<RivalModel> {
+        let m = resolve_model("p100-diesel").expect("preset");
+        vec![
+            RivalModel { label: "a".into(), weight: 0.6, plant: with(&m, a) },
+            RivalModel { label: "b".into(), weight: 0.4, plant: with(&m, b) },
+        ]
+    }
+
+    /// The design's separation, recomputed independently: both plants simulated over the
+    /// whole profile from idle equilibrium, difference summed (white noise).
+    fn separation(r: &[RivalModel], u: &[f64], sigma: f64) -> f64 {
+        let y: Vec<Vec<f64>> = r
+            .iter()
+            .map(|m| {
+                let mut e = m.plant.at_equilibrium(THROTTLE_MIN_PCT);
+                u.iter().map(|&x| e.step(x).expect("step").measured_n).collect()
+            })
+            .collect();
+        y[0].iter().zip(&y[1]).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / (sigma * sigma)
+    }
+
+    #[test]
+    fn a_lag_and_a_delay_are_separated_by_fast_moves_and_the_figures_are_what_a_simulation_gives() {
+        let r = rivals("input_delay:delay_s=0.05", "actuator_lag:time_constant_s=0.055");
+        let noise = Noise::white(2.65);
+        let d = design(&r, &noise, &DesignOptions { duration_s: 120.0, ..DesignOptions::default() }).expect("design");
+        assert_eq!(d.profile.u_pct.len(), 12_000);
+        assert!(d.profile.u_pct.iter().all(|u| (THROTTLE_MIN_PCT..=THROTTLE_MAX_PCT).contains(u)));
+        let s = separation(&r, &d.profile.u_pct, 2.65);
+        let claimed = d.pairs[0].held_out_score / 0.3;
+        assert!((s - claimed).abs() <= 1e-6 * s.max(1.0), "recomputed {s}, design says {claimed}");
+        let t = d.decisive_after_s.expect("decisive");
+        assert!(t <= 120.0, "{t}");
+        // Against the identification campaign of the same length, many times the separation.
+        let plain = crate::excite::campaign(120.0, 1).profile.u_pct;
+        let s_plain = separation(&r, &plain, 2.65);
+        assert!(s > 3.0 * s_plain, "designed {s:.1} vs plain campaign {s_plain:.1}");
+        // Fast moves: the design spends its time where a lag and a delay differ.
+        assert!(d.segments.iter().any(|l| l.contains("doublets") || l.contains("chirp")), "{:?}", d.segments);
+    }
+
+    #[test]
+    fn a_sensor_drift_and_an_engine_gain_drift_are_separated_by_dwells() {
+        let r = rivals("sensor_drift:gain=0.03,time_constant_s=60", "gain_drift:per_minute=0.01");
+        let d = design(&r, &Noise::white(2.65), &DesignOptions { duration_s: 300.0, ..DesignOptions::default() })
+            .expect("design");
+        let s = separation(&r, &d.profile.u_pct, 2.65);
+        let s_plain = separation(&r, &crate::excite::campaign(300.0, 1).profile.u_pct, 2.65);
+        assert!(s > 2.0 * s_plain, "designed {s:.1} vs plain campaign {s_plain:.1}; {:?}", d.segments);
+        assert!(d.decisive_after_s.is_some_and(|t| t <= 300.0));
+    }
+
+    #[test]
+    fn coloured_noise_is_whitened_before_the_difference_is_weighed() {
+        let r = rivals("input_delay:delay_s=0.05", "actuator_lag:time_constant_s=0.055");
+        let white = design(&r, &Noise::white(2.0), &DesignOptions::default()).expect("design");
+        // A slow AR(1) noise of the same innovations hides slow differences, not fast ones;
+        // the figure changes and stays finite.
+        let ar = Noise { ar: vec![0.9], innovation_sigma_n: 2.0 };
+        let coloured = design(&r, &ar, &DesignOptions::default()).expect("design");
+        assert!(coloured.pairs[0].held_out_score.is_finite());
+        assert!((coloured.pairs[0].held_out_score - white.pairs[0].held_out_score).abs() > 1.0);
+    }
+
+    #[test]
+    fn a_duration_too_short_is_refused_with_the_duration_it_needs() {
+        // A 10 ms delay against a 10 ms lag, moving only between 45 and 55 %, for 10 s.
+        let r = rivals("input_delay:delay_s=0.01", "actuator_lag:time_constant_s=0.01");
+        let o = DesignOptions { duration_s: 10.0, min_pct: 45.0, max_pct: 55.0, ..DesignOptions::default() };
+        let Err(e) = design(&r, &Noise::white(2.65), &o) else { panic!("a 10 s design within 45-55 % was accepted") };
+        let text = e.to_string();
+        assert!(text.contains("weakest pair (a vs b)") && text.contains("short of the 40"), "{text}");
+        assert!(text.contains("--duration") || text.contains("cannot separate"), "{text}");
+    }
+
+    #[test]
+    fn identical_rivals_cannot_be_separated_and_bad_limits_are_refused() {
+        let r = rivals("input_delay:delay_s=0.05", "input_delay:delay_s=0.05");
+        let o = DesignOptions { duration_s: 20.0, ..DesignOptions::default() };
+        let Err(e) = design(&r, &Noise::white(2.65), &o) else { panic!("identical rivals were separated") };
+        assert!(e.to_string().contains("cannot separate"), "{e}");
+        let r = rivals("input_delay:delay_s=0.05", "actuator_lag:time_constant_s=0.055");
+        for (lo, hi) in [(0.25, 1.0), (60.0, 40.0), (50.0, 52.0), (f64::NAN, 90.0)] {
+            let o = DesignOptions { min_pct: lo, max_pct: hi, ..DesignOptions::default() };
+            assert!(matches!(design(&r, &Noise::white(2.65), &o), Err(DesignError::Options(_))), "{lo} {hi}");
+        }
+    }
+
+    fn diagnosis_json() -> Value {
+        serde_json::json!({
+            "cause": "ambiguous",
+            "noise": { "ar": [], "innovation_sigma_n": 2.6 },
+            "effects": [{ "name": "actuator_lag", "params": { "time_constant_s": 0.054 } }],
+            "refit": null,
+            "rounds": [{ "candidates": [
+                { "name": "actuator_lag", "params": { "time_constant_s": 0.06 }, "unphysical": null },
+                { "name": "input_delay", "params": { "delay_s": 0.3 }, "unphysical": "too long" },
+                { "name": "input_delay", "params": { "delay_s": 0.05 }, "unphysical": null },
+                { "name": "input_delay", "params": { "delay_s": 0.01 }, "unphysical": "too short" }
+            ]}],
+            "rivals": [
+                { "effects": ["actuator_lag"], "refit": false, "weight": 0.88, "dominated": false },
+                { "effects": ["input_delay"], "refit": false, "weight": 0.12, "dominated": false },
+                { "effects": ["throttle_play"], "refit": false, "weight": 0.0, "dominated": false },
+                { "effects": ["rate_limit"], "refit": false, "weight": 0.0, "dominated": true }
+            ]
+        })
+    }
+
+    #[test]
+    fn rivals_are_rebuilt_from_the_diagnosis_with_the_values_it_fitted() {
+        let m = resolve_model("p100-diesel").expect("preset");
+        let json = diagnosis_json();
+        let r = rivals_from_json(&m, &json).expect("rivals");
+        assert_eq!(r.models.iter().map(|x| x.label.as_str()).collect::<Vec<_>>(), ["actuator_lag", "input_delay"]);
+        // The finding's value, not the round's; the physical candidate, not the last one.
+        let lag = r.models[0].plant.effects.get(EffectKind::ActuatorLag).expect("lag");
+        assert_eq!(lag.values(), [0.054]);
+        let delay = r.models[1].plant.effects.get(EffectKind::InputDelay).expect("delay");
+        assert_eq!(delay.values(), [0.05]);
+        assert!(r.notes.iter().any(|n| n.contains("throttle_play") && n.contains("cannot be simulated")), "{r:?}");
+        assert!(r.notes.iter().any(|n| n.contains("rate_limit") && n.contains("dominated")), "{r:?}");
+        assert_eq!(Noise::from_json(&json).expect("noise"), Noise::white(2.6));
+    }
+
+    #[test]
+    fn a_diagnosis_with_one_explanation_or_none_is_refused() {
+        let m = ModelFile { model: resolve_model("p100-diesel").expect("preset").model, effects: Effects::none() };
+        let mut json = diagnosis_json();
+        json["rivals"] = serde_json::json!([{ "effects": ["actuator_lag"], "refit": false, "weight": 1.0 }]);
+        json["cause"] = "missing_physics".into();
+        let e = rivals_from_json(&m, &json).expect_err("one rival");
+        assert!(e.to_string().contains("fewer than two rivals") && e.to_string().contains("missing_physics"), "{e}");
+        let e = rivals_from_json(&m, &serde_json::json!({ "cause": "none" })).expect_err("no list");
+        assert!(matches!(e, DesignError::NotADiagnosis(_)), "{e}");
+        assert!(Noise::from_json(&serde_json::json!({ "noise": { "innovation_sigma_n": -1 } })).is_err());
+    }
+}
