@@ -90,7 +90,19 @@ def control_room(r):
         f"{[x['foxglove_stalled'] for x in c]}; the dropping client read {[x['foxglove_dropped_after'] for x in c]} messages "
         f"before it cut its connection; Zenoh subscriber {[x['zenoh_received'] for x in c]} samples, "
         f"{sum(x['zenoh_gaps'] for x in c)} lost" + (f"; errors: {errors}" if errors else ""),
+        commands(c),
     ])
+
+def commands(c):
+    k = [x["commands"] for x in c if "commands" in x]
+    if not k:
+        return "- (no operator's client: a build before the commanding client)"
+    s = lambda key: sum(x[key] for x in k)
+    return (f"- the operator's client, over TLS: control taken in {sum(x['took_control'] for x in k)} of {len(k)} rounds; "
+            f"{s('sent')} heartbeats sent every 100 ms, {s('accepted')} accepted, {s('refused')} refused, "
+            f"{s('unanswered')} unanswered while the set ran; answered in p50 {max(x['answer_ms_p50'] for x in k):.1f} ms, "
+            f"p99 {max(x['answer_ms_p99'] for x in k):.1f} ms (worst round); in the recordings {s('recorded')} commands on "
+            f"bench/operator, {s('recorded_accepted')} accepted, {s('deadman_events')} DEADMAN events")
 
 def per_hop(r):
     lines = ["| hand-over | floor p50 | service set p50 | its own cost p50 | floor p99 | service set p99 |", "|---|---|---|---|---|---|"]
@@ -162,7 +174,10 @@ board, and three receives and three publishes on the bus. Its hops cost several 
 `--control-room` measures, in the same rounds, the iceoryx2 set with the Foxglove viewer (`--foxglove`) and the
 Zenoh bridge (`--zenoh`) running, and four clients attached: a Foxglove client reading every channel, one that
 subscribes to every channel and never reads again, one that reads and tears its connection down mid-stream, and a
-Zenoh subscriber of every channel. Both services read the bus through polled subscribers on their own 10 ms clock.
+Zenoh subscriber of every channel; and an operator's client that takes control over Zenoh with TLS and a client
+certificate (an `[operator]` section and a PKI the run makes) and sends a heartbeat every 100 ms, each one going
+the whole command path: the gateway, `bench/operator`, the control service's decision and event, the answer.
+Both services read the bus through polled subscribers on their own 10 ms clock.
 Under `--rt` the viewer and the bridge run on the core of the simulated devices and the recorder (`[rt] cpus`), off
 the control chain's core, and so do the clients, which stand for another computer (pinned by `jetbench latency`).
 Before that placement, with the viewer, the bridge and the clients free to run on the control core, the same

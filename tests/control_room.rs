@@ -50,21 +50,7 @@ fn operators_with_trusted_certificates_command_and_anyone_else_only_reaches_the_
     let _ = std::fs::remove_dir_all(&dir);
     let pki = TestPki::make(&dir, &bench_ip, &["alice", "bob"], "alice");
     let (tcp, tls) = (format!("tcp/{bench_ip}:{}", free_port()), format!("tls/{bench_ip}:{}", free_port()));
-    // A stop idles for a minute before the ECU shuts the engine down (which ends the
-    // test): every client below gets its turn with the set still up.
-    let sim = std::fs::read_to_string(repo_root().join("config/sim.toml"))
-        .expect("config/sim.toml")
-        .replace("stop_idle_s = 3.0", "stop_idle_s = 60.0");
-    assert!(sim.contains("stop_idle_s = 60.0"), "config/sim.toml no longer sets [engine] stop_idle_s");
-    let config = dir.join("bench.toml");
-    std::fs::write(
-        &config,
-        format!(
-            "{sim}\n[operator]\ntls_listen = \"{tls}\"\ncertificate = \"bench.crt\"\nprivate_key = \"bench.key\"\n\
-             client_ca = \"ca.crt\"\noperators = [\"alice\", \"bob\"]\n"
-        ),
-    )
-    .unwrap();
+    let config = bench_config(&dir, &[LONG_STOP], &operator_section(&tls, &["alice", "bob"], ""));
     let record = scratch(SUITE, "operated.mcap");
     let ns = clients::namespace(SUITE);
     let mut up = in_netns(bench_ns, std::path::Path::new(env!("CARGO_BIN_EXE_jetbench")));
@@ -234,11 +220,18 @@ fn foxglove_calls(url: &str, calls: &[&str]) -> (Vec<String>, Vec<String>) {
     (services, answers)
 }
 
-/// `jetbench up --sim --foxglove LISTEN --record RECORD` (with `config` if given), ready.
-fn up_with_viewer(suite: &str, listen: &str, record: &std::path::Path, config: Option<&std::path::Path>) -> Process {
+/// `jetbench up --sim --foxglove LISTEN --record RECORD --duration SECONDS` (with
+/// `config` if given), ready.
+fn up_with_viewer(
+    suite: &str,
+    listen: &str,
+    record: &std::path::Path,
+    config: Option<&std::path::Path>,
+    seconds: u32,
+) -> Process {
     let mut up = in_netns(None, std::path::Path::new(env!("CARGO_BIN_EXE_jetbench")));
     up.env(jetbench_bus::NAMESPACE_ENV, clients::namespace(suite))
-        .args(["up", "--sim", "--quiet", "--duration", "8", "--foxglove", listen, "--record"])
+        .args(["up", "--sim", "--quiet", "--duration", &seconds.to_string(), "--foxglove", listen, "--record"])
         .arg(record);
     if let Some(c) = config {
         up.arg("--config").arg(c);
@@ -262,7 +255,7 @@ fn foxglove_offers_the_safe_commands_to_anyone_and_the_raising_ones_only_to_the_
     // Without [operator]: the safe services only; a stop reaches the bus.
     let listen = format!("127.0.0.1:{}", free_port());
     let record = scratch("cfox", "view-only.mcap");
-    let up = up_with_viewer("cfox", &listen, &record, None);
+    let up = up_with_viewer("cfox", &listen, &record, None, 8);
     let (offered, answers) = foxglove_calls(&format!("ws://{listen}"), &["jetbench/stop", "jetbench/start"]);
     let (ok, log) = up.wait(Duration::from_secs(60));
     assert!(ok, "jetbench up failed:\n{log}");
@@ -288,30 +281,14 @@ fn foxglove_offers_the_safe_commands_to_anyone_and_the_raising_ones_only_to_the_
     // gives the operator's authority, a call without it anyone's.
     let dir = scratch("cfox", "pki");
     let _ = std::fs::remove_dir_all(&dir);
-    let pki = TestPki::make(&dir, "127.0.0.1", &["alice"], "alice");
+    TestPki::make(&dir, "127.0.0.1", &["alice"], "alice");
     let listen = format!("127.0.0.1:{}", free_port());
     let token = "the-operator-token-1234";
-    // A stop idles for a minute before the ECU shuts the engine down (which ends the
-    // test): every client below gets its turn with the set still up.
-    let sim = std::fs::read_to_string(repo_root().join("config/sim.toml"))
-        .expect("config/sim.toml")
-        .replace("stop_idle_s = 3.0", "stop_idle_s = 60.0");
-    assert!(sim.contains("stop_idle_s = 60.0"), "config/sim.toml no longer sets [engine] stop_idle_s");
-    let config = dir.join("bench.toml");
-    std::fs::write(
-        &config,
-        format!(
-            "{sim}\n[operator]\ntls_listen = \"tls/127.0.0.1:{}\"\ncertificate = \"{}\"\nprivate_key = \"{}\"\n\
-             client_ca = \"{}\"\noperators = [\"alice\"]\nfoxglove_token = \"{token}\"\nfoxglove_operator_bind = \"{listen}\"\n",
-            free_port(),
-            pki.path("bench.crt"),
-            pki.path("bench.key"),
-            pki.path("ca.crt")
-        ),
-    )
-    .unwrap();
+    let foxglove_operator = format!("foxglove_token = \"{token}\"\nfoxglove_operator_bind = \"{listen}\"\n");
+    let tls = format!("tls/127.0.0.1:{}", free_port());
+    let config = bench_config(&dir, &[LONG_STOP], &operator_section(&tls, &["alice"], &foxglove_operator));
     let record = scratch("cfox", "operator.mcap");
-    let up = up_with_viewer("cfox", &listen, &record, Some(&config));
+    let up = up_with_viewer("cfox", &listen, &record, Some(&config), 8);
     let with_token = format!("jetbench/start={{\"token\": \"{token}\"}}");
     let hold = format!("jetbench/hold={{\"token\": \"{token}\", \"value\": 40}}");
     let (offered, answers) = foxglove_calls(
@@ -334,29 +311,119 @@ fn foxglove_offers_the_safe_commands_to_anyone_and_the_raising_ones_only_to_the_
     assert_eq!(got[2], op(operator_commands::HOLD, 40.0));
 }
 
+#[test]
+fn a_foxglove_operator_keeps_control_by_heartbeats_and_a_late_one_does_not_revive_a_lapsed_link() {
+    const SUITE: &str = "cfoxbeat";
+    let dir = scratch(SUITE, "pki");
+    let _ = std::fs::remove_dir_all(&dir);
+    TestPki::make(&dir, "127.0.0.1", &["alice"], "alice");
+    let listen = format!("127.0.0.1:{}", free_port());
+    let token = "the-operator-token-5678";
+    let foxglove_operator = format!("foxglove_token = \"{token}\"\nfoxglove_operator_bind = \"{listen}\"\n");
+    let tls = format!("tls/127.0.0.1:{}", free_port());
+    let config = bench_config(&dir, &[LONG_STOP], &operator_section(&tls, &["alice"], &foxglove_operator));
+    let record = scratch(SUITE, "heartbeats.mcap");
+    let up = up_with_viewer(SUITE, &listen, &record, Some(&config), 16);
+    // The operator's panel: take control, a heartbeat every 200 ms for 4 s, then silence
+    // (the engine runs its profile, above idle) past the 1 s deadman window; then a late
+    // heartbeat, and control taken again.
+    let with_token = |service: &str| format!("jetbench/{service}={{\"token\": \"{token}\"}}");
+    let beats = 20;
+    let mut calls = vec![with_token("take")];
+    for _ in 0..beats {
+        calls.extend([with_token("heartbeat"), "sleep=200".to_string()]);
+    }
+    calls.extend(["sleep=1800".to_string(), with_token("heartbeat"), with_token("take")]);
+    let calls: Vec<&str> = calls.iter().map(String::as_str).collect();
+    let (offered, answers) = foxglove_calls(&format!("ws://{listen}"), &calls);
+    let (ok, log) = up.wait(Duration::from_secs(60));
+    assert!(ok, "jetbench up failed:\n{log}");
+    assert!(offered.iter().any(|o| o == "jetbench/heartbeat"), "{offered:?}");
+    assert_eq!(answers.len(), beats + 3, "{answers:?}");
+    assert!(accepted(&answers[..1]), "take: {answers:?}");
+    for (i, answer) in answers[1..=beats].iter().enumerate() {
+        assert_eq!(answer, "accepted", "heartbeat {i}: {answers:?}");
+    }
+    let late = &answers[beats + 1];
+    assert!(late.starts_with("refused: ") && late.contains("take control first"), "the late heartbeat: {late}");
+    assert!(accepted(&answers[beats + 2..]), "taken again: {answers:?}");
+
+    // The recording: the heartbeats kept control, the silence idled the engine, the late
+    // heartbeat was refused and the take again is recorded as a take from a lapsed link.
+    let recording = Recording::open(&record).expect("read the recording");
+    let events = recording.samples(channels::EVENTS);
+    let operator = "foxglove:operator".to_string();
+    let control: Vec<(i32, String, i32)> = events
+        .iter()
+        .filter(|e| e.kind == event_kinds::CONTROL)
+        .map(|e| (e.code, identity_text(&e.identity), e.previous))
+        .collect();
+    use operator_commands::{HEARTBEAT, TAKE_CONTROL};
+    assert_eq!(control, vec![(TAKE_CONTROL, operator.clone(), 0), (TAKE_CONTROL, operator.clone(), 1)]);
+    let deadmen: Vec<&jetbench_msgs::Event> = events.iter().filter(|e| e.kind == event_kinds::DEADMAN).collect();
+    assert_eq!(deadmen.len(), 1, "one silence, one deadman: {deadmen:?}");
+    assert_eq!(identity_text(&deadmen[0].identity), operator);
+    let beats_ns: Vec<u64> = recording
+        .samples(channels::OPERATOR)
+        .iter()
+        .filter(|c| c.command == HEARTBEAT && c.origin == origins::FOXGLOVE)
+        .map(|c| c.stamp_ns)
+        .collect();
+    assert_eq!(beats_ns.len(), beats + 1, "every heartbeat on bench/operator");
+    let last_kept = beats_ns[beats - 1];
+    assert!(deadmen[0].stamp_ns > last_kept, "the deadman fired while heartbeats kept coming");
+    let commands = recording.samples(channels::COMMAND);
+    let before = commands.iter().rfind(|c| c.stamp_ns < last_kept).expect("a command before the silence");
+    assert!(before.throttle_pct > jetbench_model::THROTTLE_MIN_PCT + 1.0, "above idle before the silence: {before:?}");
+    let to_idle_ms = idle_after(&commands, last_kept).expect("idle after the silence");
+    println!("Foxglove operator silent: idle {to_idle_ms:.1} ms after the last heartbeat (window 1 s)");
+    assert!(to_idle_ms > 1_000.0 && to_idle_ms <= 1_100.0, "idle {to_idle_ms:.1} ms after the last heartbeat");
+    let late_decision = events
+        .iter()
+        .find(|e| e.code == HEARTBEAT && e.stamp_ns >= beats_ns[beats] && e.kind == event_kinds::COMMAND_REFUSED)
+        .expect("the late heartbeat's refusal in bench/events");
+    assert_eq!((identity_text(&late_decision.identity), late_decision.previous), (operator, refusals::NOT_IN_CONTROL));
+}
+
 /// The bench's config for the operator tests: the simulated bench at idle until an
 /// operator runs the configured reference (one high step, so a hold caps the throttle),
 /// operators alice and bob over `tls`, and a stop that idles for a minute.
 fn operator_config(dir: &std::path::Path, tls: &str) -> std::path::PathBuf {
-    let sim = std::fs::read_to_string(repo_root().join("config/sim.toml")).expect("config/sim.toml");
-    let edited = sim
-        .replace("stop_idle_s = 3.0", "stop_idle_s = 60.0")
-        .replace("reference = \"profile\"", "reference = \"idle\"")
-        .replace("levels_n = [20.0, 50.0, 35.0, 70.0, 45.0, 30.0]", "levels_n = [95.0]");
-    for (was, now) in [("stop_idle_s = 3.0", "stop_idle_s"), ("reference = \"profile\"", "reference = \"idle\"")] {
-        assert!(sim.contains(was) && edited.contains(now), "config/sim.toml no longer has {was:?}");
+    let edits = [
+        LONG_STOP,
+        ("reference = \"profile\"", "reference = \"idle\""),
+        ("levels_n = [20.0, 50.0, 35.0, 70.0, 45.0, 30.0]", "levels_n = [95.0]"),
+    ];
+    bench_config(dir, &edits, &operator_section(tls, &["alice", "bob"], "deadman_window_s = 1.0\n"))
+}
+
+/// A stop idles for a minute before the ECU shuts the engine down (which ends the test):
+/// every client of a test gets its turn with the set still up.
+const LONG_STOP: (&str, &str) = ("stop_idle_s = 3.0", "stop_idle_s = 60.0");
+
+/// Writes `dir/bench.toml`: config/sim.toml with each `(was, now)` of `edits` applied
+/// (each must be found: the test says which the shipped config no longer has), and
+/// `operator` (an `[operator]` section) appended.
+fn bench_config(dir: &std::path::Path, edits: &[(&str, &str)], operator: &str) -> std::path::PathBuf {
+    let mut sim = std::fs::read_to_string(repo_root().join("config/sim.toml")).expect("config/sim.toml");
+    for (was, now) in edits {
+        assert!(sim.contains(was), "config/sim.toml no longer has {was:?}");
+        sim = sim.replace(was, now);
     }
-    assert!(edited.contains("levels_n = [95.0]"), "config/sim.toml's [reference] changed");
     let config = dir.join("bench.toml");
-    std::fs::write(
-        &config,
-        format!(
-            "{edited}\n[operator]\ntls_listen = \"{tls}\"\ncertificate = \"bench.crt\"\nprivate_key = \"bench.key\"\n\
-             client_ca = \"ca.crt\"\noperators = [\"alice\", \"bob\"]\ndeadman_window_s = 1.0\n"
-        ),
-    )
-    .unwrap();
+    std::fs::write(&config, format!("{sim}\n{operator}")).unwrap();
     config
+}
+
+/// An `[operator]` section listening at `tls`, trusting `operators` with the certificates
+/// `TestPki` writes beside the config, then `extra` lines.
+fn operator_section(tls: &str, operators: &[&str], extra: &str) -> String {
+    let names: Vec<String> = operators.iter().map(|o| format!("{o:?}")).collect();
+    format!(
+        "[operator]\ntls_listen = \"{tls}\"\ncertificate = \"bench.crt\"\nprivate_key = \"bench.key\"\n\
+         client_ca = \"ca.crt\"\noperators = [{}]\n{extra}",
+        names.join(", ")
+    )
 }
 
 /// The first command at idle at or after `from_ns`, and its time after `from_ns`, ms.
@@ -445,8 +512,8 @@ fn one_operator_at_a_time_a_pulled_cable_idles_the_engine_and_anyones_stop_idles
     hosts.plug_cable().expect("plug the cable back in");
     // 3. bob's link has lapsed: alice takes control without a handover and raises the
     //    engine again; anyone's stop (no certificate, plain TCP) idles it. (Bob's
-    //    heartbeats still in his TCP socket's buffer reach the bench when the cable is
-    //    back, and revive his link for a moment: alice insists until it lapses.)
+    //    heartbeats still in his TCP socket's buffer may reach the bench when the cable
+    //    is back: they are refused and do not revive his link.)
     let alice = background(
         "alice",
         &[
@@ -531,6 +598,17 @@ fn one_operator_at_a_time_a_pulled_cable_idles_the_engine_and_anyones_stop_idles
         .map(|c| c.throttle_pct)
         .collect();
     assert!(!before.is_empty() && before.iter().all(|&u| (u - 70.0).abs() < 1e-6), "not at 70 % before: {before:?}");
+    // Bob's link stayed lapsed: none of his heartbeats after the deadman was accepted.
+    let late: Vec<(u32, i32)> = events
+        .iter()
+        .filter(|e| e.code == HEARTBEAT && identity_text(&e.identity) == "bob" && e.stamp_ns > deadman.stamp_ns)
+        .map(|e| (e.kind, e.previous))
+        .collect();
+    println!("bob's heartbeats decided after the deadman (kind, reason): {late:?}");
+    assert!(
+        late.iter().all(|&d| d == (event_kinds::COMMAND_REFUSED, refusals::NOT_IN_CONTROL)),
+        "a late heartbeat revived bob's lapsed link: {late:?}"
+    );
     let to_idle_ms = idle_after(&commands, last_beat).expect("idle after the deadman");
     println!(
         "deadman: bob silent {:.3} s (window {:.1} s); idle {to_idle_ms:.1} ms after his last heartbeat",

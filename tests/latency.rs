@@ -148,7 +148,32 @@ fn latency_under_cpu_load_with_rt_measures_every_cycle() {
             "the Zenoh subscriber got samples: {clients}"
         );
         assert_eq!(clients["zenoh_gaps"].as_u64(), Some(0), "the Zenoh subscriber lost samples: {clients}");
+        // The operator commanded the bench through the TLS gateway, and the bench recorded it.
+        let commands = &clients["commands"];
+        let count = |key: &str| commands[key].as_u64().unwrap_or_else(|| panic!("commands.{key} missing: {commands}"));
+        assert_eq!(commands["took_control"].as_bool(), Some(true), "the operator took control: {commands}");
+        assert!(count("accepted") > 0, "heartbeats were accepted: {commands}");
+        assert_eq!(count("unanswered"), 0, "commands went unanswered while the set ran: {commands}");
+        assert_eq!(
+            count("sent"),
+            count("accepted") + count("refused") + count("unanswered") + count("unanswered_at_end"),
+            "every heartbeat sent is accounted for: {commands}"
+        );
+        // A refusal can only come from a lapsed link, after the deadman idled the engine.
+        assert!(count("refused") == 0 || count("deadman_events") > 0, "refused without a lapse: {commands}");
+        // The take and every accepted heartbeat are in the recording, with their decision.
+        assert!(count("recorded") > count("accepted"), "commands recorded on bench/operator: {commands}");
+        assert!(count("recorded_accepted") > count("accepted"), "acceptances recorded: {commands}");
+        let (p50, p99) = (commands["answer_ms_p50"].as_f64().unwrap(), commands["answer_ms_p99"].as_f64().unwrap());
+        assert!(p50 > 0.0 && p50 <= p99, "answer times: {commands}");
     }
+    // Both halves, from the same rounds: with the control room and without it.
+    assert_eq!(room["e2e_p99_us_without"].as_f64(), report["e2e_us"]["p99"].as_f64(), "{room}");
+    assert_eq!(room["deadline_misses_without"].as_u64(), report["deadline_misses"].as_u64(), "{room}");
+    let ratio = room["e2e_p99_ratio"].as_f64().expect("e2e_p99_ratio");
+    let expected_ratio = room["e2e_us"]["p99"].as_f64().unwrap() / report["e2e_us"]["p99"].as_f64().unwrap();
+    assert!((ratio - expected_ratio).abs() < 1e-9, "p99 ratio {ratio}, from the figures {expected_ratio}");
+    assert!(room["deadline_misses"].as_u64().is_some(), "{room}");
     // SAFETY: geteuid has no preconditions.
     if unsafe { libc::geteuid() } == 0 {
         assert_eq!(room["lost"].as_u64(), Some(0), "samples lost with the control room attached: {room}");

@@ -1,13 +1,15 @@
 // An independent caller of a Foxglove WebSocket server's services for the jetbench
 // tests, on @foxglove/ws-protocol and ws: no jetbench code is involved.
 //
-// node foxglove_services.mjs ws://127.0.0.1:8765 [SERVICE[=JSON] ...] [--wait-s 5]
+// node foxglove_services.mjs ws://127.0.0.1:8765 [SERVICE[=JSON] | sleep=MS ...] [--wait-s 5]
 //
 // Connects, waits for the server's services, prints one JSON line
 // {"services": [names...]}, then calls each SERVICE in turn (the request JSON given,
 // `{}` if none) and prints one JSON line per call:
 // {"service": NAME, "response": text} or {"service": NAME, "failure": message}
 // (a service the server does not offer: {"service": NAME, "failure": "not offered"}).
+// `sleep=MS` waits MS milliseconds before the next call (a client that keeps calling
+// a heartbeat service, then falls silent); it prints nothing.
 import wsProtocol from "@foxglove/ws-protocol";
 import WebSocket from "ws";
 
@@ -51,6 +53,10 @@ function call(service, body) {
 async function run() {
   console.log(JSON.stringify({ services: [...services.keys()].sort() }));
   for (const { name, body } of calls) {
+    if (name === "sleep") {
+      await new Promise((resolve) => setTimeout(resolve, Number(body)));
+      continue;
+    }
     const service = services.get(name);
     const result = service ? await call(service, body) : { failure: "not offered" };
     console.log(JSON.stringify({ service: name, ...result }));

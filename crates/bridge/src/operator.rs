@@ -320,7 +320,16 @@ pub struct OperatorLink {
     endpoint: crate::Endpoint,
     namespace: String,
     operator: Option<String>,
-    heartbeat: Option<(std::sync::Arc<std::sync::atomic::AtomicBool>, std::thread::JoinHandle<()>)>,
+    heartbeat_period: Option<Duration>,
+    heartbeat: Option<Heartbeat>,
+}
+
+/// The thread that sends an [`OperatorLink`]'s heartbeats.
+struct Heartbeat {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    /// Cleared by the thread when the bench refuses a heartbeat (the link lapsed).
+    holding: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: std::thread::JoinHandle<()>,
 }
 
 impl OperatorLink {
@@ -347,8 +356,16 @@ impl OperatorLink {
             endpoint: endpoint.clone(),
             namespace: namespace.into(),
             operator: operator.map(String::from),
+            heartbeat_period: Some(HEARTBEAT_PERIOD),
             heartbeat: None,
         })
+    }
+
+    /// How often the link sends heartbeats while it holds control (default
+    /// [`HEARTBEAT_PERIOD`]); `None`: never by itself, the tool sends `heartbeat`
+    /// commands of its own. Takes effect at the next accepted `take` or handover.
+    pub fn heartbeat_every(&mut self, period: Option<Duration>) {
+        self.heartbeat_period = period;
     }
 
     fn key(&self, command: &str) -> String {
@@ -358,9 +375,12 @@ impl OperatorLink {
         }
     }
 
-    /// Whether this link sends heartbeats now (it holds control, as far as it knows).
+    /// Whether this link sends heartbeats now: it holds control, as far as it knows. It
+    /// stops when the bench refuses a heartbeat (the link lapsed and the deadman fired,
+    /// or someone took control from the lapsed link): control is then taken again with
+    /// `take`, never revived by the heartbeats alone.
     pub fn holds_control(&self) -> bool {
-        self.heartbeat.is_some()
+        self.heartbeat.as_ref().is_some_and(|h| h.holding.load(std::sync::atomic::Ordering::Relaxed))
     }
 
     /// Sends `command` (`stop`, `take`, `run`, ...) with `value` (profile index, N, %)
@@ -394,26 +414,35 @@ impl OperatorLink {
     }
 
     fn start_heartbeat(&mut self) {
-        if self.heartbeat.is_some() {
-            return;
-        }
+        self.stop_heartbeat();
+        let Some(period) = self.heartbeat_period else { return };
         let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-        let (session, key, flag) = (self.session.clone(), self.key("heartbeat"), stop.clone());
+        let holding = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true));
+        let (session, key) = (self.session.clone(), self.key("heartbeat"));
+        let (flag, alive) = (stop.clone(), holding.clone());
         let thread = std::thread::spawn(move || {
             while !flag.load(std::sync::atomic::Ordering::Relaxed) {
-                std::thread::sleep(HEARTBEAT_PERIOD);
-                if let Err(e) = ask(&session, &key, None, HEARTBEAT_PERIOD) {
-                    tracing::warn!("heartbeat to {key}: {e}");
+                std::thread::sleep(period);
+                match ask(&session, &key, None, period) {
+                    Ok(Some(answer)) if answer.starts_with("refused") => {
+                        // A lapsed link is not revived by heartbeats: the operator takes
+                        // control again, and that is recorded.
+                        tracing::warn!("heartbeat to {key}: {answer}; control must be taken again");
+                        alive.store(false, std::sync::atomic::Ordering::Relaxed);
+                        break;
+                    }
+                    Ok(_) => {}
+                    Err(e) => tracing::warn!("heartbeat to {key}: {e}"),
                 }
             }
         });
-        self.heartbeat = Some((stop, thread));
+        self.heartbeat = Some(Heartbeat { stop, holding, thread });
     }
 
     fn stop_heartbeat(&mut self) {
-        if let Some((stop, thread)) = self.heartbeat.take() {
-            stop.store(true, std::sync::atomic::Ordering::Relaxed);
-            let _ = thread.join();
+        if let Some(h) = self.heartbeat.take() {
+            h.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+            let _ = h.thread.join();
         }
     }
 }

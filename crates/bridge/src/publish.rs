@@ -144,6 +144,7 @@ impl Bridge {
         }
     }
 
+    /// What the bridge published and lost so far, per channel, and its command gateway's counts.
     pub fn report(&self) -> BridgeReport {
         BridgeReport {
             channels: self.tap.counts(),

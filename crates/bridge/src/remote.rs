@@ -86,7 +86,9 @@ fn specs(only: Option<&str>) -> Vec<Spec> {
 pub struct RemoteSample {
     /// Bus channel name, e.g. `bench/thrust`.
     pub channel: &'static str,
+    /// The publisher's sequence number on its channel (a jump means samples were lost).
     pub seq: u64,
+    /// When the sample was measured on the bench, ns on the bench's monotonic clock.
     pub stamp_ns: u64,
     /// When it arrived here, ns since the Unix epoch (this machine's clock).
     pub received_unix_ns: u64,
@@ -104,6 +106,7 @@ impl RemoteSample {
 /// What arrived on one channel.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ChannelCounts {
+    /// Bus channel name, e.g. `bench/thrust`.
     pub channel: &'static str,
     /// Well-formed samples.
     pub received: u64,
@@ -288,6 +291,7 @@ impl<T: Sample> RemoteSubscriber<T> {
 /// What a remote recording got.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct RemoteRecordReport {
+    /// What arrived, per channel.
     pub channels: Vec<ChannelCounts>,
     /// Messages written to the file.
     pub written: u64,

@@ -25,7 +25,9 @@
 //! (`HANDOVER` from the holder offers it, `HANDOVER` from anyone else accepts an open
 //! offer); it is given up with `RELEASE_CONTROL`. The holder's client sends `HEARTBEAT`s;
 //! [`Lease::deadman`] says when the engine must go to idle because the holder has been
-//! silent longer than the window while the engine runs above idle.
+//! silent longer than the window while the engine runs above idle. A link that has lapsed
+//! stays lapsed: heartbeats that arrive after the window (held back by an outage and
+//! delivered late) are refused, and the holder takes control again, which is recorded.
 //!
 //! Who may send what (safe commands from anyone, raising ones only with the operator's
 //! authority) is the control service's rule; this machine answers only "does this identity
@@ -147,7 +149,7 @@ pub enum LeaseChange {
         /// The lapsed holder it was taken from.
         from: Option<Identity>,
     },
-    /// The holder asked again: nothing changed but their heartbeat.
+    /// The holder asked again on a live link: nothing changed but their heartbeat.
     AlreadyHeld,
     /// Nobody holds control any more.
     Released {
@@ -185,12 +187,26 @@ pub enum LeaseRefusal {
         /// Who sent it.
         who: Identity,
     },
+    /// The holder's link lapsed (silent beyond the deadman window): a heartbeat or an
+    /// offer does not revive it; the holder takes control again.
+    #[error("{who}'s link lapsed after {:.3} s of silence: take control again", seconds(.silent_ns))]
+    Lapsed {
+        /// The holder whose link lapsed.
+        who: Identity,
+        /// How long they had been silent, ns.
+        silent_ns: u64,
+    },
     /// A handover was accepted with no open offer.
     #[error("no handover is offered; {holder} holds control")]
     NoOffer {
         /// The holder.
         holder: Identity,
     },
+}
+
+/// `ns` nanoseconds in seconds, for messages.
+fn seconds(ns: &u64) -> f64 {
+    *ns as f64 * 1e-9
 }
 
 /// The deadman fired: the holder's link has been silent too long with the engine above
@@ -260,11 +276,12 @@ impl Lease {
     }
 
     /// `TAKE_CONTROL` from `who` (with the operator's authority, checked by the caller):
-    /// accepted when nobody holds control, the holder's link has lapsed, or `who` already
-    /// holds it.
+    /// accepted when nobody holds control, the holder's link has lapsed (taken from them;
+    /// by the holder themselves, taken again, `from` naming them), or `who` already holds
+    /// it on a live link.
     pub fn take(&mut self, now_ns: u64, who: Identity) -> Result<LeaseChange, LeaseRefusal> {
         match self.holder {
-            Some(h) if h.who == who => {
+            Some(h) if h.who == who && !self.lapsed(now_ns) => {
                 self.hear(now_ns);
                 Ok(LeaseChange::AlreadyHeld)
             }
@@ -287,10 +304,15 @@ impl Lease {
         }
     }
 
-    /// `HEARTBEAT` from `who`: keeps the holder's link alive (a late heartbeat revives a
-    /// lapsed link nobody has taken over, and re-arms the deadman).
+    /// `HEARTBEAT` from `who`: keeps the holder's live link alive. A heartbeat after the
+    /// link lapsed (silent beyond the window, whether the deadman fired or not) is
+    /// refused: delivered late after an outage, it must not renew the lease; the holder
+    /// takes control again.
     pub fn heartbeat(&mut self, now_ns: u64, who: Identity) -> Result<LeaseChange, LeaseRefusal> {
         match self.holder {
+            Some(h) if h.who == who && self.lapsed(now_ns) => {
+                Err(LeaseRefusal::Lapsed { who, silent_ns: self.silent(h, now_ns) })
+            }
             Some(h) if h.who == who => {
                 self.hear(now_ns);
                 Ok(LeaseChange::Heartbeat)
@@ -300,12 +322,15 @@ impl Lease {
     }
 
     /// `HANDOVER` from `who`: from the holder it offers control (open for the settings'
-    /// offer time, and only while the holder's link is alive); from another operator it
-    /// accepts an open offer.
+    /// offer time, and only while the holder's link is alive: a lapsed holder's offer is
+    /// refused); from another operator it accepts an open offer.
     pub fn handover(&mut self, now_ns: u64, who: Identity) -> Result<LeaseChange, LeaseRefusal> {
         let Some(h) = self.holder else {
             return Err(LeaseRefusal::NotHolder { who });
         };
+        if h.who == who && self.lapsed(now_ns) {
+            return Err(LeaseRefusal::Lapsed { who, silent_ns: self.silent(h, now_ns) });
+        }
         if h.who == who {
             self.hear(now_ns);
             if let Some(holder) = self.holder.as_mut() {
@@ -729,8 +754,9 @@ mod tests {
         assert!(r.to_string().contains("operator a silent for 1.000 s"), "{r}");
         assert_eq!(l.deadman(S + 2, true), None, "latched by the caller, reported once");
         assert_eq!(l.deadman(5 * S, true), None);
-        // A heartbeat re-arms it.
-        l.heartbeat(5 * S, a).unwrap();
+        // A late heartbeat does not re-arm it; taking control again does.
+        assert_eq!(l.heartbeat(5 * S, a), Err(LeaseRefusal::Lapsed { who: a, silent_ns: 5 * S }));
+        assert_eq!(l.take(5 * S, a), Ok(LeaseChange::Taken { by: a, from: Some(a) }));
         assert_eq!(l.deadman(6 * S, true), None);
         assert!(l.deadman(6 * S + 1, true).is_some());
         // A release disarms it.
@@ -907,6 +933,39 @@ mod tests {
     proptest! {
         #![proptest_config(ProptestConfig { cases: 2000, ..ProptestConfig::default() })]
 
+        /// After the deadman fired, late heartbeats from the former holder (any number, any
+        /// spacing: an outage's backlog delivered at once or trickling in) never renew the
+        /// lease: the link stays lapsed, raising needs control, and the deadman does not
+        /// fire again. Only the holder's own take brings control back, as a take from the
+        /// lapsed link, and then the deadman is armed again.
+        #[test]
+        fn late_heartbeats_never_revive_a_lapsed_holder(
+            window_ms in 50u64..3_000,
+            beyond_ms in 1u64..2_000,
+            late in proptest::collection::vec(0u64..500, 1..40),
+        ) {
+            let settings = LeaseSettings { deadman_window_ns: window_ms * MS, handover_offer_ns: 30 * S };
+            let mut l = Lease::new(settings);
+            let a = id("a");
+            l.take(0, a).unwrap();
+            let fired_at = window_ms * MS + beyond_ms * MS;
+            prop_assert!(l.deadman(fired_at, true).is_some());
+            let mut now = fired_at;
+            for dt in late {
+                now += dt * MS;
+                let r = l.heartbeat(now, a);
+                prop_assert_eq!(r, Err(LeaseRefusal::Lapsed { who: a, silent_ns: now }));
+                prop_assert_eq!(l.handover(now, a), Err(LeaseRefusal::Lapsed { who: a, silent_ns: now }));
+                prop_assert!(l.lapsed(now) && !l.in_control(now, a));
+                prop_assert_eq!(l.deadman(now, true), None, "fired once per silence");
+                prop_assert_eq!(l.holder(), Some(a), "the record of who held it stays");
+            }
+            prop_assert_eq!(l.take(now, a), Ok(LeaseChange::Taken { by: a, from: Some(a) }));
+            prop_assert!(l.in_control(now, a));
+            prop_assert_eq!(l.heartbeat(now + window_ms * MS, a), Ok(LeaseChange::Heartbeat));
+            prop_assert!(l.deadman(now + 2 * window_ms * MS + 1, true).is_some(), "armed again");
+        }
+
         /// Random command sequences from three operators: one holder at most; control
         /// changes hands only by a take of a free or lapsed lease, an accepted open offer
         /// or a release; the deadman fires exactly when the holder has been silent beyond
@@ -934,6 +993,10 @@ mod tests {
                         if before.is_some() && before != Some(who[i]) && !was_lapsed {
                             prop_assert_eq!(r, Err(LeaseRefusal::HeldBy { holder: before.unwrap() }));
                         }
+                        if before == Some(who[i]) && was_lapsed {
+                            // Taken again, recorded as taken from the lapsed link.
+                            prop_assert_eq!(r, Ok(LeaseChange::Taken { by: who[i], from: Some(who[i]) }));
+                        }
                     }
                     Op::Release(i) => {
                         let r = l.release(now, who[i]);
@@ -941,12 +1004,21 @@ mod tests {
                     }
                     Op::Heartbeat(i) => {
                         let r = l.heartbeat(now, who[i]);
-                        prop_assert_eq!(r.is_ok(), before == Some(who[i]));
+                        // Only a live link is kept alive: a heartbeat after the window
+                        // (late, after an outage) never renews the lease.
+                        let live = before == Some(who[i]) && now.saturating_sub(heard) <= window;
+                        prop_assert_eq!(r.is_ok(), live, "heartbeat by {} at {} heard {}", who[i], now, heard);
+                        if before == Some(who[i]) && !live {
+                            prop_assert!(matches!(r, Err(LeaseRefusal::Lapsed { .. })));
+                            prop_assert!(l.lapsed(now), "a refused heartbeat leaves the link lapsed");
+                            prop_assert!(!l.in_control(now, who[i]));
+                        }
                         if r.is_ok() { heard = now; fired = false; }
                     }
                     Op::Handover(i) => {
                         let r = l.handover(now, who[i]);
-                        let ok = before == Some(who[i]) || (before.is_some() && was_offered);
+                        let ok = (before == Some(who[i]) && !was_lapsed)
+                            || (before.is_some() && before != Some(who[i]) && was_offered);
                         prop_assert_eq!(r.is_ok(), ok);
                         if ok { heard = now; fired = false; }
                         if before.is_some() && before != Some(who[i]) && was_offered {

@@ -33,7 +33,7 @@ use jetbench_stack::runtime::supervise::describe_exit;
 use serde::Serialize;
 
 use crate::chain::{run_chain, stage_rt_requests, ChainError, ChainOptions, ChainRun, HOPS as FLOOR_HOPS};
-use crate::control_room::{ControlRoom, ControlRoomReport};
+use crate::control_room::{CommandReport, Commanding, ControlRoom, ControlRoomReport, RoomPki};
 use crate::load::{Load, LoadError, LoadKind};
 use crate::pipeline::{analyse_pipeline, LatencyHistogram, Percentiles, PipelineAnalysis, HOPS};
 use crate::steal::{steal_ms_per_cpu, StealSampler};
@@ -60,7 +60,9 @@ pub struct CampaignOptions {
     pub exe: PathBuf,
     /// Also measure the service set over iceoryx2 with the control room
     /// attached: the viewer and the bridge running, with Foxglove clients that
-    /// read, never read and disconnect, and a Zenoh subscriber ([`crate::control_room`]).
+    /// read, never read and disconnect, a Zenoh subscriber, and an operator's
+    /// client commanding the bench over TLS every 100 ms, through an
+    /// `[operator]` section and certificates the run makes ([`crate::control_room`]).
     pub control_room: bool,
 }
 
@@ -123,6 +125,9 @@ pub enum CampaignError {
         /// The recording.
         path: PathBuf,
     },
+    /// The control room's certificates or config could not be made.
+    #[error("cannot set up the control room's operator: {0}")]
+    ControlRoom(String),
     /// The floor chain failed.
     #[error(transparent)]
     Chain(#[from] ChainError),
@@ -325,17 +330,42 @@ pub struct Campaign {
     pub control_room: Option<PipelineAnalysis>,
 }
 
-/// Where the control room of one run connects: a Foxglove port and a Zenoh
-/// endpoint on this machine, free when reserved.
+/// Where the control room of one run connects: a Foxglove port, a Zenoh
+/// endpoint and the operators' TLS endpoint on this machine, free when
+/// reserved, and the bench config whose `[operator]` section listens there.
 struct Room {
     foxglove: std::net::SocketAddr,
     zenoh: String,
+    commanding: Commanding,
+    config: PathBuf,
 }
 
 impl Room {
-    fn new() -> std::io::Result<Room> {
+    /// Reserves the ports and writes `config` (the run's bench config with an
+    /// `[operator]` section trusting `pki`'s operator) to `path`.
+    fn new(config: &BenchConfig, pki: &RoomPki, path: &Path) -> Result<Room, CampaignError> {
+        let io = |what: &'static str, path: &Path| {
+            let path = path.to_path_buf();
+            move |source| CampaignError::Io { what, path, source }
+        };
         let free = || std::net::TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr());
-        Ok(Room { foxglove: free()?, zenoh: format!("tcp/{}", free()?) })
+        let (foxglove, zenoh, tls) = (
+            free().map_err(io("reserve a port on", Path::new("127.0.0.1")))?,
+            free().map_err(io("reserve a port on", Path::new("127.0.0.1")))?,
+            free().map_err(io("reserve a port on", Path::new("127.0.0.1")))?,
+        );
+        let tls = format!("tls/{tls}");
+        let mut config = config.clone();
+        config.operator = Some(pki.settings(&tls));
+        let text = toml::to_string(&config).map_err(|e| CampaignError::ControlRoom(format!("config: {e}")))?;
+        std::fs::write(path, text).map_err(io("write", path))?;
+        let endpoint = tls.parse().map_err(|e| CampaignError::ControlRoom(format!("{e}")))?;
+        Ok(Room {
+            foxglove,
+            zenoh: format!("tcp/{zenoh}"),
+            commanding: Commanding { endpoint, pki: pki.clone() },
+            config: path.to_path_buf(),
+        })
     }
 
     /// The arguments of `jetbench up` that start the viewer and the bridge there.
@@ -351,8 +381,22 @@ impl Room {
             endpoint,
             jetbench_bus::namespace_name().unwrap_or_else(|_| "default".into()),
             cpus,
+            Some(self.commanding.clone()),
         )
     }
+}
+
+/// Counts, in a control-room run's recording, the operator's commands on
+/// `bench/operator`, the control service's acceptances of them and any
+/// `DEADMAN` event.
+fn count_recorded_commands(recording: &Recording, report: &mut CommandReport) {
+    use jetbench_msgs::{channels, event_kinds, identity_text};
+    let ours = |identity: &[u8; jetbench_msgs::IDENTITY_LEN]| identity_text(identity) == crate::control_room::OPERATOR;
+    report.recorded = recording.samples(channels::OPERATOR).iter().filter(|c| ours(&c.identity)).count() as u64;
+    let events = recording.samples(channels::EVENTS);
+    report.recorded_accepted =
+        events.iter().filter(|e| e.kind == event_kinds::COMMAND_ACCEPTED && ours(&e.identity)).count() as u64;
+    report.deadman_events = events.iter().filter(|e| e.kind == event_kinds::DEADMAN).count() as u64;
 }
 
 /// What watching the bench cost the loop: the iceoryx2 set with the control
@@ -365,6 +409,10 @@ pub struct ControlRoomCost {
     pub cycles: u64,
     /// Deadline misses with it attached.
     pub deadline_misses: u64,
+    /// Deadline misses of the same set without it, in the same rounds.
+    pub deadline_misses_without: u64,
+    /// End-to-end p99 of the same set without it, µs (the report's `e2e_us.p99`).
+    pub e2e_p99_us_without: f64,
     /// Samples lost with it attached.
     pub lost: u64,
     /// Deadline misses each service counted itself, with it attached.
@@ -389,6 +437,8 @@ impl ControlRoomCost {
             e2e_us: with,
             cycles: watched.cycles,
             deadline_misses: watched.deadline_misses(),
+            deadline_misses_without: plain.deadline_misses(),
+            e2e_p99_us_without: without.p99,
             lost: watched.lost(),
             service_deadline_misses: watched.service_deadline_misses.clone(),
             misses_per_1000: per_1000(watched),
@@ -465,6 +515,13 @@ pub fn run_campaign(options: &CampaignOptions, progress: &mut dyn Progress) -> R
     let (mut iceoryx2, mut uds, mut floor) =
         (PipelineAnalysis::default(), PipelineAnalysis::default(), FloorResult::default());
     let mut watched = options.control_room.then(|| (PipelineAnalysis::default(), Vec::new()));
+    // The control room's operator: certificates made for this run, and the
+    // run's config with an `[operator]` section that trusts them.
+    let pki = if options.control_room {
+        Some(RoomPki::make(&work.join("control-room-pki")).map_err(CampaignError::ControlRoom)?)
+    } else {
+        None
+    };
     for round in 0..options.rounds {
         for measurement in Measurement::order(round, options.control_room) {
             let what = format!("round {}/{}: {}", round + 1, options.rounds, measurement.describe());
@@ -477,21 +534,32 @@ pub fn run_campaign(options: &CampaignOptions, progress: &mut dyn Progress) -> R
                 Measurement::ControlRoom => (Transport::Iceoryx2, "control-room"),
             };
             let path = work.join(format!("{name}-{}.mcap", round + 1));
-            let clients = if measurement == Measurement::ControlRoom {
-                let room = Room::new().map_err(|source| CampaignError::Io {
-                    what: "reserve a port on",
-                    path: "127.0.0.1".into(),
-                    source,
-                })?;
-                let args = room.up_args();
-                // Under --rt, the clients (another computer) where the viewer runs.
-                let cpus = if options.rt { config.rt.cpus.viewer.clone().unwrap_or_default() } else { Vec::new() };
-                let attached = room.attach(cpus);
-                run_pipeline(options, &path, transport, segment_s, &what, &args, progress)?;
-                Some(attached.finish())
-            } else {
-                run_pipeline(options, &path, transport, segment_s, &what, &[], progress)?;
-                None
+            let clients = match (measurement, &pki) {
+                (Measurement::ControlRoom, Some(pki)) => {
+                    let room = Room::new(&config, pki, &work.join(format!("control-room-{}.toml", round + 1)))?;
+                    let args = room.up_args();
+                    // Under --rt, the clients (another computer) where the viewer runs.
+                    let cpus = if options.rt { config.rt.cpus.viewer.clone().unwrap_or_default() } else { Vec::new() };
+                    let attached = room.attach(cpus);
+                    let ran =
+                        run_pipeline(options, &path, transport, segment_s, &what, &args, Some(&room.config), progress);
+                    let clients = attached.finish();
+                    ran?;
+                    Some(clients)
+                }
+                _ => {
+                    run_pipeline(
+                        options,
+                        &path,
+                        transport,
+                        segment_s,
+                        &what,
+                        &[],
+                        options.config.as_deref(),
+                        progress,
+                    )?;
+                    None
+                }
             };
             let recording = Recording::open(&path).map_err(|source| CampaignError::Recording {
                 transport,
@@ -503,8 +571,9 @@ pub fn run_campaign(options: &CampaignOptions, progress: &mut dyn Progress) -> R
                 return Err(CampaignError::NoCycle { transport, path });
             }
             match (measurement, watched.as_mut(), clients) {
-                (Measurement::ControlRoom, Some((total, reports)), Some(clients)) => {
+                (Measurement::ControlRoom, Some((total, reports)), Some(mut clients)) => {
                     total.merge(&analysis);
+                    count_recorded_commands(&recording, &mut clients.commands);
                     reports.push(clients);
                 }
                 (Measurement::Pipeline(Transport::Iceoryx2), ..) => iceoryx2.merge(&analysis),
@@ -586,7 +655,9 @@ fn probe_rt(config: &BenchConfig) -> Vec<String> {
     refused
 }
 
-/// Runs `jetbench up --sim` over `transport` for warm-up + `seconds`, recording every channel.
+/// Runs `jetbench up --sim` over `transport` for warm-up + `seconds`, recording every
+/// channel, with the bench config `config` (`None`: the built-in one).
+#[allow(clippy::too_many_arguments)]
 fn run_pipeline(
     options: &CampaignOptions,
     recording: &Path,
@@ -594,6 +665,7 @@ fn run_pipeline(
     seconds: f64,
     what: &str,
     extra: &[String],
+    config: Option<&Path>,
     progress: &mut dyn Progress,
 ) -> Result<(), CampaignError> {
     let seconds = options.warmup_s + seconds;
@@ -603,7 +675,7 @@ fn run_pipeline(
         .arg("--record")
         .arg(recording)
         .args(extra);
-    if let Some(config) = &options.config {
+    if let Some(config) = config {
         command.arg("--config").arg(config);
     }
     if options.rt {
@@ -782,20 +854,56 @@ impl fmt::Display for Report {
             writeln!(
                 f,
                 "control room attached (viewer, bridge; Foxglove clients that read, never read and disconnect; a \
-                 Zenoh subscriber): cycles {}, deadline misses {} ({:.2} per 1000 cycles, {:.2} without), lost {}; \
-                 e2e p50 {:.2}x, p99 {:.2}x the set without it; the clients read {} Foxglove messages and {} Zenoh \
-                 samples ({} lost){}",
+                 Zenoh subscriber; an operator commanding every 100 ms over TLS): cycles {}, lost {}; the clients \
+                 read {} Foxglove messages and {} Zenoh samples ({} lost){}",
                 room.cycles,
-                room.deadline_misses,
-                room.misses_per_1000,
-                room.misses_per_1000_without,
                 room.lost,
-                room.e2e_p50_ratio,
-                room.e2e_p99_ratio,
                 room.clients.iter().map(|c| c.foxglove_read).sum::<u64>(),
                 room.clients.iter().map(|c| c.zenoh_received).sum::<u64>(),
                 room.clients.iter().map(|c| c.zenoh_gaps).sum::<u64>(),
                 if errors.is_empty() { String::new() } else { format!("; client errors: {errors:?}") },
+            )?;
+            let commands: Vec<&CommandReport> = room.clients.iter().map(|c| &c.commands).collect();
+            let sum = |f: fn(&CommandReport) -> u64| commands.iter().map(|c| f(c)).sum::<u64>();
+            let worst = |f: fn(&CommandReport) -> f64| commands.iter().map(|c| f(c)).fold(0.0, f64::max);
+            writeln!(
+                f,
+                "  the operator's commands: control taken in {} of {} rounds; {} heartbeats sent, {} accepted, {} \
+                 refused, {} unanswered while the set ran ({} more as it went down), {} sent late; answered in \
+                 p50 {:.1} ms, p99 {:.1} ms, max {:.1} ms (worst round); recorded on bench/operator {}, accepted \
+                 events {}, DEADMAN events {}{}",
+                commands.iter().filter(|c| c.took_control).count(),
+                commands.len(),
+                sum(|c| c.sent),
+                sum(|c| c.accepted),
+                sum(|c| c.refused),
+                sum(|c| c.unanswered),
+                sum(|c| c.unanswered_at_end),
+                sum(|c| c.late_sends),
+                worst(|c| c.answer_ms_p50),
+                worst(|c| c.answer_ms_p99),
+                worst(|c| c.answer_ms_max),
+                sum(|c| c.recorded),
+                sum(|c| c.recorded_accepted),
+                sum(|c| c.deadman_events),
+                commands
+                    .iter()
+                    .find_map(|c| c.first_problem.as_ref())
+                    .map(|p| format!("; first problem: {p}"))
+                    .unwrap_or_default(),
+            )?;
+            writeln!(
+                f,
+                "  what it cost the loop: e2e p99 {:.1} µs with it, {:.1} µs without (x{:.2}; p50 x{:.2}); \
+                 deadline misses {} with it, {} without ({:.2} and {:.2} per 1000 cycles)",
+                room.e2e_us.p99,
+                room.e2e_p99_us_without,
+                room.e2e_p99_ratio,
+                room.e2e_p50_ratio,
+                room.deadline_misses,
+                room.deadline_misses_without,
+                room.misses_per_1000,
+                room.misses_per_1000_without,
             )?;
         }
         writeln!(

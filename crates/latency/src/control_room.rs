@@ -8,7 +8,13 @@
 //! - one that subscribes to every channel and never reads again (its socket
 //!   fills; the viewer's backlog for it must stay bounded);
 //! - one that subscribes, reads, and tears its connection down mid-stream;
-//! - a Zenoh subscriber of every channel, reading everything.
+//! - a Zenoh subscriber of every channel, reading everything;
+//! - an operator's client commanding the bench: over Zenoh with TLS and a
+//!   client certificate ([`RoomPki`], made for the run), it takes control and
+//!   then sends a heartbeat every [`COMMAND_PERIOD`], timing each answer. Each
+//!   heartbeat goes the whole command path: the gateway's access control, a
+//!   sample on `bench/operator`, the control service's decision, its event,
+//!   the answer.
 //!
 //! The Foxglove clients speak the WebSocket protocol (`foxglove.sdk.v1`) with
 //! a plain WebSocket library; they decode only the binary message header.
@@ -19,6 +25,7 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use jetbench_bridge::operator::{ClientTls, OperatorLink};
 use jetbench_bridge::{Endpoint, RemoteBench};
 use serde::Serialize;
 use tungstenite::client::IntoClientRequest;
@@ -28,9 +35,13 @@ use tungstenite::Message;
 const CONNECT_FOR: Duration = Duration::from_secs(30);
 /// How long the dropping client reads before it cuts its connection.
 const DROP_AFTER: Duration = Duration::from_secs(3);
+/// How often the operator's client sends a command (a heartbeat).
+pub const COMMAND_PERIOD: Duration = Duration::from_millis(100);
+/// The operator the client commands as: its certificate's common name.
+pub const OPERATOR: &str = "control-room";
 
 /// What the clients did.
-#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct ControlRoomReport {
     /// Messages the reading Foxglove client received.
     pub foxglove_read: u64,
@@ -40,9 +51,170 @@ pub struct ControlRoomReport {
     pub foxglove_dropped_after: u64,
     /// Samples the Zenoh subscriber received, and the `seq` gaps among them.
     pub zenoh_received: u64,
+    /// `seq` gaps among the Zenoh subscriber's samples (samples it lost).
     pub zenoh_gaps: u64,
+    /// What the operator's commanding client did.
+    pub commands: CommandReport,
     /// What went wrong, per client (empty when all worked).
     pub errors: Vec<String>,
+}
+
+/// What the operator's client did: control taken over TLS, then a heartbeat every
+/// [`COMMAND_PERIOD`], each answer timed.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct CommandReport {
+    /// True once the bench accepted its `take`.
+    pub took_control: bool,
+    /// Heartbeats sent after the take.
+    pub sent: u64,
+    /// Answered `accepted`.
+    pub accepted: u64,
+    /// Answered `refused: ...`.
+    pub refused: u64,
+    /// Answered without a decision, or not at all, while the set was up (an accepted
+    /// answer came later).
+    pub unanswered: u64,
+    /// Not answered at the end, after the last accepted one: the set going down.
+    pub unanswered_at_end: u64,
+    /// The first answer that was not `accepted`, if any.
+    pub first_problem: Option<String>,
+    /// From sending a heartbeat to its answer, ms: p50.
+    pub answer_ms_p50: f64,
+    /// p99 of the same.
+    pub answer_ms_p99: f64,
+    /// The longest.
+    pub answer_ms_max: f64,
+    /// Heartbeats sent later than a period after the one before (the client itself
+    /// was held up: the machine is loaded).
+    pub late_sends: u64,
+    /// Commands the control service recorded on `bench/operator` from this operator
+    /// (counted by the campaign from the recording).
+    pub recorded: u64,
+    /// `COMMAND_ACCEPTED` events for them in the recording.
+    pub recorded_accepted: u64,
+    /// `DEADMAN` events in the recording (0 while the heartbeats keep up).
+    pub deadman_events: u64,
+}
+
+/// The control room's own certificates, made with `openssl` for one run: a CA, the
+/// bench's certificate (for `127.0.0.1`) and the operator's client certificate (common
+/// name [`OPERATOR`]), all in one folder.
+#[derive(Clone, Debug)]
+pub struct RoomPki {
+    /// The CA (PEM) that signed both certificates.
+    pub ca: std::path::PathBuf,
+    /// The bench's certificate and key (PEM).
+    pub bench: (std::path::PathBuf, std::path::PathBuf),
+    /// The operator's client certificate and key (PEM).
+    pub operator: (std::path::PathBuf, std::path::PathBuf),
+}
+
+impl RoomPki {
+    /// Makes the CA and the two certificates in `dir` (created if missing). Needs the
+    /// `openssl` command; the error says what failed.
+    pub fn make(dir: &std::path::Path) -> Result<RoomPki, String> {
+        std::fs::create_dir_all(dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+        let openssl = |args: &[&str]| -> Result<(), String> {
+            let out = std::process::Command::new("openssl")
+                .current_dir(dir)
+                .args(args)
+                .output()
+                .map_err(|e| format!("cannot run openssl (install it, e.g. apt-get install openssl): {e}"))?;
+            if out.status.success() {
+                Ok(())
+            } else {
+                Err(format!("openssl {} failed: {}", args.join(" "), String::from_utf8_lossy(&out.stderr).trim()))
+            }
+        };
+        let ec = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"];
+        let mut ca = vec!["req", "-x509"];
+        ca.extend(ec);
+        ca.extend([
+            "-keyout",
+            "ca.key",
+            "-out",
+            "ca.crt",
+            "-days",
+            "2",
+            "-subj",
+            "/CN=jetbench latency control-room CA",
+            "-addext",
+            "basicConstraints=critical,CA:TRUE",
+            "-addext",
+            "keyUsage=critical,keyCertSign,cRLSign",
+        ]);
+        openssl(&ca)?;
+        for (name, cn, san) in [("bench", "bench", "IP:127.0.0.1"), ("operator", OPERATOR, "DNS:control-room")] {
+            let ext = format!(
+                "basicConstraints=CA:FALSE\nkeyUsage=critical,digitalSignature\n\
+                 extendedKeyUsage=serverAuth,clientAuth\nsubjectAltName={san}\n"
+            );
+            std::fs::write(dir.join(format!("{name}.ext")), ext)
+                .map_err(|e| format!("cannot write {name}.ext: {e}"))?;
+            let (key, csr, crt, ext, subject) = (
+                format!("{name}.key"),
+                format!("{name}.csr"),
+                format!("{name}.crt"),
+                format!("{name}.ext"),
+                format!("/CN={cn}"),
+            );
+            let mut req = vec!["req"];
+            req.extend(ec);
+            req.extend(["-keyout", &key, "-out", &csr, "-subj", &subject]);
+            openssl(&req)?;
+            openssl(&[
+                "x509",
+                "-req",
+                "-in",
+                &csr,
+                "-CA",
+                "ca.crt",
+                "-CAkey",
+                "ca.key",
+                "-CAcreateserial",
+                "-days",
+                "2",
+                "-out",
+                &crt,
+                "-extfile",
+                &ext,
+            ])?;
+        }
+        Ok(RoomPki {
+            ca: dir.join("ca.crt"),
+            bench: (dir.join("bench.crt"), dir.join("bench.key")),
+            operator: (dir.join("operator.crt"), dir.join("operator.key")),
+        })
+    }
+
+    /// The `[operator]` section of a bench that trusts this PKI's operator, listening
+    /// for operators at `tls_listen` (`tls/127.0.0.1:PORT`).
+    pub fn settings(&self, tls_listen: &str) -> jetbench_control::operator::OperatorSettings {
+        jetbench_control::operator::OperatorSettings {
+            tls_listen: tls_listen.into(),
+            certificate: self.bench.0.clone(),
+            private_key: self.bench.1.clone(),
+            client_ca: self.ca.clone(),
+            operators: vec![OPERATOR.into()],
+            deadman_window_s: 1.0,
+            handover_offer_s: 30.0,
+            foxglove_token: None,
+            foxglove_operator_bind: None,
+        }
+    }
+
+    fn client(&self) -> ClientTls {
+        ClientTls { ca: self.ca.clone(), certificate: self.operator.0.clone(), private_key: self.operator.1.clone() }
+    }
+}
+
+/// Where the operator's client commands: the bench's TLS endpoint and the PKI.
+#[derive(Clone, Debug)]
+pub struct Commanding {
+    /// The bench's `[operator] tls_listen`.
+    pub endpoint: Endpoint,
+    /// The certificates the bench trusts.
+    pub pki: RoomPki,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -62,14 +234,22 @@ pub struct ControlRoom {
 enum ClientResult {
     Foxglove(Behaviour, u64),
     Zenoh(u64, u64),
+    Commands(CommandReport),
 }
 
 impl ControlRoom {
     /// Starts the clients of a service set that serves Foxglove at `foxglove`
     /// and Zenoh at `zenoh`, in bus namespace `namespace`. With `cpus`, each
     /// client (and every thread it starts) runs only there: the clients stand
-    /// for another computer, so they are kept off the control chain's core.
-    pub fn attach(foxglove: SocketAddr, zenoh: Endpoint, namespace: String, cpus: Vec<usize>) -> ControlRoom {
+    /// for another computer, so they are kept off the control chain's core. With
+    /// `commanding`, the operator's client commands the bench too.
+    pub fn attach(
+        foxglove: SocketAddr,
+        zenoh: Endpoint,
+        namespace: String,
+        cpus: Vec<usize>,
+        commanding: Option<Commanding>,
+    ) -> ControlRoom {
         let stop = Arc::new(AtomicBool::new(false));
         let read = Arc::new(AtomicU64::new(0));
         let mut threads = Vec::new();
@@ -86,6 +266,13 @@ impl ControlRoom {
             threads.push(std::thread::spawn(move || {
                 pin();
                 foxglove_client(foxglove, behaviour, &stop, &read)
+            }));
+        }
+        if let Some(commanding) = commanding {
+            let (flag, pin, namespace) = (Arc::clone(&stop), pin(), namespace.clone());
+            threads.push(std::thread::spawn(move || {
+                pin();
+                operator_client(&commanding, &namespace, &flag)
             }));
         }
         let (flag, pin) = (Arc::clone(&stop), pin());
@@ -108,6 +295,7 @@ impl ControlRoom {
                 Ok(Ok(ClientResult::Zenoh(received, gaps))) => {
                     (report.zenoh_received, report.zenoh_gaps) = (received, gaps)
                 }
+                Ok(Ok(ClientResult::Commands(commands))) => report.commands = commands,
                 Ok(Err(e)) => report.errors.push(e),
                 Err(_) => report.errors.push("a client thread panicked".into()),
             }
@@ -222,4 +410,79 @@ fn zenoh_client(endpoint: &Endpoint, namespace: &str, stop: &AtomicBool) -> Resu
     let received = tap.counts().iter().map(|c| c.received).sum();
     let gaps = tap.counts().iter().map(|c| c.gaps).sum();
     Ok(ClientResult::Zenoh(received, gaps))
+}
+
+/// The operator's client: connects over TLS, takes control (retrying until the bench
+/// answers), then sends a heartbeat every [`COMMAND_PERIOD`] until stopped, timing each
+/// answer. Its link sends no heartbeats of its own: these are the commands.
+fn operator_client(commanding: &Commanding, namespace: &str, stop: &AtomicBool) -> Result<ClientResult, String> {
+    let tls = commanding.pki.client();
+    let connect = || {
+        OperatorLink::connect(&commanding.endpoint, Some(&tls), namespace, Some(OPERATOR)).map_err(|e| e.to_string())
+    };
+    let mut link = retry(stop, "the operator's client could not connect", connect)?;
+    link.heartbeat_every(None);
+    let mut report = CommandReport::default();
+    // The set may still be starting: retry the take until the control service answers.
+    let took = retry(stop, "the operator's client could not take control", || {
+        match link.send("take", None).map_err(|e| e.to_string())? {
+            answer if answer == "accepted" => Ok(()),
+            answer => Err(answer),
+        }
+    });
+    if let Err(e) = took {
+        return if stop.load(Ordering::Relaxed) { Ok(ClientResult::Commands(report)) } else { Err(e) };
+    }
+    report.took_control = true;
+    let mut answers_ms = Vec::new();
+    // Not answered since the last accepted one: counted as mid-run only if an
+    // accepted answer follows (else the set was going down).
+    let mut pending_failures = 0;
+    let mut next = Instant::now() + COMMAND_PERIOD;
+    while !stop.load(Ordering::Relaxed) {
+        let now = Instant::now();
+        if now < next {
+            std::thread::sleep(next - now);
+            continue;
+        }
+        if now > next + COMMAND_PERIOD {
+            report.late_sends += 1;
+            next = now;
+        }
+        next += COMMAND_PERIOD;
+        let sent = Instant::now();
+        let answer = link.send("heartbeat", None);
+        report.sent += 1;
+        match answer {
+            Ok(a) if a == "accepted" => {
+                answers_ms.push(sent.elapsed().as_secs_f64() * 1e3);
+                report.accepted += 1;
+                report.unanswered += pending_failures;
+                pending_failures = 0;
+            }
+            Ok(a) if a.starts_with("refused") => {
+                report.refused += 1;
+                report.first_problem.get_or_insert(a);
+            }
+            other => {
+                pending_failures += 1;
+                if report.first_problem.is_none() {
+                    report.first_problem = Some(match other {
+                        Ok(a) => a,
+                        Err(e) => e.to_string(),
+                    });
+                }
+            }
+        }
+    }
+    report.unanswered_at_end = pending_failures;
+    if report.unanswered == 0 && report.refused == 0 {
+        // Only the set going down was not answered: not a problem of the run.
+        report.first_problem = None;
+    }
+    answers_ms.sort_by(f64::total_cmp);
+    let at = |q: f64| answers_ms.get(((answers_ms.len() as f64 - 1.0) * q).round() as usize).copied().unwrap_or(0.0);
+    (report.answer_ms_p50, report.answer_ms_p99) = (at(0.5), at(0.99));
+    report.answer_ms_max = answers_ms.last().copied().unwrap_or(0.0);
+    Ok(ClientResult::Commands(report))
 }

@@ -13,6 +13,7 @@ use crate::{ClientCounts, FoxgloveServer, ViewerError};
 /// What the viewer did with one channel.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct ChannelReport {
+    /// Bus channel name, e.g. `bench/thrust`.
     pub channel: &'static str,
     /// Samples taken from the bus.
     pub received: u64,
@@ -25,7 +26,9 @@ pub struct ChannelReport {
 /// What the viewer did, printed at exit.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct LiveReport {
+    /// Per channel served.
     pub channels: Vec<ChannelReport>,
+    /// The Foxglove clients seen.
     pub clients: ClientCounts,
 }
 
@@ -69,6 +72,7 @@ impl LiveView {
         Ok(view)
     }
 
+    /// The Foxglove server the view serves through.
     pub fn server(&self) -> &FoxgloveServer {
         &self.server
     }
@@ -95,6 +99,7 @@ impl LiveView {
         Ok(taken)
     }
 
+    /// What the view did so far: per channel taken, lost and sent, and the clients.
     pub fn report(&self) -> LiveReport {
         report(&self.tap, &self.server, &self.sent)
     }

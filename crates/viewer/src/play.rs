@@ -157,6 +157,8 @@ const STOP_POLL: Duration = Duration::from_millis(50);
 const TIME_EVERY_NS: u64 = 1_000_000_000 / 60;
 
 impl Player {
+    /// Reads the MCAP recording at `path` and works out how to date its messages; an
+    /// error names the file and what is wrong with it (missing, not MCAP, truncated).
     pub fn open(path: &Path) -> Result<Player, ViewerError> {
         let bytes = std::fs::read(path).map_err(|source| RecordError::Read { path: path.into(), source })?;
         if !bytes.starts_with(mcap::MAGIC) {
@@ -178,6 +180,7 @@ impl Player {
         Ok(Player { path: path.into(), bytes, time_base, log_span })
     }
 
+    /// How the recording's log times map to wall-clock time (what Foxglove shows).
     pub fn time_base(&self) -> TimeBase {
         self.time_base
     }

@@ -36,8 +36,11 @@ impl Default for ServerOptions {
 /// Clients seen by the server so far.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ClientCounts {
+    /// Clients that connected.
     pub connected: u64,
+    /// Clients that have disconnected since.
     pub disconnected: u64,
+    /// Channel subscriptions the clients made.
     pub subscriptions: u64,
 }
 
@@ -126,10 +129,12 @@ impl FoxgloveServer {
         format!("ws://{}", self.addr)
     }
 
+    /// The channels the server advertises, by bus channel.
     pub fn channels(&self) -> &BenchChannels {
         &self.channels
     }
 
+    /// The clients seen so far.
     pub fn clients(&self) -> ClientCounts {
         ClientCounts {
             connected: self.clients.connected.load(Ordering::Relaxed),

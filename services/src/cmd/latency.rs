@@ -47,7 +47,10 @@ pub struct LatencyArgs {
     rounds: u32,
     /// Also measure the iceoryx2 set with the control room attached: the Foxglove
     /// viewer and the Zenoh bridge running, Foxglove clients that read everything,
-    /// never read, and disconnect mid-stream, and a Zenoh subscriber of every channel.
+    /// never read, and disconnect mid-stream, a Zenoh subscriber of every channel,
+    /// and an operator who takes control over Zenoh with TLS and sends a heartbeat
+    /// every 100 ms (an [operator] section and certificates made for the run, with
+    /// openssl). Reports both end-to-end p99s, their ratio and the deadline misses.
     #[arg(long)]
     control_room: bool,
 }

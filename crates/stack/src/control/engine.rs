@@ -102,6 +102,7 @@ pub struct ProfileSource {
     pub configured: jetbench_control::Profile,
     /// The model's idle and full thrust, N, to scale the built-in profiles to.
     pub idle_n: f64,
+    /// The model's thrust at full throttle, N.
     pub max_n: f64,
 }
 
@@ -132,6 +133,8 @@ const REASON_WAIT_NS: u64 = 400_000_000;
 const START_ASK_NS: u64 = 5_000_000_000;
 
 impl EngineSupervisor {
+    /// A supervisor with the config's `[engine]` settings and `[limits]`, the profiles it
+    /// may run, nobody holding control (no lease until [`Self::with_lease`]).
     pub fn new(settings: &EngineSection, limits: Limits, profiles: ProfileSource) -> Self {
         EngineSupervisor {
             monitor: LimitMonitor::new(limits),
@@ -169,6 +172,7 @@ impl EngineSupervisor {
         self.lease.as_ref().and_then(Lease::holder)
     }
 
+    /// What the engine is told to do now: follow the profile, hold, or idle.
     pub fn mode(&self) -> Mode {
         self.mode
     }
@@ -308,7 +312,8 @@ impl EngineSupervisor {
     /// engine's state, with an event either way.
     pub fn on_command(&mut self, now_ns: u64, c: &OperatorCommand) {
         if let (Some(lease), Some(who)) = (self.lease.as_mut(), Identity::from_field(c.identity)) {
-            // Any command from the holder is a sign of their link's life.
+            // Any command from the holder is a sign of their link's life (of a live
+            // link only: after a lapse, even their own late commands do not revive it).
             if c.authority == authorities::OPERATOR && lease.holder() == Some(who) && c.command != op::RELEASE_CONTROL {
                 let _ = lease.heartbeat(now_ns, who);
             }
@@ -478,7 +483,7 @@ impl EngineSupervisor {
         .map_err(|refusal| {
             let code = match refusal {
                 LeaseRefusal::HeldBy { .. } => refusals::HELD_BY_ANOTHER,
-                LeaseRefusal::NotHolder { .. } => refusals::NOT_IN_CONTROL,
+                LeaseRefusal::NotHolder { .. } | LeaseRefusal::Lapsed { .. } => refusals::NOT_IN_CONTROL,
                 LeaseRefusal::NoOffer { .. } => refusals::NO_HANDOVER_OFFER,
             };
             (code, refusal.to_string())
@@ -488,6 +493,7 @@ impl EngineSupervisor {
                 Some(by),
                 from.is_some(),
                 match from {
+                    Some(f) if f == by => format!(": {by} took control again, their link had lapsed"),
                     Some(f) => format!(": {by} took control from {f}, whose link had lapsed"),
                     None => format!(": {by} holds control"),
                 },
@@ -777,15 +783,37 @@ mod tests {
         let e = &events[0];
         assert_eq!((e.kind, jetbench_msgs::identity_text(&e.identity)), (event_kinds::DEADMAN, "alice".to_string()));
         assert!(e.value > 1.0 && e.value < 1.02 && (e.limit - 1.0).abs() < 1e-9, "{e:?}");
-        // Latched: alice's late heartbeat does not raise it, her profile does.
-        s.on_command(t, &from("alice", op::HEARTBEAT, 0.0));
-        s.check(t);
-        assert_eq!(s.gate(t, 70.0, 80.0).0, THROTTLE_MIN_PCT);
+        // Latched: alice's late heartbeats (an outage's backlog) do not renew her lease
+        // nor raise the engine, nor does her profile until she takes control again.
+        for late in 0..3 {
+            s.on_command(t + late * MS, &from("alice", op::HEARTBEAT, 0.0));
+        }
+        s.on_command(t + 3 * MS, &from("alice", op::RUN_PROFILE, 0.0));
+        s.check(t + 3 * MS);
+        assert_eq!(s.gate(t + 3 * MS, 70.0, 80.0).0, THROTTLE_MIN_PCT);
         // Anyone's lower reference does not bring it out of idle either.
-        s.on_command(t, &command(op::SET_REFERENCE, 10.0, authorities::ANYONE));
+        s.on_command(t + 4 * MS, &command(op::SET_REFERENCE, 10.0, authorities::ANYONE));
         assert_eq!(s.mode(), Mode::Idle);
-        s.on_command(t, &from("alice", op::RUN_PROFILE, 0.0));
+        s.on_command(t + 5 * MS, &from("alice", op::TAKE_CONTROL, 0.0));
+        s.on_command(t + 6 * MS, &from("alice", op::RUN_PROFILE, 0.0));
+        t += 6 * MS;
         assert_eq!(s.gate(t, 70.0, 80.0).0, 70.0);
+        let (ok, no) = (event_kinds::COMMAND_ACCEPTED, event_kinds::COMMAND_REFUSED);
+        let heartbeat_refused = (no, op::HEARTBEAT, "alice".to_string(), refusals::NOT_IN_CONTROL);
+        assert_eq!(
+            verdicts(&mut s),
+            vec![
+                heartbeat_refused.clone(),
+                heartbeat_refused.clone(),
+                heartbeat_refused,
+                (no, op::RUN_PROFILE, "alice".into(), refusals::NOT_IN_CONTROL),
+                (no, op::SET_REFERENCE, "tester".into(), refusals::NOT_AUTHORISED),
+                // Taken again, recorded as a take from the lapsed link (previous = 1).
+                (event_kinds::CONTROL, op::TAKE_CONTROL, "alice".into(), 1),
+                (ok, op::TAKE_CONTROL, "alice".into(), 0),
+                (ok, op::RUN_PROFILE, "alice".into(), 0),
+            ]
+        );
         // At idle the deadman does not fire: silence is harmless there.
         s.on_command(t, &from("alice", op::IDLE, 0.0));
         let _ = s.take_events();

@@ -41,10 +41,12 @@ pub struct ControlStep {
 }
 
 impl ControlStep {
+    /// A step that closes the loop with `law` on the reference `profile`.
     pub fn new(law: Law, profile: Profile) -> Self {
         ControlStep::with_law(ControlLaw::Closed(Box::new(law)), profile)
     }
 
+    /// A step with any control law (closed loop or an open-loop throttle profile).
     pub fn with_law(law: ControlLaw, profile: Profile) -> Self {
         ControlStep { law, profile, start_ns: None, fallbacks: 0 }
     }
