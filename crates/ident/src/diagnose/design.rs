@@ -116,8 +116,9 @@ impl Noise {
 pub struct DesignOptions {
     /// Length of the campaign, s.
     pub duration_s: f64,
-    /// Throttle limits, %.
+    /// Lowest throttle the campaign may command, %.
     pub min_pct: f64,
+    /// Highest throttle the campaign may command, %.
     pub max_pct: f64,
     /// Share at the end of a recording the diagnosis holds out (its `--holdout`).
     pub holdout: f64,
@@ -134,8 +135,9 @@ impl Default for DesignOptions {
 /// How far apart one pair of rivals is on the campaign.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PairSeparation {
-    /// The two rivals' labels.
+    /// The first rival's label.
     pub a: String,
+    /// The second rival's label.
     pub b: String,
     /// Expected held-out score difference (`holdout · S_ab`, score units) on the campaign.
     pub held_out_score: f64,
