@@ -273,3 +273,53 @@ fn sim_record_writes_the_turbojet_plant() {
     assert_ne!(code, 0);
     assert!(err.contains("turbojet"), "{err}");
 }
+
+/// Whatever the recording, a model file `identify --out` writes is bounded over the throttle
+/// range (checked here with the plausibility rules), and when it writes none it exits non-zero
+/// with the reason: on truncated recordings of the turbojet (an engine the ten parameters do
+/// not describe), on the method that diverges most often (LS) and on all.
+#[test]
+fn identify_writes_a_bounded_model_or_none_with_the_reason() {
+    let p = |x: &PathBuf| x.to_str().unwrap().to_owned();
+    let (mut written, mut refused) = (0, 0);
+    for (seed, seconds) in [(2u64, "40"), (5, "60"), (9, "90")] {
+        let run_file = scratch(&format!("truncated-{seed}.csv"));
+        let (code, _, err) = run(
+            &[
+                "sim-record",
+                "--plant",
+                "turbojet-p100",
+                "--duration",
+                seconds,
+                "--seed",
+                &seed.to_string(),
+                "--out",
+                &p(&run_file),
+            ],
+            Duration::from_secs(60),
+        );
+        assert_eq!(code, 0, "{err}");
+        for method in ["ls", "all"] {
+            let model = scratch(&format!("truncated-{seed}-{method}.toml"));
+            let _ = std::fs::remove_file(&model);
+            let (code, out, err) =
+                run(&["identify", &p(&run_file), "--method", method, "--out", &p(&model)], Duration::from_secs(300));
+            eprintln!(
+                "seed {seed}, {seconds} s, {method}: exit {code}\n{}",
+                out.lines().rev().take(3).collect::<Vec<_>>().join("\n")
+            );
+            if code == 0 {
+                written += 1;
+                let file = jetbench_model::ModelFile::load(&model).unwrap_or_else(|e| panic!("{e}\n{out}\n{err}"));
+                let check = jetbench_ident::identify::plausibility(&file.model);
+                assert!(check.is_bounded(), "a written model must be bounded: {check:?}\n{out}");
+                assert!(out.contains("model file: the "), "the report says which model the file gets\n{out}");
+            } else {
+                refused += 1;
+                assert!(!model.exists(), "nothing is written when nothing is bounded");
+                assert!(err.contains("nothing written") && err.contains("bounded"), "the reason: {err}");
+            }
+        }
+    }
+    eprintln!("bounded models written {written}, refused with the reason {refused}");
+}

@@ -3,7 +3,10 @@
 //! [`SavitzkyGolay`] smooths and differentiates whole recordings (thrust rate and
 //! acceleration for LS and SINDy), with scipy's `savgol_filter` edge handling.
 #![doc = include_str!("../README.md")]
+#![deny(missing_docs)]
 
+// The diagnosis modules get their own documentation pass; until then they are exempt.
+#[allow(missing_docs)]
 pub mod diagnose;
 pub mod ekf;
 pub mod excite;
