@@ -144,7 +144,9 @@ fn the_bench_runs_the_turbojet_plant_and_its_ecu_reports_the_spool() {
     std::fs::write(&profile, csv).unwrap();
     let config = turbojet_config("turbojet.toml", "sensor_silent_s = \"off\"");
     let recording = scratch("turbojet.mcap");
-    let (code, out, err) = run(
+    // A bus namespace of its own: the other live test of this file runs `up` at the same time.
+    let (code, out, err) = common::run_jetbench(
+        "identtj",
         &[
             "up",
             "--sim",

@@ -50,25 +50,58 @@ pub const DEFAULT_NAMESPACE: &str = "default";
 /// Why the bridge or a remote session failed.
 #[derive(Debug, thiserror::Error)]
 pub enum BridgeError {
+    /// An endpoint that is not `tcp/HOST:PORT` or `tls/HOST:PORT`.
     #[error("invalid Zenoh endpoint {endpoint:?}: {reason}")]
-    Endpoint { endpoint: String, reason: String },
+    Endpoint {
+        /// The endpoint as given.
+        endpoint: String,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// Zenoh refused a setting of the session's configuration.
     #[error("invalid Zenoh setting {key}: {source}")]
-    Config { key: &'static str, source: zenoh::Error },
+    Config {
+        /// The configuration key.
+        key: &'static str,
+        /// What Zenoh said.
+        source: zenoh::Error,
+    },
     /// A session that could not be opened: which endpoint, what Zenoh said (without its
     /// source locations), what to check.
     #[error("cannot open a Zenoh session {role} {endpoint}: {reason}; {hint}")]
-    Open { role: &'static str, endpoint: Endpoint, reason: String, hint: &'static str },
+    Open {
+        /// `listening on` or `connecting to`.
+        role: &'static str,
+        /// The endpoint.
+        endpoint: Endpoint,
+        /// What Zenoh said, without its source locations.
+        reason: String,
+        /// What to check.
+        hint: &'static str,
+    },
+    /// A publisher, subscriber or queryable could not be declared.
     #[error("cannot declare {what} on {key}: {source}")]
-    Declare { what: &'static str, key: String, source: zenoh::Error },
+    Declare {
+        /// What was declared.
+        what: &'static str,
+        /// On which key expression.
+        key: String,
+        /// What Zenoh said.
+        source: zenoh::Error,
+    },
+    /// A channel name the bench does not have.
     #[error("unknown channel {0:?}; channels are: {names}", names = jetbench_msgs::channel_names().join(", "))]
     UnknownChannel(String),
+    /// The `[operator]` settings are unusable (certificates, names, lease).
     #[error(transparent)]
     Operator(#[from] jetbench_control::operator::OperatorSettingsError),
     /// A command the bench did not answer, or that cannot be sent.
     #[error("{0}")]
     Command(String),
+    /// The local bus could not be opened or used.
     #[error(transparent)]
     Bus(#[from] jetbench_bus::BusError),
+    /// The bridge's recording could not be written.
     #[error(transparent)]
     Record(#[from] jetbench_record::RecordError),
 }

@@ -20,12 +20,28 @@ use crate::{key_for, open_session, BridgeError, Endpoint, Role, KEY_PREFIX};
 /// Why a payload is not a sample of its channel.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum PayloadError {
+    /// Shorter than the CDR header.
     #[error("{len} bytes, too short for the 4-byte CDR header")]
-    Short { len: usize },
+    Short {
+        /// The payload's length in bytes.
+        len: usize,
+    },
+    /// A CDR header other than little-endian plain CDR.
     #[error("CDR header {found:02x?} is not little-endian plain CDR (00 01 00 00)")]
-    Header { found: [u8; 4] },
+    Header {
+        /// The header's four bytes.
+        found: [u8; 4],
+    },
+    /// The body's size differs from the channel's sample.
     #[error("a {name} sample has {expected} bytes after the header, this payload {len}")]
-    Size { name: &'static str, len: usize, expected: usize },
+    Size {
+        /// The sample type's name.
+        name: &'static str,
+        /// The body's length in bytes.
+        len: usize,
+        /// The sample's size in bytes.
+        expected: usize,
+    },
 }
 
 /// The body of a CDR message of `expected` body bytes, checked.

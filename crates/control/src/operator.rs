@@ -1009,7 +1009,8 @@ mod tests {
                         let live = before == Some(who[i]) && now.saturating_sub(heard) <= window;
                         prop_assert_eq!(r.is_ok(), live, "heartbeat by {} at {} heard {}", who[i], now, heard);
                         if before == Some(who[i]) && !live {
-                            prop_assert!(matches!(r, Err(LeaseRefusal::Lapsed { .. })));
+                            let lapsed = matches!(r, Err(LeaseRefusal::Lapsed { .. }));
+                            prop_assert!(lapsed, "a late heartbeat is refused as lapsed: {:?}", r);
                             prop_assert!(l.lapsed(now), "a refused heartbeat leaves the link lapsed");
                             prop_assert!(!l.in_control(now, who[i]));
                         }

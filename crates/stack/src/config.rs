@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use jetbench_control::{Controller, FblGains, Law, LawSettings, MpcSettings, Profile, ShaperSettings, SmcGains};
 use jetbench_io::can::source::{CanInterface, InterfaceError};
 use jetbench_io::ecu::emulator::EcuFaults;
-use jetbench_model::{ModelFile, Params, Plant};
+use jetbench_model::{Params, Plant};
 use jetbench_msgs::ServiceId;
 use serde::{Deserialize, Serialize};
 
@@ -135,15 +135,19 @@ pub enum Devices {
     Bench,
 }
 
+/// `[plant]`: the simulated engine and its sensor (used only with `devices = "sim"`).
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct PlantSection {
     /// Preset name or model file of the simulated engine.
     pub model: String,
+    /// Variance of the simulated force sensor's noise, N².
     #[serde(default = "default_noise")]
     pub noise_var_n2: f64,
+    /// Seed of the sensor noise (the same seed gives the same noise).
     #[serde(default)]
     pub seed: u64,
+    /// The throttle the engine rests at when the run begins, %.
     #[serde(default = "default_idle")]
     pub initial_throttle_pct: f64,
     /// The simulated sensor's reading at zero load `[Fx, Fy, Fz, Tx, Ty, Tz]`,
@@ -1074,7 +1078,7 @@ mod tests {
     fn effects_reach_the_plant_and_are_no_error_in_the_model() {
         let dir = std::env::temp_dir().join(format!("jetbench-config-effects-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let mut file = ModelFile::new(jetbench_model::Preset::P100Diesel.params());
+        let mut file = jetbench_model::ModelFile::new(jetbench_model::Preset::P100Diesel.params());
         file.effects = jetbench_model::Effects::new(["input_delay:delay_s=0.1".parse().unwrap()]).unwrap();
         file.save(&dir.join("delayed.toml")).unwrap();
         let text = DEFAULT_SIM_CONFIG.replace("model = \"p100-diesel\"", "model = \"delayed.toml\"");

@@ -49,12 +49,31 @@ use jetbench_record::RecordError;
 /// Why the viewer could not start or serve.
 #[derive(Debug, thiserror::Error)]
 pub enum ViewerError {
+    /// A listen address that is not `HOST:PORT`.
     #[error("invalid listen address {addr:?}: {reason} (expected HOST:PORT, e.g. 127.0.0.1:8765, or 0.0.0.0:8765 for other machines)")]
-    Address { addr: String, reason: String },
+    Address {
+        /// The address as given.
+        addr: String,
+        /// Why it does not parse.
+        reason: String,
+    },
+    /// The WebSocket server could not start.
     #[error("cannot serve Foxglove on {addr}: {source} (is the port in use?)")]
-    Start { addr: String, source: foxglove::FoxgloveError },
+    Start {
+        /// The address it tried.
+        addr: String,
+        /// What the Foxglove SDK said.
+        source: foxglove::FoxgloveError,
+    },
+    /// A channel could not be advertised to clients.
     #[error("cannot advertise channel {topic}: {source}")]
-    Channel { topic: String, source: foxglove::FoxgloveError },
+    Channel {
+        /// The channel's topic.
+        topic: String,
+        /// What the Foxglove SDK said.
+        source: foxglove::FoxgloveError,
+    },
+    /// A playback rate that is not a positive number.
     #[error("playback rate {0} must be a positive number (1 = real time)")]
     Rate(f64),
     /// Reading the live bus.

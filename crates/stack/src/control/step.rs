@@ -28,7 +28,12 @@ pub enum ControlLaw {
     /// A recorded throttle profile played open loop (identification campaigns):
     /// one value per 10 ms from the first estimate on, then idle. The published
     /// reference is the thrust `model` would settle to at that throttle.
-    OpenLoop { throttle_pct: Vec<f64>, model: Params },
+    OpenLoop {
+        /// Throttle per 10 ms cycle, %.
+        throttle_pct: Vec<f64>,
+        /// The model whose rest thrust is published as the reference.
+        model: Params,
+    },
 }
 
 /// ControlStep: the reference profile and the control law.

@@ -174,6 +174,7 @@ impl SimBenchStep {
 /// Why the simulated bench cannot start.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SimError {
+    /// A sensor noise variance that is negative or not finite, N².
     #[error("sensor noise variance {0} N^2 must be finite and >= 0")]
     Noise(f64),
 }
