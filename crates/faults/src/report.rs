@@ -401,6 +401,7 @@ impl Campaign {
         writeln!(md, "|---|---|---|---|---|")?;
         let ecu_bins = [ECU_GAP_FLOOR_S, 0.15, 0.2, 0.3, ecu_limit];
         let sensor_bins = [SENSOR_GAP_FLOOR_S, 0.03, 0.05, 0.075, sensor_limit];
+        #[allow(clippy::type_complexity, reason = "a local table of three rows, read right below")]
         let rows: [(&str, &[f64], Vec<&Vec<f64>>); 3] = [
             ("ECU (`bench/ecu`, fresh readings)", &ecu_bins, self.healthy.iter().map(|h| &h.ecu_gaps).collect()),
             (

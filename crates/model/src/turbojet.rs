@@ -457,7 +457,7 @@ impl Turbojet {
         }
     }
 
-    fn to_array(&self) -> [f64; 4] {
+    fn to_array(self) -> [f64; 4] {
         [self.state.speed, self.state.fuel, self.state.integral, self.state.egt_c]
     }
 

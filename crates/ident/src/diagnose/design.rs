@@ -455,8 +455,8 @@ pub fn design(rivals: &[RivalModel], noise: &Noise, options: &DesignOptions) -> 
             let Some(y) = run(&mut trial, &seg.u) else { continue };
             let mut next = pairs.clone();
             for p in &mut next {
-                for k in 0..seg.u.len() {
-                    p.add(noise, y[p.a][k] - y[p.b][k]);
+                for (ya, yb) in y[p.a].iter().zip(&y[p.b]).take(seg.u.len()) {
+                    p.add(noise, ya - yb);
                 }
             }
             let rate = (objective(&next) - base) / (seg.u.len() as f64 * STEP_S);
@@ -474,6 +474,7 @@ pub fn design(rivals: &[RivalModel], noise: &Noise, options: &DesignOptions) -> 
             let mut probe = pairs.clone();
             let mut e = engines.clone();
             if let Some(y) = run(&mut e, &seg.u) {
+                #[allow(clippy::needless_range_loop, reason = "k is the sample that makes the answer decisive")]
                 for k in 0..seg.u.len() {
                     for p in &mut probe {
                         p.add(noise, y[p.a][k] - y[p.b][k]);
