@@ -248,7 +248,7 @@ fn a_healthy_engine_trips_no_limit() {
     let bench = bench();
     let keys: Vec<&str> = jetbench_stack::limits::LimitKind::ALL.iter().map(|k| k.key()).collect();
     for profile in jetbench_faults::limits::PROFILES {
-        let run = jetbench_faults::limits::healthy_run(&bench, profile, 20).expect("the run");
+        let run = jetbench_faults::limits::healthy_run(&bench, profile, 20, false).expect("the run");
         let fmt = |v: &[Option<f64>; 8]| -> String {
             keys.iter()
                 .zip(v)

@@ -71,11 +71,21 @@ pub struct Options {
     pub limits_runs: usize,
     /// Length of each healthy-engine run, s.
     pub limits_seconds: u32,
+    /// The healthy-engine runs with the config's real-time settings (`up --rt`).
+    pub limits_rt: bool,
 }
 
 impl Default for Options {
     fn default() -> Self {
-        Options { repeat: 10, seed: 17, spike_seconds: 30, only: Vec::new(), limits_runs: 10, limits_seconds: 60 }
+        Options {
+            repeat: 10,
+            seed: 17,
+            spike_seconds: 30,
+            only: Vec::new(),
+            limits_runs: 10,
+            limits_seconds: 60,
+            limits_rt: false,
+        }
     }
 }
 
@@ -197,7 +207,7 @@ pub fn run(bench: &Bench, options: &Options, progress: &mut dyn FnMut(&str)) -> 
                     options.limits_runs,
                     options.limits_seconds
                 ));
-                match healthy_run(bench, profile, options.limits_seconds) {
+                match healthy_run(bench, profile, options.limits_seconds, options.limits_rt) {
                     Ok(run) => c.healthy.push(run),
                     Err(e) => note(&mut c, &format!("healthy engine ({profile})"), e),
                 }

@@ -25,6 +25,8 @@ pub struct HealthyRun {
     pub profile: String,
     /// Length of the run, s.
     pub duration_s: u32,
+    /// Run with the config's real-time settings (`jetbench up --rt`).
+    pub rt: bool,
     /// Trips in `bench/events`, by [`LimitKind::ALL`] order.
     pub trips: [u32; 8],
     /// The worst value held for each limit's hold while the engine ran (for
@@ -42,11 +44,12 @@ pub struct HealthyRun {
     /// Gaps between force-sensor samples while the engine ran that are
     /// longer than [`SENSOR_GAP_FLOOR_S`] (a frame missed or late), s.
     pub sensor_gaps: Vec<f64>,
-    /// The sensor's silence as control's limit monitor judges it, longer than
-    /// [`SENSOR_GAP_FLOOR_S`], s: at each command, its publish time less the
-    /// stamp of the estimate before it (the monitor checks before it takes the
-    /// new estimate, so a stall of control or estimation counts, not only of
-    /// the sensor).
+    /// The sensor's silence as control's limit monitor can see it, longer than
+    /// [`SENSOR_GAP_FLOOR_S`], s: at each estimate, when it was published less
+    /// the stamp of the estimate before it. The monitor judges the silence
+    /// only with every waiting estimate taken, so a stall of the sensor or of
+    /// estimation counts (control is blind either way), control's own lateness
+    /// does not.
     pub monitor_ages: Vec<f64>,
     /// Time the ECU said run, s: what the gaps are counted over.
     pub running_s: f64,
@@ -73,8 +76,9 @@ pub fn config_text() -> String {
     format!("{base}\n[limits]\npreset = \"p100\"\n")
 }
 
-/// Runs `jetbench up --sim --profile PROFILE` for `duration_s` and judges it.
-pub fn healthy_run(bench: &Bench, profile: &str, duration_s: u32) -> Result<HealthyRun, FaultsError> {
+/// Runs `jetbench up --sim --profile PROFILE` for `duration_s` (with `--rt`
+/// when `rt`) and judges it.
+pub fn healthy_run(bench: &Bench, profile: &str, duration_s: u32, rt: bool) -> Result<HealthyRun, FaultsError> {
     let namespace = bench.fresh_namespace();
     let config = bench.scratch(&format!("limits-{namespace}.toml"));
     std::fs::write(&config, config_text()).map_err(|source| FaultsError::Io { path: config.clone(), source })?;
@@ -82,10 +86,14 @@ pub fn healthy_run(bench: &Bench, profile: &str, duration_s: u32) -> Result<Heal
     let mut command = bench.command(&namespace);
     command.args(["up", "--sim", "--quiet", "--duration", &duration_s.to_string(), "--profile", profile]);
     command.arg("--config").arg(&config).arg("--record").arg(&record);
+    if rt {
+        command.arg("--rt");
+    }
     let (status, said) = run_to_end(&mut command, "jetbench up (healthy engine)")?;
     let mut run = judge(&Recording::open(&record)?, &Limits::preset("p100").expect("the p100 preset"));
     run.profile = profile.into();
     run.duration_s = duration_s;
+    run.rt = rt;
     if !status.success() {
         run.problems.push(format!("jetbench up exited {status}: {}", said.lines().last().unwrap_or_default()));
     }
@@ -183,13 +191,9 @@ pub fn judge(recording: &Recording, limits: &Limits) -> HealthyRun {
     run.ecu_gaps = ecu_gaps.iter().map(|g| g.1).filter(|g| *g > ECU_GAP_FLOOR_S).collect();
     run.sensor_gaps = sensor_gaps.iter().map(|g| g.1).filter(|g| *g > SENSOR_GAP_FLOOR_S).collect();
     run.running_s = (last.stamp_ns - first.stamp_ns) as f64 * 1e-9;
-    let commands: Vec<(u64, u64)> = recording
-        .samples(channels::COMMAND)
-        .iter()
-        .filter(|c| running(c.publish_ns))
-        .map(|c| (c.stamp_ns, c.publish_ns))
-        .collect();
-    run.monitor_ages = commands
+    let available: Vec<(u64, u64)> =
+        states.iter().filter(|s| running(s.publish_ns)).map(|s| (s.stamp_ns, s.publish_ns)).collect();
+    run.monitor_ages = available
         .windows(2)
         .map(|w| w[1].1.saturating_sub(w[0].0) as f64 * 1e-9)
         .filter(|a| *a > SENSOR_GAP_FLOOR_S)

@@ -389,8 +389,9 @@ impl Campaign {
             md,
             "\nPauses in the telemetry over the same {} runs ({:.1} min in run), against the silence limits: every \
              gap between fresh ECU readings (67 ms at 15 Hz when on time), between force samples (10 ms), and the \
-             sensor's age as control's limit monitor judges it (a command's publish time less the stamp of the \
-             estimate before it: an upper bound, the monitor checks just before).\n",
+             sensor's age as control's limit monitor can see it (an estimate's publish time less the stamp of the \
+             estimate before it: the monitor judges the silence with every waiting estimate taken, so control's own \
+             lateness is not the sensor's).\n",
             self.healthy.len(),
             running_s / 60.0,
         )?;
@@ -444,18 +445,22 @@ impl Campaign {
         }
         let runs = |profile: &str| self.healthy.iter().filter(|h| h.profile == profile).count();
         let seconds = self.healthy.first().map_or(0, |h| h.duration_s);
+        let rt = self.healthy.iter().all(|h| h.rt);
+        let (up_rt, faults_rt) = if rt { (" --rt", " --limits-rt") } else { ("", "") };
         writeln!(md, "\n## No false trips on a healthy engine\n")?;
         writeln!(
             md,
-            "`jetbench up --sim --profile P --duration {seconds}` with every limit of the P100 preset on \
+            "`jetbench up --sim{up_rt} --profile P --duration {seconds}` with every limit of the P100 preset on \
              (`[limits] preset = \"p100\"`, the sensor's silence too) and nothing injected: {} runs of the campaign \
              profile and {} of the steps profile. Trips are counted from `bench/events`. The margin is the worst \
              value each limit's quantity held for the limit's hold time while the ECU said run (a trip needs that), \
              recomputed from the recording as the monitor sees it (the thrust estimate; the ECU's readings; a silence \
              is the longest gap between samples), worst over the runs; the peak is the worst single value. \
-             (`jetbench faults --only limits --limits-runs {} --limits-seconds {seconds}`)",
+             Real-time settings (SCHED_FIFO, affinity, locked memory) {}. \
+             (`jetbench faults --only limits --limits-runs {} --limits-seconds {seconds}{faults_rt}`)",
             runs("campaign"),
             runs("steps"),
+            if rt { "on, as at the bench" } else { "off" },
             runs("steps"),
         )?;
         writeln!(md)?;

@@ -548,8 +548,23 @@ impl LimitMonitor {
     }
 
     /// The limits at `now_ns`, `running` while the ECU says run: the trips
-    /// that happened now (each once until cleared).
+    /// that happened now (each once until cleared). Made where every force
+    /// sample that has arrived has been taken ([`LimitMonitor::on_thrust`]),
+    /// so the sensor's silence is what it seems.
     pub fn check(&mut self, now_ns: u64, running: bool) -> Vec<Trip> {
+        self.check_with(now_ns, running, true)
+    }
+
+    /// The limits at `now_ns` except the sensor's silence, for a check made
+    /// before the samples waiting for the caller are taken: the age of the
+    /// newest sample is not known yet, and a caller woken late would count its
+    /// own lateness as the sensor's silence. Its clock keeps running: the next
+    /// [`LimitMonitor::check`] judges it.
+    pub fn check_before_samples(&mut self, now_ns: u64, running: bool) -> Vec<Trip> {
+        self.check_with(now_ns, running, false)
+    }
+
+    fn check_with(&mut self, now_ns: u64, running: bool, sensor_known: bool) -> Vec<Trip> {
         let started = *self.started_ns.get_or_insert(now_ns);
         let mut trips = Vec::new();
         let ecu = self.ecu.map(|(at, t)| (at, t.rpm, t.egt_c));
@@ -562,6 +577,9 @@ impl LimitMonitor {
         };
         for kind in LimitKind::ALL {
             let Some(limit) = self.limits.get(kind) else { continue };
+            if kind == LimitKind::SensorSilent && !sensor_known {
+                continue;
+            }
             let value = match kind {
                 LimitKind::MaxThrust => thrust.map(|(_, t)| t).filter(|t| *t > limit.limit),
                 LimitKind::MaxEgt => ecu.map(|(_, _, egt)| egt).filter(|e| *e > limit.limit),

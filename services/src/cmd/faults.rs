@@ -36,6 +36,10 @@ pub struct FaultsArgs {
     /// Length of each healthy-engine run, s.
     #[arg(long, default_value_t = 60)]
     limits_seconds: u32,
+    /// The healthy-engine runs with real-time settings (`jetbench up --rt`: SCHED_FIFO,
+    /// CPU affinity, locked memory), as a bench PC runs the engine.
+    #[arg(long)]
+    limits_rt: bool,
     /// Write the report (Markdown) here. With --only, an existing report keeps
     /// its other sections: only those of the parts run are replaced.
     #[arg(long, value_name = "FILE.md")]
@@ -69,6 +73,7 @@ pub fn run(args: FaultsArgs) -> anyhow::Result<ExitCode> {
         only: args.only,
         limits_runs: args.limits_runs.max(1),
         limits_seconds: args.limits_seconds.max(5),
+        limits_rt: args.limits_rt,
     };
     let campaign = jetbench_faults::campaign::run(&bench, &options, &mut |what| eprintln!("faults: {what}"));
     let existing = args.report.as_ref().and_then(|p| std::fs::read_to_string(p).ok());

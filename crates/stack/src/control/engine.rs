@@ -251,8 +251,20 @@ impl EngineSupervisor {
         self.monitor.on_thrust(now_ns, thrust_n);
     }
 
-    /// The limits and the ECU's shutdowns at `now_ns`.
+    /// The limits and the ECU's shutdowns at `now_ns`, every thrust estimate
+    /// that has arrived taken ([`EngineSupervisor::on_thrust`]).
     pub fn check(&mut self, now_ns: u64) {
+        self.check_with(now_ns, true);
+    }
+
+    /// As [`EngineSupervisor::check`], before the waiting thrust estimates are
+    /// taken: everything but the sensor's silence, which the check after them
+    /// judges (a cycle woken late must not count its lateness as the sensor's).
+    pub fn check_before_estimates(&mut self, now_ns: u64) {
+        self.check_with(now_ns, false);
+    }
+
+    fn check_with(&mut self, now_ns: u64, estimates_taken: bool) {
         if let Some((at, t)) = self.left_run {
             // Name the ECU's reason once its status arrives (or give up waiting).
             let off = self.ecu.map_or(0, |e| e.off_condition);
@@ -269,7 +281,12 @@ impl EngineSupervisor {
                 self.end(at, end_reasons::ECU_SHUTDOWN, off as i32, t.egt_c, t.rpm);
             }
         }
-        for trip in self.monitor.check(now_ns, self.running) {
+        let trips = if estimates_taken {
+            self.monitor.check(now_ns, self.running)
+        } else {
+            self.monitor.check_before_samples(now_ns, self.running)
+        };
+        for trip in trips {
             self.on_trip(&trip);
         }
         if let Some(s) = self.stopping {
@@ -600,6 +617,40 @@ mod tests {
             identity: identity("tester"),
             ..Default::default()
         }
+    }
+
+    #[test]
+    fn a_cycle_woken_late_does_not_count_its_lateness_as_the_sensors_silence() {
+        use crate::limits::{Limit, LimitKind};
+        let mut limits = Limits::default();
+        limits.set(LimitKind::SensorSilent, Some(Limit { limit: 0.1, response: Response::Idle, hold_s: 0.0 }));
+        let mut s = supervisor(EngineReference::Profile, limits);
+        s.on_ecu(0, &ecu(ecu_states::RUN, 0, 0));
+        s.on_thrust(0, 10.0);
+        s.check(0);
+        // Control wakes 150 ms late, the estimates of those 150 ms waiting for it:
+        // the check before they are taken leaves the sensor's silence alone ...
+        s.check_before_estimates(150 * MS);
+        assert!(s.free(), "{:?}", s.take_events());
+        // ... nor do the checks after each of them while newer ones wait ...
+        for k in 1..=15 {
+            s.on_thrust(k * 10 * MS, 10.0);
+            s.check_before_estimates(150 * MS);
+        }
+        // ... and with all of them taken, the sensor was never silent for 0.1 s.
+        s.check(150 * MS);
+        assert!(s.free(), "{:?}", s.take_events());
+        // A sensor that really stops: no check before estimates ever judges it,
+        // the first check with every estimate taken does.
+        s.check_before_estimates(400 * MS);
+        assert!(s.free());
+        s.check(400 * MS);
+        assert!(!s.free());
+        let events = s.take_events();
+        assert!(
+            events.iter().any(|e| e.kind == event_kinds::TRIP && e.code == LimitKind::SensorSilent.code()),
+            "{events:?}"
+        );
     }
 
     #[test]

@@ -84,11 +84,15 @@ impl Service for ControlService {
     }
 
     fn process(&mut self, wake: Wake, state: &Input<StateEstimate>, ctx: &mut Context<'_>) -> Result<(), ServiceError> {
-        self.supervise(ctx)?;
+        // Woken by estimates, the sensor's silence is judged once they are all
+        // taken (at the end); otherwise none is waiting, and it is judged now.
+        let waiting = matches!(wake, Wake::Input(_));
+        self.supervise(ctx, waiting)?;
         if let Wake::Missed(_) = wake {
             // No estimate (the sensor is silent, or not yet heard): while the
-            // engine is gated, idle is commanded anyway, carrying what the ECU is asked.
-            if !self.engine.is_free() {
+            // engine is gated, or a trip has just held it, idle is commanded
+            // anyway, carrying what the ECU is asked.
+            if !self.engine.is_free() || !self.engine.free() {
                 let now = monotonic_ns();
                 let (throttle_pct, flags) = self.engine.gate(now, jetbench_model::THROTTLE_MIN_PCT, 0.0);
                 let command = Command {
@@ -104,7 +108,8 @@ impl Service for ControlService {
         }
         state.each_sample(wake, ctx, |estimate, ctx| {
             self.engine.on_thrust(estimate.stamp_ns, estimate.thrust_n);
-            self.engine.check(monotonic_ns());
+            // Newer estimates may still wait behind this one.
+            self.engine.check_before_estimates(monotonic_ns());
             match self.engine.take_law_change() {
                 LawChange::None => {}
                 LawChange::Reset => self.reset_law()?,
@@ -138,20 +143,31 @@ impl Service for ControlService {
                 Err(e) => ctx.reject("state estimate", &e),
             }
             self.publish_events(ctx)
-        })
+        })?;
+        if waiting {
+            // Every waiting estimate taken: the sensor's age is what it seems.
+            self.engine.check(monotonic_ns());
+            self.publish_events(ctx)?;
+        }
+        Ok(())
     }
 }
 
 impl ControlService {
-    /// Takes the ECU's samples and the operator's commands, and checks the limits.
-    fn supervise(&mut self, ctx: &mut Context<'_>) -> Result<(), ServiceError> {
+    /// Takes the ECU's samples and the operator's commands, and checks the
+    /// limits (the sensor's silence only when no estimate is `waiting`).
+    fn supervise(&mut self, ctx: &mut Context<'_>, waiting: bool) -> Result<(), ServiceError> {
         while let Some(t) = self.ecu.try_recv()? {
             self.engine.on_ecu(monotonic_ns(), &t);
         }
         while let Some(c) = self.operator.try_recv()? {
             self.engine.on_command(monotonic_ns(), &c);
         }
-        self.engine.check(monotonic_ns());
+        if waiting {
+            self.engine.check_before_estimates(monotonic_ns());
+        } else {
+            self.engine.check(monotonic_ns());
+        }
         self.publish_events(ctx)
     }
 
