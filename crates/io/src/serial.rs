@@ -505,6 +505,10 @@ pub struct EcuShared {
     pub opens: u64,
     /// Why the port is closed now; `None` while it is open.
     pub link_error: Option<String>,
+    /// Telemetry replies that came after their poll's answer window: found
+    /// waiting when the next poll was due, and dropped, so a late reply is
+    /// never taken for the next poll's reading.
+    pub late_replies: u64,
 }
 
 impl EcuPoller {
@@ -694,6 +698,28 @@ impl EcuWorker {
                         });
                     }
                     Err(e) => self.update(|s| s.link_error = Some(e.to_string())),
+                }
+            }
+            // What came since the last poll's window closed: a late telemetry
+            // reply is dropped (it answered the last poll, which was already
+            // published stale), the status and battery replies are kept.
+            if let Some(p) = port.as_mut() {
+                let mut late = 0;
+                let _ = p.set_timeout(Duration::ZERO);
+                while let Ok(n @ 1..) = p.read(&mut buf) {
+                    decoder.push_replies(&buf[..n], |reply| match reply {
+                        EcuReply::Actual(_) => late += 1,
+                        EcuReply::Status { off_condition: off } => off_condition = off,
+                        EcuReply::Fuel { battery_v: v } => battery_v = v,
+                        EcuReply::Refused(_) => refused = refused.saturating_add(1),
+                        EcuReply::Ack => {}
+                    });
+                }
+                // A reply still on its way is cut here: its tail is a bad
+                // line, never this poll's reading.
+                decoder.expire_partial();
+                if late > 0 {
+                    self.update(|s| s.late_replies += late);
                 }
             }
             // Answer window: most of the period, leaving time to publish.

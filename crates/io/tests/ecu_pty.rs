@@ -75,3 +75,25 @@ fn ecu_telemetry_arrives_at_the_poll_rate_and_survives_noise_and_silence() {
     assert_eq!(t.rpm, (35_000.0 + 8_000.0 * 40f64.sqrt()).round());
     assert!(poller.shared().opens >= 2, "the port was reopened");
 }
+
+#[test]
+fn a_reply_that_comes_after_its_window_is_dropped_not_taken_for_the_next_poll() {
+    // Polls every 2 s: the window closes 1.8 s after each poll, leaving 200 ms in
+    // which a late reply can land before the next poll (a wide margin for a busy
+    // machine to inject it there).
+    let reading = EcuReading { rpm: 61_250.0, egt_c: 612.5, pump_v: 3.05, state: 10, throttle_pct: 42.0 };
+    let ecu = PtyEcu::spawn(&link("ecu-late"), reading).expect("emulated ECU on a pty");
+    let poller = EcuPoller::spawn(ecu.link(), 9600, 0.5, clock).expect("poller thread");
+    collect(&poller, "a fresh sample", |s| s.iter().any(|t| t.flags == 0));
+    // The ECU misses a poll; its reply comes once the window has closed.
+    ecu.set_silent(true);
+    collect(&poller, "a stale sample", |s| s.iter().any(|t| t.flags & ecu_flags::STALE != 0));
+    let late = EcuReading { rpm: 99_000.0, egt_c: 777.0, pump_v: 9.99, state: 10, throttle_pct: 99.0 };
+    ecu.inject_to_pc(jetbench_io::ecu::encode_reply(&late).as_bytes()).unwrap();
+    ecu.set_silent(false);
+    // The next poll's reading is the ECU's, not the late reply.
+    let next = collect(&poller, "the next fresh sample", |s| s.iter().any(|t| t.flags == 0));
+    let t = next.iter().find(|t| t.flags == 0).unwrap();
+    assert_eq!((t.rpm, t.egt_c), (61_250.0, 612.5), "the late reply was taken for a fresh reading: {t:?}");
+    assert_eq!(poller.shared().late_replies, 1, "{:?}", poller.shared());
+}

@@ -490,13 +490,51 @@ pub struct EcuSection {
     pub port: Option<String>,
     /// Baud rate (8N1).
     pub baud: u32,
-    /// Polls per second; one poll and its reply take about 45 ms at 9600 baud.
+    /// Polls per second; one poll and its reply take about 52 ms at 9600 baud.
+    /// On a real line ([`EcuSection::port`] set) the rate must fit the baud rate
+    /// ([`jetbench_io::serial::EcuLineBudget`]): at 9600 baud, at most 13 Hz.
     pub poll_hz: f64,
 }
 
 impl Default for EcuSection {
     fn default() -> Self {
-        EcuSection { port: None, baud: 9600, poll_hz: 15.0 }
+        EcuSection { port: None, baud: 9600, poll_hz: 10.0 }
+    }
+}
+
+impl EcuSection {
+    /// On a real serial line: refuses a poll rate whose replies do not fit the
+    /// baud rate (polls answered after their window would be recorded stale),
+    /// naming the fastest rate that fits. A pseudo-terminal has no baud rate,
+    /// so the simulated bench's link is not checked.
+    pub fn check_line(&self) -> Result<(), String> {
+        use jetbench_io::serial::EcuLineBudget;
+        let budget = EcuLineBudget::new(self.baud, self.poll_hz);
+        if budget.fits() {
+            return Ok(());
+        }
+        // The fastest rate in 10..50, in steps of 0.5 Hz, that fits.
+        let fastest =
+            (20..=100).rev().map(|half| f64::from(half) / 2.0).find(|&hz| EcuLineBudget::new(self.baud, hz).fits());
+        let why = if budget.rx_share >= 1.0 {
+            format!("the replies need {:.0} % of the line and fall behind", budget.rx_share * 100.0)
+        } else {
+            format!(
+                "the poll after each battery read is answered after {:.0} ms, past its {:.0} ms window (the line {:.0} % busy)",
+                budget.reply_after_fuel_s * 1e3,
+                budget.answer_window_s * 1e3,
+                budget.rx_share * 100.0
+            )
+        };
+        let advice = match fastest {
+            Some(hz) => format!("poll at {hz} Hz or less, or raise the ECU's baud rate"),
+            None => "raise the ECU's baud rate".into(),
+        };
+        Err(format!(
+            "[ecu] poll_hz = {} does not fit a {}-baud line: {why}, so readings would be recorded stale; {advice} \
+             (docs/bench/RUN.md, \"How fast to poll the ECU\")",
+            self.poll_hz, self.baud
+        ))
     }
 }
 
@@ -764,6 +802,9 @@ impl BenchConfig {
         if !(self.ecu.poll_hz.is_finite() && (10.0..=50.0).contains(&self.ecu.poll_hz)) {
             return Err(invalid(format!("[ecu] poll_hz = {} must be within 10..50", self.ecu.poll_hz)));
         }
+        if self.ecu.port.is_some() {
+            self.ecu.check_line().map_err(invalid)?;
+        }
         self.sensor.validate(self.bench.devices).map_err(invalid)?;
         let engine = &self.engine;
         if engine.start == EngineStart::Running && self.bench.devices != Devices::Sim {
@@ -1008,7 +1049,16 @@ mod tests {
         let c = BenchConfig::load(&path).unwrap();
         assert_eq!(c.bench.devices, Devices::Bench);
         assert_eq!((c.board_port(), c.actuation.board_baud), (PathBuf::from("/dev/ttyUSB0"), 115_200));
-        assert_eq!((c.ecu_port(), c.ecu.baud, c.ecu.poll_hz), (PathBuf::from("/dev/ttyUSB1"), 9600, 15.0));
+        assert_eq!((c.ecu_port(), c.ecu.baud, c.ecu.poll_hz), (PathBuf::from("/dev/ttyUSB1"), 9600, 10.0));
+        // Real-time at the bench, with the built-in priorities and cores.
+        assert_eq!(c.rt, RtSection { enabled: true, ..RtSection::default() });
+        // 15 Hz does not fit 9600 baud on a real line: refused, with the rate that does.
+        let text = std::fs::read_to_string(&path).unwrap().replace("poll_hz = 10.0", "poll_hz = 15.0");
+        let e = BenchConfig::from_toml_str(&text, "t.toml", None).unwrap_err().to_string();
+        assert!(e.contains("poll_hz = 15") && e.contains("9600-baud") && e.contains("poll at 13 Hz or less"), "{e}");
+        // A faster line takes it.
+        let fast = text.replace("baud = 9600", "baud = 57600");
+        assert_eq!(BenchConfig::from_toml_str(&fast, "t.toml", None).unwrap().ecu.poll_hz, 15.0);
         let text = std::fs::read_to_string(&path).unwrap().replace("port = \"/dev/ttyUSB1\"", "");
         let e = BenchConfig::from_toml_str(&text, "t.toml", None).unwrap_err().to_string();
         assert!(e.contains("[ecu] port"), "{e}");

@@ -146,14 +146,15 @@ impl Service for ActuationService {
         let c = self.board.counters();
         tracing::info!(
             "throttle board: {} acknowledged frames, {} rejected from the board ({} CRC, {} truncated), {} late \
-             acks, opened {} times; ECU: {:?}",
+             acks, opened {} times; ECU: {:?}, {} late replies dropped",
             c.frames,
             c.rejected(),
             c.crc_errors,
             c.truncated,
             self.board.late_acks(),
             self.board.opens(),
-            self.ecu.shared().counters
+            self.ecu.shared().counters,
+            self.ecu.shared().late_replies
         );
         Ok(())
     }
