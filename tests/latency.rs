@@ -174,6 +174,15 @@ fn latency_under_cpu_load_with_rt_measures_every_cycle() {
     let expected_ratio = room["e2e_us"]["p99"].as_f64().unwrap() / report["e2e_us"]["p99"].as_f64().unwrap();
     assert!((ratio - expected_ratio).abs() < 1e-9, "p99 ratio {ratio}, from the figures {expected_ratio}");
     assert!(room["deadline_misses"].as_u64().is_some(), "{room}");
+    // And the same rounds with the control room only watching: the commands' cost alone.
+    percentiles_ok(room, "watching_e2e_us");
+    assert!(room["watching_deadline_misses"].as_u64().is_some(), "{room}");
+    let commands_ratio = room["commands_e2e_p99_ratio"].as_f64().expect("commands_e2e_p99_ratio");
+    let expected_ratio = room["e2e_us"]["p99"].as_f64().unwrap() / room["watching_e2e_us"]["p99"].as_f64().unwrap();
+    assert!(
+        (commands_ratio - expected_ratio).abs() < 1e-9,
+        "commands' p99 ratio {commands_ratio}, from the figures {expected_ratio}"
+    );
     // SAFETY: geteuid has no preconditions.
     if unsafe { libc::geteuid() } == 0 {
         assert_eq!(room["lost"].as_u64(), Some(0), "samples lost with the control room attached: {room}");

@@ -155,8 +155,12 @@ pub trait Progress {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Measurement {
     Pipeline(Transport),
-    /// The iceoryx2 set with the viewer, the bridge and their clients.
-    ControlRoom,
+    /// The iceoryx2 set with the viewer, the bridge and their clients, and
+    /// with or without the operator who `commands` (the difference is what
+    /// the commands cost; the set without any of it is what watching costs).
+    ControlRoom {
+        commands: bool,
+    },
     Floor,
 }
 
@@ -166,7 +170,7 @@ impl Measurement {
     fn order(round: u32, control_room: bool) -> Vec<Measurement> {
         let mut order = vec![Measurement::Pipeline(Transport::Iceoryx2)];
         if control_room {
-            order.push(Measurement::ControlRoom);
+            order.extend([Measurement::ControlRoom { commands: false }, Measurement::ControlRoom { commands: true }]);
         }
         order.extend([Measurement::Pipeline(Transport::UnixSockets), Measurement::Floor]);
         if !round.is_multiple_of(2) {
@@ -179,7 +183,8 @@ impl Measurement {
         match self {
             Measurement::Pipeline(Transport::Iceoryx2) => "service set over iceoryx2",
             Measurement::Pipeline(Transport::UnixSockets) => "service set over Unix sockets",
-            Measurement::ControlRoom => "iceoryx2 set, control room attached",
+            Measurement::ControlRoom { commands: false } => "iceoryx2 set, control room watching",
+            Measurement::ControlRoom { commands: true } => "iceoryx2 set, control room watching and commanding",
             Measurement::Floor => "floor: eventfd ping chain",
         }
     }
@@ -373,15 +378,16 @@ impl Room {
         vec!["--foxglove".into(), self.foxglove.to_string(), "--zenoh".into(), self.zenoh.clone()]
     }
 
-    /// The clients, connecting as soon as the services are up, on `cpus`.
-    fn attach(&self, cpus: Vec<usize>) -> ControlRoom {
+    /// The clients, connecting as soon as the services are up, on `cpus`;
+    /// the operator among them when `commands`.
+    fn attach(&self, cpus: Vec<usize>, commands: bool) -> ControlRoom {
         let endpoint = self.zenoh.parse().expect("a tcp/HOST:PORT endpoint made here");
         ControlRoom::attach(
             self.foxglove,
             endpoint,
             jetbench_bus::namespace_name().unwrap_or_else(|_| "default".into()),
             cpus,
-            Some(self.commanding.clone()),
+            commands.then(|| self.commanding.clone()),
         )
     }
 }
@@ -399,12 +405,22 @@ fn count_recorded_commands(recording: &Recording, report: &mut CommandReport) {
     report.deadman_events = events.iter().filter(|e| e.kind == event_kinds::DEADMAN).count() as u64;
 }
 
-/// What watching the bench cost the loop: the iceoryx2 set with the control
-/// room attached against the same set without it, from the same rounds.
+/// What the control room cost the loop: the iceoryx2 set with the control
+/// room attached and commanding, against the same set with the control room
+/// only watching (what the commands cost) and without it (what the whole
+/// control room costs), from the same rounds.
 #[derive(Serialize)]
 pub struct ControlRoomCost {
-    /// End-to-end latency with the control room attached, µs.
+    /// End-to-end latency with the control room attached and commanding, µs.
     pub e2e_us: Percentiles,
+    /// End-to-end latency with the control room attached, watching only, µs.
+    pub watching_e2e_us: Percentiles,
+    /// Deadline misses with the control room watching only.
+    pub watching_deadline_misses: u64,
+    /// p99 commanding / p99 watching: what the operator's commands cost.
+    pub commands_e2e_p99_ratio: f64,
+    /// p50 commanding / p50 watching.
+    pub commands_e2e_p50_ratio: f64,
     /// Sensor cycles judged with it attached.
     pub cycles: u64,
     /// Deadline misses with it attached.
@@ -430,11 +446,21 @@ pub struct ControlRoomCost {
 }
 
 impl ControlRoomCost {
-    fn of(watched: &PipelineAnalysis, plain: &PipelineAnalysis, clients: &[ControlRoomReport]) -> Self {
+    fn of(
+        watched: &PipelineAnalysis,
+        watching: &PipelineAnalysis,
+        plain: &PipelineAnalysis,
+        clients: &[ControlRoomReport],
+    ) -> Self {
         let (with, without) = (watched.e2e.percentiles(), plain.e2e.percentiles());
+        let looking = watching.e2e.percentiles();
         let per_1000 = |p: &PipelineAnalysis| 1000.0 * p.deadline_misses() as f64 / p.cycles.max(1) as f64;
         ControlRoomCost {
             e2e_us: with,
+            watching_e2e_us: looking,
+            watching_deadline_misses: watching.deadline_misses(),
+            commands_e2e_p99_ratio: ratio(with.p99, looking.p99),
+            commands_e2e_p50_ratio: ratio(with.p50, looking.p50),
             cycles: watched.cycles,
             deadline_misses: watched.deadline_misses(),
             deadline_misses_without: plain.deadline_misses(),
@@ -515,6 +541,7 @@ pub fn run_campaign(options: &CampaignOptions, progress: &mut dyn Progress) -> R
     let (mut iceoryx2, mut uds, mut floor) =
         (PipelineAnalysis::default(), PipelineAnalysis::default(), FloorResult::default());
     let mut watched = options.control_room.then(|| (PipelineAnalysis::default(), Vec::new()));
+    let mut watching = PipelineAnalysis::default();
     // The control room's operator: certificates made for this run, and the
     // run's config with an `[operator]` section that trusts them.
     let pki = if options.control_room {
@@ -531,16 +558,17 @@ pub fn run_campaign(options: &CampaignOptions, progress: &mut dyn Progress) -> R
                     continue;
                 }
                 Measurement::Pipeline(transport) => (transport, transport.name()),
-                Measurement::ControlRoom => (Transport::Iceoryx2, "control-room"),
+                Measurement::ControlRoom { commands: false } => (Transport::Iceoryx2, "control-room-watching"),
+                Measurement::ControlRoom { commands: true } => (Transport::Iceoryx2, "control-room"),
             };
             let path = work.join(format!("{name}-{}.mcap", round + 1));
             let clients = match (measurement, &pki) {
-                (Measurement::ControlRoom, Some(pki)) => {
-                    let room = Room::new(&config, pki, &work.join(format!("control-room-{}.toml", round + 1)))?;
+                (Measurement::ControlRoom { commands }, Some(pki)) => {
+                    let room = Room::new(&config, pki, &work.join(format!("{name}-{}.toml", round + 1)))?;
                     let args = room.up_args();
                     // Under --rt, the clients (another computer) where the viewer runs.
                     let cpus = if options.rt { config.rt.cpus.viewer.clone().unwrap_or_default() } else { Vec::new() };
-                    let attached = room.attach(cpus);
+                    let attached = room.attach(cpus, commands);
                     let ran =
                         run_pipeline(options, &path, transport, segment_s, &what, &args, Some(&room.config), progress);
                     let clients = attached.finish();
@@ -571,7 +599,8 @@ pub fn run_campaign(options: &CampaignOptions, progress: &mut dyn Progress) -> R
                 return Err(CampaignError::NoCycle { transport, path });
             }
             match (measurement, watched.as_mut(), clients) {
-                (Measurement::ControlRoom, Some((total, reports)), Some(mut clients)) => {
+                (Measurement::ControlRoom { commands: false }, ..) => watching.merge(&analysis),
+                (Measurement::ControlRoom { commands: true }, Some((total, reports)), Some(mut clients)) => {
                     total.merge(&analysis);
                     count_recorded_commands(&recording, &mut clients.commands);
                     reports.push(clients);
@@ -607,7 +636,8 @@ pub fn run_campaign(options: &CampaignOptions, progress: &mut dyn Progress) -> R
     }
     let mut report =
         build_report(options, load_description, rt_refused, &iceoryx2, &uds, &floor, steal_ms, misses_during_steal);
-    report.control_room = watched.as_ref().map(|(pipeline, clients)| ControlRoomCost::of(pipeline, &iceoryx2, clients));
+    report.control_room =
+        watched.as_ref().map(|(pipeline, clients)| ControlRoomCost::of(pipeline, &watching, &iceoryx2, clients));
     Ok(Campaign { report, iceoryx2, uds, floor, control_room: watched.map(|(pipeline, _)| pipeline) })
 }
 
@@ -810,7 +840,8 @@ impl fmt::Display for Report {
         }
         writeln!(f, "  sensing period jitter                  {}", r.period_jitter_us.row())?;
         if let Some(room) = &r.control_room {
-            writeln!(f, "same set, control room attached         {}", room.e2e_us.row())?;
+            writeln!(f, "same set, control room watching         {}", room.watching_e2e_us.row())?;
+            writeln!(f, "same set, control room commanding       {}", room.e2e_us.row())?;
         }
         writeln!(f, "same service set over Unix sockets      {}", r.uds_us.row())?;
         for (name, p) in &r.uds.hops_us {
@@ -894,8 +925,19 @@ impl fmt::Display for Report {
             )?;
             writeln!(
                 f,
-                "  what it cost the loop: e2e p99 {:.1} µs with it, {:.1} µs without (x{:.2}; p50 x{:.2}); \
-                 deadline misses {} with it, {} without ({:.2} and {:.2} per 1000 cycles)",
+                "  what the commands cost the loop: e2e p99 {:.1} µs commanding, {:.1} µs only watching (x{:.2}; \
+                 p50 x{:.2}); deadline misses {} commanding, {} only watching",
+                room.e2e_us.p99,
+                room.watching_e2e_us.p99,
+                room.commands_e2e_p99_ratio,
+                room.commands_e2e_p50_ratio,
+                room.deadline_misses,
+                room.watching_deadline_misses,
+            )?;
+            writeln!(
+                f,
+                "  what the whole control room cost the loop: e2e p99 {:.1} µs with it, {:.1} µs without (x{:.2}; \
+                 p50 x{:.2}); deadline misses {} with it, {} without ({:.2} and {:.2} per 1000 cycles)",
                 room.e2e_us.p99,
                 room.e2e_p99_us_without,
                 room.e2e_p99_ratio,
@@ -926,9 +968,12 @@ mod tests {
         assert_eq!(Measurement::order(0, false)[0], Measurement::Pipeline(Transport::Iceoryx2));
         assert_eq!(Measurement::order(1, false)[0], Measurement::Floor);
         assert_eq!(Measurement::order(1, false)[2], Measurement::Pipeline(Transport::Iceoryx2));
-        // The control room right after the plain iceoryx2 set (before it in odd rounds).
-        assert_eq!(Measurement::order(0, true)[1], Measurement::ControlRoom);
-        assert_eq!(Measurement::order(1, true)[2], Measurement::ControlRoom);
+        // The control room right after the plain iceoryx2 set (before it in odd
+        // rounds), watching, then commanding.
+        let (watching, commanding) =
+            (Measurement::ControlRoom { commands: false }, Measurement::ControlRoom { commands: true });
+        assert_eq!(Measurement::order(0, true)[1..3], [watching, commanding]);
+        assert_eq!(Measurement::order(1, true)[2..4], [commanding, watching]);
     }
 
     #[test]

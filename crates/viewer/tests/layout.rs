@@ -59,6 +59,24 @@ fn every_path_of_the_bench_layout_names_a_real_topic_and_field() {
             assert!(fields.contains(&name), "{p}: {topic} has no field {name}; it has {fields:?}");
         }
     }
+    // The control room's buttons call services the viewer offers to anyone: a
+    // view without the operator's token shows no button that cannot work, and
+    // the two stops are there.
+    let safe: Vec<String> = jetbench_viewer::operator::SAFE_SERVICES
+        .iter()
+        .map(|(n, _)| jetbench_viewer::operator::service_name(n))
+        .collect();
+    let buttons: Vec<&str> = panels
+        .iter()
+        .filter(|(id, _)| id.starts_with("CallService!"))
+        .map(|(id, p)| p["serviceName"].as_str().unwrap_or_else(|| panic!("{id} calls no service")))
+        .collect();
+    for service in &buttons {
+        assert!(safe.iter().any(|s| s == service), "{service} is not offered to everyone; the safe ones are {safe:?}");
+    }
+    for stop in ["jetbench/stop", "jetbench/estop"] {
+        assert!(buttons.contains(&stop), "no {stop} button in {buttons:?}");
+    }
     // Every panel the arrangement shows is configured.
     let shown = layout["layout"].to_string();
     for id in panels.keys() {

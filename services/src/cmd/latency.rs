@@ -50,7 +50,10 @@ pub struct LatencyArgs {
     /// never read, and disconnect mid-stream, a Zenoh subscriber of every channel,
     /// and an operator who takes control over Zenoh with TLS and sends a heartbeat
     /// every 100 ms (an [operator] section and certificates made for the run, with
-    /// openssl). Reports both end-to-end p99s, their ratio and the deadline misses.
+    /// openssl); and the same without the operator (only watching), in the same
+    /// rounds. Reports the three end-to-end p99s, what the commands cost (commanding
+    /// against watching), what the whole control room costs (against the bare set)
+    /// and the deadline misses of each.
     #[arg(long)]
     control_room: bool,
 }
