@@ -377,86 +377,15 @@ impl TestPki {
     /// Makes `ca.crt`, `bench.{crt,key}`, `<name>.{crt,key}` for each of `clients` (signed by
     /// the CA) and `untrusted.{crt,key}` (CN `untrusted_cn`, signed by `rogue-ca.crt`) in `dir`.
     pub fn make(dir: &Path, bench_ip: &str, clients: &[&str], untrusted_cn: &str) -> TestPki {
-        std::fs::create_dir_all(dir).unwrap();
-        let openssl = |args: &[&str]| {
-            let out = Command::new("openssl").current_dir(dir).args(args).output().expect("run openssl");
-            assert!(out.status.success(), "openssl {}:\n{}", args.join(" "), String::from_utf8_lossy(&out.stderr));
-        };
-        let ca = |name: &str| {
-            let (key, crt, subject) =
-                (format!("{name}.key"), format!("{name}.crt"), format!("/CN=jetbench test {name}"));
-            openssl(&[
-                "req",
-                "-x509",
-                "-newkey",
-                "ec",
-                "-pkeyopt",
-                "ec_paramgen_curve:prime256v1",
-                "-nodes",
-                "-keyout",
-                &key,
-                "-out",
-                &crt,
-                "-days",
-                "2",
-                "-subj",
-                &subject,
-                "-addext",
-                "basicConstraints=critical,CA:TRUE",
-                "-addext",
-                "keyUsage=critical,keyCertSign,cRLSign",
-            ]);
-        };
-        ca("ca");
-        ca("rogue-ca");
-        let leaf = |file: &str, cn: &str, ca: &str, san: &str| {
-            let ext = format!("{file}.ext");
-            std::fs::write(
-                dir.join(&ext),
-                format!(
-                    "basicConstraints=CA:FALSE\nkeyUsage=critical,digitalSignature\n\
-                     extendedKeyUsage=serverAuth,clientAuth\nsubjectAltName={san}\n"
-                ),
-            )
-            .unwrap();
-            let (key, csr, crt) = (format!("{file}.key"), format!("{file}.csr"), format!("{file}.crt"));
-            openssl(&[
-                "req",
-                "-newkey",
-                "ec",
-                "-pkeyopt",
-                "ec_paramgen_curve:prime256v1",
-                "-nodes",
-                "-keyout",
-                &key,
-                "-out",
-                &csr,
-                "-subj",
-                &format!("/CN={cn}"),
-            ]);
-            openssl(&[
-                "x509",
-                "-req",
-                "-in",
-                &csr,
-                "-CA",
-                &format!("{ca}.crt"),
-                "-CAkey",
-                &format!("{ca}.key"),
-                "-CAcreateserial",
-                "-out",
-                &crt,
-                "-days",
-                "2",
-                "-extfile",
-                &ext,
-            ]);
-        };
-        leaf("bench", "bench", "ca", &format!("IP:{bench_ip},IP:127.0.0.1,DNS:localhost"));
+        let openssl = jetbench_latency::pki::Openssl::in_dir(dir).unwrap();
+        let done = |step: Result<(), String>| step.unwrap_or_else(|e| panic!("{e}"));
+        done(openssl.ca("ca", "jetbench test ca"));
+        done(openssl.ca("rogue-ca", "jetbench test rogue-ca"));
+        done(openssl.leaf("bench", "bench", "ca", &format!("IP:{bench_ip},IP:127.0.0.1,DNS:localhost")));
         for name in clients {
-            leaf(name, name, "ca", &format!("DNS:{name}"));
+            done(openssl.leaf(name, name, "ca", &format!("DNS:{name}")));
         }
-        leaf("untrusted", untrusted_cn, "rogue-ca", &format!("DNS:{untrusted_cn}"));
+        done(openssl.leaf("untrusted", untrusted_cn, "rogue-ca", &format!("DNS:{untrusted_cn}")));
         TestPki { dir: dir.to_path_buf() }
     }
 

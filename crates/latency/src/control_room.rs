@@ -113,73 +113,10 @@ impl RoomPki {
     /// Makes the CA and the two certificates in `dir` (created if missing). Needs the
     /// `openssl` command; the error says what failed.
     pub fn make(dir: &std::path::Path) -> Result<RoomPki, String> {
-        std::fs::create_dir_all(dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
-        let openssl = |args: &[&str]| -> Result<(), String> {
-            let out = std::process::Command::new("openssl")
-                .current_dir(dir)
-                .args(args)
-                .output()
-                .map_err(|e| format!("cannot run openssl (install it, e.g. apt-get install openssl): {e}"))?;
-            if out.status.success() {
-                Ok(())
-            } else {
-                Err(format!("openssl {} failed: {}", args.join(" "), String::from_utf8_lossy(&out.stderr).trim()))
-            }
-        };
-        let ec = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"];
-        let mut ca = vec!["req", "-x509"];
-        ca.extend(ec);
-        ca.extend([
-            "-keyout",
-            "ca.key",
-            "-out",
-            "ca.crt",
-            "-days",
-            "2",
-            "-subj",
-            "/CN=jetbench latency control-room CA",
-            "-addext",
-            "basicConstraints=critical,CA:TRUE",
-            "-addext",
-            "keyUsage=critical,keyCertSign,cRLSign",
-        ]);
-        openssl(&ca)?;
-        for (name, cn, san) in [("bench", "bench", "IP:127.0.0.1"), ("operator", OPERATOR, "DNS:control-room")] {
-            let ext = format!(
-                "basicConstraints=CA:FALSE\nkeyUsage=critical,digitalSignature\n\
-                 extendedKeyUsage=serverAuth,clientAuth\nsubjectAltName={san}\n"
-            );
-            std::fs::write(dir.join(format!("{name}.ext")), ext)
-                .map_err(|e| format!("cannot write {name}.ext: {e}"))?;
-            let (key, csr, crt, ext, subject) = (
-                format!("{name}.key"),
-                format!("{name}.csr"),
-                format!("{name}.crt"),
-                format!("{name}.ext"),
-                format!("/CN={cn}"),
-            );
-            let mut req = vec!["req"];
-            req.extend(ec);
-            req.extend(["-keyout", &key, "-out", &csr, "-subj", &subject]);
-            openssl(&req)?;
-            openssl(&[
-                "x509",
-                "-req",
-                "-in",
-                &csr,
-                "-CA",
-                "ca.crt",
-                "-CAkey",
-                "ca.key",
-                "-CAcreateserial",
-                "-days",
-                "2",
-                "-out",
-                &crt,
-                "-extfile",
-                &ext,
-            ])?;
-        }
+        let openssl = crate::pki::Openssl::in_dir(dir)?;
+        openssl.ca("ca", "jetbench latency control-room CA")?;
+        openssl.leaf("bench", "bench", "ca", "IP:127.0.0.1")?;
+        openssl.leaf("operator", OPERATOR, "ca", "DNS:control-room")?;
         Ok(RoomPki {
             ca: dir.join("ca.crt"),
             bench: (dir.join("bench.crt"), dir.join("bench.key")),

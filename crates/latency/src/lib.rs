@@ -9,7 +9,8 @@
 //!   processes at the services' real-time settings;
 //! - [`load`]: the background load (stress-ng, or a built-in generator);
 //! - [`control_room`]: the Foxglove and Zenoh clients attached to a run, to
-//!   measure what watching the bench costs the loop;
+//!   measure what watching and commanding the bench cost the loop;
+//! - [`pki`]: the control room's certificates, made with `openssl`;
 //! - [`steal`]: the hypervisor's steal, sampled while measuring.
 //!
 //! ```no_run
@@ -31,4 +32,5 @@ pub mod chain;
 pub mod control_room;
 pub mod load;
 pub mod pipeline;
+pub mod pki;
 pub mod steal;
