@@ -16,7 +16,7 @@ duration=${2:-56}
 jb="$root/target/release/jetbench"
 work="$root/target/turbojet-closed-loop"
 rm -rf "$work" && mkdir -p "$work"
-export JETBENCH_NAMESPACE="tjloop$$"
+export JETBENCH_BUS="tjloop$$"  # a bus namespace of its own (crates/bus/README.md)
 
 # The identification campaign (300 s, the P100 bench's sensor noise) and its model.
 "$jb" sim-record --plant turbojet-p100 --seed "$seed" --duration 300 --out "$work/campaign.csv" >&2
