@@ -203,29 +203,23 @@ fn the_bench_runs_the_turbojet_plant_and_its_ecu_reports_the_spool() {
     assert!(top > 0.97 * tj.rpm_max, "the ECU reports the spool at full speed: {top:.0} rpm");
 }
 
+/// `sim-record --plant PLANT` of 60 s (seed 4) without measurement noise into `out`; its
+/// standard output.
+fn sim_record_noiseless(plant: &str, out: &Path) -> String {
+    let out = out.to_str().unwrap();
+    let args = ["--duration", "60", "--seed", "4", "--noise-var", "0", "--out", out];
+    let (code, stdout, err) = run(&[&["sim-record", "--plant", plant][..], &args].concat(), Duration::from_secs(60));
+    assert_eq!(code, 0, "{err}");
+    stdout
+}
+
 /// `sim-record --plant turbojet-p100` writes the turbojet's run; a plant file with a
 /// `[turbojet]` table and effects works the same; a discrepancy is refused.
 #[test]
 fn sim_record_writes_the_turbojet_plant() {
     let p = |x: &PathBuf| x.to_str().unwrap().to_owned();
     let out = scratch("turbojet-sim.csv");
-    let (code, stdout, err) = run(
-        &[
-            "sim-record",
-            "--plant",
-            "turbojet-p100",
-            "--duration",
-            "60",
-            "--seed",
-            "4",
-            "--noise-var",
-            "0",
-            "--out",
-            &p(&out),
-        ],
-        Duration::from_secs(60),
-    );
-    assert_eq!(code, 0, "{err}");
+    let stdout = sim_record_noiseless("turbojet-p100", &out);
     assert!(stdout.contains("6000 samples of turbojet-p100"), "{stdout}");
     let series = jetbench_record::series::Series::load(&out, true).unwrap();
     let tj = jetbench_model::turbojet::TurbojetParams::p100();
@@ -238,23 +232,7 @@ fn sim_record_writes_the_turbojet_plant() {
     let file = scratch("plant.toml");
     std::fs::write(&file, "[turbojet]\nbase = \"p100\"\n\n[effects.input_delay]\ndelay_s = 0.08\n").unwrap();
     let delayed = scratch("turbojet-delayed.csv");
-    let (code, stdout, err) = run(
-        &[
-            "sim-record",
-            "--plant",
-            &p(&file),
-            "--duration",
-            "60",
-            "--seed",
-            "4",
-            "--noise-var",
-            "0",
-            "--out",
-            &p(&delayed),
-        ],
-        Duration::from_secs(60),
-    );
-    assert_eq!(code, 0, "{err}");
+    let stdout = sim_record_noiseless(&p(&file), &delayed);
     assert!(stdout.contains("input_delay"), "{stdout}");
     let later = jetbench_record::series::Series::load(&delayed, true).unwrap();
     for k in 0..later.len() - 8 {

@@ -762,7 +762,6 @@ mod tests {
     }
 
     #[test]
-    #[ignore = "fails on its first run: the 0.3 s actuator lag's check (row 130 below nominal by 5 N, row 799 within 0.05 N) does not hold; to be examined before the turbojet plant is relied on"]
     fn the_catalogue_applies_to_a_turbojet_plant() {
         let u = step_input();
         let nominal = turbojet_run(&[], &u);
@@ -770,14 +769,63 @@ mod tests {
         for k in 0..u.len() - 8 {
             assert!((delayed[k + 8] - nominal[k]).abs() < 1e-9, "row {k}: {} vs {}", delayed[k + 8], nominal[k]);
         }
+        // The lag acts on the throttle the turbojet's governor reads, as on the polynomial
+        // plant's: the plant is the bare turbojet fed, tick by tick, the lagged command.
         let lagged = turbojet_run(&["actuator_lag:time_constant_s=0.3"], &u);
-        assert!(lagged[130] < nominal[130] - 5.0 && (lagged[799] - nominal[799]).abs() < 0.05);
+        let mut engine = Turbojet::at_rest(TurbojetParams::p100(), u[0]);
+        let (alpha, mut followed) = (1.0 - (-0.001f64 / 0.3).exp(), u[0]);
+        for (k, &uk) in u.iter().enumerate().take(u.len() - 1) {
+            for _ in 0..SUBSTEPS {
+                followed += (uk - followed) * alpha;
+                engine.substep(followed, STEP_S / SUBSTEPS as f64);
+            }
+            assert!((engine.sample().thrust_n - lagged[k + 1]).abs() < 1e-9, "row {k}");
+        }
+        // A full step's rise is paced by the fuel schedule, not by the throttle, so a lag
+        // shorter than the spool's acceleration barely shows there (0.03 N at 0.3 s): it
+        // shows on the way down and inside the governor's range, and settles on the same
+        // thrust. (The polynomial plant's lag check, 5 N at 0.3 s into the rise, does not
+        // transfer: that engine has no schedule.)
+        assert!(lagged[820] > nominal[820] + 5.0, "falling: {} vs {}", lagged[820], nominal[820]);
+        assert!((lagged[799] - nominal[799]).abs() < 0.05 && (lagged[1599] - nominal[1599]).abs() < 0.05);
+        let small: Vec<f64> = (0..600).map(|k| if k < 100 { 60.0 } else { 66.0 }).collect();
+        let (nominal_small, lagged_small) =
+            (turbojet_run(&[], &small), turbojet_run(&["actuator_lag:time_constant_s=0.3"], &small));
+        let rise = |y: &[f64]| (y[130] - y[99]) / (y[599] - y[99]);
+        // The spool settles a 6 % step within 0.3 s, so the lagged engine follows the lag's
+        // own step response, 1 − e⁻¹ of the way at one time constant.
+        let (fast, slow) = (rise(&nominal_small), rise(&lagged_small));
+        assert!(fast > 0.95 && (slow - (1.0 - (-1.0f64).exp())).abs() < 0.1, "a small step lags: {fast} vs {slow}");
+        assert!((nominal_small[599] - lagged_small[599]).abs() < 0.05);
+        // Bearing friction: the stand's frame stays within the play of the thrust and moves
+        // only when the thrust pushes it, so it trails a rise by the band and a fall from
+        // above. The governor overshoots a full step by a few tenths of a newton: the frame
+        // stays where the overshoot's peak pushed it.
         let friction = turbojet_run(&["bearing_friction:force_n=2"], &u);
-        assert!((friction[300] - nominal[300] + 2.0).abs() < 1e-9, "rising: trails by the band");
-        assert!((friction[1200] - nominal[1200] - 2.0).abs() < 1e-9, "falling: trails from above");
-        let sag = turbojet_run(&["gain_drift:per_minute=0.05"], &vec![60.0; 12_000]);
-        let rest = TurbojetParams::p100().rest_thrust_n(60.0);
-        assert!(sag[6000] < rest - 1.0, "the speed sags until the governor's integral catches up: {}", sag[6000]);
+        for (k, (f, n)) in friction.iter().zip(&nominal).enumerate() {
+            assert!((f - n).abs() <= 2.0 + 1e-9, "row {k}: {f} outside the play of {n}");
+        }
+        assert!((friction[150] - nominal[150] + 2.0).abs() < 1e-9, "rising: trails by the band");
+        assert!((friction[820] - nominal[820] - 2.0).abs() < 1e-9, "falling: trails from above");
+        let peak = nominal[100..800].iter().copied().fold(f64::MIN, f64::max);
+        assert!(peak > nominal[799] && friction[700] >= peak - 2.0 - 1e-9, "held by the overshoot's peak {peak}");
+        // A gain drift sags the combustion efficiency. The governor holds the spool's speed,
+        // so the thrust stays where it was (its integral follows a drift this slow), and the
+        // lost efficiency shows as more fuel and a hotter exhaust for the same speed, as on a
+        // wearing engine: after a minute at 5 %/min, fuel up by 1/0.95 and the exhaust by
+        // egt_overfuel_c·(1/0.95 − 1) ≈ 26 °C.
+        let params = TurbojetParams::p100();
+        let sagging = Plant::with_turbojet(params, with(&["gain_drift:per_minute=0.05"]));
+        let mut engine = sagging.at_equilibrium(60.0);
+        let start = engine.turbojet().expect("a turbojet");
+        for _ in 0..6000 {
+            engine.step(60.0).unwrap();
+        }
+        let after = engine.turbojet().expect("a turbojet");
+        let hotter = params.egt_overfuel_c * (1.0 / 0.95 - 1.0);
+        assert!((after.thrust_n - start.thrust_n).abs() < 0.05, "{start:?} → {after:?}");
+        assert!((after.fuel / start.fuel - 1.0 / 0.95).abs() < 0.005, "{start:?} → {after:?}");
+        assert!((after.egt_c - start.egt_c - hotter).abs() < 2.0, "{start:?} → {after:?}");
         let warm = turbojet_run(&["sensor_drift:gain=0.05,time_constant_s=5"], &vec![90.0; 6000]);
         assert!((warm[5999] - 1.05 * TurbojetParams::p100().rest_thrust_n(90.0)).abs() < 0.05);
         let plant = Plant::with_turbojet(TurbojetParams::p100(), with(&["discrepancy:map_below=1,knot_below_pct=45"]));
