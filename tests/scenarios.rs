@@ -120,17 +120,20 @@ fn judge(case: &Case, d: &Value) -> (Vec<String>, bool) {
             }
         }
     }
-    // "Nothing is missing" is a claim: where nothing is, the honest answers are `none` with
-    // every class of effect shown to be excluded, or `insufficient_data` naming a class this
-    // recording could not have shown (at the size that matters) and the experiment that would.
+    // "Nothing is missing" and "only the parameters are off" are claims: where nothing (or
+    // only the parameters) is off, the honest answers are that claim with every class of
+    // effect shown to be excluded (beside the refit, for `parameters`), or
+    // `insufficient_data` naming a class this recording could not have shown (at the size
+    // that matters) and the experiment that would.
     let probes = d["detectability"].as_array().cloned().unwrap_or_default();
     let not_shown = probes.iter().filter(|p| p["would_show"] == Value::Bool(false)).count();
-    let honest_not_shown = case.cause == "none" && d["cause"] == "insufficient_data" && not_shown > 0;
+    let honest_not_shown =
+        matches!(case.cause.as_str(), "none" | "parameters") && d["cause"] == "insufficient_data" && not_shown > 0;
     if d["cause"].as_str() != Some(case.cause.as_str()) && !honest_not_shown {
         problems.push(format!("cause {}, expected {}", d["cause"], case.cause));
     }
-    if d["cause"] == "none" && (probes.is_empty() || not_shown > 0) {
-        problems.push(format!("`none` claimed although {not_shown} class(es) could not have shown"));
+    if (d["cause"] == "none" || d["cause"] == "parameters") && (probes.is_empty() || not_shown > 0) {
+        problems.push(format!("{} claimed although {not_shown} class(es) could not have shown", d["cause"]));
     }
     if case.cause == "ambiguous"
         && d["rivals"].as_array().is_none_or(|r| r.len() < 2 || r[0]["weight"].as_f64().is_none())

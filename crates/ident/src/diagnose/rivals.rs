@@ -14,6 +14,7 @@ use std::collections::BTreeMap;
 use jetbench_model::{EffectKind, STEP_S};
 use serde::Serialize;
 
+use super::fit::Fit;
 use super::REFIT;
 
 /// Length of a resampled block, s: longer than the memory of any noise the bench shows.
@@ -49,6 +50,9 @@ pub(crate) struct Entry {
     pub mae_val_n: f64,
     /// Outside a physical range: evidence, never an explanation.
     pub unphysical: bool,
+    /// The fit itself, when the explanation is one the model can hold (a rival outside it,
+    /// such as throttle play or a periodic force, has none): what is claimed if it leads.
+    pub fit: Option<Fit>,
 }
 
 impl Entry {
@@ -90,13 +94,36 @@ pub struct Rival {
 /// The rivals, best first, and whether the search's explanation dominates them all.
 #[derive(Clone, Debug, Serialize)]
 pub struct Rivals {
+    /// The explanations in play, best weight first (at most six, the search's own always).
     pub rivals: Vec<Rival>,
     /// True when the search's explanation beats every rival of another kind in at least
     /// 95 % of resamples and by more than a tie.
     pub dominant: bool,
-    /// Held-out data and how much a claim needs, s.
+    /// Held-out data, s.
     pub held_out_s: f64,
+    /// Held-out data a claim needs, s ([`MIN_BLOCKS`] blocks of [`BLOCK_S`]).
     pub needed_s: f64,
+    /// When the search's explanation does not dominate: the one rival that does dominate
+    /// every other explanation (see [`leader`]), by its effects and refit.
+    #[serde(skip)]
+    pub(crate) leader: Option<(Vec<&'static str>, bool)>,
+}
+
+/// The rival that may be claimed in place of the search's explanation: the one, if any,
+/// that wins at least [`1 − RIVAL_WIN_SHARE`](RIVAL_WIN_SHARE) of the resamples (its
+/// weight), that no other explanation beats in [`RIVAL_WIN_SHARE`] of them or more, and
+/// whose held-out score is ahead of every other by more than a [`TIE`]: the same test the
+/// search's explanation must pass to be claimed, applied to each explanation in turn.
+/// `beats[k][j]` counts the resamples in which explanation `k` scores better than `j`,
+/// `wins[j]` those in which `j` scores best, out of `resamples`.
+pub(crate) fn leader(scores: &[f64], beats: &[Vec<usize>], wins: &[usize], resamples: usize) -> Option<usize> {
+    let share = |c: usize| c as f64 / resamples.max(1) as f64;
+    (0..scores.len()).find(|&j| {
+        share(wins[j]) >= 1.0 - RIVAL_WIN_SHARE
+            && (0..scores.len())
+                .filter(|&k| k != j)
+                .all(|k| share(beats[k][j]) < RIVAL_WIN_SHARE && scores[k] - scores[j] > TIE)
+    })
 }
 
 /// A small deterministic generator (SplitMix64): the same recording gets the same weights.
@@ -258,6 +285,7 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         .collect();
     let mut wins = vec![0usize; entries.len()];
     let mut beats = vec![0usize; entries.len()];
+    let mut pairwise = vec![vec![0usize; entries.len()]; entries.len()];
     let mut rng = Rng(0x5EE_D0FB_0075 ^ n as u64);
     let blocks = n.div_ceil(block).max(1);
     let starts = n.saturating_sub(block) + 1;
@@ -279,6 +307,11 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         for j in 0..scores.len() {
             if scores[j] < scores[ci] {
                 beats[j] += 1;
+            }
+            for k in 0..scores.len() {
+                if scores[j] < scores[k] {
+                    pairwise[j][k] += 1;
+                }
             }
         }
     }
@@ -309,6 +342,12 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         })
         .collect();
     let dominant = n >= MIN_BLOCKS * block && rivals.iter().all(|(j, r)| *j == ci || r.dominated);
+    let scores: Vec<f64> = entries.iter().map(|e| e.score).collect();
+    let leader = (n >= MIN_BLOCKS * block && !dominant)
+        .then(|| leader(&scores, &pairwise, &wins, RESAMPLES))
+        .flatten()
+        .filter(|&j| j != ci)
+        .map(|j| entries[j].label());
     rivals.sort_by(|a, b| b.1.weight.total_cmp(&a.1.weight).then(a.1.score_behind.total_cmp(&b.1.score_behind)));
     rivals.truncate(6);
     if !rivals.iter().any(|(j, _)| *j == ci) {
@@ -330,7 +369,7 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
             },
         ));
     }
-    Rivals { rivals: rivals.into_iter().map(|(_, r)| r).collect(), dominant, held_out_s, needed_s }
+    Rivals { rivals: rivals.into_iter().map(|(_, r)| r).collect(), dominant, held_out_s, needed_s, leader }
 }
 
 /// The entry of an explanation: its parts, innovations and score.
@@ -349,5 +388,71 @@ pub(crate) fn entry(
     let n = w2.len() as f64;
     let sse: f64 = w2.iter().sum();
     let score = n * (sse / n).ln() + free as f64 * n.ln() + prior;
-    Entry { effects: names, refit, w2, free, prior, score, mae_val_n: mae, unphysical }
+    Entry { effects: names, refit, w2, free, prior, score, mae_val_n: mae, unphysical, fit: None }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Held-out innovations of an explanation: unit noise from a fixed generator, scaled.
+    fn innovations(seed: u64, n: usize, scale: f64) -> Vec<f64> {
+        let mut rng = Rng(seed);
+        (0..n)
+            .map(|_| {
+                // A sum of uniforms: close enough to a normal draw for a score.
+                let u: f64 = (0..12).map(|_| (rng.next() >> 11) as f64 / (1u64 << 53) as f64).sum();
+                scale * (u - 6.0)
+            })
+            .collect()
+    }
+
+    fn explanation(effects: &[EffectKind], refit: bool, w: &[f64]) -> Entry {
+        entry(effects, refit, w, effects.len() + if refit { 10 } else { 0 }, 0.0, 1.0, false)
+    }
+
+    #[test]
+    fn a_rival_that_dominates_every_other_explanation_leads() {
+        let n = 6000; // 60 s held out
+        let noise = innovations(1, n, 1.0);
+        // The search's pick explains the data less well than a rival of another kind (1 %
+        // more innovation variance is about 60 score units here), and a third is worse still.
+        let chosen =
+            explanation(&[EffectKind::ActuatorLag], false, &noise.iter().map(|x| x * 1.01).collect::<Vec<_>>());
+        let best = explanation(&[EffectKind::InputDelay], false, &noise);
+        let third = explanation(&[], true, &noise.iter().map(|x| x * 1.02).collect::<Vec<_>>());
+        let w = weigh(&[best.clone(), third.clone()], &chosen);
+        assert!(!w.dominant, "the search's pick is beaten: it cannot be claimed");
+        assert_eq!(w.leader, Some((vec!["input_delay"], false)), "{:?}", w.rivals);
+        // Weighed as the claim, the leader dominates every rival.
+        let again = weigh(&[chosen.clone(), third], &best);
+        assert!(again.dominant && again.leader.is_none());
+    }
+
+    #[test]
+    fn no_rival_leads_when_two_explanations_tie() {
+        let n = 6000;
+        let noise = innovations(2, n, 1.0);
+        // Two explanations whose innovations differ sample by sample but not in size (the
+        // same values in reverse order): a tie, each wins about half the resamples.
+        let other: Vec<f64> = noise.iter().rev().copied().collect();
+        let chosen =
+            explanation(&[EffectKind::ActuatorLag], false, &noise.iter().map(|x| x * 1.01).collect::<Vec<_>>());
+        let a = explanation(&[EffectKind::InputDelay], false, &noise);
+        let b = explanation(&[EffectKind::SensorDrift], false, &other);
+        let w = weigh(&[a, b], &chosen);
+        assert!(!w.dominant);
+        assert_eq!(w.leader, None, "a tie leaves the cause ambiguous: {:?}", w.rivals);
+    }
+
+    #[test]
+    fn the_leader_rule_needs_the_weight_and_the_score() {
+        // Explanation 0 wins every resample but is within a tie of explanation 1 on score.
+        let beats = vec![vec![0, 400], vec![0, 0]];
+        assert_eq!(leader(&[0.0, 1.5], &beats, &[400, 0], 400), None);
+        assert_eq!(leader(&[0.0, 2.5], &beats, &[400, 0], 400), Some(0));
+        // Ahead on score, but another explanation beats it in 5 % of the resamples.
+        let beats = vec![vec![0, 380], vec![20, 0]];
+        assert_eq!(leader(&[0.0, 30.0], &beats, &[380, 20], 400), None);
+    }
 }
