@@ -65,7 +65,7 @@ def record(jetbench, suite, case):
                             str(noise_var(suite, case)), "--seed", str(case["seed"]), "--out", str(out)], check=True)
         return
     cmd = [jetbench, "sim-record", "--model", plant, "--seed", str(case["seed"]), "--duration",
-           str(suite["duration_s"]), "--noise-var", str(noise_var(suite, case)), "--out", str(out)]
+           str(case.get("duration_s", suite["duration_s"])), "--noise-var", str(noise_var(suite, case)), "--out", str(out)]
     for effect in case.get("effects", []):
         cmd += ["--effect", effect]
     if case.get("noise_ar"):
@@ -136,8 +136,16 @@ def judge(case, result):
     expected = set(truth) | ({"discrepancy"} if "outside" in case else set())
     found = {e["name"]: e["params"] for e in result["effects"]}
     problems = []
-    false_claim = bool(set(found) - expected)
-    if set(found) != expected:
+    # Only a claim can be false: `ambiguous`, `unexplained` and `insufficient_data` name what the
+    # search found without claiming it.
+    claimed = result.get("cause") in ("none", "parameters", "missing_physics")
+    false_claim = claimed and bool(set(found) - expected)
+    if expected_cause(case) == "ambiguous" and expected:
+        # Honestly ambiguous: the truth must be among the rivals, with its weight.
+        rivals = [set(r["effects"]) for r in result.get("rivals", []) if r.get("weight") is not None]
+        if expected not in rivals and not (claimed and set(found) == expected):
+            problems.append(f"the truth {sorted(expected)} is not among the rivals {[sorted(r) for r in rivals]}")
+    elif set(found) != expected:
         problems.append(f"found {sorted(found) or 'nothing'}, expected {sorted(expected) or 'nothing'}")
     for name, params in truth.items():
         for key, value in params.items():

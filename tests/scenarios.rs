@@ -107,8 +107,25 @@ fn judge(case: &Case, d: &Value) -> (Vec<String>, bool) {
         expected.sort();
     }
     let found_names: Vec<String> = found.keys().cloned().collect();
-    let false_claim = found_names.iter().any(|n| !expected.contains(n));
-    if expected != found_names {
+    // Only a claim can be false: `ambiguous`, `unexplained` and `insufficient_data` name
+    // what the search found without claiming it.
+    let claimed = matches!(d["cause"].as_str(), Some("none" | "parameters" | "missing_physics"));
+    let false_claim = claimed && found_names.iter().any(|n| !expected.contains(n));
+    if case.cause == "ambiguous" && !expected.is_empty() {
+        // Honestly ambiguous: the truth must be among the rivals, with its weight.
+        let rivals = d["rivals"].as_array().cloned().unwrap_or_default();
+        let has_truth = rivals.iter().any(|r| {
+            let mut names: Vec<String> = r["effects"]
+                .as_array()
+                .map(|a| a.iter().filter_map(|e| e.as_str().map(str::to_owned)).collect())
+                .unwrap_or_default();
+            names.sort();
+            names == expected && r["weight"].as_f64().is_some()
+        });
+        if !has_truth && !(claimed && expected == found_names) {
+            problems.push(format!("the truth {expected:?} is not among the rivals: {}", d["rivals"]));
+        }
+    } else if expected != found_names {
         problems.push(format!("found {found_names:?}, expected {expected:?}"));
     }
     for (name, params) in &case.truth {

@@ -503,7 +503,7 @@ pub fn diagnose(
     let sine = periodic_rivals(&search, &before, &current);
     progress("weighing the rival explanations on resampled held-out data");
     let mut weighed = rivals::weigh(&search.pool.borrow(), &search.entry(&current));
-    if let Some(claim) = lead(&search, &before, &weighed) {
+    if let Some(claim) = lead(&search, &before, &current, &weighed) {
         // A rival dominates every other explanation where the search's own pick does not:
         // the greedy order of the search is no evidence, the held-out data are.
         let again = rivals::weigh(&search.pool.borrow(), &search.entry(&claim.0));
@@ -594,16 +594,67 @@ pub fn diagnose(
 
 /// The rival that leads (see [`rivals::leader`]), fitted, with what it keeps: `None` when
 /// no rival leads or the leader is not one the model can hold.
-fn lead(search: &Search<'_, '_>, before: &Scored, weighed: &rivals::Rivals) -> Option<(Scored, Vec<Kept>)> {
+///
+/// A leader must also clear the bars the search's own pick cleared, so that only the greedy
+/// order of the search stops deciding, never the evidence a claim needs:
+/// - every part it has beyond an explanation without that part is admitted as the search
+///   admits a part ([`rivals::earns`]: a practical MAE gain or strong evidence);
+/// - physics with the given parameters must fit the held-out data better than the best
+///   refit of the ten parameters, as in the search's choice between the two
+///   ([`rivals::fits_better`]): a discrepancy that fits no better than a refit is no
+///   evidence of missing physics.
+fn lead(
+    search: &Search<'_, '_>,
+    before: &Scored,
+    current: &Scored,
+    weighed: &rivals::Rivals,
+) -> Option<(Scored, Vec<Kept>)> {
     let (effects, refit) = weighed.leader.clone()?;
-    let fit = search
-        .pool
-        .borrow()
+    let options = search.options;
+    let chosen = search.entry(current);
+    let pool = search.pool.borrow();
+    let best = |effects: &[&'static str], refit: bool| -> Option<&Entry> {
+        if chosen.effects == effects && chosen.refit == refit {
+            return Some(&chosen);
+        }
+        pool.iter()
+            .filter(|e| e.effects == effects && e.refit == refit && !e.unphysical && e.score.is_finite())
+            .min_by(|a, b| a.score.total_cmp(&b.score))
+    };
+    let leader = best(&effects, refit)?;
+    let min_gain_n = options.min_gain * search.floor_n;
+    let mut smaller: Vec<(Vec<&'static str>, bool)> = effects
         .iter()
-        .filter(|e| e.effects == effects && e.refit == refit && !e.unphysical)
-        .filter_map(|e| e.fit.clone().map(|f| (e.score, f)))
-        .min_by(|a, b| a.0.total_cmp(&b.0))?
-        .1;
+        .filter(|e| !chosen.effects.contains(e))
+        .map(|x| (effects.iter().copied().filter(|e| e != x).collect(), refit))
+        .collect();
+    if refit && !chosen.refit {
+        smaller.push((effects.clone(), false));
+    }
+    for (parts, r) in &smaller {
+        if let Some(without) = best(parts, *r) {
+            if !rivals::earns(leader, without, options.strong_evidence, min_gain_n) {
+                return None;
+            }
+        }
+    }
+    if !refit {
+        let refitted = pool
+            .iter()
+            .chain(std::iter::once(&chosen))
+            .filter(|e| e.refit && !e.unphysical && e.score.is_finite() && e.w2.len() == leader.w2.len())
+            .min_by(|a, b| {
+                (a.score - a.free as f64 * (a.w2.len() as f64).ln())
+                    .total_cmp(&(b.score - b.free as f64 * (b.w2.len() as f64).ln()))
+            });
+        if let Some(r) = refitted {
+            if !rivals::fits_better(leader, r, options.ambiguity, options.significance_z) {
+                return None;
+            }
+        }
+    }
+    let fit = leader.fit.clone()?;
+    drop(pool);
     let scored = search.evaluate(fit)?;
     let evidence = |name: &str| Evidence {
         summary: String::new(),
