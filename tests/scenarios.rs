@@ -7,6 +7,8 @@
 //! class of effect the recording could not have shown is the honest answer too; `none` must
 //! show every class excluded). Over every case without missing physics (clean,
 //! coloured noise, spikes and lost rows, parameter errors) it must claim no physics at all.
+//! A case whose recording cannot tell its truth from a rival (`cause = "ambiguous"`) passes
+//! when the answer is `ambiguous` with the truth among the rivals, with its weight.
 //! The suite itself is checked to be concealed: the model's MAE before is at most 45 %
 //! above the floor.
 //!
