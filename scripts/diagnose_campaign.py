@@ -39,6 +39,9 @@ ROOT = Path(__file__).resolve().parent.parent
 KEYS = ["K_T", "K_TT", "K_D", "K_DD", "K_TD", "c", "B_U", "B_T", "B_D", "B_UU"]
 STEP_S = 0.01
 SUBSTEPS = 5
+# The engine is stepped from zero thrust at least this long before the rest of the settle is
+# done in closed form (see Engine.run).
+SETTLE_MIN_S = 15.0
 PLANTS = {
     "p100-diesel": ROOT / "recordings/scenarios/plants/p100-diesel.toml",
     "p220-kerosene": ROOT / "recordings/scenarios/plants/p220-kerosene.toml",
@@ -80,18 +83,23 @@ class Engine:
 
     def __init__(self, p, effects):
         self.p, self.e = p, effects
+        # The inner loop's constants, looked up once (the arithmetic is the same).
+        self.f = tuple(p[k] for k in ("K_T", "K_TT", "K_D", "K_DD", "K_TD", "c", "B_U", "B_T", "B_D"))
+        self.heat = effects["heat_soak"]["loss_per_n"] if "heat_soak" in effects else None
+        self.fuel = effects["fuel_soak"]["loss_per_pct"] if "fuel_soak" in effects else None
+        self.down = effects["spool_asymmetry"]["down_factor"] if "spool_asymmetry" in effects else None
 
     def accel(self, t, d, vu, h, gain):
-        p = self.p
-        f = p["K_T"] * t + p["K_TT"] * t * t + p["K_D"] * d + p["K_DD"] * d * d + p["K_TD"] * t * d + p["c"]
-        g = p["B_U"] + p["B_T"] * t + p["B_D"] * d
-        if "heat_soak" in self.e:
-            g *= 1.0 - self.e["heat_soak"]["loss_per_n"] * h
-        if "fuel_soak" in self.e:
-            g *= 1.0 - self.e["fuel_soak"]["loss_per_pct"] * h
+        kt, ktt, kd, kdd, ktd, c, bu, bt, bd = self.f
+        f = kt * t + ktt * t * t + kd * d + kdd * d * d + ktd * t * d + c
+        g = bu + bt * t + bd * d
+        if self.heat is not None:
+            g *= 1.0 - self.heat * h
+        if self.fuel is not None:
+            g *= 1.0 - self.fuel * h
         a = f + g * vu * gain
-        if "spool_asymmetry" in self.e and d < 0.0:
-            a *= self.e["spool_asymmetry"]["down_factor"]
+        if self.down is not None and d < 0.0:
+            a *= self.down
         return a
 
     def v(self, u):
@@ -116,56 +124,87 @@ class Engine:
         bias, m, x, xd = 0.0, None, 0.0, 0.0
         true, read = [], []
         tau_h = (e.get("heat_soak") or e.get("fuel_soak") or {}).get("time_constant_s")
-        for k in range(-settle, n * SUBSTEPS):
+        # Each effect's constants, computed once (the same values the loop used to recompute).
+        play = e["throttle_play"]["play_pct"] if "throttle_play" in e else None
+        rate = (e["rate_limit"]["down_pct_per_s"] * dt, e["rate_limit"]["up_pct_per_s"] * dt) if "rate_limit" in e else None
+        lag_a = 1.0 - math.exp(-dt / e["actuator_lag"]["time_constant_s"]) if "actuator_lag" in e else None
+        lag = None
+        per_minute = e["gain_drift"]["per_minute"] if "gain_drift" in e else None
+        heat = "heat_soak" in e
+        h_a = 1.0 - math.exp(-dt / tau_h) if tau_h else None
+        if "stand_resonance" in e:
+            w0 = 2 * math.pi * e["stand_resonance"]["frequency_hz"]
+            z = e["stand_resonance"]["damping_ratio"]
+        resonance = "stand_resonance" in e
+        band = e["bearing_friction"]["force_n"] if "bearing_friction" in e else None
+        drift = (e["sensor_drift"]["gain"], 1.0 - math.exp(-dt / e["sensor_drift"]["time_constant_s"])) \
+            if "sensor_drift" in e else None
+        accel, v = self.accel, self.v
+        # Fast-forward the settle: once the engine is at rest (after at least SETTLE_MIN_S), the
+        # rest of the two minutes moves only the slow first-order states (a sensor drift's bias,
+        # a soak's history) towards their rest values, which is done in closed form, exactly as
+        # the step-by-step loop would with the thrust held; a ringing stand is put at rest.
+        check = -settle + int(SETTLE_MIN_S / dt)
+        k = -settle
+        while k < n * SUBSTEPS:
+            if k == check and k < 0:
+                if abs(d) < 1e-7 and abs(accel(t, d, v(lag if lag is not None else ue), h, 1.0)) < 1e-7:
+                    left = -k * dt
+                    if drift is not None:
+                        bias = drift[0] * t + (bias - drift[0] * t) * math.exp(-left / e["sensor_drift"]["time_constant_s"])
+                    if h_a is not None:
+                        hin = t if heat else v(lag if lag is not None else ue)
+                        h = hin + (h - hin) * math.exp(-left / tau_h)
+                    if resonance:
+                        x, xd = t, 0.0
+                    if band is not None and m is not None:
+                        m = min(max(m, t - band), t + band)
+                    k = 0
+                else:
+                    check += int(1.0 / dt)
             uc = u_fine[max(k, 0)]
-            if "throttle_play" in e:
-                w = e["throttle_play"]["play_pct"]
-                up = min(max(up, uc - w), uc + w)
+            if play is not None:
+                up = min(max(up, uc - play), uc + play)
                 uc = up
-            if "rate_limit" in e:
-                r = e["rate_limit"]
-                ue += max(-r["down_pct_per_s"] * dt, min(r["up_pct_per_s"] * dt, uc - ue))
+            if rate is not None:
+                ue += max(-rate[0], min(rate[1], uc - ue))
             else:
                 ue = uc
             ua = ue
-            if "actuator_lag" in e:
-                up_lag = getattr(self, "_lag", ue)
-                up_lag += (ue - up_lag) * (1.0 - math.exp(-dt / e["actuator_lag"]["time_constant_s"]))
-                self._lag = up_lag
-                ua = up_lag
-            vu = self.v(ua)
+            if lag_a is not None:
+                lag = ue if lag is None else lag
+                lag += (ue - lag) * lag_a
+                ua = lag
+            vu = v(ua)
             tm = max(k, 0) * dt
-            gain = 1.0 - e["gain_drift"]["per_minute"] * tm / 60.0 if "gain_drift" in e else 1.0
-            k1 = (d, self.accel(t, d, vu, h, gain))
-            k2 = (d + 0.5 * dt * k1[1], self.accel(t + 0.5 * dt * k1[0], d + 0.5 * dt * k1[1], vu, h, gain))
-            k3 = (d + 0.5 * dt * k2[1], self.accel(t + 0.5 * dt * k2[0], d + 0.5 * dt * k2[1], vu, h, gain))
-            k4 = (d + dt * k3[1], self.accel(t + dt * k3[0], d + dt * k3[1], vu, h, gain))
+            gain = 1.0 - per_minute * tm / 60.0 if per_minute is not None else 1.0
+            k1 = (d, accel(t, d, vu, h, gain))
+            k2 = (d + 0.5 * dt * k1[1], accel(t + 0.5 * dt * k1[0], d + 0.5 * dt * k1[1], vu, h, gain))
+            k3 = (d + 0.5 * dt * k2[1], accel(t + 0.5 * dt * k2[0], d + 0.5 * dt * k2[1], vu, h, gain))
+            k4 = (d + dt * k3[1], accel(t + dt * k3[0], d + dt * k3[1], vu, h, gain))
             t, d = (t + dt / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0]),
                     d + dt / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]))
-            if tau_h:
-                hin = t if "heat_soak" in e else vu
-                h += (hin - h) * (1.0 - math.exp(-dt / tau_h))
+            if h_a is not None:
+                hin = t if heat else vu
+                h += (hin - h) * h_a
             if not (math.isfinite(t) and abs(t) < 1e4):
                 raise RuntimeError("the plant diverged")
             y = t
-            if "stand_resonance" in e:
-                w0 = 2 * math.pi * e["stand_resonance"]["frequency_hz"]
-                z = e["stand_resonance"]["damping_ratio"]
+            if resonance:
                 xdd = w0 * w0 * (t - x) - 2 * z * w0 * xd
                 xd += xdd * dt
                 x += xd * dt
                 y = x
-            if "bearing_friction" in e:
-                f = e["bearing_friction"]["force_n"]
-                m = y if m is None else min(max(m, y - f), y + f)
+            if band is not None:
+                m = y if m is None else min(max(m, y - band), y + band)
                 y = m
-            if "sensor_drift" in e:
-                s = e["sensor_drift"]
-                bias += (s["gain"] * t - bias) * (1.0 - math.exp(-dt / s["time_constant_s"]))
+            if drift is not None:
+                bias += (drift[0] * t - bias) * drift[1]
                 y += bias
             if k >= 0 and (k + 1) % SUBSTEPS == 0:
                 true.append(t)
                 read.append(y)
+            k += 1
         if "periodic_force" in e:
             pf = e["periodic_force"]
             read = [y + pf["amplitude_n"] * math.sin(2 * math.pi * tt / pf["period_s"]) for y, tt in zip(read, times)]
@@ -305,17 +344,33 @@ def simulate(case, path):
     return truth_mae
 
 
-def run_case(jetbench, case, workdir):
+def prepare(case, workdir):
+    """The case's recording (CSV) and given model (TOML) in `workdir`, and the truth model's
+    held-out MAE; a recording kept there from an earlier run of the same draw is reused."""
     csv = Path(workdir) / f"case{case['index']}.csv"
     model = Path(workdir) / f"case{case['index']}.toml"
-    truth_mae = simulate(case, csv)
+    truth = Path(workdir) / f"case{case['index']}.truth.json"
+    if csv.exists() and truth.exists() and json.loads(truth.read_text()).get("case") == case:
+        truth_mae = json.loads(truth.read_text())["truth_mae"]
+    else:
+        truth_mae = simulate(case, csv)
+        truth.write_text(json.dumps({"case": case, "truth_mae": truth_mae}))
     model.write_text("[model]\n" + "".join(f"{k} = {case['given'][k]!r}\n" for k in KEYS))
+    return csv, model, truth, truth_mae
+
+
+def run_case(jetbench, case, workdir, keep=False):
+    csv, model, truth, truth_mae = prepare(case, workdir)
     start = time.monotonic()
     out = subprocess.run([jetbench, "diagnose", "--model", str(model), str(csv), "--json"],
                          capture_output=True, text=True)
     elapsed = time.monotonic() - start
-    csv.unlink()
-    model.unlink()
+    if keep:
+        Path(workdir, f"case{case['index']}.json").write_text(out.stdout)
+    else:
+        csv.unlink()
+        model.unlink()
+        truth.unlink()
     if out.returncode != 0:
         return {"case": case, "error": out.stderr.strip()[-300:], "time_s": elapsed, "truth_mae": truth_mae}
     d = json.loads(out.stdout)
@@ -455,13 +510,33 @@ def main():
     parser.add_argument("--json", help="every case's result, for plots and tests")
     parser.add_argument("--plot", help="SVG of the outcome per class")
     parser.add_argument("--deadline-s", type=float, help="stop starting cases after this long; report those done")
+    parser.add_argument("--case", type=int, action="append", default=[],
+                        help="run only this case of the draw (repeatable): the same case as in the full campaign")
+    parser.add_argument("--keep", help="folder to keep each case's recording (CSV), given model (TOML) and "
+                        "diagnosis (JSON) in, to rerun `jetbench diagnose` on it by hand")
+    parser.add_argument("--simulate-only", action="store_true",
+                        help="only simulate the cases' recordings into --keep (reused by a later run with it)")
     args = parser.parse_args()
+    if args.simulate_only and not args.keep:
+        parser.error("--simulate-only needs --keep DIR")
     rng = random.Random(args.seed)
     cases = [draw_case(rng, i) for i in range(args.n)]
+    if args.case:
+        cases = [c for c in cases if c["index"] in args.case]
+    if args.keep:
+        Path(args.keep).mkdir(parents=True, exist_ok=True)
+    if args.simulate_only:
+        # Only the recordings, into --keep: a later run with the same --keep diagnoses them.
+        for c in cases:
+            prepare(c, args.keep)
+            print(f"case {c['index']} simulated", file=sys.stderr, flush=True)
+        return
     start = time.monotonic()
-    with tempfile.TemporaryDirectory() as workdir, concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
+    with tempfile.TemporaryDirectory() as tmp, concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
+        workdir = args.keep or tmp
         results = []
-        futures = [pool.submit(functools.partial(run_case, args.jetbench, workdir=workdir), c) for c in cases]
+        futures = [pool.submit(functools.partial(run_case, args.jetbench, workdir=workdir, keep=bool(args.keep)), c)
+                   for c in cases]
         for future in concurrent.futures.as_completed(futures):
             if args.deadline_s and time.monotonic() - start > args.deadline_s:
                 for f in futures:
@@ -476,8 +551,8 @@ def main():
                   file=sys.stderr, flush=True)
     results.sort(key=lambda r: r["case"]["index"])
     report = summarise(results, len(results), args.seed, time.monotonic() - start)
-    if len(results) < args.n:
-        report += f"\nStopped at the deadline: {len(results)} of the {args.n} cases drawn were diagnosed.\n"
+    if len(results) < len(cases):
+        report += f"\nStopped at the deadline: {len(results)} of the {len(cases)} cases drawn were diagnosed.\n"
     graded = [grade(r) for r in results]
     if args.plot:
         plot_svg(results, args.plot)

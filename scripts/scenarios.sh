@@ -4,5 +4,5 @@
 #   scripts/scenarios.sh [--record] [--jobs N]
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo build --release --quiet -p jetbench
+cargo build --release --quiet --workspace --bins
 exec python3 scripts/scenarios.py "$@"

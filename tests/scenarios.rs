@@ -7,6 +7,8 @@
 //! class of effect the recording could not have shown is the honest answer too; `none` must
 //! show every class excluded). Over every case without missing physics (clean,
 //! coloured noise, spikes and lost rows, parameter errors) it must claim no physics at all.
+//! A case whose recording cannot tell its truth from a rival (`cause = "ambiguous"`) passes
+//! when the answer is `ambiguous` with the truth among the rivals, with its weight.
 //! The suite itself is checked to be concealed: the model's MAE before is at most 45 %
 //! above the floor.
 //!
@@ -107,8 +109,26 @@ fn judge(case: &Case, d: &Value) -> (Vec<String>, bool) {
         expected.sort();
     }
     let found_names: Vec<String> = found.keys().cloned().collect();
-    let false_claim = found_names.iter().any(|n| !expected.contains(n));
-    if expected != found_names {
+    // Only a claim can be false: `ambiguous`, `unexplained` and `insufficient_data` name
+    // what the search found without claiming it.
+    let claimed = matches!(d["cause"].as_str(), Some("none" | "parameters" | "missing_physics"));
+    let false_claim = claimed && found_names.iter().any(|n| !expected.contains(n));
+    if case.cause == "ambiguous" && !expected.is_empty() {
+        // Honestly ambiguous: the truth must be among the rivals, with its weight.
+        let rivals = d["rivals"].as_array().cloned().unwrap_or_default();
+        let has_truth = rivals.iter().any(|r| {
+            let mut names: Vec<String> = r["effects"]
+                .as_array()
+                .map(|a| a.iter().filter_map(|e| e.as_str().map(str::to_owned)).collect())
+                .unwrap_or_default();
+            names.sort();
+            names == expected && r["weight"].as_f64().is_some()
+        });
+        let right_claim = claimed && expected == found_names;
+        if !(has_truth || right_claim) {
+            problems.push(format!("the truth {expected:?} is not among the rivals: {}", d["rivals"]));
+        }
+    } else if expected != found_names {
         problems.push(format!("found {found_names:?}, expected {expected:?}"));
     }
     for (name, params) in &case.truth {
@@ -120,17 +140,20 @@ fn judge(case: &Case, d: &Value) -> (Vec<String>, bool) {
             }
         }
     }
-    // "Nothing is missing" is a claim: where nothing is, the honest answers are `none` with
-    // every class of effect shown to be excluded, or `insufficient_data` naming a class this
-    // recording could not have shown (at the size that matters) and the experiment that would.
+    // "Nothing is missing" and "only the parameters are off" are claims: where nothing (or
+    // only the parameters) is off, the honest answers are that claim with every class of
+    // effect shown to be excluded (beside the refit, for `parameters`), or
+    // `insufficient_data` naming a class this recording could not have shown (at the size
+    // that matters) and the experiment that would.
     let probes = d["detectability"].as_array().cloned().unwrap_or_default();
     let not_shown = probes.iter().filter(|p| p["would_show"] == Value::Bool(false)).count();
-    let honest_not_shown = case.cause == "none" && d["cause"] == "insufficient_data" && not_shown > 0;
+    let honest_not_shown =
+        matches!(case.cause.as_str(), "none" | "parameters") && d["cause"] == "insufficient_data" && not_shown > 0;
     if d["cause"].as_str() != Some(case.cause.as_str()) && !honest_not_shown {
         problems.push(format!("cause {}, expected {}", d["cause"], case.cause));
     }
-    if d["cause"] == "none" && (probes.is_empty() || not_shown > 0) {
-        problems.push(format!("`none` claimed although {not_shown} class(es) could not have shown"));
+    if (d["cause"] == "none" || d["cause"] == "parameters") && (probes.is_empty() || not_shown > 0) {
+        problems.push(format!("{} claimed although {not_shown} class(es) could not have shown", d["cause"]));
     }
     if case.cause == "ambiguous"
         && d["rivals"].as_array().is_none_or(|r| r.len() < 2 || r[0]["weight"].as_f64().is_none())

@@ -5,8 +5,6 @@
 #![doc = include_str!("../README.md")]
 #![deny(missing_docs)]
 
-// The diagnosis modules get their own documentation pass; until then they are exempt.
-#[allow(missing_docs)]
 pub mod diagnose;
 pub mod ekf;
 pub mod excite;

@@ -112,14 +112,27 @@ fn parameters_that_are_off_are_blamed_not_physics() {
     let plant = Plant::new(Params::from_array(off), Effects::none());
     let data = [recording(&plant, 21)];
     let d = diagnose(&ModelFile::new(given), &data, &Options::default(), &mut |_| {}).unwrap();
-    assert_eq!(d.cause, Cause::Parameters, "{}", d.verdict);
+    // "Only the parameters are off" is a claim as strong as "nothing is missing": on this
+    // campaign of smooth steps a 20 ms delay or a stand resonance above 2 Hz could hide beside
+    // a refit, so the honest answer is `insufficient_data` with the refit as the explanation
+    // and what could hide named; `parameters` only when every class would have shown.
+    match d.cause {
+        Cause::Parameters => assert!(d.detectability.iter().all(|p| p.would_show), "{:?}", d.detectability),
+        Cause::InsufficientData => {
+            assert!(d.detectability.iter().any(|p| !p.would_show), "{:?}", d.detectability);
+            assert!(d.verdict.contains("beside a refit"), "{}", d.verdict);
+        }
+        other => panic!("{other:?}: {}", d.verdict),
+    }
     assert!(d.effects.is_empty(), "no physics claimed: {}", d.verdict);
     let refit = d.refit.as_ref().expect("the refitted parameters");
     assert_eq!(refit.params.len(), 10);
     assert_ne!(d.improved.model, given);
     assert!(d.improved.effects.is_empty());
     assert!(d.mae_before_n > 1.05 * d.noise_floor_n && d.mae_after_n < 1.03 * d.noise_floor_n, "{}", d.verdict);
-    assert!(d.verdict.contains("re-identify"), "{}", d.verdict);
+    if d.cause == Cause::Parameters {
+        assert!(d.verdict.contains("re-identify"), "{}", d.verdict);
+    }
 }
 
 #[test]
@@ -210,4 +223,32 @@ fn a_clipping_sensor_is_an_artefact_of_the_recording_not_engine_physics() {
     assert!((d.noise.clipped_at_n[0] - limit).abs() < 1e-9);
     assert!(d.effects.is_empty(), "{}", d.verdict);
     assert!(d.verdict.contains("clips"), "{}", d.verdict);
+}
+
+/// A concealed fuel soak on 150 s (drawn by the randomised campaign, seed 8821 case 5: the
+/// P100 with an input gain that loses 0.00039 per % of throttle history, τ 49 s, AR(1) noise;
+/// the recording is `recordings/scenarios/fuel-soak-150s-p100.csv`, made by
+/// scripts/diagnose_campaign.py's own simulator). Refitted parameters explain its held-out
+/// part to the noise floor with a white residual, and it used to be claimed as `parameters`.
+/// Ten free parameters mimic a slow loss of gain over 150 s; "only the parameters are off" is
+/// claimed only when every class of effect would have shown beside the refit.
+#[test]
+fn a_soak_the_refit_can_mimic_is_not_called_a_parameter_error() {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../recordings/scenarios/fuel-soak-150s-p100.csv");
+    let (run, _) = jetbench_ident::series::Series::load_any_rate(&path, true).expect("the recording");
+    let d = diagnose(&ModelFile::new(Preset::P100Diesel.params()), &[run], &Options::default(), &mut |_| {}).unwrap();
+    // Physics outside the catalogue: the only true claim would be a discrepancy.
+    let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
+    match d.cause {
+        Cause::MissingPhysics => assert_eq!(names, ["discrepancy"], "{}", d.verdict),
+        Cause::InsufficientData => {
+            assert!(d.refit.is_some(), "the refit stays the best explanation: {}", d.verdict);
+            let hidden: Vec<&str> = d.detectability.iter().filter(|p| !p.would_show).map(|p| p.effect).collect();
+            assert!(!hidden.is_empty(), "{:?}", d.detectability);
+            assert!(d.verdict.contains("beside a refit"), "{}", d.verdict);
+        }
+        Cause::Ambiguous | Cause::Unexplained => {}
+        Cause::None | Cause::Parameters => panic!("a false claim: {:?}: {}", d.cause, d.verdict),
+    }
 }

@@ -22,13 +22,21 @@
 //!
 //! `none` stands only when every probe would show and none is in the residual; otherwise the
 //! answer is `insufficient_data`, with what could hide and the experiment that would tell.
+//!
+//! `parameters` ("the physics is complete, only the numbers are off") is as strong a claim
+//! and gets the same rule, with one difference: ten refitted parameters can mimic part of an
+//! effect. So `δ` is first fitted on the calibration part by a linearised refit (the
+//! output's prewhitened sensitivities to the ten parameters, with the refit's prior), and
+//! only what the refit could not absorb counts, on the held-out part, in `E` and `z`.
 //! The probes' sizes are what matters at a 100 Hz bench, independent of any recording (see
 //! [`probes`]).
 
+use jetbench_model::discrepancy::DISCREPANCY_DEFAULTS;
 use jetbench_model::{EffectKind, Effects, STEP_S};
+use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
-use super::fit::Spec;
+use super::fit::{Spec, REFIT_PRIOR};
 use super::problem::{Part, Problem, Sim};
 
 /// Matched-filter statistic above which the residual carries a probe's shape: about one in
@@ -69,8 +77,14 @@ pub struct Detectability {
 /// - a friction band of 0.5 N;
 /// - a stand resonance at 0.5–8 Hz with damping 0.1 (the band the engine's thrust has power
 ///   in; above it the engine cannot ring the stand);
-/// - a periodic force of 1 N at a period of 30 s.
-fn probes() -> Vec<(EffectKind, Vec<f64>, bool)> {
+/// - a periodic force of 1 N at a period of 30 s;
+/// - an engine gain that follows the thrust history (a heat soak, the discrepancy
+///   library's history term): 2 % less thrust per throttle after a long hold at full thrust
+///   (`full_thrust_n`, the model's highest thrust over the recording), time constant 60 s.
+fn probes(full_thrust_n: f64) -> Vec<(EffectKind, Vec<f64>, bool)> {
+    let mut soak = DISCREPANCY_DEFAULTS.to_vec();
+    soak[4] = -SOAK_LOSS / full_thrust_n.max(1.0);
+    soak[5] = 60.0;
     let mut out = vec![
         (EffectKind::InputDelay, vec![0.02], true),
         (EffectKind::ActuatorLag, vec![0.05], true),
@@ -82,8 +96,14 @@ fn probes() -> Vec<(EffectKind, Vec<f64>, bool)> {
     for f in [0.5, 1.0, 2.0, 3.0, 5.0, 8.0] {
         out.push((EffectKind::StandResonance, vec![f, 0.1], false));
     }
+    out.push((EffectKind::Discrepancy, soak, true));
     out
 }
+
+/// The class name of the thrust-history gain probe (a heat or fuel soak).
+pub const GAIN_HISTORY: &str = "gain_history";
+/// Its size: the share of the engine's gain lost after a long hold at full thrust.
+const SOAK_LOSS: f64 = 0.02;
 
 fn experiment_for(effect: &str) -> &'static str {
     match effect {
@@ -100,11 +120,16 @@ fn experiment_for(effect: &str) -> &'static str {
         "bearing_friction" => "many small reversals of the throttle: friction shifts the reading after each",
         "stand_resonance" => "sharp throttle steps (in one cycle): a resonance rings after them",
         "periodic" => "constant-throttle holds of several periods: a periodic force is still there",
+        GAIN_HISTORY => {
+            "the same throttle steps before and after a long full-thrust hold (a minute or more), then after an idle \
+             hold: a soaked engine gives less thrust after the hold and recovers at idle, where parameters that are \
+             off act the same throughout"
+        }
         _ => "a longer, richer campaign (jetbench excite)",
     }
 }
 
-fn describe(kind: EffectKind, v: &[f64]) -> String {
+fn describe(kind: EffectKind, v: &[f64], full_thrust_n: f64) -> String {
     match kind {
         EffectKind::InputDelay => format!("a delay of {:.0} ms", v[0] * 1000.0),
         EffectKind::ActuatorLag => format!("a lag of {:.0} ms", v[0] * 1000.0),
@@ -113,26 +138,116 @@ fn describe(kind: EffectKind, v: &[f64]) -> String {
         EffectKind::GainDrift => format!("a gain drift of {:.1} %/min", v[0] * 100.0),
         EffectKind::BearingFriction => format!("a friction band of {:.1} N", v[0]),
         EffectKind::StandResonance => format!("a stand resonance at {:.1} Hz (ζ {:.2})", v[0], v[1]),
-        EffectKind::Discrepancy => "a discrepancy".to_owned(),
+        EffectKind::Discrepancy => format!(
+            "an engine gain following the thrust history of {:.1} % at {:.0} N (τ {:.0} s, a heat soak)",
+            -100.0 * v[4] * full_thrust_n,
+            full_thrust_n,
+            v[5]
+        ),
     }
 }
 
-/// Energy and matched-filter statistic of a reading difference `delta` (grid vectors per run)
-/// against the `residual` over the held-out samples where both have an innovation.
-fn measure(problem: &Problem<'_>, delta: &[Vec<f64>], residual: &[Vec<f64>], s2: f64) -> (f64, f64) {
-    let (mut e, mut dot) = (0.0, 0.0);
+/// Prewhitened values of grid vectors (each one vector per run, NaN where there is no
+/// sample) at the samples of `part` where every one of them has an innovation, in a fixed
+/// order: `out[v]` belongs to `vectors[v]`.
+fn aligned(problem: &Problem<'_>, vectors: &[&[Vec<f64>]], part: Part) -> Vec<Vec<f64>> {
+    let mut out = vec![Vec::new(); vectors.len()];
     for (i, run) in problem.runs.iter().enumerate() {
-        // Where the recording has no sample, neither has the effect's reading.
-        let masked: Vec<f64> =
-            delta[i].iter().zip(&run.y).map(|(d, y)| if y.is_finite() { *d } else { f64::NAN }).collect();
-        let (wd, wr) = (problem.whiten(i, &masked), problem.whiten(i, &residual[i]));
-        for (j, (a, b)) in wd.iter().zip(&wr).enumerate() {
-            if a.is_finite() && b.is_finite() && run.in_part(j * run.stride, Part::Validation) {
-                e += a * a;
-                dot += a * b;
+        // Where the recording has no sample, neither has an effect's reading.
+        let white: Vec<Vec<f64>> = vectors
+            .iter()
+            .map(|v| {
+                let masked: Vec<f64> =
+                    v[i].iter().zip(&run.y).map(|(d, y)| if y.is_finite() { *d } else { f64::NAN }).collect();
+                problem.whiten(i, &masked)
+            })
+            .collect();
+        let len = white.iter().map(Vec::len).min().unwrap_or(0);
+        for j in (0..len).filter(|j| run.in_part(j * run.stride, part)) {
+            if white.iter().all(|w| w[j].is_finite()) {
+                for (o, w) in out.iter_mut().zip(&white) {
+                    o.push(w[j]);
+                }
             }
         }
     }
+    out
+}
+
+/// What a refit of the ten parameters absorbs of an effect: the model's output
+/// sensitivities to each parameter (prewhitened, on the calibration and the held-out part)
+/// and the refit's prior. An effect the refitted parameters can mimic on the calibration
+/// part leaves, on the held-out part, only what they could not: that is what would tell
+/// it from "the parameters are off".
+struct Refit {
+    /// Sensitivity of the reading to each of the ten parameters, per unit of the parameter,
+    /// as grid vectors per run.
+    columns: Vec<Vec<Vec<f64>>>,
+    /// The prior's weight on each parameter, in innovation variances per unit².
+    prior: Vec<f64>,
+}
+
+impl Refit {
+    fn new(problem: &Problem<'_>, fixed: &Effects, spec: &Spec, sim: &Sim, s2: f64) -> Option<Self> {
+        let mut columns = Vec::with_capacity(10);
+        let mut prior = Vec::with_capacity(10);
+        let mut moved = Sim::new();
+        for i in 0..10 {
+            let unit = spec.param_unit(i);
+            let h = 1e-3 * unit;
+            let mut a = spec.params.to_array();
+            a[i] += h;
+            let mut next = spec.clone();
+            next.params = jetbench_model::Params::from_array(a);
+            let plant = next.plant(fixed)?;
+            let column: Vec<Vec<f64>> = if problem.simulate(&plant, &spec.states, false, &mut moved).is_ok() {
+                moved.iter().zip(sim).map(|(a, b)| a.iter().zip(b).map(|(x, y)| (x - y) / h).collect()).collect()
+            } else {
+                // The model diverges just beside the point: that direction absorbs nothing.
+                sim.iter().map(|run| vec![0.0; run.len()]).collect()
+            };
+            columns.push(column);
+            prior.push(s2 / (REFIT_PRIOR * unit).powi(2));
+        }
+        Some(Self { columns, prior })
+    }
+
+    /// `delta`'s held-out part once the refit has absorbed what it can of it on the
+    /// calibration part (a linearised fit with the refit's prior), and the residual's
+    /// held-out part on the same samples.
+    fn remainder(&self, problem: &Problem<'_>, delta: &[Vec<f64>], residual: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
+        let mut vectors: Vec<&[Vec<f64>]> = vec![delta, residual];
+        vectors.extend(self.columns.iter().map(Vec::as_slice));
+        let cal = aligned(problem, &vectors, Part::Calibration);
+        let mut val = aligned(problem, &vectors, Part::Validation);
+        let k = self.columns.len();
+        let mut a = DMatrix::<f64>::zeros(k, k);
+        let mut b = DVector::<f64>::zeros(k);
+        for p in 0..k {
+            b[p] = cal[2 + p].iter().zip(&cal[0]).map(|(x, d)| x * d).sum();
+            for q in p..k {
+                let v: f64 = cal[2 + p].iter().zip(&cal[2 + q]).map(|(x, y)| x * y).sum();
+                a[(p, q)] = v;
+                a[(q, p)] = v;
+            }
+            a[(p, p)] += self.prior[p];
+        }
+        let theta = a.cholesky().map_or_else(|| DVector::zeros(k), |c| c.solve(&b));
+        let mut left = std::mem::take(&mut val[0]);
+        for (p, t) in theta.iter().enumerate() {
+            for (l, x) in left.iter_mut().zip(&val[2 + p]) {
+                *l -= t * x;
+            }
+        }
+        (left, std::mem::take(&mut val[1]))
+    }
+}
+
+/// Energy (innovation variances) and matched-filter statistic of a prewhitened reading
+/// difference `wd` against the prewhitened residual `wr` on the same samples.
+fn measure(wd: &[f64], wr: &[f64], s2: f64) -> (f64, f64) {
+    let e: f64 = wd.iter().map(|a| a * a).sum();
+    let dot: f64 = wd.iter().zip(wr).map(|(a, b)| a * b).sum();
     if s2 <= 0.0 || e <= 0.0 {
         return (0.0, 0.0);
     }
@@ -140,7 +255,10 @@ fn measure(problem: &Problem<'_>, delta: &[Vec<f64>], residual: &[Vec<f64>], s2:
 }
 
 /// Every probe on the model found (`spec`, simulated as `sim`): whether this recording would
-/// show it, and whether its residual carries its shape.
+/// show it, and whether its residual carries its shape. When the model found refits the ten
+/// parameters, a probe is measured by what the refit could not absorb of it (a linearised
+/// refit on the calibration part, with its prior): "the parameters are off" is claimed only
+/// when every class of effect would have shown beside a refit.
 pub(crate) fn probe_all(
     problem: &Problem<'_>,
     fixed: &Effects,
@@ -157,9 +275,22 @@ pub(crate) fn probe_all(
     }
     let s2 = w.iter().map(|x| x * x).sum::<f64>() / n as f64;
     let ln_n = (n as f64).ln();
+    let refit = if spec.refit { Refit::new(problem, fixed, spec, sim, s2) } else { None };
+    let held_out = |delta: &[Vec<f64>]| -> (f64, f64) {
+        let (wd, wr) = match &refit {
+            Some(r) => r.remainder(problem, delta, &residual),
+            None => {
+                let mut both = aligned(problem, &[delta, residual.as_slice()], Part::Validation);
+                let wr = both.pop().unwrap_or_default();
+                (both.pop().unwrap_or_default(), wr)
+            }
+        };
+        measure(&wd, &wr, s2)
+    };
+    let full_thrust = sim.iter().flatten().copied().filter(|v| v.is_finite()).fold(0.0f64, f64::max);
     let mut out = Vec::new();
     let mut with = Sim::new();
-    for (kind, values, proportional) in probes() {
+    for (kind, values, proportional) in probes(full_thrust) {
         if spec.has(kind) || fixed.get(kind).is_some() {
             continue;
         }
@@ -170,18 +301,28 @@ pub(crate) fn probe_all(
         }
         let delta: Vec<Vec<f64>> =
             with.iter().zip(sim).map(|(a, b)| a.iter().zip(b).map(|(x, y)| x - y).collect()).collect();
-        let (energy, shape_z) = measure(problem, &delta, &residual, s2);
-        let threshold = strong_evidence + kind.keys().len() as f64 * ln_n;
+        let (energy, shape_z) = held_out(&delta);
+        let (effect, free, first) = if kind == EffectKind::Discrepancy {
+            // The thrust-history gain: its coefficient and its time constant.
+            (GAIN_HISTORY, 2, values[4])
+        } else {
+            (kind.name(), kind.keys().len(), values[0])
+        };
+        let threshold = strong_evidence + free as f64 * ln_n;
         out.push(Detectability {
-            effect: kind.name(),
-            probe: kind.keys().iter().copied().zip(values.iter().copied()).collect(),
-            size: describe(kind, &values),
+            effect,
+            probe: if kind == EffectKind::Discrepancy {
+                vec![("gain_history_per_n", values[4]), ("history_time_constant_s", values[5])]
+            } else {
+                kind.keys().iter().copied().zip(values.iter().copied()).collect()
+            },
+            size: describe(kind, &values, full_thrust),
             energy,
             threshold,
             would_show: energy >= threshold,
             shape_z,
-            smallest: (proportional && energy > 0.0).then(|| values[0] * (threshold / energy).sqrt()),
-            experiment: experiment_for(kind.name()),
+            smallest: (proportional && energy > 0.0).then(|| first * (threshold / energy).sqrt()),
+            experiment: experiment_for(effect),
         });
     }
     // A periodic force of 1 N at a period of 30 s (a sine and a cosine: its phase is free).
@@ -197,7 +338,7 @@ pub(crate) fn probe_all(
                     .collect()
             })
             .collect();
-        let (e, z) = measure(problem, &delta, &residual, s2);
+        let (e, z) = held_out(&delta);
         energy = energy.min(e);
         shape_z = shape_z.max(z.abs());
     }

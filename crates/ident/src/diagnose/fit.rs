@@ -18,7 +18,7 @@ const TOLERANCE_SCORE: f64 = 0.25;
 /// moves what it determines (a 5 % error costs a quarter of a noise variance to correct);
 /// combinations the calibration part hardly sees stay where they were instead of
 /// wandering off and spoiling the held-out part.
-const REFIT_PRIOR: f64 = 0.1;
+pub(crate) const REFIT_PRIOR: f64 = 0.1;
 
 /// What is free in a hypothesis, and where a fit starts.
 #[derive(Clone, Debug, PartialEq)]
@@ -143,6 +143,12 @@ impl Spec {
         }
         let (params, given) = (self.params.to_array(), self.given.to_array());
         (0..params.len()).map(|i| ((params[i] - given[i]) / (self.scale(Slot::Param(i)) * REFIT_PRIOR)).powi(2)).sum()
+    }
+
+    /// The unit a refit moves parameter `i` of the ten in (its given value's magnitude):
+    /// the prior charges `(Δθ / (REFIT_PRIOR·unit))²` noise variances.
+    pub fn param_unit(&self, i: usize) -> f64 {
+        self.scale(Slot::Param(i))
     }
 
     fn scale(&self, slot: Slot) -> f64 {

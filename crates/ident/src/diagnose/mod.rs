@@ -42,13 +42,23 @@
 //!    MAE and fit before and after, whiteness under the noise model before and after,
 //!    and a verdict in words ([`report`]).
 
+/// The experiment that separates a diagnosis's rivals (`jetbench excite --discriminate`).
 pub mod design;
+/// Whether a recording could have shown each class of effect at the size that matters:
+/// what `none` and `parameters` must earn.
 pub mod detect;
 mod discrepancy;
 mod fit;
+/// The recordings on the model's 10 ms grid, their noise model and the calibration and
+/// held-out parts every hypothesis is fitted and judged on.
 pub mod problem;
+/// The verdict in words, the JSON contract and the plots of a diagnosis.
 pub mod report;
+/// What a model's residual shows against the noise model: whiteness, correlation with the
+/// throttle, drift, spectrum, a periodic part.
 pub mod residual;
+/// Rival explanations weighed on block-bootstrap resamples of the held-out data, and
+/// whether one dominates the others.
 pub mod rivals;
 
 use std::cell::RefCell;
@@ -115,7 +125,9 @@ impl Default for Options {
 pub enum Cause {
     /// The model explains the recording: the residual is noise.
     None,
-    /// The ten parameters are off; re-identify (no physics is missing).
+    /// The ten parameters are off; re-identify (no physics is missing). Claimed only when
+    /// the refitted model's residual is noise and this recording would have shown every
+    /// class of effect beside the refit ([`detect`]).
     Parameters,
     /// Physics is missing (named, or modelled by the discrepancy); the parameters may
     /// have been refitted too.
@@ -177,8 +189,9 @@ pub struct Round {
 pub struct Evidence {
     /// In words, for the bench engineer.
     pub summary: String,
-    /// Validation MAE before and after adding it, N.
+    /// Validation MAE before adding it, N.
     pub mae_val_before_n: f64,
+    /// Validation MAE after adding it, N.
     pub mae_val_after_n: f64,
     /// Score improvement on held-out data (penalty included).
     pub score_gain: f64,
@@ -193,21 +206,26 @@ pub struct Evidence {
 /// An effect the model left out, as modelled.
 #[derive(Clone, Debug, Serialize)]
 pub struct FoundEffect {
+    /// The effect's catalogue name (`input_delay`, ...) or `discrepancy`.
     pub name: &'static str,
     /// Fitted parameters (a discrepancy's: its terms, each with its shape key).
     pub params: BTreeMap<&'static str, f64>,
     /// Standard errors of the parameters.
     pub uncertainty: BTreeMap<&'static str, f64>,
+    /// Why it is there: the held-out gain and what the residual showed.
     pub evidence: Evidence,
 }
 
 /// The ten parameters re-identified.
 #[derive(Clone, Debug, Serialize)]
 pub struct Refit {
+    /// The ten parameters refitted, by name (`K_T`, ..., `B_UU`), in the model file's units.
     pub params: BTreeMap<&'static str, f64>,
+    /// Their standard errors on the calibration part, same units.
     pub uncertainty: BTreeMap<&'static str, f64>,
     /// Change from the given model, %.
     pub change_pct: BTreeMap<&'static str, f64>,
+    /// Why the refit is there: the held-out gain and what the residual showed.
     pub evidence: Evidence,
 }
 
@@ -226,18 +244,21 @@ pub struct Diagnosis {
     pub mae_after_n: f64,
     /// Noise floor: the MAE of the noise alone, N (from its model, coloured or not).
     pub noise_floor_n: f64,
-    /// Validation fit % before and after.
+    /// Validation fit % of the given model (100 % is a perfect fit, 0 % the mean).
     pub fit_before_pct: f64,
+    /// Validation fit % of the improved model.
     pub fit_after_pct: f64,
     /// What to do, in words.
     pub verdict: String,
-    /// Samples fitted on and judged on.
+    /// Samples every hypothesis is fitted on (the calibration part).
     pub calibration_samples: usize,
+    /// Samples every hypothesis is judged on (the held-out part).
     pub validation_samples: usize,
     /// The sensor noise and what the data needed: outliers removed, gaps.
     pub noise: DataReport,
-    /// The residual of the given model, and of the improved one.
+    /// The residual of the given model against the noise model.
     pub before: Analysis,
+    /// The residual of the improved model against the noise model.
     pub after: Analysis,
     /// Every hypothesis tried.
     pub rounds: Vec<Round>,
@@ -247,15 +268,17 @@ pub struct Diagnosis {
     /// block-bootstrap resamples of the held-out data it wins) and what tells it apart
     /// from the search's explanation; a claimed cause lists its rivals too.
     pub rivals: Vec<Rival>,
-    /// Held-out data, s, and how much a claim needs, s.
+    /// Held-out data, s.
     pub held_out_s: f64,
+    /// Held-out data a claim needs, s ([`rivals::MIN_BLOCKS`] independent blocks).
     pub needed_s: f64,
     /// True when the search's explanation beats every rival of another kind in at least
     /// 95 % of resamples and by more than a tie.
     pub dominant: bool,
-    /// Before `none`: each class of effect at the size that matters, whether this recording
-    /// would show it and whether the residual carries its shape (empty when something is
-    /// claimed: see [`detect`]).
+    /// Before `none` or `parameters`: each class of effect at the size that matters,
+    /// whether this recording would show it (beside the refit, when the parameters were
+    /// refitted) and whether the residual carries its shape (empty when an effect is found:
+    /// see [`detect`]).
     pub detectability: Vec<detect::Detectability>,
     /// A slow periodic part left in the residual of the improved model, if any.
     pub periodic: Option<residual::Periodic>,
@@ -265,9 +288,10 @@ pub struct Diagnosis {
     /// The improved model (refitted parameters, effects added).
     #[serde(skip)]
     pub improved: ModelFile,
-    /// Simulated measured thrust of the given and the improved model, per file and row.
+    /// Simulated measured thrust of the given model, per file and row, N.
     #[serde(skip)]
     pub sim_before: Vec<Vec<f64>>,
+    /// Simulated measured thrust of the improved model, per file and row, N.
     #[serde(skip)]
     pub sim_after: Vec<Vec<f64>>,
     /// First validation row of each file.
@@ -331,7 +355,8 @@ impl Search<'_, '_> {
         let mae_val = self.problem.mae(&sim, Part::Validation);
         let scored =
             (sse_val.is_finite() && mae_val.is_finite()).then_some(Scored { fit, sim, sse_val, n_val, mae_val })?;
-        let entry = self.entry(&scored);
+        let mut entry = self.entry(&scored);
+        entry.fit = Some(scored.fit.clone());
         self.pool.borrow_mut().push(entry);
         Some(scored)
     }
@@ -477,7 +502,26 @@ pub fn diagnose(
     progress("trying a periodic disturbance, a rival that is no engine physics");
     let sine = periodic_rivals(&search, &before, &current);
     progress("weighing the rival explanations on resampled held-out data");
-    let weighed = rivals::weigh(&search.pool.borrow(), &search.entry(&current));
+    let mut weighed = rivals::weigh(&search.pool.borrow(), &search.entry(&current));
+    if let Some(claim) = lead(&search, &before, &current, &weighed) {
+        // A rival dominates every other explanation where the search's own pick does not:
+        // the greedy order of the search is no evidence, the held-out data are.
+        let again = rivals::weigh(&search.pool.borrow(), &search.entry(&claim.0));
+        if again.dominant {
+            let name = |spec: &Spec| {
+                report::label(&spec.effects.iter().map(|(k, _)| k.name()).collect::<Vec<_>>(), spec.refit)
+            };
+            let weight = again.rivals.iter().find(|r| r.tells_apart.is_empty()).map_or(0.0, |r| r.weight);
+            dropped.push(format!(
+                "the search arrived at {}, but {} beats it and every other explanation on resampled held-out data \
+                 (weight {:.0} %): that one is claimed",
+                name(&current.fit.spec),
+                name(&claim.0.fit.spec),
+                100.0 * weight
+            ));
+            (current, kept, weighed) = (claim.0, claim.1, again);
+        }
+    }
     progress("analysing the improved model");
     let analysis_after = residual::analyse(&problem, &current.sim);
     let improved = ModelFile {
@@ -502,7 +546,7 @@ pub fn diagnose(
             }
         }
     }
-    let effects_empty = effects.is_empty() && refit.is_none();
+    let no_effect = effects.is_empty();
     let mut d = Diagnosis {
         cause: Cause::None,
         effects,
@@ -524,7 +568,9 @@ pub fn diagnose(
         held_out_s: weighed.held_out_s,
         needed_s: weighed.needed_s,
         dominant: weighed.dominant,
-        detectability: if effects_empty {
+        // "Nothing is missing" and "only the parameters are off" are claims alike: both need
+        // every class of effect to have been detectable (beside the refit, for the latter).
+        detectability: if no_effect {
             progress("asking whether this recording could have shown each class of effect");
             detect::probe_all(&problem, &model.effects, &current.fit.spec, &current.sim, options.strong_evidence)
         } else {
@@ -544,6 +590,92 @@ pub fn diagnose(
     d.cause = report::cause(&d);
     d.verdict = report::verdict(&d);
     Ok(d)
+}
+
+/// The rival that leads (see [`rivals::leader`]), fitted, with what it keeps: `None` when
+/// no rival leads or the leader is not one the model can hold.
+///
+/// A leader must also clear the bars the search's own pick cleared, so that only the greedy
+/// order of the search stops deciding, never the evidence a claim needs:
+/// - every part it has beyond an explanation without that part is admitted as the search
+///   admits a part ([`rivals::earns`]: a practical MAE gain or strong evidence);
+/// - physics with the given parameters must fit the held-out data better than the best
+///   refit of the ten parameters, as in the search's choice between the two
+///   ([`rivals::fits_better`]): a discrepancy that fits no better than a refit is no
+///   evidence of missing physics.
+fn lead(
+    search: &Search<'_, '_>,
+    before: &Scored,
+    current: &Scored,
+    weighed: &rivals::Rivals,
+) -> Option<(Scored, Vec<Kept>)> {
+    let (effects, refit) = weighed.leader.clone()?;
+    let options = search.options;
+    let chosen = search.entry(current);
+    let pool = search.pool.borrow();
+    let best = |effects: &[&'static str], refit: bool| -> Option<&Entry> {
+        if chosen.effects == effects && chosen.refit == refit {
+            return Some(&chosen);
+        }
+        pool.iter()
+            .filter(|e| e.effects == effects && e.refit == refit && !e.unphysical && e.score.is_finite())
+            .min_by(|a, b| a.score.total_cmp(&b.score))
+    };
+    let leader = best(&effects, refit)?;
+    let min_gain_n = options.min_gain * search.floor_n;
+    let mut smaller: Vec<(Vec<&'static str>, bool)> = effects
+        .iter()
+        .filter(|e| !chosen.effects.contains(e))
+        .map(|x| (effects.iter().copied().filter(|e| e != x).collect(), refit))
+        .collect();
+    if refit && !chosen.refit {
+        smaller.push((effects.clone(), false));
+    }
+    for (parts, r) in &smaller {
+        if let Some(without) = best(parts, *r) {
+            if !rivals::earns(leader, without, options.strong_evidence, min_gain_n) {
+                return None;
+            }
+        }
+    }
+    if !refit {
+        let refitted = pool
+            .iter()
+            .chain(std::iter::once(&chosen))
+            .filter(|e| e.refit && !e.unphysical && e.score.is_finite() && e.w2.len() == leader.w2.len())
+            .min_by(|a, b| {
+                (a.score - a.free as f64 * (a.w2.len() as f64).ln())
+                    .total_cmp(&(b.score - b.free as f64 * (b.w2.len() as f64).ln()))
+            });
+        if let Some(r) = refitted {
+            if !rivals::fits_better(leader, r, options.ambiguity, options.significance_z) {
+                return None;
+            }
+        }
+    }
+    let fit = leader.fit.clone()?;
+    drop(pool);
+    let scored = search.evaluate(fit)?;
+    let evidence = |name: &str| Evidence {
+        summary: String::new(),
+        mae_val_before_n: before.mae_val,
+        mae_val_after_n: scored.mae_val,
+        score_gain: before.score() - scored.score(),
+        runner_up: None,
+        ambiguous: false,
+        residual: vec![format!(
+            "{name}: part of the explanation that dominates every rival on resampled held-out data, where the \
+             search's own pick did not"
+        )],
+    };
+    let mut kept = Vec::new();
+    if refit {
+        kept.push(Kept { name: REFIT, evidence: evidence(REFIT) });
+    }
+    for (kind, _) in &scored.fit.spec.effects {
+        kept.push(Kept { name: kind.name(), evidence: evidence(kind.name()) });
+    }
+    Some((scored, kept))
 }
 
 fn diverged(problem: &Problem<'_>, nominal: &jetbench_model::Plant, data: &[Series]) -> IdentError {

@@ -82,6 +82,7 @@ impl Run {
 pub struct Outlier {
     /// Which file (index in the order given).
     pub file: usize,
+    /// Its time in the recording, s.
     pub t_s: f64,
     /// Its distance from its neighbours' median, N.
     pub deviation_n: f64,
@@ -92,20 +93,25 @@ pub struct Outlier {
 pub struct DataReport {
     /// The sensor noise model (AR, from the data alone).
     pub model: String,
+    /// The AR coefficients of the noise model, lag 1 first (empty: white noise).
     pub ar: Vec<f64>,
-    /// Standard deviation of the noise, and of its innovations, N.
+    /// Standard deviation of the noise, N.
     pub sigma_n: f64,
+    /// Standard deviation of the noise model's innovations (what prewhitening leaves), N.
     pub innovation_sigma_n: f64,
     /// The noise floor: the mean absolute value of the noise (Gaussian), N.
     pub floor_n: f64,
-    /// Samples left out as outliers, and the first of them.
+    /// Samples left out as outliers.
     pub outliers_removed: usize,
+    /// The first of them, where and how far off.
     pub outliers: Vec<Outlier>,
-    /// Rows missing inside runs (simulated through with the throttle held).
+    /// Gaps inside runs (simulated through with the throttle held).
     pub gaps: usize,
+    /// Rows missing in those gaps.
     pub lost_rows: usize,
     /// Gaps longer than [`MAX_HELD_GAP_S`], where a run ends and the next starts afresh.
     pub run_splits: usize,
+    /// Runs of consecutive rows the recordings make, each simulated from its own start.
     pub runs: usize,
     /// Notes from loading (another sampling rate, ...).
     pub notes: Vec<String>,

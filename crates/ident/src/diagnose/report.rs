@@ -304,19 +304,25 @@ pub(crate) fn cause(d: &Diagnosis) -> Cause {
         Cause::Ambiguous
     } else if !d.effects.is_empty() {
         Cause::MissingPhysics
-    } else if d.refit.is_some() {
-        Cause::Parameters
-    } else if d.after.whiteness.white && d.periodic.is_none() && d.mae_after_n <= 1.1 * d.noise_floor_n {
-        // "Nothing is missing" is a claim: only when this recording would have shown every
-        // class of effect at the size that matters, and its residual carries none of them.
-        if detect::excluded(&d.detectability) {
-            Cause::None
-        } else {
-            Cause::InsufficientData
+    } else if residual_is_noise(d) {
+        // "Nothing is missing" and "only the parameters are off" are claims alike: only when
+        // this recording would have shown every class of effect at the size that matters
+        // (beside the refit, for the latter: an effect the refitted parameters can mimic
+        // cannot be told from them), and its residual carries none of them.
+        match (detect::excluded(&d.detectability), d.refit.is_some()) {
+            (true, true) => Cause::Parameters,
+            (true, false) => Cause::None,
+            (false, _) => Cause::InsufficientData,
         }
     } else {
         Cause::Unexplained
     }
+}
+
+/// The improved model's residual is noise: white under the noise model, no slow periodic
+/// part, and its MAE within 10 % of the floor.
+fn residual_is_noise(d: &Diagnosis) -> bool {
+    d.after.whiteness.white && d.periodic.is_none() && d.mae_after_n <= 1.1 * d.noise_floor_n
 }
 
 /// True when the periodic rival (a sine at its own period on what is read) is not
@@ -404,10 +410,11 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
             ) + &format!(" {}", detectable_above(d))
         }
         Cause::Parameters => format!(
-            "The parameters are off, not the physics: re-identify. {} No effect improves on the refitted model. \
-             {mae}; {whiteness}.{}",
+            "The parameters are off, not the physics: re-identify. {} No effect improves on the refitted model, and \
+             this recording would have shown every class of effect beside the refit. {mae}; {whiteness}.{} {}",
             d.refit.as_ref().map_or(String::new(), |r| r.evidence.summary.clone()),
-            remains()
+            remains(),
+            detectable_above(d)
         ),
         Cause::MissingPhysics => {
             let mut text: Vec<String> = d.effects.iter().map(|e| e.evidence.summary.clone()).collect();
@@ -427,6 +434,20 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
         Cause::Unexplained => {
             let why = d.rounds.last().map_or(String::new(), |r| format!(" ({})", r.reason));
             let mut what: Vec<String> = d.before.findings.clone();
+            if d.effects.is_empty() && d.refit.is_some() {
+                what.insert(
+                    0,
+                    format!(
+                        "a refit of the ten parameters improves the held-out fit (validation MAE {} → {}) but its \
+                         residual is not noise (Ljung–Box p {:.1e} under the noise model, MAE {:.2}× the floor): \
+                         the parameters alone do not explain the recording",
+                        figure(d.mae_before_n, 2, " N"),
+                        figure(d.mae_after_n, 2, " N"),
+                        d.after.whiteness.p_value,
+                        d.mae_after_n / d.noise_floor_n
+                    ),
+                );
+            }
             let in_play = periodic_in_play(d);
             if in_play && !d.effects.is_empty() {
                 let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
@@ -565,8 +586,20 @@ fn undetectable(d: &Diagnosis) -> String {
             shaped.join(", ")
         ));
     }
+    let opening = match &d.refit {
+        Some(_) => format!(
+            "A refit of the ten parameters explains the held-out data (validation MAE {} → {}, noise floor {}), but \
+             \"only the parameters are off\" cannot be claimed: the refitted parameters could mimic what this \
+             recording shows of other physics, and",
+            figure(d.mae_before_n, 2, " N"),
+            figure(d.mae_after_n, 2, " N"),
+            figure(d.noise_floor_n, 2, " N")
+        ),
+        None => "Nothing found, but \"nothing is missing\" cannot be claimed:".to_owned(),
+    };
+    let beside = if d.refit.is_some() { " beside a refit" } else { "" };
     format!(
-        "Nothing found, but \"nothing is missing\" cannot be claimed: {}. {} What would tell: {}.",
+        "{opening} {}{beside}. {} What would tell: {}.",
         parts.join("; and "),
         detectable_above(d),
         experiments.join("; ")

@@ -83,6 +83,7 @@ pub struct InputCorrelation {
 pub struct ClassMean {
     /// What the class is ("rising", "40–60 N", ...).
     pub class: String,
+    /// Residual samples in the class.
     pub samples: usize,
     /// Mean residual (measured − model), N.
     pub mean_n: f64,
@@ -97,6 +98,7 @@ pub struct ClassMean {
 pub struct Drift {
     /// Least-squares slope of the residual against time, N/min.
     pub slope_n_per_min: f64,
+    /// The slope over its standard error under the noise model.
     pub t_stat: f64,
     /// Mean residual per tenth of the recording: (start s, end s, mean N).
     pub tenths: Vec<(f64, f64, f64)>,
@@ -111,8 +113,9 @@ pub struct Spectrum {
     pub ratio: Vec<f64>,
     /// Mean ratio in bands: (from Hz, to Hz, ratio).
     pub bands: Vec<(f64, f64, f64)>,
-    /// Largest ratio above 0.5 Hz and where.
+    /// Where the largest ratio above 0.5 Hz is, Hz.
     pub peak_hz: f64,
+    /// That ratio (1: the noise's own power).
     pub peak_ratio: f64,
 }
 
@@ -121,7 +124,9 @@ pub struct Spectrum {
 pub struct Window {
     /// Which file (index in the order given).
     pub file: usize,
+    /// Where the stretch starts in the recording, s.
     pub start_s: f64,
+    /// Where it ends, s.
     pub end_s: f64,
     /// Mean residual there, N.
     pub mean_n: f64,
@@ -130,18 +135,25 @@ pub struct Window {
 /// Everything known about one residual.
 #[derive(Clone, Debug, Serialize)]
 pub struct Analysis {
+    /// Held-out residual samples analysed.
     pub samples: usize,
+    /// Mean residual (measured − model), N.
     pub mean_n: f64,
+    /// RMS residual, N.
     pub rms_n: f64,
     /// RMS of the part the noise does not explain, `√max(0, rms² − σ²)`, N.
     pub systematic_rms_n: f64,
+    /// Ljung–Box whiteness of the prewhitened residual under the noise model.
     pub whiteness: Whiteness,
+    /// Cross-correlation of the residual with the throttle's changes, by lag.
     pub input_correlation: InputCorrelation,
     /// By the direction the modelled thrust moves.
     pub by_direction: Vec<ClassMean>,
     /// By operating point (quintiles of modelled thrust).
     pub by_thrust: Vec<ClassMean>,
+    /// Slow change of the residual over the run.
     pub drift: Drift,
+    /// Power of the residual against the noise model's, by frequency.
     pub spectrum: Spectrum,
     /// The most systematic windows, largest first.
     pub windows: Vec<Window>,
@@ -603,6 +615,7 @@ fn findings(a: &Analysis) -> Vec<String> {
 /// A slow periodic part of the residual (a force on the stand, a sensor's thermal cycle).
 #[derive(Clone, Copy, Debug, Serialize)]
 pub struct Periodic {
+    /// Its period, s.
     pub period_s: f64,
     /// Amplitude of the sine, N.
     pub amplitude_n: f64,

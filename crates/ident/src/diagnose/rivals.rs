@@ -14,6 +14,7 @@ use std::collections::BTreeMap;
 use jetbench_model::{EffectKind, STEP_S};
 use serde::Serialize;
 
+use super::fit::Fit;
 use super::REFIT;
 
 /// Length of a resampled block, s: longer than the memory of any noise the bench shows.
@@ -27,6 +28,16 @@ pub const MIN_BLOCKS: usize = 8;
 pub const RIVAL_WIN_SHARE: f64 = 0.05;
 /// Score units (twice a log-likelihood) within which two explanations tie outright.
 pub const TIE: f64 = 2.0;
+/// Score units a claim must lead a rival that is not nested in it (nor it in the rival) by:
+/// the likelihood ratio (e⁵ ≈ 150) within which the search calls two hypotheses equally
+/// good ([`super::Options::ambiguity`]'s default). Two explanations of the same data by
+/// different parts (a lag against a delay, physics against a refit) are each fitted to it,
+/// so where the recording hardly separates them their held-out difference is small *and*
+/// consistent from block to block: the resamples then say 95 % for a lead of a likelihood
+/// ratio of 5, which is no evidence. A nested rival (the claim with a part more or less)
+/// needs only a [`TIE`]: its extra part already paid its penalty per parameter, and a part
+/// the claim adds was admitted by the search's own bar.
+pub const DISTINCT: f64 = 10.0;
 /// Explanations further than this behind the best (score units) are not weighed.
 pub const WINDOW: f64 = 40.0;
 /// The name of the periodic rival: a sine at its own period added to what is read.
@@ -49,10 +60,13 @@ pub(crate) struct Entry {
     pub mae_val_n: f64,
     /// Outside a physical range: evidence, never an explanation.
     pub unphysical: bool,
+    /// The fit itself, when the explanation is one the model can hold (a rival outside it,
+    /// such as throttle play or a periodic force, has none): what is claimed if it leads.
+    pub fit: Option<Fit>,
 }
 
 impl Entry {
-    fn label(&self) -> (Vec<&'static str>, bool) {
+    pub(crate) fn label(&self) -> (Vec<&'static str>, bool) {
         (self.effects.clone(), self.refit)
     }
 
@@ -90,13 +104,97 @@ pub struct Rival {
 /// The rivals, best first, and whether the search's explanation dominates them all.
 #[derive(Clone, Debug, Serialize)]
 pub struct Rivals {
+    /// The explanations in play, best weight first (at most six, the search's own always).
     pub rivals: Vec<Rival>,
     /// True when the search's explanation beats every rival of another kind in at least
     /// 95 % of resamples and by more than a tie.
     pub dominant: bool,
-    /// Held-out data and how much a claim needs, s.
+    /// Held-out data, s.
     pub held_out_s: f64,
+    /// Held-out data a claim needs, s ([`MIN_BLOCKS`] blocks of [`BLOCK_S`]).
     pub needed_s: f64,
+    /// When the search's explanation does not dominate: the one rival that does dominate
+    /// every other explanation (see [`leader`]), by its effects and refit.
+    #[serde(skip)]
+    pub(crate) leader: Option<(Vec<&'static str>, bool)>,
+}
+
+/// The rival that may be claimed in place of the search's explanation: the one, if any,
+/// that wins at least [`1 − RIVAL_WIN_SHARE`](RIVAL_WIN_SHARE) of the resamples (its
+/// weight), that no other explanation beats in [`RIVAL_WIN_SHARE`] of them or more, and
+/// whose held-out score is ahead of every other by more than a [`TIE`]: the same test the
+/// search's explanation must pass to be claimed, applied to each explanation in turn.
+/// `beats[k][j]` counts the resamples in which explanation `k` scores better than `j`,
+/// `wins[j]` those in which `j` scores best, out of `resamples`.
+/// `margin(k, j)` is the lead `j` needs over `k` ([`TIE`] or [`DISTINCT`], see [`margin`]).
+pub(crate) fn leader(
+    scores: &[f64],
+    beats: &[Vec<usize>],
+    wins: &[usize],
+    resamples: usize,
+    margin: impl Fn(usize, usize) -> f64,
+) -> Option<usize> {
+    let share = |c: usize| c as f64 / resamples.max(1) as f64;
+    (0..scores.len()).find(|&j| {
+        share(wins[j]) >= 1.0 - RIVAL_WIN_SHARE
+            && (0..scores.len())
+                .filter(|&k| k != j)
+                .all(|k| share(beats[k][j]) < RIVAL_WIN_SHARE && scores[k] - scores[j] > margin(k, j))
+    })
+}
+
+/// True when one explanation's parts (effects, and the refit as one part) are all parts of
+/// the other's.
+fn nested(a: &Entry, b: &Entry) -> bool {
+    let within = |x: &Entry, y: &Entry| (!x.refit || y.refit) && x.effects.iter().all(|e| y.effects.contains(e));
+    within(a, b) || within(b, a)
+}
+
+/// The score lead a claim `a` needs over a rival `b`: a [`TIE`] when one is nested in the
+/// other, [`DISTINCT`] otherwise.
+fn margin(a: &Entry, b: &Entry) -> f64 {
+    if nested(a, b) {
+        TIE
+    } else {
+        DISTINCT
+    }
+}
+
+/// Whether the parts of `a` that `b` lacks earn their place the way the search admits a
+/// part: a better held-out score, and either a validation-MAE gain of at least
+/// `min_mae_gain_n` or a score gain of at least `strong_evidence`. A rival that only adds
+/// a part the search found not worth a claim (a few score units, a few mN) is no better
+/// explanation, however often it wins the resamples by those few units.
+pub(crate) fn earns(a: &Entry, b: &Entry, strong_evidence: f64, min_mae_gain_n: f64) -> bool {
+    let gain = b.score - a.score;
+    gain > 0.0 && (b.mae_val_n - a.mae_val_n >= min_mae_gain_n || gain >= strong_evidence)
+}
+
+/// Whether `a` (physics, the given parameters) fits the held-out data better than `b` (a
+/// refit of the ten parameters) by more than `margin` score units of misfit and by
+/// `z_min` standard errors of the paired per-sample difference, `b` charged the prior it
+/// paid to move the parameters: the test the search's own choice between physics and a
+/// refit applies. Both are judged on fit, not on the count of parameters: the held-out
+/// data already charge a refit for what it overfits, so a penalty per parameter on top
+/// would let a flexible discrepancy beat a refit that fits better.
+pub(crate) fn fits_better(a: &Entry, b: &Entry, margin: f64, z_min: f64) -> bool {
+    let n = a.w2.len();
+    if n != b.w2.len() || n < 2 {
+        return false;
+    }
+    let nf = n as f64;
+    let (sa, sb) = (a.w2.iter().sum::<f64>(), b.w2.iter().sum::<f64>());
+    if !(sa > 0.0 && sb > 0.0) {
+        return false;
+    }
+    let extra = b.prior - a.prior;
+    let lead = nf * (sb / nf).ln() + extra - nf * (sa / nf).ln();
+    // A score unit (of `N·ln(SSE/N)`) is `SSE/N` of squared innovation.
+    let d: Vec<f64> = a.w2.iter().zip(&b.w2).map(|(x, y)| y - x).collect();
+    let mean = (d.iter().sum::<f64>() + extra * sb / nf) / nf;
+    let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (nf - 1.0);
+    let z = if var > 0.0 { mean * nf.sqrt() / var.sqrt() } else { 0.0 };
+    lead > margin && z >= z_min
 }
 
 /// A small deterministic generator (SplitMix64): the same recording gets the same weights.
@@ -258,6 +356,7 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         .collect();
     let mut wins = vec![0usize; entries.len()];
     let mut beats = vec![0usize; entries.len()];
+    let mut pairwise = vec![vec![0usize; entries.len()]; entries.len()];
     let mut rng = Rng(0x5EE_D0FB_0075 ^ n as u64);
     let blocks = n.div_ceil(block).max(1);
     let starts = n.saturating_sub(block) + 1;
@@ -280,14 +379,23 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
             if scores[j] < scores[ci] {
                 beats[j] += 1;
             }
+            for k in 0..scores.len() {
+                if scores[j] < scores[k] {
+                    pairwise[j][k] += 1;
+                }
+            }
         }
     }
     let share = |c: usize| c as f64 / RESAMPLES as f64;
-    let dominated = |j: usize| share(beats[j]) < RIVAL_WIN_SHARE && entries[j].score - entries[ci].score > TIE;
+    let dominated = |j: usize| {
+        share(beats[j]) < RIVAL_WIN_SHARE && entries[j].score - entries[ci].score > margin(entries[ci], entries[j])
+    };
     let mut rivals: Vec<(usize, Rival)> = entries
         .iter()
         .enumerate()
-        .filter(|(j, e)| *j == ci || share(wins[*j]) >= 0.01 || share(beats[*j]) >= 0.01 || e.score - top <= TIE)
+        .filter(|(j, e)| {
+            *j == ci || share(wins[*j]) >= 0.01 || share(beats[*j]) >= 0.01 || e.score - top <= margin(entries[ci], e)
+        })
         .map(|(j, e)| {
             let rival = Rival {
                 effects: e.effects.clone(),
@@ -309,6 +417,12 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         })
         .collect();
     let dominant = n >= MIN_BLOCKS * block && rivals.iter().all(|(j, r)| *j == ci || r.dominated);
+    let scores: Vec<f64> = entries.iter().map(|e| e.score).collect();
+    let leader = (n >= MIN_BLOCKS * block && !dominant)
+        .then(|| leader(&scores, &pairwise, &wins, RESAMPLES, |k, j| margin(entries[j], entries[k])))
+        .flatten()
+        .filter(|&j| j != ci)
+        .map(|j| entries[j].label());
     rivals.sort_by(|a, b| b.1.weight.total_cmp(&a.1.weight).then(a.1.score_behind.total_cmp(&b.1.score_behind)));
     rivals.truncate(6);
     if !rivals.iter().any(|(j, _)| *j == ci) {
@@ -330,7 +444,7 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
             },
         ));
     }
-    Rivals { rivals: rivals.into_iter().map(|(_, r)| r).collect(), dominant, held_out_s, needed_s }
+    Rivals { rivals: rivals.into_iter().map(|(_, r)| r).collect(), dominant, held_out_s, needed_s, leader }
 }
 
 /// The entry of an explanation: its parts, innovations and score.
@@ -349,5 +463,112 @@ pub(crate) fn entry(
     let n = w2.len() as f64;
     let sse: f64 = w2.iter().sum();
     let score = n * (sse / n).ln() + free as f64 * n.ln() + prior;
-    Entry { effects: names, refit, w2, free, prior, score, mae_val_n: mae, unphysical }
+    Entry { effects: names, refit, w2, free, prior, score, mae_val_n: mae, unphysical, fit: None }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Held-out innovations of an explanation: unit noise from a fixed generator, scaled.
+    fn innovations(seed: u64, n: usize, scale: f64) -> Vec<f64> {
+        let mut rng = Rng(seed);
+        (0..n)
+            .map(|_| {
+                // A sum of uniforms: close enough to a normal draw for a score.
+                let u: f64 = (0..12).map(|_| (rng.next() >> 11) as f64 / (1u64 << 53) as f64).sum();
+                scale * (u - 6.0)
+            })
+            .collect()
+    }
+
+    fn explanation(effects: &[EffectKind], refit: bool, w: &[f64]) -> Entry {
+        entry(effects, refit, w, effects.len() + if refit { 10 } else { 0 }, 0.0, 1.0, false)
+    }
+
+    #[test]
+    fn a_rival_that_dominates_every_other_explanation_leads() {
+        let n = 6000; // 60 s held out
+        let noise = innovations(1, n, 1.0);
+        // The search's pick explains the data less well than a rival of another kind (1 %
+        // more innovation variance is about 60 score units here), and a third is worse still.
+        let chosen =
+            explanation(&[EffectKind::ActuatorLag], false, &noise.iter().map(|x| x * 1.01).collect::<Vec<_>>());
+        let best = explanation(&[EffectKind::InputDelay], false, &noise);
+        let third = explanation(&[], true, &noise.iter().map(|x| x * 1.02).collect::<Vec<_>>());
+        let w = weigh(&[best.clone(), third.clone()], &chosen);
+        assert!(!w.dominant, "the search's pick is beaten: it cannot be claimed");
+        assert_eq!(w.leader, Some((vec!["input_delay"], false)), "{:?}", w.rivals);
+        // Weighed as the claim, the leader dominates every rival.
+        let again = weigh(&[chosen.clone(), third], &best);
+        assert!(again.dominant && again.leader.is_none());
+    }
+
+    #[test]
+    fn no_rival_leads_when_two_explanations_tie() {
+        let n = 6000;
+        let noise = innovations(2, n, 1.0);
+        // Two explanations whose innovations differ sample by sample but not in size (the
+        // same values in reverse order): a tie, each wins about half the resamples.
+        let other: Vec<f64> = noise.iter().rev().copied().collect();
+        let chosen =
+            explanation(&[EffectKind::ActuatorLag], false, &noise.iter().map(|x| x * 1.01).collect::<Vec<_>>());
+        let a = explanation(&[EffectKind::InputDelay], false, &noise);
+        let b = explanation(&[EffectKind::SensorDrift], false, &other);
+        let w = weigh(&[a, b], &chosen);
+        assert!(!w.dominant);
+        assert_eq!(w.leader, None, "a tie leaves the cause ambiguous: {:?}", w.rivals);
+    }
+
+    #[test]
+    fn a_few_units_over_a_rival_of_other_parts_is_no_claim_but_over_a_nested_one_it_is() {
+        let n = 6000;
+        let noise = innovations(3, n, 1.0);
+        // 4 score units of misfit behind, in every sample alike: the resamples always prefer
+        // the claim, but a likelihood ratio of e² is no evidence between different parts.
+        let behind = (4.0f64 / n as f64).exp().sqrt();
+        let scaled: Vec<f64> = noise.iter().map(|x| x * behind).collect();
+        let chosen = explanation(&[EffectKind::ActuatorLag], false, &noise);
+        let other = explanation(&[EffectKind::InputDelay], false, &scaled);
+        let w = weigh(&[other], &chosen);
+        assert!(!w.dominant, "a lag 4 units ahead of a delay is not claimed: {:?}", w.rivals);
+        // The claim with one part more, 4 units of misfit behind (and its penalty): dominated.
+        let bigger = explanation(&[EffectKind::ActuatorLag, EffectKind::GainDrift], false, &scaled);
+        let w = weigh(&[bigger], &chosen);
+        assert!(w.dominant, "{:?}", w.rivals);
+    }
+
+    #[test]
+    fn physics_must_fit_better_than_a_refit_and_each_added_part_must_earn_its_place() {
+        let n = 6000;
+        let noise = innovations(4, n, 1.0);
+        let scaled = |f: f64| noise.iter().map(|x| x * f).collect::<Vec<_>>();
+        let physics = explanation(&[EffectKind::Discrepancy], false, &noise);
+        // A refit 1 % worse in innovation size (about 120 units of misfit): physics fits better.
+        assert!(fits_better(&physics, &explanation(&[], true, &scaled(1.01)), 10.0, 2.0));
+        // A refit that fits as well: physics is no better, whatever the penalty per parameter
+        // says (the refit's ten parameters cost it 87 score units here).
+        let refit = explanation(&[], true, &scaled(1.0002));
+        assert!(refit.score > physics.score + 50.0);
+        assert!(!fits_better(&physics, &refit, 10.0, 2.0));
+        // A part that adds 5 units and 0.001 N is not admitted; one that adds 60 units is.
+        let mut with = explanation(&[EffectKind::Discrepancy, EffectKind::SensorDrift], false, &noise);
+        let mut without = physics.clone();
+        with.score = without.score - 5.0;
+        with.mae_val_n = without.mae_val_n - 0.001;
+        assert!(!earns(&with, &without, 40.0, 0.02));
+        without.score = with.score + 60.0;
+        assert!(earns(&with, &without, 40.0, 0.02));
+    }
+
+    #[test]
+    fn the_leader_rule_needs_the_weight_and_the_score() {
+        // Explanation 0 wins every resample but is within a tie of explanation 1 on score.
+        let beats = vec![vec![0, 400], vec![0, 0]];
+        assert_eq!(leader(&[0.0, 1.5], &beats, &[400, 0], 400, |_, _| TIE), None);
+        assert_eq!(leader(&[0.0, 2.5], &beats, &[400, 0], 400, |_, _| TIE), Some(0));
+        // Ahead on score, but another explanation beats it in 5 % of the resamples.
+        let beats = vec![vec![0, 380], vec![20, 0]];
+        assert_eq!(leader(&[0.0, 30.0], &beats, &[380, 20], 400, |_, _| TIE), None);
+    }
 }
