@@ -111,7 +111,11 @@ fn latency_under_cpu_load_with_rt_measures_every_cycle() {
     // The copying baseline ran the same service set for as long.
     let uds = &report["uds"];
     let uds_cycles = uds["cycles"].as_u64().expect("uds.cycles");
-    assert!(uds_cycles.abs_diff(expected) <= expected / 10, "{uds_cycles} baseline cycles, expected about {expected}");
+    // It too judges the cycles while it waited for the ECU's first report of run.
+    assert!(
+        uds_cycles + expected / 10 >= expected && uds_cycles <= expected + expected / 10 + waited,
+        "{uds_cycles} baseline cycles, expected about {expected} (plus up to {waited} while waiting for run)"
+    );
     assert_eq!(report["uds_us"]["count"].as_u64(), uds["completed"].as_u64());
     assert_eq!(report["floor_lost"].as_u64(), Some(0), "the floor chain lost cycles: {report}");
     assert!(report["deadline_misses"].as_u64().is_some() && report["lost"].as_u64().is_some());
