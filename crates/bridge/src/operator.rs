@@ -231,12 +231,19 @@ impl Gateway {
             match self.publisher.publish(sample) {
                 Ok(seq) => {
                     self.counts.forwarded += 1;
-                    tracing::info!(
+                    let line = format!(
                         "{} from {} (authority {}) forwarded as bench/operator seq {seq}",
                         name(command),
                         from.identity,
                         authority_name(from.authority)
                     );
+                    // Heartbeats come ten times a second: the log keeps them
+                    // at debug (the recording has every one).
+                    if command == operator_commands::HEARTBEAT {
+                        tracing::debug!("{line}");
+                    } else {
+                        tracing::info!("{line}");
+                    }
                     self.pending.push(Awaiting {
                         client_id,
                         command,

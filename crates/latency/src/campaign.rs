@@ -36,7 +36,7 @@ use crate::chain::{run_chain, stage_rt_requests, ChainError, ChainOptions, Chain
 use crate::control_room::{CommandReport, Commanding, ControlRoom, ControlRoomReport, RoomPki};
 use crate::load::{Load, LoadError, LoadKind};
 use crate::pipeline::{analyse_pipeline, LatencyHistogram, Percentiles, PipelineAnalysis, HOPS};
-use crate::steal::{steal_ms_per_cpu, StealSampler};
+use crate::steal::{steal_ms_per_cpu, StealSampler, StealTimeline};
 
 /// What one run measures.
 #[derive(Clone, Debug)]
@@ -417,6 +417,8 @@ pub struct ControlRoomCost {
     pub watching_e2e_us: Percentiles,
     /// Deadline misses with the control room watching only.
     pub watching_deadline_misses: u64,
+    /// Of those, the ones within 40 ms after or 20 ms before the hypervisor stole a CPU.
+    pub watching_misses_during_steal: u64,
     /// p99 commanding / p99 watching: what the operator's commands cost.
     pub commands_e2e_p99_ratio: f64,
     /// p50 commanding / p50 watching.
@@ -425,6 +427,8 @@ pub struct ControlRoomCost {
     pub cycles: u64,
     /// Deadline misses with it attached.
     pub deadline_misses: u64,
+    /// Of those, the ones within 40 ms after or 20 ms before the hypervisor stole a CPU.
+    pub misses_during_steal: u64,
     /// Deadline misses of the same set without it, in the same rounds.
     pub deadline_misses_without: u64,
     /// End-to-end p99 of the same set without it, µs (the report's `e2e_us.p99`).
@@ -445,12 +449,20 @@ pub struct ControlRoomCost {
     pub clients: Vec<ControlRoomReport>,
 }
 
+/// The deadline misses of `pipeline` within 40 ms after or 20 ms before the
+/// hypervisor stole a CPU (a stolen CPU stalls every process on it).
+fn misses_during_steal(steal: &StealTimeline, pipeline: &PipelineAnalysis) -> u64 {
+    let stolen = |t: u64| steal.stolen_ms(t.saturating_sub(40_000_000), t + 20_000_000) > 0.0;
+    pipeline.miss_stamps_ns.iter().filter(|&&t| stolen(t)).count() as u64
+}
+
 impl ControlRoomCost {
     fn of(
         watched: &PipelineAnalysis,
         watching: &PipelineAnalysis,
         plain: &PipelineAnalysis,
         clients: &[ControlRoomReport],
+        steal: &StealTimeline,
     ) -> Self {
         let (with, without) = (watched.e2e.percentiles(), plain.e2e.percentiles());
         let looking = watching.e2e.percentiles();
@@ -459,10 +471,12 @@ impl ControlRoomCost {
             e2e_us: with,
             watching_e2e_us: looking,
             watching_deadline_misses: watching.deadline_misses(),
+            watching_misses_during_steal: misses_during_steal(steal, watching),
             commands_e2e_p99_ratio: ratio(with.p99, looking.p99),
             commands_e2e_p50_ratio: ratio(with.p50, looking.p50),
             cycles: watched.cycles,
             deadline_misses: watched.deadline_misses(),
+            misses_during_steal: misses_during_steal(steal, watched),
             deadline_misses_without: plain.deadline_misses(),
             e2e_p99_us_without: without.p99,
             lost: watched.lost(),
@@ -618,11 +632,7 @@ pub fn run_campaign(options: &CampaignOptions, progress: &mut dyn Progress) -> R
         _ => Vec::new(),
     };
     let steal = steal_sampler.map(StealSampler::finish).unwrap_or_default();
-    let misses_during_steal = iceoryx2
-        .miss_stamps_ns
-        .iter()
-        .filter(|&&t| steal.stolen_ms(t.saturating_sub(40_000_000), t + 20_000_000) > 0.0)
-        .count() as u64;
+    let misses_during_steal = misses_during_steal(&steal, &iceoryx2);
     if !load.running() {
         progress.note(&format!("warning: the load `{}` ended before the measurements did", load.description));
     }
@@ -636,8 +646,9 @@ pub fn run_campaign(options: &CampaignOptions, progress: &mut dyn Progress) -> R
     }
     let mut report =
         build_report(options, load_description, rt_refused, &iceoryx2, &uds, &floor, steal_ms, misses_during_steal);
-    report.control_room =
-        watched.as_ref().map(|(pipeline, clients)| ControlRoomCost::of(pipeline, &watching, &iceoryx2, clients));
+    report.control_room = watched
+        .as_ref()
+        .map(|(pipeline, clients)| ControlRoomCost::of(pipeline, &watching, &iceoryx2, clients, &steal));
     Ok(Campaign { report, iceoryx2, uds, floor, control_room: watched.map(|(pipeline, _)| pipeline) })
 }
 
@@ -926,13 +937,16 @@ impl fmt::Display for Report {
             writeln!(
                 f,
                 "  what the commands cost the loop: e2e p99 {:.1} µs commanding, {:.1} µs only watching (x{:.2}; \
-                 p50 x{:.2}); deadline misses {} commanding, {} only watching",
+                 p50 x{:.2}); deadline misses {} commanding ({} while the hypervisor stole a CPU), {} only \
+                 watching ({} while it stole)",
                 room.e2e_us.p99,
                 room.watching_e2e_us.p99,
                 room.commands_e2e_p99_ratio,
                 room.commands_e2e_p50_ratio,
                 room.deadline_misses,
+                room.misses_during_steal,
                 room.watching_deadline_misses,
+                room.watching_misses_during_steal,
             )?;
             writeln!(
                 f,

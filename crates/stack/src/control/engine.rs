@@ -340,7 +340,13 @@ impl EngineSupervisor {
         let name = op::name(c.command).unwrap_or("unknown command");
         let (kind, previous) = match &result {
             Ok(note) => {
-                tracing::info!("{name} from {who}: accepted{note}");
+                // A heartbeat comes ten times a second: logged at debug only
+                // (its event is recorded like every command's).
+                if c.command == op::HEARTBEAT {
+                    tracing::debug!("{name} from {who}: accepted{note}");
+                } else {
+                    tracing::info!("{name} from {who}: accepted{note}");
+                }
                 (event_kinds::COMMAND_ACCEPTED, 0)
             }
             Err((code, why)) => {

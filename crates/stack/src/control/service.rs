@@ -89,6 +89,8 @@ impl Service for ControlService {
         let waiting = matches!(wake, Wake::Input(_));
         self.supervise(ctx, waiting)?;
         if let Wake::Missed(_) = wake {
+            // No throttle command is due: the operator's commands act now.
+            self.take_operator(ctx)?;
             // No estimate (the sensor is silent, or not yet heard): while the
             // engine is gated, or a trip has just held it, idle is commanded
             // anyway, carrying what the ECU is asked.
@@ -145,6 +147,10 @@ impl Service for ControlService {
             self.publish_events(ctx)
         })?;
         if waiting {
+            // The operator's commands once this cycle's throttle is out, so the
+            // loop never waits for them (or for the events that answer them):
+            // they act from the next estimate, 10 ms later at 100 Hz.
+            self.take_operator(ctx)?;
             // Every waiting estimate taken: the sensor's age is what it seems.
             self.engine.check(monotonic_ns());
             self.publish_events(ctx)?;
@@ -154,19 +160,24 @@ impl Service for ControlService {
 }
 
 impl ControlService {
-    /// Takes the ECU's samples and the operator's commands, and checks the
-    /// limits (the sensor's silence only when no estimate is `waiting`).
+    /// Takes the ECU's samples and checks the limits (the sensor's silence
+    /// only when no estimate is `waiting`): a trip acts on this cycle's command.
     fn supervise(&mut self, ctx: &mut Context<'_>, waiting: bool) -> Result<(), ServiceError> {
         while let Some(t) = self.ecu.try_recv()? {
             self.engine.on_ecu(monotonic_ns(), &t);
-        }
-        while let Some(c) = self.operator.try_recv()? {
-            self.engine.on_command(monotonic_ns(), &c);
         }
         if waiting {
             self.engine.check_before_estimates(monotonic_ns());
         } else {
             self.engine.check(monotonic_ns());
+        }
+        self.publish_events(ctx)
+    }
+
+    /// Takes the operator's commands (each answered by an event).
+    fn take_operator(&mut self, ctx: &mut Context<'_>) -> Result<(), ServiceError> {
+        while let Some(c) = self.operator.try_recv()? {
+            self.engine.on_command(monotonic_ns(), &c);
         }
         self.publish_events(ctx)
     }

@@ -199,8 +199,12 @@ impl EngineWatch {
         }
         while let Some(e) = self.events.try_recv()? {
             let text = describe_event(&e);
-            // Above the status line, never through it.
-            crate::runtime::status::say(&format!("event: {text}"));
+            // Above the status line, never through it; an accepted heartbeat
+            // (ten a second from an operator in control) only in the recording.
+            let heartbeat = e.kind == event_kinds::COMMAND_ACCEPTED && e.code == operator_commands::HEARTBEAT;
+            if !heartbeat {
+                crate::runtime::status::say(&format!("event: {text}"));
+            }
             match e.kind {
                 event_kinds::TRIP => {
                     self.last_trip = Some(text);
