@@ -19,6 +19,7 @@ use std::time::Duration;
 
 use crossbeam_channel::{Receiver, Sender};
 use foxglove::websocket::service::{Request, Responder, Service, ServiceSchema};
+use foxglove::Schema;
 use jetbench_control::operator::{Awaiting, AwaitingDecision, OperatorSettings};
 use jetbench_msgs::{authorities, operator_commands as c, origins, Event, OperatorCommand};
 
@@ -103,7 +104,7 @@ impl FoxgloveGateway {
         if token.is_some() {
             offered_commands.extend_from_slice(OPERATOR_SERVICES);
         }
-        let schema = || ServiceSchema::new("jetbench/OperatorCommand");
+        let schema = service_schema;
         let services: Vec<Service> = offered_commands
             .iter()
             .map(|&(name, command)| {
@@ -194,6 +195,29 @@ impl FoxgloveGateway {
             respond(a.reply, &answer);
         }
     }
+}
+
+/// The services' request (`{"value": N}`, optional) and answer
+/// (`{"answer": "accepted ..." | "refused: ..."}`), as JSON schemas: a client
+/// that builds its request form or decodes the answer from the schema
+/// (Lichtblick's Call Service panel does) finds both.
+fn service_schema() -> ServiceSchema {
+    let json_schema = |name: &str, text: &str| Schema::new(name, "jsonschema", text.as_bytes().to_vec());
+    ServiceSchema::new("jetbench/OperatorCommand")
+        .with_request(
+            "json",
+            json_schema(
+                "jetbench/OperatorCommand_Request",
+                r#"{"type":"object","properties":{"value":{"type":"number","description":"the command's value (a hold's throttle cap in %, a reference in N); most commands take none"}}}"#,
+            ),
+        )
+        .with_response(
+            "json",
+            json_schema(
+                "jetbench/OperatorCommand_Response",
+                r#"{"type":"object","properties":{"answer":{"type":"string","description":"accepted, or refused with the reason"}}}"#,
+            ),
+        )
 }
 
 fn respond(responder: Responder, answer: &str) {
