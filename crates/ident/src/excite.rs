@@ -195,7 +195,7 @@ mod tests {
         let c = ironcub_signal(2);
         assert_eq!(c.profile.len(), 54_400);
         let (lo, hi) = c.profile.u_pct.iter().fold((100f64, 0f64), |(a, b), &u| (a.min(u), b.max(u)));
-        assert!(lo >= 0.0 && lo < 10.0 && hi > 90.0 && hi <= 100.0, "{lo} {hi}");
+        assert!((0.0..10.0).contains(&lo) && hi > 90.0 && hi <= 100.0, "{lo} {hi}");
         assert_eq!(campaign_over(300.0, 4, (THROTTLE_MIN_PCT, THROTTLE_MAX_PCT)), campaign(300.0, 4));
     }
 

@@ -785,11 +785,7 @@ impl Report {
             Some(Ok(s)) => {
                 let _ = writeln!(out, "structure: {}", s.verdict);
                 for t in &s.chosen {
-                    let _ = writeln!(
-                        out,
-                        "  {} = {:e}: earns {:.1} score units on held-out data beyond its penalty",
-                        t.label, t.value, t.held_out_gain
-                    );
+                    let _ = writeln!(out, "  {} = {:e}: {}", t.label, t.value, t.earned_text());
                 }
             }
             Some(Err(e)) => {

@@ -602,19 +602,27 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
     Ok(structure)
 }
 
+impl ChosenTerm {
+    /// What the term earns, in words.
+    pub fn earned_text(&self) -> String {
+        let plural = if self.parameters == 1 { "" } else { "s" };
+        if self.held_out_gain.is_finite() {
+            format!(
+                "without it the held-out score is {:.1} units worse ({} parameter{plural}, penalty included)",
+                self.held_out_gain, self.parameters
+            )
+        } else {
+            format!("without it the rest, refitted, diverges on the data ({} parameter{plural})", self.parameters)
+        }
+    }
+}
+
 impl Structure {
     /// Comment lines for a model file: which terms were chosen and why.
     pub fn comment(&self) -> String {
         let mut out = format!("# Structure chosen by the data: {}\n", self.verdict);
         for t in &self.chosen {
-            out.push_str(&format!(
-                "#   {} = {:e}: without it the held-out score is {:.1} units worse ({} parameter{}, penalty included)\n",
-                t.label,
-                t.value,
-                t.held_out_gain,
-                t.parameters,
-                if t.parameters == 1 { "" } else { "s" }
-            ));
+            out.push_str(&format!("#   {} = {:e}: {}\n", t.label, t.value, t.earned_text()));
         }
         out
     }
