@@ -28,12 +28,30 @@ pub struct Campaign {
 /// draws its operating point and amplitude at random, so the data covers the
 /// whole throttle range, both directions of change and a band of frequencies.
 pub fn campaign(duration_s: f64, seed: u64) -> Campaign {
+    campaign_over(duration_s, seed, (THROTTLE_MIN_PCT, THROTTLE_MAX_PCT))
+}
+
+/// Length of the iRonCub group's identification signal, s.
+pub const IRONCUB_SIGNAL_S: f64 = 544.0;
+
+/// An identification signal in the manner of the iRonCub group's: 544 s over the whole
+/// 0–100 % throttle range of their jet model (`jetbench_model::ironcub`), made of the same
+/// blocks as [`campaign`] (steps, ramps, sines, chirps), reproducible from `seed`. It is
+/// not their recorded signal, which is not public: it has its length and range.
+pub fn ironcub_signal(seed: u64) -> Campaign {
+    let mut c = campaign_over(IRONCUB_SIGNAL_S, seed, (jetbench_model::ironcub::IRONCUB_THROTTLE_MIN_PCT, 100.0));
+    c.profile.name = format!("iRonCub-style identification signal, 0-100 % (seed {seed})");
+    c
+}
+
+/// [`campaign`] over the throttle range `(lo, hi)`, %.
+pub fn campaign_over(duration_s: f64, seed: u64, (lo, hi): (f64, f64)) -> Campaign {
     let n = (duration_s.max(0.0) / STEP_S).round() as usize;
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut u: Vec<f64> = Vec::with_capacity(n + 1000);
     let mut blocks = Vec::new();
-    let mut level: f64 = THROTTLE_MIN_PCT;
-    let clamp = |x: f64| x.clamp(THROTTLE_MIN_PCT, THROTTLE_MAX_PCT);
+    let mut level: f64 = lo;
+    let clamp = |x: f64| x.clamp(lo, hi);
     let mut kind = 0usize;
     while u.len() < n {
         let start_s = u.len() as f64 * STEP_S;
@@ -43,7 +61,7 @@ pub fn campaign(duration_s: f64, seed: u64) -> Campaign {
                 for i in 0..6 {
                     // Alternate large moves across the range with small ones around a point.
                     level = if i % 2 == 0 {
-                        rng.random_range(THROTTLE_MIN_PCT..=THROTTLE_MAX_PCT)
+                        rng.random_range(lo..=hi)
                     } else {
                         clamp(level + rng.random_range(-15.0..15.0))
                     };
@@ -56,7 +74,7 @@ pub fn campaign(duration_s: f64, seed: u64) -> Campaign {
             1 => {
                 let mut levels = Vec::new();
                 for _ in 0..4 {
-                    let target = rng.random_range(THROTTLE_MIN_PCT..=THROTTLE_MAX_PCT);
+                    let target = rng.random_range(lo..=hi);
                     let ramp = rng.random_range(1.5..8.0);
                     push_ramp(&mut u, level, target, ramp);
                     level = target;
@@ -67,7 +85,7 @@ pub fn campaign(duration_s: f64, seed: u64) -> Campaign {
             }
             2 => {
                 let amplitude: f64 = rng.random_range(4.0..25.0);
-                let offset = rng.random_range(THROTTLE_MIN_PCT + amplitude..=THROTTLE_MAX_PCT - amplitude);
+                let offset = rng.random_range(lo + amplitude..=hi - amplitude);
                 let period = rng.random_range(1.0..8.0);
                 let span = (rng.random_range(12.0f64..20.0) / period).ceil() * period;
                 push_ramp(&mut u, level, offset, 1.0);
@@ -81,7 +99,7 @@ pub fn campaign(duration_s: f64, seed: u64) -> Campaign {
             }
             _ => {
                 let amplitude: f64 = rng.random_range(5.0..20.0);
-                let offset = rng.random_range(THROTTLE_MIN_PCT + amplitude..=THROTTLE_MAX_PCT - amplitude);
+                let offset = rng.random_range(lo + amplitude..=hi - amplitude);
                 let (f0, f1, sweep) = (0.05, rng.random_range(0.8..2.0), rng.random_range(15.0..25.0));
                 push_ramp(&mut u, level, offset, 1.0);
                 let k0 = u.len();
@@ -170,6 +188,15 @@ mod tests {
         }
         assert_eq!(campaign(300.0, 4), c, "same seed, same campaign");
         assert_ne!(campaign(300.0, 5).profile, c.profile);
+    }
+
+    #[test]
+    fn the_ironcub_signal_spans_its_range_for_544_s() {
+        let c = ironcub_signal(2);
+        assert_eq!(c.profile.len(), 54_400);
+        let (lo, hi) = c.profile.u_pct.iter().fold((100f64, 0f64), |(a, b), &u| (a.min(u), b.max(u)));
+        assert!((0.0..10.0).contains(&lo) && hi > 90.0 && hi <= 100.0, "{lo} {hi}");
+        assert_eq!(campaign_over(300.0, 4, (THROTTLE_MIN_PCT, THROTTLE_MAX_PCT)), campaign(300.0, 4));
     }
 
     #[test]

@@ -10,6 +10,7 @@ use serde_json::{Map, Value};
 
 use crate::series::Series;
 use crate::sindy::{self, PolynomialLibrary, SindyModel, StlsqOptions};
+use crate::structure::Structure;
 use crate::validate::{self, Dynamics, NoiseFloor, Score, Simulation};
 use crate::{ekf, ls, IdentError};
 
@@ -84,6 +85,9 @@ pub struct Options {
     /// throttle range and bounded on the validation data), refine them ([`Method::Oe`])
     /// to repair them, so that a bounded model comes out whenever one can describe the data.
     pub repair: bool,
+    /// Extend the best bounded ten-parameter model by the terms of the discrepancy library
+    /// that held-out data pays for ([`crate::structure`]).
+    pub structure: bool,
 }
 
 impl Default for Options {
@@ -95,6 +99,7 @@ impl Default for Options {
             sindy: SindyOptions::default(),
             refine: crate::refine::RefineOptions::default(),
             repair: true,
+            structure: true,
         }
     }
 }
@@ -228,6 +233,9 @@ pub struct Report {
     /// Why the refinement ran to repair the chosen methods' models, when it did (none of
     /// them was bounded).
     pub repair: Option<String>,
+    /// The structure search on the best bounded ten-parameter model: the terms the data
+    /// pays for (`Err`: why no search could be made; None: not asked for, or no bounded model).
+    pub structure: Option<Result<Structure, String>>,
 }
 
 /// Best validation MAE over the noise floor above which the fit is called poor.
@@ -400,7 +408,7 @@ pub fn identify(
             "; the refinement could not make one bounded either"
         });
     }
-    Ok(Report {
+    let mut report = Report {
         repair,
         calibration_samples: calibration.iter().map(Series::len).sum(),
         validation_samples: validation.iter().map(Series::len).sum(),
@@ -409,7 +417,15 @@ pub fn identify(
         noise,
         best,
         verdict,
-    })
+        structure: None,
+    };
+    if options.structure {
+        if let Some((method, params)) = report.best_params().map(|(r, p)| (r.method, p)) {
+            progress(method, "choosing structure");
+            report.structure = Some(crate::structure::choose(calibration, validation, params));
+        }
+    }
+    Ok(report)
 }
 
 fn verdict(results: &[MethodResult], best: Option<Method>, noise: &NoiseFloor) -> String {
@@ -662,6 +678,12 @@ impl Report {
             "verdict": self.verdict,
             "repair": self.repair,
             "written": self.best_params().map(|(r, _)| r.method.name()),
+            "structure": match &self.structure {
+                Some(Ok(s)) => serde_json::to_value(s).unwrap_or(Value::Null),
+                Some(Err(e)) => serde_json::json!({ "error": e }),
+                None => Value::Null,
+            },
+            "terms": self.chosen_structure().map_or_else(Vec::new, |s| s.chosen.iter().map(|t| t.key).collect()),
         })
     }
 
@@ -759,8 +781,51 @@ impl Report {
             let _ = writeln!(out, "\nrefinement run to repair: {why}");
         }
         let _ = writeln!(out, "\n{}", self.verdict);
+        match &self.structure {
+            Some(Ok(s)) => {
+                let _ = writeln!(out, "structure: {}", s.verdict);
+                for t in &s.chosen {
+                    let _ = writeln!(out, "  {} = {:e}: {}", t.label, t.value, t.earned_text());
+                }
+            }
+            Some(Err(e)) => {
+                let _ = writeln!(out, "structure: not searched: {e}");
+            }
+            None => {}
+        }
         let _ = writeln!(out, "{}", self.written_text());
         out
+    }
+
+    /// The structure search's result when it extended the model.
+    pub fn chosen_structure(&self) -> Option<&Structure> {
+        match &self.structure {
+            Some(Ok(s)) if s.model.is_some() => Some(s),
+            _ => None,
+        }
+    }
+
+    /// The model file `identify --out` writes: the best bounded ten-parameter model, or
+    /// its extension by the terms the data paid for, with where it came from and which
+    /// terms were chosen and why in comments (None: no bounded model).
+    pub fn model_file_text(&self) -> Option<String> {
+        let (result, params) = self.best_params()?;
+        let Some((s, file)) = self.chosen_structure().and_then(|s| Some((s, s.model.as_ref()?))) else {
+            let mut text = model_file_text(result, params);
+            if let Some(Ok(s)) = &self.structure {
+                text.insert_str(0, &s.comment());
+            }
+            return Some(text);
+        };
+        let mut text = format!(
+            "# Identified by `jetbench identify` ({} extended by the terms the data paid for), validation MAE {} N \
+             (simulated through from the recording's start)\n",
+            result.method.name(),
+            s.extended_mae_n.map_or("n/a".into(), |m| format!("{m:.3}"))
+        );
+        text.push_str(&s.comment());
+        text.push_str(&file.to_toml_string());
+        Some(text)
     }
 
     /// Which model a model file gets and why, in one line: the best bounded one, the
@@ -785,6 +850,10 @@ impl Report {
             .map(|r| format!("{} ({})", r.method.name(), r.unbounded_reason().unwrap_or_default()))
             .collect();
         let mut text = format!("model file: the {} model, the best bounded one", chosen.method.name());
+        if let Some(s) = self.chosen_structure() {
+            let terms: Vec<&str> = s.chosen.iter().map(|t| t.label.as_str()).collect();
+            text.push_str(&format!(", extended by {}", terms.join(", ")));
+        }
         if !passed_over.is_empty() {
             text.push_str(&format!("; passed over as not bounded: {}", passed_over.join("; ")));
         }

@@ -18,6 +18,7 @@ pub use jetbench_record::series;
 pub use savgol::{SavGolError, SavitzkyGolay};
 pub mod sindy;
 pub mod spd;
+pub mod structure;
 pub mod synth;
 pub mod validate;
 

@@ -6,6 +6,7 @@ use std::path::Path;
 
 use serde::Deserialize;
 
+use crate::ironcub::{IronCubJet, IRONCUB_PLANT};
 use crate::turbojet::TurbojetParams;
 use crate::{Effects, ModelError, Params, Plant, Preset};
 
@@ -115,17 +116,22 @@ pub fn resolve_params(spec: &str) -> Result<Params, ModelError> {
     resolve_model(spec).map(|file| file.model)
 }
 
-/// "A preset name or a path to a model file": a preset name wins; anything else is
-/// loaded as a file, effects included.
+/// "A preset name or a path to a model file": a preset name wins (`ironcub`, the
+/// iRonCub group's 13-coefficient jet, is the ten parameters with its input-gain terms as
+/// a discrepancy, [`crate::ironcub`]); anything else is loaded as a file, effects included.
 pub fn resolve_model(spec: &str) -> Result<ModelFile, ModelError> {
     if let Ok(preset) = spec.parse::<Preset>() {
         return Ok(ModelFile::new(preset.params()));
+    }
+    if spec.trim().eq_ignore_ascii_case(IRONCUB_PLANT) {
+        return Ok(IronCubJet::published().model_file());
     }
     let path = Path::new(spec);
     match ModelFile::load(path) {
         Ok(file) => Ok(file),
         Err(ModelError::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
-            Err(ModelError::UnknownSpec { spec: spec.to_owned(), valid: Preset::valid_names(), source })
+            let valid = format!("{}, {IRONCUB_PLANT}", Preset::valid_names());
+            Err(ModelError::UnknownSpec { spec: spec.to_owned(), valid, source })
         }
         Err(e) => Err(e),
     }
@@ -135,8 +141,17 @@ pub fn resolve_model(spec: &str) -> Result<ModelFile, ModelError> {
 /// the ten-parameter model ([`crate::turbojet`]).
 pub const TURBOJET_PLANTS: [&str; 2] = ["turbojet-p100", "turbojet-p220"];
 
+/// True when `spec` names a built-in plant or model (a preset, a turbojet plant or
+/// [`IRONCUB_PLANT`]) rather than a path.
+pub fn names_a_plant(spec: &str) -> bool {
+    let wanted = spec.trim();
+    wanted.parse::<Preset>().is_ok()
+        || wanted.eq_ignore_ascii_case(IRONCUB_PLANT)
+        || TURBOJET_PLANTS.iter().any(|name| wanted.eq_ignore_ascii_case(name))
+}
+
 /// The engine a simulated bench runs, from "a turbojet plant (`turbojet-p100`,
-/// `turbojet-p220`), a model preset, or a path": a plant file with a `[turbojet]` table
+/// `turbojet-p220`), a model preset (or `ironcub`), or a path": a plant file with a `[turbojet]` table
 /// (`base` and any constant of [`TurbojetParams::NAMES`]) and optional `[effects.<name>]`
 /// tables is a turbojet; any other file is a model file ([`resolve_model`]). Effects a
 /// turbojet cannot take (a discrepancy) are an error.
@@ -145,14 +160,14 @@ pub fn resolve_plant(spec: &str) -> Result<Plant, ModelError> {
     if let Some(base) = wanted.strip_prefix("turbojet-").and_then(TurbojetParams::preset) {
         return Ok(Plant::with_turbojet(base, Effects::none()));
     }
-    if spec.parse::<Preset>().is_ok() {
+    if spec.parse::<Preset>().is_ok() || wanted == IRONCUB_PLANT {
         return resolve_model(spec).map(|file| file.plant());
     }
     let path = Path::new(spec);
     let text = match std::fs::read_to_string(path) {
         Ok(text) => text,
         Err(source) if source.kind() == std::io::ErrorKind::NotFound => {
-            let valid = format!("{}, {}", TURBOJET_PLANTS.join(", "), Preset::valid_names());
+            let valid = format!("{}, {IRONCUB_PLANT}, {}", TURBOJET_PLANTS.join(", "), Preset::valid_names());
             return Err(ModelError::UnknownSpec { spec: spec.to_owned(), valid, source });
         }
         Err(source) => return Err(ModelError::Io { path: path.to_path_buf(), source }),
@@ -225,8 +240,14 @@ mod tests {
             assert!(err.contains(says), "{name}: {err}");
             let _ = std::fs::remove_file(path);
         }
+        let ironcub = resolve_plant(" iRonCub ").unwrap();
+        assert_eq!(ironcub, IronCubJet::published().plant());
+        assert!(ironcub.effects.get(crate::EffectKind::Discrepancy).is_some() && ironcub.turbojet.is_none());
+        assert_eq!(resolve_model("ironcub").unwrap(), IronCubJet::published().model_file());
+        assert!(names_a_plant("ironcub") && names_a_plant("turbojet-p100") && names_a_plant("p220-ls"));
+        assert!(!names_a_plant("models/ironcub.toml"));
         let err = resolve_plant("turbojet-p999").unwrap_err().to_string();
-        assert!(err.contains("turbojet-p100") && err.contains("p100-diesel"), "{err}");
+        assert!(err.contains("turbojet-p100") && err.contains("p100-diesel") && err.contains("ironcub"), "{err}");
         let _ = std::fs::remove_file(file);
         let _ = std::fs::remove_file(model);
     }

@@ -27,6 +27,7 @@ mod effects;
 mod engine;
 mod error;
 mod file;
+pub mod ironcub;
 mod params;
 mod plant;
 pub mod plausibility;
@@ -40,7 +41,7 @@ pub use engine::{
     MAX_SETTLING_RUN_S,
 };
 pub use error::ModelError;
-pub use file::{resolve_model, resolve_params, resolve_plant, ModelFile, TURBOJET_PLANTS};
+pub use file::{names_a_plant, resolve_model, resolve_params, resolve_plant, ModelFile, TURBOJET_PLANTS};
 pub use params::{AccelPartials, Equilibrium, Params};
 pub use plant::{Plant, PlantEngine, PlantSample};
 pub use preset::Preset;

@@ -743,9 +743,7 @@ impl BenchConfig {
             toml::from_str(text).map_err(|e| ConfigError::Parse { origin: origin.into(), message: e.to_string() })?;
         if let Some(dir) = base_dir {
             for spec in [&mut config.plant.model, &mut config.model.model] {
-                let named = spec.parse::<jetbench_model::Preset>().is_ok()
-                    || jetbench_model::TURBOJET_PLANTS.iter().any(|name| spec.trim().eq_ignore_ascii_case(name));
-                if !named && Path::new(spec.as_str()).is_relative() {
+                if !jetbench_model::names_a_plant(spec) && Path::new(spec.as_str()).is_relative() {
                     *spec = dir.join(spec.as_str()).display().to_string();
                 }
             }

@@ -152,12 +152,14 @@ pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
     if let Some(path) = &args.out {
         // Only a bounded model is ever written: one stable equilibrium per throttle, full
         // steps both ways bounded, bounded on the validation data.
-        let Some((result, params)) = report.best_params() else {
+        let (Some((result, _)), Some(text)) = (report.best_params(), report.model_file_text()) else {
             bail!("nothing written to {}: {}", path.display(), report.written_text().trim_start_matches("model file: "))
         };
-        let text = identify::model_file_text(result, params);
         std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))?;
-        eprintln!("wrote the {} model to {}", result.method.name(), path.display());
+        let extended = report.chosen_structure().map_or(String::new(), |s| {
+            format!(" extended by {}", s.chosen.iter().map(|t| t.key).collect::<Vec<_>>().join(", "))
+        });
+        eprintln!("wrote the {} model{extended} to {}", result.method.name(), path.display());
     }
     Ok(ExitCode::SUCCESS)
 }

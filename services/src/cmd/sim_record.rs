@@ -26,8 +26,12 @@ pub struct SimRecordArgs {
     #[arg(long = "effect", value_name = "NAME:KEY=VALUE,...", action = clap::ArgAction::Append)]
     effects: Vec<Effect>,
     /// Throttle profile to play (default: a campaign from --seed and --duration, as `jetbench excite`).
-    #[arg(long, value_name = "FILE")]
+    #[arg(long, value_name = "FILE", conflicts_with = "signal")]
     profile: Option<PathBuf>,
+    /// Built-in signal instead of the campaign: `ironcub`, an identification signal in the
+    /// manner of the iRonCub group's (0-100 % throttle, 544 s; --duration is not used).
+    #[arg(long, value_name = "NAME", value_parser = ["ironcub"])]
+    signal: Option<String>,
     /// Seed of the campaign and of the noise.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -61,7 +65,9 @@ fn sim_record_help() -> String {
          --plant turbojet-p100 (or turbojet-p220, or a plant file with a [turbojet] table of the constants \
          named in the model crate's README, `base = \"p100\"` and overrides) runs a physically based turbojet \
          (spool, governor, fuel schedule, thrust growing with the square of the spool speed) instead of the \
-         ten-parameter model: an engine outside the class `identify` fits.\n\n\
+         ten-parameter model: an engine outside the class `identify` fits. --plant ironcub runs the iRonCub \
+         group's 13-coefficient jet (input gain in T², Ṫ² and T·Ṫ; 16-222 N over 0-100 % throttle), and \
+         --signal ironcub drives it with an identification signal of their length and range (544 s, 0-100 %).\n\n\
          Effects (--effect NAME:KEY=VALUE,..., or [effects.NAME] with the same keys in a model file):\n",
     );
     help.push_str(&EffectKind::catalogue_help());
@@ -69,6 +75,7 @@ fn sim_record_help() -> String {
         "\nExamples:\n  \
          jetbench sim-record --model p220-kerosene --seed 3 --out p220.csv\n  \
          jetbench sim-record --plant turbojet-p100 --seed 3 --out turbojet.csv\n  \
+         jetbench sim-record --plant ironcub --signal ironcub --seed 3 --out ironcub.csv\n  \
          jetbench sim-record --model model.toml --profile campaign.csv --noise-var 9 --out run.csv\n  \
          jetbench sim-record --model p100-diesel --effect input_delay:delay_s=0.08 \\\n      \
          --effect rate_limit:up_pct_per_s=60,down_pct_per_s=120 --out delayed.csv",
@@ -85,9 +92,10 @@ pub fn run(args: SimRecordArgs) -> anyhow::Result<ExitCode> {
     if let Some(conflict) = plant.turbojet_conflict() {
         bail!("--effect discrepancy: {conflict}");
     }
-    let profile = match &args.profile {
-        Some(p) => Series::load(p, false)?,
-        None => {
+    let profile = match (&args.profile, args.signal.as_deref()) {
+        (Some(p), _) => Series::load(p, false)?,
+        (None, Some(_)) => excite::ironcub_signal(args.seed).profile,
+        (None, None) => {
             if !(args.duration.is_finite() && args.duration >= 1.0 && args.duration <= 86_400.0) {
                 bail!("--duration {} must be between 1 s and one day", args.duration);
             }
