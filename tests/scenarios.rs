@@ -8,7 +8,10 @@
 //! show every class excluded). Over every case without missing physics (clean,
 //! coloured noise, spikes and lost rows, parameter errors) it must claim no physics at all.
 //! A case whose recording cannot tell its truth from a rival (`cause = "ambiguous"`) passes
-//! when the answer is `ambiguous` with the truth among the rivals, with its weight.
+//! when the answer is `ambiguous` with the truth among the rivals, with its weight. An effect
+//! of the truth listed as `hidden` (one the recording cannot show beside the rest, such as a
+//! resonance behind a slow lag) is not expected among those named, but the verdict's probes
+//! must say it could hide there.
 //! The suite itself is checked to be concealed: the model's MAE before is at most 45 %
 //! above the floor.
 //!
@@ -44,6 +47,9 @@ struct Case {
     outside: bool,
     /// `none`, `parameters` or `missing_physics`.
     cause: String,
+    /// Catalogue effects of the truth this recording cannot show beside the rest (`hidden`):
+    /// not expected among the effects found, but the probes must say they could hide.
+    hidden: Vec<String>,
     file: String,
 }
 
@@ -87,7 +93,12 @@ fn cases() -> Vec<Case> {
                 .unwrap_or(if missing { "missing_physics" } else { "none" })
                 .to_owned();
             let file = format!("{name}.{}", if c.get("closed_loop").is_some() { "mcap" } else { "csv" });
-            Case { name, model: c["model"].as_str().expect("model").to_owned(), truth, outside, cause, file }
+            let hidden = c
+                .get("hidden")
+                .and_then(|h| h.as_array())
+                .map(|a| a.iter().filter_map(|v| v.as_str().map(str::to_owned)).collect())
+                .unwrap_or_default();
+            Case { name, model: c["model"].as_str().expect("model").to_owned(), truth, outside, cause, hidden, file }
         })
         .collect()
 }
@@ -103,7 +114,7 @@ fn judge(case: &Case, d: &Value) -> (Vec<String>, bool) {
     let mut problems = Vec::new();
     let found: BTreeMap<String, &Value> =
         d["effects"].as_array().expect("effects").iter().map(|e| (e["name"].as_str().unwrap().to_owned(), e)).collect();
-    let mut expected: Vec<String> = case.truth.keys().cloned().collect();
+    let mut expected: Vec<String> = case.truth.keys().filter(|k| !case.hidden.contains(k)).cloned().collect();
     if case.outside {
         expected.push("discrepancy".into());
         expected.sort();
@@ -146,6 +157,19 @@ fn judge(case: &Case, d: &Value) -> (Vec<String>, bool) {
     // `insufficient_data` naming a class this recording could not have shown (at the size
     // that matters) and the experiment that would.
     let probes = d["detectability"].as_array().cloned().unwrap_or_default();
+    for h in &case.hidden {
+        // The probe of that class nearest the truth (in its first value: a resonance's
+        // frequency) must say it would not show.
+        let off = |p: &Value| -> f64 {
+            let key = p["probe"][0][0].as_str().unwrap_or("");
+            let truth = case.truth.get(h).and_then(|t| t.get(key)).copied().unwrap_or(f64::NAN);
+            (p["probe"][0][1].as_f64().unwrap_or(f64::NAN) / truth).ln().abs()
+        };
+        let nearest = probes.iter().filter(|p| p["effect"] == h.as_str()).min_by(|a, b| off(a).total_cmp(&off(b)));
+        if nearest.is_none_or(|p| p["would_show"] != Value::Bool(false)) {
+            problems.push(format!("{h} is in the truth but the probes do not say it could hide: {nearest:?}"));
+        }
+    }
     let not_shown = probes.iter().filter(|p| p["would_show"] == Value::Bool(false)).count();
     let honest_not_shown =
         matches!(case.cause.as_str(), "none" | "parameters") && d["cause"] == "insufficient_data" && not_shown > 0;
@@ -165,7 +189,9 @@ fn judge(case: &Case, d: &Value) -> (Vec<String>, bool) {
     }
     let (before, after, floor) =
         (d["mae_before_n"].as_f64().unwrap(), d["mae_after_n"].as_f64().unwrap(), d["noise_floor_n"].as_f64().unwrap());
-    if !at_most(after, (1.0 + FLOOR_TOLERANCE) * floor) {
+    // A claim must reach the floor; an honest refusal (`ambiguous`, `unexplained`) need not.
+    let claim_expected = matches!(case.cause.as_str(), "none" | "parameters" | "missing_physics");
+    if claim_expected && !at_most(after, (1.0 + FLOOR_TOLERANCE) * floor) {
         problems.push(format!("MAE after {after:.3} N is not within 10 % of the floor {floor:.3} N"));
     }
     if !at_most(before, (1.0 + CONCEALED) * floor) {

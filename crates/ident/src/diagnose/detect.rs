@@ -22,6 +22,9 @@
 //!
 //! `none` stands only when every probe would show and none is in the residual; otherwise the
 //! answer is `insufficient_data`, with what could hide and the experiment that would tell.
+//! Beside physics that is claimed, the same probes (of the classes the claim does not hold)
+//! say in the verdict what could hide next to it: a claim names what the recording shows,
+//! not that nothing else is there.
 //!
 //! `parameters` ("the physics is complete, only the numbers are off") is as strong a claim
 //! and gets the same rule, with one difference: ten refitted parameters can mimic part of an

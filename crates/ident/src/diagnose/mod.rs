@@ -275,10 +275,10 @@ pub struct Diagnosis {
     /// True when the search's explanation beats every rival of another kind in at least
     /// 95 % of resamples and by more than a tie.
     pub dominant: bool,
-    /// Before `none` or `parameters`: each class of effect at the size that matters,
-    /// whether this recording would show it (beside the refit, when the parameters were
-    /// refitted) and whether the residual carries its shape (empty when an effect is found:
-    /// see [`detect`]).
+    /// Each class of effect at the size that matters, whether this recording would show it
+    /// beside the model found (beside the refit, when the parameters were refitted) and
+    /// whether the residual carries its shape (see [`detect`]): what `none` and `parameters`
+    /// must earn, and, beside physics found, what could hide next to it.
     pub detectability: Vec<detect::Detectability>,
     /// A slow periodic part left in the residual of the improved model, if any.
     pub periodic: Option<residual::Periodic>,
@@ -570,11 +570,15 @@ pub fn diagnose(
         dominant: weighed.dominant,
         // "Nothing is missing" and "only the parameters are off" are claims alike: both need
         // every class of effect to have been detectable (beside the refit, for the latter).
-        detectability: if no_effect {
-            progress("asking whether this recording could have shown each class of effect");
+        // Beside physics found, the same probes say what could hide next to it (a lag that
+        // smooths the throttle so much that a stand resonance never rings).
+        detectability: {
+            progress(if no_effect {
+                "asking whether this recording could have shown each class of effect"
+            } else {
+                "asking what could hide beside the physics found"
+            });
             detect::probe_all(&problem, &model.effects, &current.fit.spec, &current.sim, options.strong_evidence)
-        } else {
-            Vec::new()
         },
         periodic: residual::periodic(&problem, &current.sim),
         periodic_rival: sine.map(|s| residual::Periodic {
@@ -1066,12 +1070,24 @@ fn periodic_rivals(search: &Search<'_, '_>, before: &Scored, current: &Scored) -
     found
 }
 
+/// The index of the discrepancy's thrust-history gain (`gain_history_per_n`) among its values.
+const HISTORY_GAIN: usize = 4;
+
 /// Runners-up of each catalogue effect kept, fitted in its place with the rest of the
 /// model found: the round that accepted an effect compared the others only on top of what
 /// was kept before it, so an explanation such as "a delay and a gain drift" against "a lag
 /// and a gain drift" would never be fitted, and the weighing could not see it. Each physical
 /// candidate of that round within [`rivals::WINDOW`] score units of the effect kept is fitted
 /// in its place and joins the pool (it is a rival, never a claim by itself).
+///
+/// Each look-alike of an effect kept ([`rivals::LOOK_ALIKES`]: a delay for a lag, a sensor
+/// drift for a soak, ...) is fitted in its place whatever the round said: a claim of several
+/// parts is only as sure as each part's lead over the same explanation with its look-alike in
+/// its place, and that explanation must be in the weighing for the claim to be judged against
+/// it. Where the claim has other parts (and keeps the given parameters), the swapped
+/// explanation is also built afresh (the look-alike first, then each other part from its own
+/// start grid), so that the rest of the model, fitted beside the part it replaces, does not
+/// hold it in a poor local fit.
 fn swap_rivals(search: &Search<'_, '_>, current: &Scored, rounds: &[Round]) {
     let spec = &current.fit.spec;
     for (kind, _) in spec.effects.iter().filter(|(k, _)| *k != EffectKind::Discrepancy) {
@@ -1083,11 +1099,61 @@ fn swap_rivals(search: &Search<'_, '_>, current: &Scored, rounds: &[Round]) {
         for c in &round.candidates {
             let Ok(other) = c.name.parse::<EffectKind>() else { continue };
             let close = c.score_gain.is_some_and(|g| gain - g <= rivals::WINDOW);
+            let alike = rivals::look_alikes(*kind).any(|k| k == other);
             if other == *kind || other == EffectKind::Discrepancy || spec.has(other) || c.unphysical.is_some() || !close
             {
                 continue;
             }
+            if !alike {
+                let _ = search.try_effect(&without, other, None);
+            }
+        }
+    }
+    let kinds: Vec<EffectKind> = spec.effects.iter().map(|(k, _)| *k).collect();
+    for &kind in &kinds {
+        let without = spec.without(kind);
+        for other in rivals::look_alikes(kind).filter(|o| !spec.has(*o)) {
+            if other == EffectKind::Discrepancy {
+                if let Some(base) = search.fit(&without) {
+                    let _ = search.try_discrepancy(&base);
+                }
+                continue;
+            }
             let _ = search.try_effect(&without, other, None);
+            if kind == EffectKind::Discrepancy {
+                // The discrepancy's thrust-history gain alone replaced by the sensor drift, its
+                // other terms (a throttle map's slope, ...) kept: engine side against sensor side
+                // for the slow part only.
+                let history = jetbench_model::discrepancy::DISCREPANCY_TERMS
+                    .iter()
+                    .copied()
+                    .find(|t| t.coefficient == HISTORY_GAIN && spec.discrepancy_free.contains(&t.coefficient));
+                if let Some(partial) = history.and_then(|t| discrepancy::without_term(spec, t)) {
+                    if search.try_effect(&partial, other, None).is_some() {
+                        if let Some(last) = search.pool.borrow_mut().last_mut() {
+                            last.swapped = true;
+                        }
+                    }
+                }
+            }
+            let rest: Vec<EffectKind> = kinds.iter().copied().filter(|k| *k != kind).collect();
+            if rest.is_empty() || rest.contains(&EffectKind::Discrepancy) || spec.refit {
+                // (With the ten parameters refitted each fit moves 11-16 values: the swap
+                // above, started from the model found, is the one that fits in the time.)
+                continue;
+            }
+            // Afresh: the look-alike alone on the model's parameters, then each other part.
+            let mut bare = spec.clone();
+            for k in &kinds {
+                bare = bare.without(*k);
+            }
+            let Some(mut built) = search.try_effect(&bare, other, None) else { continue };
+            for k in rest {
+                match search.try_effect(&built.fit.spec, k, None) {
+                    Some(next) => built = next,
+                    None => break,
+                }
+            }
         }
     }
 }

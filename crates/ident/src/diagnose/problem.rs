@@ -178,8 +178,10 @@ impl<'a> Problem<'a> {
                 start = k;
             }
         }
-        let clipped = remove_clipped(&mut runs);
+        // Spikes first: a spike on a clipped row reads above the sensor's limit, and the limit
+        // is found as the end of the range of what is left.
         let outliers = reject_outliers(&mut runs);
+        let clipped = remove_clipped(&mut runs);
         let noise =
             noise::estimate(&runs.iter().map(|r| r.y.iter().copied().step_by(r.stride).collect()).collect::<Vec<_>>())
                 .ok_or_else(|| IdentError::TooLittleData("too few samples to estimate the sensor noise".into()))?;

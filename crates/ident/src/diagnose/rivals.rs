@@ -63,6 +63,10 @@ pub(crate) struct Entry {
     /// The fit itself, when the explanation is one the model can hold (a rival outside it,
     /// such as throttle play or a periodic force, has none): what is claimed if it leads.
     pub fit: Option<Fit>,
+    /// A swap whose parts' names nest in another explanation's although its physics does not
+    /// (a sensor drift in place of the discrepancy's thrust-history term, its other terms
+    /// kept): judged against the others with the margin between explanations of other parts.
+    pub swapped: bool,
 }
 
 impl Entry {
@@ -151,9 +155,9 @@ fn nested(a: &Entry, b: &Entry) -> bool {
 }
 
 /// The score lead a claim `a` needs over a rival `b`: a [`TIE`] when one is nested in the
-/// other, [`DISTINCT`] otherwise.
+/// other (and neither is a swap that only looks nested), [`DISTINCT`] otherwise.
 fn margin(a: &Entry, b: &Entry) -> f64 {
-    if nested(a, b) {
+    if nested(a, b) && !a.swapped && !b.swapped {
         TIE
     } else {
         DISTINCT
@@ -212,6 +216,38 @@ impl Rng {
     fn below(&mut self, n: usize) -> usize {
         (self.next() % n.max(1) as u64) as usize
     }
+}
+
+/// Pairs of effects a recording may not tell apart, whatever the search's greedy order
+/// compared: each can stand in for the other in an explanation, so a claim of one is only as
+/// sure as its lead over the same explanation with the other in its place.
+///
+/// - an input delay and an actuator lag both hold back the answer to a step (a pure shift
+///   against a rounded start, alike when the steps are slow against either);
+/// - an actuator lag and a rate limit both slow a large step (alike when every step is large);
+/// - a sensor drift and a gain drift both move the reading slowly over a run (alike when the
+///   thrust history and the run time rise together);
+/// - a sensor drift and the discrepancy's gain that follows the thrust history (a heat or fuel
+///   soak) both follow the thrust with a slow time constant, one on the reading and one on the
+///   engine (alike when the soak's time constant is long against the engine's dynamics).
+pub const LOOK_ALIKES: [(EffectKind, EffectKind); 4] = [
+    (EffectKind::InputDelay, EffectKind::ActuatorLag),
+    (EffectKind::ActuatorLag, EffectKind::RateLimit),
+    (EffectKind::SensorDrift, EffectKind::GainDrift),
+    (EffectKind::SensorDrift, EffectKind::Discrepancy),
+];
+
+/// The effects that may stand in for `kind` on a recording ([`LOOK_ALIKES`]).
+pub fn look_alikes(kind: EffectKind) -> impl Iterator<Item = EffectKind> {
+    LOOK_ALIKES.iter().filter_map(move |&(a, b)| {
+        if a == kind {
+            Some(b)
+        } else if b == kind {
+            Some(a)
+        } else {
+            None
+        }
+    })
 }
 
 /// Which side of the bench an effect acts on: a sensor effect adds to what is read and
@@ -463,7 +499,7 @@ pub(crate) fn entry(
     let n = w2.len() as f64;
     let sse: f64 = w2.iter().sum();
     let score = n * (sse / n).ln() + free as f64 * n.ln() + prior;
-    Entry { effects: names, refit, w2, free, prior, score, mae_val_n: mae, unphysical, fit: None }
+    Entry { effects: names, refit, w2, free, prior, score, mae_val_n: mae, unphysical, fit: None, swapped: false }
 }
 
 #[cfg(test)]
@@ -559,6 +595,29 @@ mod tests {
         assert!(!earns(&with, &without, 40.0, 0.02));
         without.score = with.score + 60.0;
         assert!(earns(&with, &without, 40.0, 0.02));
+    }
+
+    #[test]
+    fn look_alikes_go_both_ways_and_a_delay_stands_in_for_a_lag() {
+        for (a, b) in LOOK_ALIKES {
+            assert!(look_alikes(a).any(|k| k == b) && look_alikes(b).any(|k| k == a), "{a} {b}");
+        }
+        let lag: Vec<EffectKind> = look_alikes(EffectKind::ActuatorLag).collect();
+        assert_eq!(lag, [EffectKind::InputDelay, EffectKind::RateLimit]);
+        assert_eq!(look_alikes(EffectKind::StandResonance).count(), 0);
+        // A claim of a lag with a drift against the same with a delay in the lag's place: the
+        // two differ in one part, so the claim needs the full margin over it, not a tie.
+        let n = 6000;
+        let noise = innovations(5, n, 1.0);
+        let behind = (6.0f64 / n as f64).exp().sqrt();
+        let claim = explanation(&[EffectKind::ActuatorLag, EffectKind::SensorDrift], false, &noise);
+        let swapped = explanation(
+            &[EffectKind::InputDelay, EffectKind::SensorDrift],
+            false,
+            &noise.iter().map(|x| x * behind).collect::<Vec<_>>(),
+        );
+        assert_eq!(margin(&claim, &swapped), DISTINCT);
+        assert!(!weigh(&[swapped], &claim).dominant);
     }
 
     #[test]
