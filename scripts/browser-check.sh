@@ -64,7 +64,7 @@ PY
 pids+=($!)
 
 echo "== jetbench up --sim --foxglove 127.0.0.1:$ws_port (steps profile, recorded)" >&2
-"$jb" up --sim --quiet --profile steps --duration 120 --foxglove "127.0.0.1:$ws_port" \
+"$jb" up --sim --quiet --profile steps --duration 600 --foxglove "127.0.0.1:$ws_port" \
   --record "$work/run.mcap" > "$work/up.log" 2>&1 &
 up=$!
 pids+=($up)

@@ -76,10 +76,12 @@ try {
       await sleep(200);
     }
   }
-  await sleep(2_000);
-  // What the panel shows as the service's answer.
-  const panelText = await page.evaluate(() => document.body.innerText);
-  const answer = panelText.split("\n").filter((l) => /accepted|refused|error/i.test(l)).slice(0, 5);
+  await sleep(3_000);
+  // What the Call Service panels show as the bench's answer.
+  const answer = await page.$$eval("textarea", (areas) =>
+    areas.map((a) => a.value).filter((v) => v.includes("answer")),
+  );
+  await page.screenshot({ path: screenshot.replace(/\.png$/, "") + "-after-stop.png" });
   console.log(JSON.stringify({ clicked_ms: clickedMs, answer, errors }));
 } finally {
   await browser.close();
