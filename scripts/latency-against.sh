@@ -7,6 +7,11 @@
 #
 #   scripts/latency-against.sh OLD                 # OLD: a git revision, or a folder of built binaries
 #   JETBENCH_AGAINST_PAIRS=4 JETBENCH_AGAINST_SECONDS=15 scripts/latency-against.sh main~3
+#   JETBENCH_AGAINST_KEEP=runs/ scripts/latency-against.sh OLD   # keep each run's JSON report there
+#
+# The machine's own speed drifts from run to run on a shared host (its floor's p99 moved by a
+# third between consecutive runs here), so the table also gives each run's end-to-end latency
+# over that run's floor: the build's cost with the machine taken out.
 #
 # A revision is built (release, binaries only) in a git worktree under target/against/, so
 # the first run takes as long as a clean build.
@@ -31,8 +36,13 @@ else
     old_name="$rev"
 fi
 new_bin="$root/target/release"
-out=$(mktemp -d)
-trap 'rm -rf "$out"' EXIT
+if [[ -n "${JETBENCH_AGAINST_KEEP:-}" ]]; then
+    out=$JETBENCH_AGAINST_KEEP
+    mkdir -p "$out"
+else
+    out=$(mktemp -d)
+    trap 'rm -rf "$out"' EXIT
+fi
 
 run() { # build-dir label index
     echo "== $2 run $3: jetbench latency --duration $seconds --rounds 1 --load $load --rt" >&2
@@ -51,6 +61,8 @@ rows = [("e2e p50, us", lambda d: d["e2e_us"]["p50"]), ("e2e p99, us", lambda d:
 hops = sorted(runs("new")[0]["hops_us"].keys())
 rows += [(f"{h} hop p99, us", (lambda h: lambda d: d["hops_us"][h]["p99"])(h)) for h in hops]
 rows += [("floor p99, us (the machine)", lambda d: d["floor_us"]["p99"])]
+rows += [("e2e p99 / floor p99, each run", lambda d: d["e2e_us"]["p99"] / d["floor_us"]["p99"]),
+         ("e2e p50 / floor p50, each run", lambda d: d["e2e_us"]["p50"] / d["floor_us"]["p50"])]
 old, new = runs("old"), runs("new")
 print(f"jetbench latency, {pairs} runs of {seconds} s per build in alternation, load {load}, --rt")
 print(f"old: {old_name}   new: {new_name}   (medians over the runs; ratio new/old)\n")
@@ -58,7 +70,8 @@ print(f"| {'figure':32} | {'old':>9} | {'new':>9} | {'new/old':>7} |")
 print(f"|{'-'*34}|{'-'*11}|{'-'*11}|{'-'*9}|")
 for name, get in rows:
     a, b = statistics.median(map(get, old)), statistics.median(map(get, new))
-    print(f"| {name:32} | {a:9.1f} | {b:9.1f} | {b / a if a else float('nan'):7.2f} |")
+    digits = 2 if "/" in name else 1
+    print(f"| {name:32} | {a:9.{digits}f} | {b:9.{digits}f} | {b / a if a else float('nan'):7.2f} |")
 for name, key in [("deadline misses (sum)", "deadline_misses"), ("samples lost (sum)", "lost")]:
     a, b = sum(d[key] for d in old), sum(d[key] for d in new)
     print(f"| {name:32} | {a:9d} | {b:9d} | {'':7} |")
