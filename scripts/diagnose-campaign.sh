@@ -4,5 +4,5 @@
 #   scripts/diagnose-campaign.sh N SEED [--jobs 2] [--out docs/diagnose/CAMPAIGN.md] [--json results.json]
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo build --release --quiet --workspace --bins
+cargo build --release --quiet --workspace --all-targets
 exec python3 scripts/diagnose_campaign.py "$@"

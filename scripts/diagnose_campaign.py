@@ -14,11 +14,20 @@ that are off; white, coloured (AR(1)) or heteroscedastic noise; spikes, lost row
 timestamps; 100-600 s of random steps, ramps and holds. Closed-loop cases are not drawn (they
 need the live stack; the fixed scenarios hold two).
 
-A claim is `none`, `parameters` or `missing_physics`. It is true when it names exactly the truth:
-the catalogue effects present (physics outside the catalogue: `discrepancy`), `parameters` only
-when the parameters are off and nothing else is, `none` only when nothing is off. An artefact
-(clipping, a periodic force) is never engine physics: every claim on such a case is false.
-`ambiguous`, `unexplained` and `insufficient_data` are not claims.
+A claim is `none`, `parameters` or `missing_physics`. `parameters` is true only when the
+parameters are off and nothing else is, `none` only when nothing is off. A physics claim is true
+when every effect it names is in the truth (physics outside the catalogue: `discrepancy`) and
+every effect of the truth it does not name is one its verdict disclosed as able to hide beside
+it, at a size no smaller than the truth's: the diagnosis's `detectability` has a probe of that
+class with `would_show` false whose `could_hide` ranges hold every value of the truth's effect
+(see `disclosed`). An effect the verdict did not disclose, or disclosed at a smaller size, or
+whose values cannot be compared with the probe's (a time constant other than the probe's, an
+effect outside the catalogue) makes the claim false. An artefact (clipping, a periodic force) is
+never engine physics: every claim on such a case is false. `ambiguous`, `unexplained` and
+`insufficient_data` are not claims. Recall counts the effects named; effects a true claim
+left out and disclosed are counted apart.
+
+    python3 scripts/diagnose_campaign.py --self-test    # the grader on made-up results
 """
 
 import argparse
@@ -42,6 +51,9 @@ SUBSTEPS = 5
 # The engine is stepped from zero thrust at least this long before the rest of the settle is
 # done in closed form (see Engine.run).
 SETTLE_MIN_S = 15.0
+# The engine starts from rest (zero thrust, a tared sensor, a cold engine) this long before the
+# recording: slow states (a sensor drift's bias, a soak) are still on their way at its start.
+SETTLE_S = 120.0
 PLANTS = {
     "p100-diesel": ROOT / "recordings/scenarios/plants/p100-diesel.toml",
     "p220-kerosene": ROOT / "recordings/scenarios/plants/p220-kerosene.toml",
@@ -118,7 +130,7 @@ class Engine:
         delay = int(round(e["input_delay"]["delay_s"] / dt)) if "input_delay" in e else 0
         # Throttle per substep (held within each row), delayed.
         u_fine = [throttle[min(n - 1, max(0, (k - delay) // SUBSTEPS))] for k in range(n * SUBSTEPS)]
-        settle = int(120.0 / dt)
+        settle = int(SETTLE_S / dt)
         t, d, h = 0.0, 0.0, 0.0
         ue = up = throttle[0]
         bias, m, x, xd = 0.0, None, 0.0, 0.0
@@ -380,6 +392,9 @@ def run_case(jetbench, case, workdir, keep=False):
         "found": sorted(e["name"] for e in d["effects"]),
         "refit": d.get("refit") is not None,
         "rivals": [(r["effects"], r["refit"], r["weight"]) for r in d.get("rivals", [])],
+        # What the verdict disclosed as able to hide beside the model found.
+        "hidden": [{k: p.get(k) for k in ("effect", "probe", "could_hide", "energy", "threshold")}
+                   for p in d.get("detectability", []) if p.get("would_show") is False],
         "mae_before": d["mae_before_n"],
         "mae_after": d["mae_after_n"],
         "floor": d["noise_floor_n"],
@@ -389,8 +404,45 @@ def run_case(jetbench, case, workdir, keep=False):
     }
 
 
+def disclosed(name, values, hidden):
+    """True when the diagnosis disclosed that an effect of class `name` with these values could
+    hide: a probe of that class that would not show, whose `could_hide` ranges (per key,
+    [low, high], None for no bound) hold every value of the effect, with the same keys. The
+    ranges lie on the side of the probe where the effect is no more visible (a shorter delay, a
+    faster rate limit, a resonance between two hidden probe frequencies, at dampings measured
+    hidden); values that cannot be compared with the probe's (another time constant) are not in
+    them."""
+    for p in hidden or []:
+        region = p.get("could_hide") or {}
+        if p.get("effect") != name or not values or set(region) != set(values):
+            continue
+        inside = True
+        for key, v in values.items():
+            lo, hi = region[key]
+            lo = -math.inf if lo is None else lo
+            hi = math.inf if hi is None else hi
+            # A relative tolerance for values printed and parsed back (the probe's own value).
+            tol = 1e-9 * max(1.0, abs(v))
+            inside &= lo - tol <= v <= hi + tol
+        if inside:
+            return True
+    return False
+
+
+def left_out(r):
+    """The truth's effects a physics claim did not name: (disclosed as able to hide, not)."""
+    case, found = r["case"], set(r.get("found", []))
+    shown, undisclosed = [], []
+    for name, values in case["effects"].items():
+        label = "discrepancy" if name in OUTSIDE else name
+        if label in found:
+            continue
+        (shown if disclosed(name, values, r.get("hidden")) else undisclosed).append(name)
+    return shown, undisclosed
+
+
 def grade(r):
-    """(claimed, true claim, effects present, effects named rightly)."""
+    """(claimed, true claim)."""
     case = r["case"]
     cause = r.get("cause")
     claimed = cause in ("none", "parameters", "missing_physics")
@@ -403,7 +455,11 @@ def grade(r):
         return True, not want and not case["params_off"]
     if cause == "parameters":
         return True, not want and case["params_off"]
-    return True, r["found"] == want
+    # Physics: every effect named is in the truth, and every effect of the truth not named was
+    # disclosed as able to hide at its size.
+    if not set(r["found"]) <= set(want) or case["params_off"]:
+        return True, False
+    return True, not left_out(r)[1]
 
 
 def summarise(results, n, seed, elapsed_s):
@@ -416,8 +472,13 @@ def summarise(results, n, seed, elapsed_s):
              "time). Every case is simulated by scripts/diagnose_campaign.py's own engine and diagnosed blind by "
              "the release binary. A claim is `none`, `parameters` or `missing_physics`; `ambiguous`, "
              "`unexplained` and `insufficient_data` are not claims.", "",
+             "A physics claim is true when every effect it names is in the truth and every effect of the "
+             "truth it leaves out is one its verdict disclosed as able to hide, at a size no smaller than the "
+             "truth's. Recall counts the effects named; the next column, effects left out of true claims and "
+             "disclosed.", "",
              "| class | cases | claims | true claims | precision | ambiguous | unexplained | insufficient | "
-             "recall (given ≥ 1.15× floor) | MAE after / truth's (claims) | errors |", "|" + "---|" * 11]
+             "recall (given ≥ 1.15× floor) | disclosed as undetectable | MAE after / truth's (claims) | errors |",
+             "|" + "---|" * 12]
 
     def row(name, rs):
         graded = [grade(r) for r in rs]
@@ -427,7 +488,7 @@ def summarise(results, n, seed, elapsed_s):
         unexp = sum(r.get("cause") == "unexplained" for r in rs)
         insuf = sum(r.get("cause") == "insufficient_data" for r in rs)
         errors = sum("error" in r for r in rs)
-        present = named = 0
+        present = named = hidden = 0
         for r in rs:
             want = expected(r["case"])
             if not want or "error" in r or r["mae_before"] < 1.15 * r["floor"]:
@@ -435,16 +496,27 @@ def summarise(results, n, seed, elapsed_s):
             for w in want:
                 present += 1
                 named += r.get("cause") == "missing_physics" and w in r["found"]
+            if r.get("cause") == "missing_physics" and grade(r)[1]:
+                hidden += len(left_out(r)[0])
         ratios = [r["mae_after"] / r["truth_mae"] for r, (c, _) in zip(rs, graded) if c and r["truth_mae"] > 0]
         mae = f"{sum(ratios) / len(ratios):.3f} (worst {max(ratios):.3f})" if ratios else "-"
         prec = f"{100 * true / claims:.1f} %" if claims else "-"
         rec = f"{named}/{present} ({100 * named / present:.0f} %)" if present else "-"
+        dis = f"{hidden}/{present}" if present else "-"
         return (f"| {name} | {len(rs)} | {claims} | {true} | {prec} | {amb} ({100 * amb / len(rs):.0f} %) | {unexp} | "
-                f"{insuf} | {rec} | {mae} | {errors} |")
+                f"{insuf} | {rec} | {dis} | {mae} | {errors} |")
 
     for k in sorted(rows):
         lines.append(row(k, rows[k]))
     lines.append(row("**all**", results))
+    lines += ["", "## True claims that leave out an effect they disclose", ""]
+    for r in results:
+        c, t = grade(r)
+        if c and t and r.get("cause") == "missing_physics" and left_out(r)[0]:
+            case = r["case"]
+            lines.append(f"- case {case['index']} ({klass(case)}, {case['plant']}, {case['noise']} noise, "
+                         f"{case['duration_s']} s): truth {case['effects']}; said {r['found']}; disclosed as able "
+                         f"to hide: {', '.join(left_out(r)[0])}")
     lines += ["", "## False claims", ""]
     for r in results:
         c, t = grade(r)
@@ -500,10 +572,60 @@ def plot_svg(results, path):
     Path(path).write_text("\n".join(out) + "\n")
 
 
+def self_test():
+    """The grader on made-up results: a claim naming the whole truth, one leaving out an effect
+    its verdict disclosed as able to hide at the truth's size, and claims leaving out one that
+    was not disclosed, disclosed at a smaller size, or not comparable. Returns the failures."""
+    lag = {"time_constant_s": 0.3}
+    resonance = {"frequency_hz": 3.2, "damping_ratio": 0.09}
+
+    def case(effects):
+        return {"index": 0, "effects": effects, "params_off": False, "artefact": None}
+
+    def result(effects, found, hidden):
+        return {"case": case(effects), "cause": "missing_physics", "found": sorted(found), "hidden": hidden}
+
+    def probe(effect, could_hide):
+        return {"effect": effect, "probe": {}, "could_hide": could_hide, "energy": 1.0, "threshold": 50.0}
+
+    band = probe("stand_resonance", {"frequency_hz": [3.0, 5.0], "damping_ratio": [0.02, 0.2]})
+    checks = [
+        ("the whole truth named", result({"actuator_lag": lag, "stand_resonance": resonance},
+                                         ["actuator_lag", "stand_resonance"], []), True),
+        ("a resonance left out, disclosed over its frequency and damping",
+         result({"actuator_lag": lag, "stand_resonance": resonance}, ["actuator_lag"], [band]), True),
+        ("a resonance left out, not disclosed",
+         result({"actuator_lag": lag, "stand_resonance": resonance}, ["actuator_lag"], []), False),
+        ("a resonance left out, disclosed only above its frequency",
+         result({"actuator_lag": lag, "stand_resonance": resonance}, ["actuator_lag"],
+                [probe("stand_resonance", {"frequency_hz": [5.0, 8.0], "damping_ratio": [0.02, 0.2]})]), False),
+        ("a resonance left out, disclosed at other dampings",
+         result({"actuator_lag": lag, "stand_resonance": resonance}, ["actuator_lag"],
+                [probe("stand_resonance", {"frequency_hz": [3.0, 5.0], "damping_ratio": [0.1, 0.3]})]), False),
+        ("a delay left out, disclosed only up to a smaller delay",
+         result({"actuator_lag": lag, "input_delay": {"delay_s": 0.15}}, ["actuator_lag"],
+                [probe("input_delay", {"delay_s": [0.0, 0.02]})]), False),
+        ("a sensor drift left out, disclosed at another time constant",
+         result({"actuator_lag": lag, "sensor_drift": {"gain": 0.01, "time_constant_s": 40.0}}, ["actuator_lag"],
+                [probe("sensor_drift", {"gain": [0.0, 0.02], "time_constant_s": [60.0, 60.0]})]), False),
+        ("an effect named that is not in the truth", result({"actuator_lag": lag}, ["actuator_lag", "input_delay"],
+                                                           [band]), False),
+        ("physics outside the catalogue left out", result({"heat_soak": {"loss_per_n": 4e-4, "time_constant_s": 60.0}},
+                                                          ["gain_drift"], [band]), False),
+    ]
+    failures = []
+    for what, r, want in checks:
+        claimed, true = grade(r)
+        if not claimed or true != want:
+            failures.append(f"{what}: graded {'true' if true else 'false'}, should be {'true' if want else 'false'}")
+    return failures
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("n", type=int)
-    parser.add_argument("seed", type=int)
+    parser.add_argument("n", type=int, nargs="?")
+    parser.add_argument("seed", type=int, nargs="?")
+    parser.add_argument("--self-test", action="store_true", help="check the grader on made-up results and exit")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--jetbench", default=str(ROOT / "target/release/jetbench"))
     parser.add_argument("--out", help="Markdown report (default: stdout)")
@@ -517,6 +639,14 @@ def main():
     parser.add_argument("--simulate-only", action="store_true",
                         help="only simulate the cases' recordings into --keep (reused by a later run with it)")
     args = parser.parse_args()
+    if args.self_test:
+        failures = self_test()
+        for f in failures:
+            print(f"FAILED: {f}", file=sys.stderr)
+        print(f"grader self-test: {'passed' if not failures else f'{len(failures)} failed'}", file=sys.stderr)
+        sys.exit(1 if failures else 0)
+    if args.n is None or args.seed is None:
+        parser.error("N and SEED are needed (or --self-test)")
     if args.simulate_only and not args.keep:
         parser.error("--simulate-only needs --keep DIR")
     rng = random.Random(args.seed)

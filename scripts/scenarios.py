@@ -15,7 +15,6 @@ cases (to measure a before), and `--out` writes the report elsewhere.
 import argparse
 import concurrent.futures
 import json
-import math
 import os
 import subprocess
 import sys
@@ -24,6 +23,7 @@ import time
 import tomllib
 from pathlib import Path
 
+from diagnose_campaign import disclosed
 from outside_catalogue import parse_spec
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -190,11 +190,11 @@ def judge(case, result):
             if got is not None and abs(got - value) > PARAM_TOLERANCE * abs(value):
                 problems.append(f"{name}.{key} = {got:.4g}, truth {value:.4g}")
     for h in sorted(hidden):
-        # The probe of that class nearest the truth (its first value: a resonance's frequency).
-        probes = [p for p in result.get("detectability", []) if p.get("effect") == h]
-        nearest = min(probes, key=lambda p: abs(math.log(p["probe"][0][1] / truth[h][p["probe"][0][0]])), default=None)
-        if nearest is None or nearest.get("would_show") is not False:
-            problems.append(f"{h} is in the truth but the probes do not say it could hide")
+        # A probe of that class that would not show must say the truth's values could hide too
+        # (every value within its `could_hide` range: the campaign's grader alike).
+        hidden_probes = [p for p in result.get("detectability", []) if p.get("would_show") is False]
+        if not disclosed(h, truth[h], hidden_probes):
+            problems.append(f"{h} is in the truth but no probe says it could hide at its size")
     cause = result.get("cause", "n/a")
     # Where nothing (or only the parameters) is off, `insufficient_data` naming a class of effect
     # this recording could not have shown is as honest as the claim (tests/scenarios.rs alike).

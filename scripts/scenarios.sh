@@ -4,5 +4,5 @@
 #   scripts/scenarios.sh [--record] [--jobs N]
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo build --release --quiet --workspace --bins
+cargo build --release --quiet --workspace --all-targets
 exec python3 scripts/scenarios.py "$@"

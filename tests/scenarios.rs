@@ -158,16 +158,25 @@ fn judge(case: &Case, d: &Value) -> (Vec<String>, bool) {
     // that matters) and the experiment that would.
     let probes = d["detectability"].as_array().cloned().unwrap_or_default();
     for h in &case.hidden {
-        // The probe of that class nearest the truth (in its first value: a resonance's
-        // frequency) must say it would not show.
-        let off = |p: &Value| -> f64 {
-            let key = p["probe"][0][0].as_str().unwrap_or("");
-            let truth = case.truth.get(h).and_then(|t| t.get(key)).copied().unwrap_or(f64::NAN);
-            (p["probe"][0][1].as_f64().unwrap_or(f64::NAN) / truth).ln().abs()
+        // A probe of that class that would not show must say the truth's values could hide
+        // too: every value within its `could_hide` range, key for key (the campaign's grader,
+        // scripts/diagnose_campaign.py, alike).
+        let truth = case.truth.get(h).cloned().unwrap_or_default();
+        let holds = |p: &Value| -> bool {
+            let Some(region) = p["could_hide"].as_object() else { return false };
+            region.len() == truth.len()
+                && truth.iter().all(|(key, v)| {
+                    let range = &region.get(key.as_str()).cloned().unwrap_or(Value::Null);
+                    let lo = range[0].as_f64().unwrap_or(f64::NEG_INFINITY);
+                    let hi = range[1].as_f64().unwrap_or(f64::INFINITY);
+                    region.contains_key(key.as_str()) && (lo - 1e-9..=hi + 1e-9).contains(v)
+                })
         };
-        let nearest = probes.iter().filter(|p| p["effect"] == h.as_str()).min_by(|a, b| off(a).total_cmp(&off(b)));
-        if nearest.is_none_or(|p| p["would_show"] != Value::Bool(false)) {
-            problems.push(format!("{h} is in the truth but the probes do not say it could hide: {nearest:?}"));
+        let disclosed =
+            probes.iter().any(|p| p["effect"] == h.as_str() && p["would_show"] == Value::Bool(false) && holds(p));
+        if !disclosed {
+            let of_class: Vec<&Value> = probes.iter().filter(|p| p["effect"] == h.as_str()).collect();
+            problems.push(format!("{h} is in the truth but no probe says it could hide at its size: {of_class:?}"));
         }
     }
     let not_shown = probes.iter().filter(|p| p["would_show"] == Value::Bool(false)).count();
@@ -407,6 +416,24 @@ fn a_csv_at_another_rate_is_diagnosed_with_a_note() {
     assert_eq!(names, ["input_delay"], "{}", d["verdict"]);
     let delay = d["effects"][0]["params"]["delay_s"].as_f64().unwrap_or(f64::NAN);
     assert!((delay - 0.15).abs() < 0.02, "{delay}");
+}
+
+/// The campaign's grader on made-up results (scripts/diagnose_campaign.py --self-test): a claim
+/// naming the whole truth is true; one leaving out a resonance its verdict disclosed as able to
+/// hide, over the resonance's frequency and damping, is true; one leaving it out undisclosed,
+/// disclosed only above its frequency or at other dampings, a delay disclosed only up to a
+/// smaller one, a drift at another time constant, physics outside the catalogue left out, or
+/// an effect named that is not there, is false.
+#[test]
+fn the_campaign_grader_counts_a_left_out_effect_only_when_disclosed_at_its_size() {
+    let root = repo_root();
+    let (status, _, stderr) = run(
+        std::process::Command::new("python3").arg(root.join("scripts/diagnose_campaign.py")).arg("--self-test"),
+        Duration::from_secs(60),
+        "the grader's self-test",
+    );
+    assert!(status.success(), "{stderr}");
+    assert!(stderr.contains("grader self-test: passed"), "{stderr}");
 }
 
 /// A CI-sized draw of the randomised campaign (scripts/diagnose_campaign.py, its own

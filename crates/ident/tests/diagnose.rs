@@ -262,3 +262,55 @@ fn a_soak_the_refit_can_mimic_is_not_called_a_parameter_error() {
         Cause::None | Cause::Parameters => panic!("a false claim: {:?}: {}", d.cause, d.verdict),
     }
 }
+
+/// A claim says, with the size, what could hide beside it: every probe that would not show
+/// carries the range of its class's values that are no more visible (a shorter delay or lag,
+/// a faster rate limit, ...), and a hidden stand resonance the range of frequencies and
+/// dampings measured hidden. A 0.35 s lag smooths the throttle so much that a 3.5 Hz, ζ 0.05
+/// resonance beside it cannot ring: the claim of the lag alone must disclose a resonance of
+/// that size (the campaign grades a claim that leaves out an effect true only then).
+#[test]
+fn a_claim_discloses_what_could_hide_beside_it_with_its_size() {
+    let params = Preset::P220Kerosene.params();
+    let effects = Effects::new([
+        "actuator_lag:time_constant_s=0.35".parse::<Effect>().unwrap(),
+        "stand_resonance:frequency_hz=3.5,damping_ratio=0.05".parse::<Effect>().unwrap(),
+    ])
+    .unwrap();
+    let data = [recording(&Plant::new(params, effects), 41)];
+    let d = diagnose(&ModelFile::new(params), &data, &Options::default(), &mut |_| {}).unwrap();
+    for p in &d.detectability {
+        assert_eq!(p.could_hide.is_some(), !p.would_show, "{p:?}");
+        let Some(region) = &p.could_hide else { continue };
+        for (key, [lo, hi]) in region {
+            assert!(lo.is_none_or(|l| hi.is_none_or(|h| l <= h)), "{key}: {p:?}");
+            let probe = p.probe.get(key).copied();
+            match (p.effect, *key) {
+                // The resonance's damping is measured around the probe's; its frequency starts at it.
+                ("stand_resonance", "damping_ratio") => {
+                    assert!(lo.unwrap() <= probe.unwrap() && probe.unwrap() <= hi.unwrap(), "{p:?}")
+                }
+                ("stand_resonance", "frequency_hz") => assert_eq!(*lo, probe, "{p:?}"),
+                // A rate limit hides above the probe's; the others up to it.
+                ("rate_limit", _) => assert_eq!((*lo, *hi), (probe, None), "{p:?}"),
+                ("input_delay" | "actuator_lag" | "gain_drift" | "bearing_friction", _) => {
+                    assert_eq!((*lo, *hi), (Some(0.0), probe), "{p:?}")
+                }
+                _ => {}
+            }
+        }
+    }
+    if d.cause == Cause::MissingPhysics && !d.effects.iter().any(|e| e.name == "stand_resonance") {
+        let covered =
+            d.detectability.iter().filter_map(|p| p.could_hide.as_ref().filter(|_| p.effect == "stand_resonance")).any(
+                |r| {
+                    let within = |key: &str, v: f64| {
+                        r.get(key).is_some_and(|[lo, hi]| lo.is_none_or(|l| l <= v) && hi.is_none_or(|h| v <= h))
+                    };
+                    within("frequency_hz", 3.5) && within("damping_ratio", 0.05)
+                },
+            );
+        assert!(covered, "the resonance left out is not disclosed at its size: {:?}\n{}", d.detectability, d.verdict);
+        assert!(d.verdict.contains("nor one at"), "{}", d.verdict);
+    }
+}

@@ -34,6 +34,8 @@
 //! The probes' sizes are what matters at a 100 Hz bench, independent of any recording (see
 //! [`probes`]).
 
+use std::collections::BTreeMap;
+
 use jetbench_model::discrepancy::DISCREPANCY_DEFAULTS;
 use jetbench_model::{EffectKind, Effects, STEP_S};
 use nalgebra::{DMatrix, DVector};
@@ -51,8 +53,8 @@ pub const SHAPE_Z: f64 = 4.0;
 pub struct Detectability {
     /// The class (a catalogue name, or `periodic` for a force at its own period).
     pub effect: &'static str,
-    /// The probe: its values by key.
-    pub probe: Vec<(&'static str, f64)>,
+    /// The probe: its values by key (an object in the JSON).
+    pub probe: BTreeMap<&'static str, f64>,
     /// What it means in words (`a delay of 20 ms`).
     pub size: String,
     /// Energy of its prewhitened reading over the held-out part, innovation variances.
@@ -68,6 +70,45 @@ pub struct Detectability {
     pub smallest: Option<f64>,
     /// What would show it, when this recording does not.
     pub experiment: &'static str,
+    /// When it would not show: every effect of this class whose values lie in these ranges
+    /// (by key, `[low, high]`, `None` for no bound) is no more visible here than the probe,
+    /// so it could hide too (see [`could_hide`]). `None` when the probe would show.
+    pub could_hide: Option<BTreeMap<&'static str, [Option<f64>; 2]>>,
+}
+
+/// Dampings at which a hidden stand-resonance probe is measured again, to bound the dampings
+/// that could hide with it (the catalogue's range is 0.005-0.3).
+const DAMPINGS: [f64; 7] = [0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3];
+
+/// The values of a hidden probe's class that are no more visible than the probe, per key.
+///
+/// For every class but the resonance, the reading an effect adds grows with one size in one
+/// direction, the others held: a longer delay or lag, a larger drift gain, gain drift,
+/// friction band or periodic amplitude, a lower rate limit, a deeper soak all add more.
+/// Values on the less visible side of the probe could hide. A time constant or a period is
+/// not ordered that way (a slower drift is smaller at first and larger later): it is
+/// pinned to the probe's value.
+///
+/// The resonance is handled in [`probe_all`]: its damping is not ordered (a light damping
+/// rings more after a step, a heavy one lags more behind a ramp), so the dampings that could
+/// hide are measured, and its frequency is bounded by the probes above it.
+fn could_hide(kind: EffectKind, v: &[f64]) -> BTreeMap<&'static str, [Option<f64>; 2]> {
+    let up_to = |x: f64| [Some(0.0), Some(x)];
+    let at = |x: f64| [Some(x), Some(x)];
+    match kind {
+        EffectKind::InputDelay => BTreeMap::from([("delay_s", up_to(v[0]))]),
+        EffectKind::ActuatorLag => BTreeMap::from([("time_constant_s", up_to(v[0]))]),
+        EffectKind::RateLimit => {
+            BTreeMap::from([("up_pct_per_s", [Some(v[0]), None]), ("down_pct_per_s", [Some(v[1]), None])])
+        }
+        EffectKind::SensorDrift => BTreeMap::from([("gain", up_to(v[0])), ("time_constant_s", at(v[1]))]),
+        EffectKind::GainDrift => BTreeMap::from([("per_minute", up_to(v[0]))]),
+        EffectKind::BearingFriction => BTreeMap::from([("force_n", up_to(v[0]))]),
+        EffectKind::StandResonance => BTreeMap::from([("frequency_hz", at(v[0])), ("damping_ratio", at(v[1]))]),
+        EffectKind::Discrepancy => {
+            BTreeMap::from([("gain_history_per_n", [Some(v[4]), Some(0.0)]), ("history_time_constant_s", at(v[5]))])
+        }
+    }
 }
 
 /// The probes: each class at the size that matters at a 100 Hz thrust bench.
@@ -291,20 +332,21 @@ pub(crate) fn probe_all(
         measure(&wd, &wr, s2)
     };
     let full_thrust = sim.iter().flatten().copied().filter(|v| v.is_finite()).fold(0.0f64, f64::max);
-    let mut out = Vec::new();
     let mut with = Sim::new();
+    // Energy and matched-filter statistic of one probe on the model found.
+    let mut probe = |kind: EffectKind, values: &[f64]| -> Option<(f64, f64)> {
+        let plant = spec.with(kind, values.to_vec()).plant(fixed)?;
+        problem.simulate(&plant, &spec.states, false, &mut with).ok()?;
+        let delta: Vec<Vec<f64>> =
+            with.iter().zip(sim).map(|(a, b)| a.iter().zip(b).map(|(x, y)| x - y).collect()).collect();
+        Some(held_out(&delta))
+    };
+    let mut out = Vec::new();
     for (kind, values, proportional) in probes(full_thrust) {
         if spec.has(kind) || fixed.get(kind).is_some() {
             continue;
         }
-        let probe = spec.with(kind, values.clone());
-        let Some(plant) = probe.plant(fixed) else { continue };
-        if problem.simulate(&plant, &spec.states, false, &mut with).is_err() {
-            continue;
-        }
-        let delta: Vec<Vec<f64>> =
-            with.iter().zip(sim).map(|(a, b)| a.iter().zip(b).map(|(x, y)| x - y).collect()).collect();
-        let (energy, shape_z) = held_out(&delta);
+        let Some((energy, shape_z)) = probe(kind, &values) else { continue };
         let (effect, free, first) = if kind == EffectKind::Discrepancy {
             // The thrust-history gain: its coefficient and its time constant.
             (GAIN_HISTORY, 2, values[4])
@@ -312,22 +354,53 @@ pub(crate) fn probe_all(
             (kind.name(), kind.keys().len(), values[0])
         };
         let threshold = strong_evidence + free as f64 * ln_n;
+        let would_show = energy >= threshold;
+        let mut hide = (!would_show).then(|| could_hide(kind, &values));
+        if let (Some(region), EffectKind::StandResonance) = (hide.as_mut(), kind) {
+            // The dampings that could hide at this frequency. At one frequency the reading a
+            // resonance adds, component by component of the thrust's spectrum, grows or
+            // shrinks monotonically with ζ² (`|H(jω)−1|²` is a ratio of two functions
+            // linear in ζ²), so between two dampings the energy is at most the sum of theirs:
+            // the range grows from the probe's damping while each neighbouring pair sums
+            // below the threshold.
+            let energies: Vec<f64> = DAMPINGS
+                .iter()
+                .map(|&z| {
+                    if (z - values[1]).abs() < 1e-12 {
+                        energy
+                    } else {
+                        probe(kind, &[values[0], z]).map_or(f64::INFINITY, |e| e.0)
+                    }
+                })
+                .collect();
+            let home = DAMPINGS.iter().position(|&z| (z - values[1]).abs() < 1e-12).unwrap_or(0);
+            let (mut lo, mut hi) = (home, home);
+            while lo > 0 && energies[lo - 1] + energies[lo] < threshold {
+                lo -= 1;
+            }
+            while hi + 1 < DAMPINGS.len() && energies[hi] + energies[hi + 1] < threshold {
+                hi += 1;
+            }
+            region.insert("damping_ratio", [Some(DAMPINGS[lo]), Some(DAMPINGS[hi])]);
+        }
         out.push(Detectability {
             effect,
             probe: if kind == EffectKind::Discrepancy {
-                vec![("gain_history_per_n", values[4]), ("history_time_constant_s", values[5])]
+                BTreeMap::from([("gain_history_per_n", values[4]), ("history_time_constant_s", values[5])])
             } else {
                 kind.keys().iter().copied().zip(values.iter().copied()).collect()
             },
             size: describe(kind, &values, full_thrust),
             energy,
             threshold,
-            would_show: energy >= threshold,
+            would_show,
             shape_z,
             smallest: (proportional && energy > 0.0).then(|| first * (threshold / energy).sqrt()),
             experiment: experiment_for(effect),
+            could_hide: hide,
         });
     }
+    resonance_bands(&mut out);
     // A periodic force of 1 N at a period of 30 s (a sine and a cosine: its phase is free).
     let period_s = 30.0;
     let (mut energy, mut shape_z) = (f64::INFINITY, 0.0f64);
@@ -348,7 +421,7 @@ pub(crate) fn probe_all(
     let threshold = strong_evidence + 3.0 * ln_n;
     out.push(Detectability {
         effect: super::rivals::PERIODIC,
-        probe: vec![("amplitude_n", 1.0), ("period_s", period_s)],
+        probe: BTreeMap::from([("amplitude_n", 1.0), ("period_s", period_s)]),
         size: format!("a periodic force of 1 N at {period_s:.0} s"),
         energy,
         threshold,
@@ -356,8 +429,39 @@ pub(crate) fn probe_all(
         shape_z,
         smallest: (energy > 0.0 && energy.is_finite()).then(|| (threshold / energy).sqrt()),
         experiment: experiment_for(super::rivals::PERIODIC),
+        could_hide: (energy < threshold)
+            .then(|| BTreeMap::from([("amplitude_n", [Some(0.0), Some(1.0)]), ("period_s", [Some(period_s); 2])])),
     });
     out
+}
+
+/// The frequencies that could hide, for each hidden stand-resonance probe: from its own up to
+/// the next probe frequency when that one is hidden too (over the dampings both hide at), or
+/// its own alone. Between two probe frequencies a resonance picks up the thrust's power near
+/// its own frequency, which varies smoothly with frequency (throttle steps through the
+/// engine's low-pass): one there is no more visible than at the two probes beside it, both
+/// measured hidden. Above the highest probe nothing is said.
+fn resonance_bands(out: &mut [Detectability]) {
+    let resonance: Vec<usize> =
+        out.iter().enumerate().filter(|(_, p)| p.effect == "stand_resonance").map(|(i, _)| i).collect();
+    for pair in resonance.windows(2) {
+        let (i, j) = (pair[0], pair[1]);
+        let dampings = |p: &Detectability| match p.could_hide.as_ref().and_then(|r| r.get("damping_ratio")) {
+            Some([Some(lo), Some(hi)]) => Some((*lo, *hi)),
+            _ => None,
+        };
+        let (Some((lo_i, hi_i)), Some((lo_j, hi_j))) = (dampings(&out[i]), dampings(&out[j])) else { continue };
+        let (lo, hi) = (lo_i.max(lo_j), hi_i.min(hi_j));
+        let top = out[j].probe.get("frequency_hz").copied();
+        if lo > hi || top.is_none() {
+            continue;
+        }
+        if let Some(region) = out[i].could_hide.as_mut() {
+            let from = region.get("frequency_hz").and_then(|r| r[0]);
+            region.insert("frequency_hz", [from, top]);
+            region.insert("damping_ratio", [Some(lo), Some(hi)]);
+        }
+    }
 }
 
 /// True when every probe would show and none is in the residual: `none` may stand.

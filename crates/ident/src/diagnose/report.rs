@@ -600,15 +600,36 @@ fn hidden_beside(d: &Diagnosis) -> String {
     }
     let sizes: Vec<String> = hidden
         .iter()
-        .map(|p| format!("{} ({:.0} % of the evidence a claim needs)", p.size, 100.0 * p.energy / p.threshold))
+        .map(|p| {
+            format!(
+                "{} ({:.0} % of the evidence a claim needs){}",
+                p.size,
+                100.0 * p.energy / p.threshold,
+                resonance_band(p)
+            )
+        })
         .collect();
     let mut experiments: Vec<&str> = hidden.iter().map(|p| p.experiment).collect();
     experiments.dedup();
     format!(
-        " Beside it, this recording could not have shown {}: the claim does not exclude them ({}).",
+        " Beside it, this recording could not have shown {} (nor any smaller: a shorter delay or lag, a smaller \
+         drift, band or force, a faster rate limit): the claim does not exclude them ({}).",
         sizes.join(", "),
         experiments.join("; ")
     )
+}
+
+/// The frequencies and dampings a hidden stand-resonance probe stands for (see
+/// [`detect::Detectability::could_hide`]), in words; empty for other classes.
+fn resonance_band(p: &detect::Detectability) -> String {
+    let Some(region) = p.could_hide.as_ref().filter(|_| p.effect == "stand_resonance") else { return String::new() };
+    match (region.get("frequency_hz"), region.get("damping_ratio")) {
+        (Some([Some(f0), Some(f1)]), Some([Some(z0), Some(z1)])) => {
+            let at = if f1 > f0 { format!("{f0:.1}-{f1:.1} Hz") } else { format!("{f0:.1} Hz") };
+            format!(", nor one at {at} with ζ {z0:.3}-{z1:.3}")
+        }
+        _ => String::new(),
+    }
 }
 
 /// Nothing found, but this recording could not have shown every class of effect (or its
