@@ -14,7 +14,11 @@
 //! With `ironcub` the engine is the iRonCub group's 13-coefficient jet
 //! (`jetbench_model::ironcub`) driven by `excite::ironcub_signal` (544 s, 0–100 %; the
 //! duration argument is not used), noise variance 9 N²; the second run is the signal of
-//! seed + 1000.
+//! seed + 1000. `diagnose` is then given the ten-parameter model alone (the best bounded
+//! one, without the terms `identify` chose) and the first run, as
+//! `jetbench diagnose --model ten.toml run1.csv` would be: a second table says what it
+//! blames, what it names and how close to the floor its improved model comes on held-out
+//! data.
 //!
 //! The model judged is the one `identify --out` writes: the best bounded ten-parameter model,
 //! extended by the discrepancy terms the data paid for (`jetbench_ident::structure`); the
@@ -30,6 +34,7 @@
 
 use std::time::Instant;
 
+use jetbench_ident::diagnose::{self, Diagnosis};
 use jetbench_ident::excite;
 use jetbench_ident::identify::{self, Fitted, Method, Options};
 use jetbench_ident::series::Series;
@@ -37,7 +42,7 @@ use jetbench_ident::synth::{self, Bench};
 use jetbench_ident::validate;
 use jetbench_model::ironcub::IronCubJet;
 use jetbench_model::turbojet::TurbojetParams;
-use jetbench_model::{Effects, Plant, STEP_S};
+use jetbench_model::{Effects, ModelFile, Plant, STEP_S};
 
 const NOISE_VAR_N2: f64 = 7.0;
 const IRONCUB_NOISE_VAR_N2: f64 = 9.0;
@@ -98,11 +103,12 @@ fn main() -> anyhow::Result<()> {
     );
     println!("|---|---|---|---|---|---|---|---|---|---|");
     let (mut bounded, mut within) = (0, 0);
+    let mut diagnosed = Vec::new();
     for seed in first..first + n {
         let started = Instant::now();
         let run = synth::record_bench(&plant, &signal(seed), &bench, seed)?;
         let second = synth::record_bench(&plant, &signal(seed + 1000), &bench, seed + 1000)?;
-        let (calibration, validation) = identify::hold_out(&[run], 0.3);
+        let (calibration, validation) = identify::hold_out(std::slice::from_ref(&run), 0.3);
         let report = identify::identify(&calibration, &validation, &options, |_, _| {})?;
         let row = match report.best_params() {
             Some((result, params)) => {
@@ -127,6 +133,17 @@ fn main() -> anyhow::Result<()> {
                 if second_mae.is_some_and(|m| m <= 1.05 * floor) {
                     within += 1;
                 }
+                if ironcub {
+                    let given = ModelFile { model: params, effects: Effects::none() };
+                    let started = Instant::now();
+                    let d = diagnose::diagnose(
+                        &given,
+                        std::slice::from_ref(&run),
+                        &diagnose::Options::default(),
+                        &mut |_| {},
+                    );
+                    diagnosed.push((seed, d.map(|d| (d, started.elapsed().as_secs_f64()))));
+                }
                 format!(
                     "yes | {} | {} | {terms} | {} | {} | {split} | {}",
                     result.method.name(),
@@ -141,7 +158,46 @@ fn main() -> anyhow::Result<()> {
         println!("| {seed} | {row} | {:.0} |", started.elapsed().as_secs_f64());
     }
     println!("\nbounded models: {bounded} of {n}; second-run MAE within 5 % of the floor: {within} of {n}");
+    if !diagnosed.is_empty() {
+        println!("\n`diagnose` given the ten-parameter model and the first run:\n");
+        println!("| seed | cause | named | held-out MAE before / after / its floor, N | after / floor | s |");
+        println!("|---|---|---|---|---|---|");
+        for (seed, d) in diagnosed {
+            match d {
+                Ok((d, seconds)) => println!(
+                    "| {seed} | {:?} | {} | {:.3} / {:.3} / {:.3} | {:.3} | {seconds:.0} |",
+                    d.cause,
+                    named(&d),
+                    d.mae_before_n,
+                    d.mae_after_n,
+                    d.noise_floor_n,
+                    d.mae_after_n / d.noise_floor_n
+                ),
+                Err(e) => println!("| {seed} | failed: {e} | - | - | - | - |"),
+            }
+        }
+    }
     Ok(())
+}
+
+/// What a diagnosis names: each effect with its fitted values, and the refit.
+fn named(d: &Diagnosis) -> String {
+    let mut parts: Vec<String> = d
+        .effects
+        .iter()
+        .map(|e| {
+            let values: Vec<String> = e.params.iter().map(|(k, v)| format!("{k} = {v:.4e}")).collect();
+            format!("{} ({})", e.name, values.join(", "))
+        })
+        .collect();
+    if d.refit.is_some() {
+        parts.push("refit".into());
+    }
+    if parts.is_empty() {
+        "nothing".into()
+    } else {
+        parts.join("; ")
+    }
 }
 
 /// The MAE of a free run (`sim`) over `run`, over its idle holds and full steps and over the

@@ -1,13 +1,14 @@
 //! Structure chosen by the data: the ten parameters extended by the terms of the
-//! discrepancy library ([`jetbench_model::discrepancy`]) that held-out data pays for.
+//! discrepancy library ([`jetbench_model::discrepancy`]) and the throttle-path effect of
+//! the catalogue that held-out data pays for.
 //!
 //! The terms are the ones a diagnosis knows: input gain in `T²`, `Ṫ²` and `T·Ṫ`
 //! (`B_TT`, `B_DD`, `B_TD`, the iRonCub group's later jet model) and hinges in the
-//! throttle map (`map_below`, `map_above`, with a knot every 5 % of throttle within the
-//! recorded range). The criterion is the diagnosis's own, on the same data
-//! ([`crate::diagnose::problem::Problem`]: the recordings on the 10 ms grid, spikes left
-//! out, the sensor noise modelled and the residual prewhitened), so both commands
-//! choose structure alike:
+//! throttle map (`map_below`, `map_above`, at the diagnosis's knots: every 5 % within the
+//! recorded throttle's range, `diagnose::discrepancy::knots`). The criterion is the
+//! diagnosis's own, on the same data ([`crate::diagnose::problem::Problem`]: the
+//! recordings on the 10 ms grid, spikes left out, the sensor noise modelled and the
+//! residual prewhitened), so both commands choose structure alike:
 //!
 //! - a model is judged on the held-out samples by `N·ln(SSE/N) + k·ln N`, the
 //!   innovations' likelihood with a BIC penalty of `ln N` per fitted parameter (a
@@ -23,7 +24,15 @@
 //! part (one per family, at most [`MAX_TERMS`]) and scores each prefix on the held-out
 //! part, as the diagnosis's discrepancy search does. The chosen prefix and the refit
 //! alone are then fitted by Gauss–Newton on the simulation (output) error and judged by
-//! real simulations. The extended model is written only when it stays bounded over the
+//! real simulations.
+//!
+//! Then the throttle path: an input delay, an actuator lag (first order) and a rate limit
+//! (the catalogue's effects on the way in, which the model's throttle path runs) are each
+//! fitted, with the ten parameters and the terms kept, on the simulation error from the
+//! best of a few starting values, and the one that pays most against what was kept, by the
+//! same score and bar, is added (at most one). Every part must then still earn its place.
+//!
+//! The extended model is written only when it stays bounded over the
 //! throttle range: a rest point at every throttle of a 2.5 % grid that a staircase and
 //! full steps both ways reach.
 
@@ -34,14 +43,13 @@ use jetbench_model::{
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
+use crate::diagnose::discrepancy;
 use crate::diagnose::problem::{Part, Problem, Sim};
 use crate::series::Series;
 use crate::spd::SpdSolver;
 
 /// Most terms added (the diagnosis's discrepancy takes as many).
 pub const MAX_TERMS: usize = 4;
-/// Spacing of the throttle-map knots tried, %.
-const KNOT_STEP_PCT: f64 = 5.0;
 /// Gauss–Newton iterations of each fit on the simulation error.
 const ITERATIONS: usize = 3;
 
@@ -142,23 +150,42 @@ struct Search<'p, 'a> {
     n_val: f64,
 }
 
-/// A candidate model: the ten parameters and the discrepancy's values.
+/// A candidate model: the ten parameters, the discrepancy's values and a throttle-path
+/// effect of the catalogue with its values (a rate limit has two, the others one).
 #[derive(Clone, Debug, PartialEq)]
 struct Candidate {
     params: [f64; 10],
     disc: [f64; 9],
+    path: Option<(EffectKind, [f64; 2])>,
 }
 
 impl Candidate {
+    /// Adds `delta` to value `index`: the ten parameters (0–9), the discrepancy (10–18),
+    /// the throttle path (19, 20; kept within what a fit may explore).
+    fn add(&mut self, index: usize, delta: f64) {
+        match index {
+            0..10 => self.params[index] += delta,
+            10..19 => self.disc[index - 10] += delta,
+            _ => {
+                if let Some((kind, values)) = &mut self.path {
+                    let (lo, hi) = path_range(*kind);
+                    values[index - 19] = (values[index - 19] + delta).clamp(lo, hi);
+                }
+            }
+        }
+    }
+
     fn plant(&self) -> Option<Plant> {
         let p = Params::from_array(self.params);
         p.validate().ok()?;
-        let effects = if self.disc.iter().zip(DISCREPANCY_DEFAULTS).all(|(a, b)| *a == b) {
-            Effects::none()
-        } else {
-            Effects::new([Effect::new(EffectKind::Discrepancy, &self.disc).ok()?]).ok()?
-        };
-        Some(Plant::new(p, effects))
+        let mut effects = Vec::new();
+        if let Some((kind, values)) = &self.path {
+            effects.push(Effect::new(*kind, &values[..kind.keys().len()]).ok()?);
+        }
+        if self.disc.iter().zip(DISCREPANCY_DEFAULTS).any(|(a, b)| *a != b) {
+            effects.push(Effect::new(EffectKind::Discrepancy, &self.disc).ok()?);
+        }
+        Some(Plant::new(p, Effects::new(effects).ok()?))
     }
 
     fn model_file(&self) -> Option<ModelFile> {
@@ -200,14 +227,11 @@ impl Search<'_, '_> {
     }
 
     /// Sensitivity of the output to a change `delta` of value `index` of the candidate's
-    /// parameters (0–9) or discrepancy (10–18), whitened over calibration and validation.
+    /// parameters (0–9), discrepancy (10–18) or throttle path (19, 20), whitened over
+    /// calibration and validation.
     fn column(&self, c: &Candidate, sim: &Sim, index: usize, delta: f64) -> Option<(Vec<f64>, Vec<f64>)> {
         let mut probe = c.clone();
-        if index < 10 {
-            probe.params[index] += delta;
-        } else {
-            probe.disc[index - 10] += delta;
-        }
+        probe.add(index, delta);
         let moved = self.simulate(&probe)?;
         let per_run: Vec<Vec<f64>> = self
             .problem
@@ -234,8 +258,8 @@ impl Search<'_, '_> {
     }
 
     /// Gauss–Newton on the calibration simulation error over the ten parameters and
-    /// the discrepancy values `free` (indices into its values), from `start`; the best
-    /// candidate seen by calibration error, with its simulation.
+    /// the values `free` (0–8: the discrepancy's; 9, 10: the throttle path's), from
+    /// `start`; the best candidate seen by calibration error, with its simulation.
     fn fit(&self, start: &Candidate, free: &[usize]) -> Option<(Candidate, Sim)> {
         let mut current = start.clone();
         let mut sim = self.simulate(&current)?;
@@ -252,7 +276,11 @@ impl Search<'_, '_> {
                 index.push(i);
             }
             for &j in free {
-                let d = probe_of(j);
+                let d = match (j, current.path) {
+                    (0..9, _) => discrepancy::probe(j),
+                    (_, Some((kind, values))) => path_delta(kind, values[j - 9]),
+                    (_, None) => return None,
+                };
                 let (cal, _) = self.column(&current, &sim, 10 + j, d)?;
                 cols.push(cal);
                 index.push(10 + j);
@@ -267,11 +295,7 @@ impl Search<'_, '_> {
             for _ in 0..6 {
                 let mut next = current.clone();
                 for (&i, t) in index.iter().zip(theta.iter()) {
-                    if i < 10 {
-                        next.params[i] += step * t;
-                    } else {
-                        next.disc[i - 10] += step * t;
-                    }
+                    next.add(i, step * t);
                 }
                 if let Some(s) = self.simulate(&next) {
                     let e = cal_sse(&s);
@@ -287,16 +311,6 @@ impl Search<'_, '_> {
             }
         }
         Some((current, sim))
-    }
-}
-
-/// The probe of discrepancy value `j` (a coefficient): the diagnosis's sizes, a small
-/// change of the output.
-fn probe_of(j: usize) -> f64 {
-    match j {
-        0 | 2 => 0.02,
-        7 => 1e-7,
-        _ => 1e-8,
     }
 }
 
@@ -362,7 +376,7 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
     let settings = crate::diagnose::Options::default();
     let floor_n = problem.noise.mae_n;
     let search = Search { states: problem.given_states(), problem: &problem, n_val: 0.0 };
-    let start = Candidate { params: base.to_array(), disc: DISCREPANCY_DEFAULTS };
+    let start = Candidate { params: base.to_array(), disc: DISCREPANCY_DEFAULTS, path: None };
     let sim0 = search.simulate(&start).ok_or("the ten-parameter model diverges on the data")?;
     let (r_cal, r_val) = search.residuals(&sim0);
     let search = Search { n_val: r_val.len() as f64, ..search };
@@ -370,23 +384,21 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
         return Err(format!("{} held-out samples; the search needs 500", r_val.len()));
     }
 
-    // The library: knots within the recorded throttle's 5–95 % quantiles.
-    let mut u: Vec<f64> = problem.runs.iter().flat_map(|r| r.u.iter().copied()).collect();
-    u.sort_by(f64::total_cmp);
-    let q = |f: f64| u.get(((u.len().saturating_sub(1)) as f64 * f) as usize).copied().unwrap_or(50.0);
-    let (lo, hi) = (q(0.05) + 1.0, q(0.95) - 1.0);
-    let knots: Vec<f64> = (1..=19).map(|i| i as f64 * KNOT_STEP_PCT).filter(|k| (lo..=hi).contains(k)).collect();
+    // The library: the diagnosis's knots, within the recorded throttle's range.
+    let knots = discrepancy::knots(&problem);
     let mut library = Vec::new();
     for term in DISCREPANCY_TERMS {
         match (term.coefficient, term.shape) {
             (0 | 2, Some(s)) => library.extend(knots.iter().map(|&k| Column {
                 coefficient: term.coefficient,
                 shape: Some((s, k)),
-                probe: probe_of(term.coefficient),
+                probe: discrepancy::probe(term.coefficient),
             })),
-            (6..=8, None) => {
-                library.push(Column { coefficient: term.coefficient, shape: None, probe: probe_of(term.coefficient) })
-            }
+            (6..=8, None) => library.push(Column {
+                coefficient: term.coefficient,
+                shape: None,
+                probe: discrepancy::probe(term.coefficient),
+            }),
             // The thrust-history gain is a slow, time-varying effect, not engine structure.
             _ => {}
         }
@@ -457,7 +469,7 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
     }
 
     // The refit alone, fitted on the simulation error and judged for real.
-    let (_, refit_sim) = search.fit(&start, &[]).ok_or("the ten parameters' refit diverges")?;
+    let (refit, refit_sim) = search.fit(&start, &[]).ok_or("the ten parameters' refit diverges")?;
     let refit_judged = search.judge(&refit_sim).ok_or("the ten parameters' refit diverges on held-out data")?;
     let refit_score = search.score(refit_judged.sse, 0);
     let mut structure = Structure {
@@ -471,111 +483,137 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
         columns_tried: usable.len(),
         verdict: String::new(),
     };
-    let chosen = match best {
-        Some((s, chosen)) if s < linear_refit => chosen,
-        _ => {
-            structure.verdict = format!(
-                "no term of the library pays for its ln N = {:.1} score units per parameter on held-out data \
-                 ({} columns tried): the ten parameters suffice",
-                structure.penalty_per_parameter,
-                usable.len()
-            );
-            return Ok(structure);
-        }
+    // The diagnosis's admission bar, for a gain of `gain` score units and `mae_gain` N.
+    let pays = |gain: f64, mae_gain: f64| {
+        gain > 0.0 && (mae_gain >= settings.min_gain * floor_n || gain >= settings.strong_evidence)
     };
-    let mut columns: Vec<Column> = chosen.iter().map(|&a| library[usable[a]]).collect();
-    // Start the extension from the linearised solution, then fit it on the simulation error.
-    let mut start_ext = start.clone();
-    for c in &columns {
-        if let Some((s, v)) = c.shape {
-            start_ext.disc[s] = v;
-        }
-    }
-    let mut cols = params.clone();
-    cols.extend(chosen.iter().map(|&b| 10 + b));
-    if let Some(theta) = solve(&cal, &r_cal, &cols) {
-        let mut linear = start_ext.clone();
-        for (&c, t) in cols.iter().zip(theta.iter()) {
-            if c < 10 {
-                linear.params[c] += t;
-            } else {
-                linear.disc[library[usable[c - 10]].coefficient] += t;
+    let mut notes = Vec::new();
+
+    // 1. The discrepancy's terms: the best prefix of the linearised search, fitted on the
+    // simulation error, each term kept only while it earns its place.
+    let mut kept: Option<Fitted> = None;
+    match best {
+        Some((s, chosen)) if s < linear_refit => {
+            // Start from the linearised solution.
+            let mut start_ext = start.clone();
+            for &a in &chosen {
+                if let Some((i, v)) = library[usable[a]].shape {
+                    start_ext.disc[i] = v;
+                }
+            }
+            let mut cols = params.clone();
+            cols.extend(chosen.iter().map(|&b| 10 + b));
+            if let Some(theta) = solve(&cal, &r_cal, &cols) {
+                let mut linear = start_ext.clone();
+                for (&c, t) in cols.iter().zip(theta.iter()) {
+                    if c < 10 {
+                        linear.params[c] += t;
+                    } else {
+                        linear.disc[library[usable[c - 10]].coefficient] += t;
+                    }
+                }
+                if linear.plant().is_some() {
+                    start_ext = linear;
+                }
+            }
+            let terms = chosen.iter().map(|&a| Term::Library(library[usable[a]])).collect();
+            match search.fit_terms(&start_ext, terms) {
+                Ok(fitted) => {
+                    let gain = refit_score - fitted.score(&search);
+                    if pays(gain, refit_judged.mae_n - fitted.judged.mae_n) && fitted.earned.iter().all(|&e| e > 0.0) {
+                        kept = Some(fitted);
+                    } else {
+                        notes.push(format!(
+                            "{} does not pay on held-out data against the ten parameters refitted: {gain:+.1} score \
+                             units (penalty included), MAE {:.3} → {:.3} N",
+                            names(&fitted.terms),
+                            refit_judged.mae_n,
+                            fitted.judged.mae_n
+                        ));
+                    }
+                }
+                Err(why) => notes.push(why),
             }
         }
-        if linear.plant().is_some() {
-            start_ext = linear;
+        _ => notes.push(format!(
+            "no term of the library pays for its ln N = {:.1} score units per parameter on held-out data ({} \
+             columns tried)",
+            structure.penalty_per_parameter,
+            usable.len()
+        )),
+    }
+
+    // 2. The throttle path: each effect of the catalogue on the way in, fitted with what was
+    // kept, kept when it pays against that.
+    let base = kept.clone().unwrap_or_else(|| Fitted {
+        terms: Vec::new(),
+        model: refit.clone(),
+        judged: refit_judged,
+        earned: Vec::new(),
+    });
+    let base_score = base.score(&search);
+    let mut tried = Vec::new();
+    let mut best_path: Option<Fitted> = None;
+    for kind in PATH_EFFECTS {
+        let Some(start) = search.path_start(&base.model, kind) else { continue };
+        let mut terms = base.terms.clone();
+        terms.push(Term::Path(kind));
+        let Some(fitted) = search.fit_judged(&start, terms) else {
+            tried.push(format!("{} diverges", kind.name()));
+            continue;
+        };
+        let gain = base_score - fitted.score(&search);
+        tried.push(format!("{} {gain:+.1}", kind.name()));
+        if pays(gain, base.judged.mae_n - fitted.judged.mae_n)
+            && best_path.as_ref().is_none_or(|b| fitted.score(&search) < b.score(&search))
+        {
+            best_path = Some(fitted);
         }
     }
-    let free_of = |columns: &[Column]| -> Vec<usize> { columns.iter().map(|c| c.coefficient).collect() };
-    let cost_of = |columns: &[Column]| -> usize { columns.iter().map(Column::cost).sum() };
-    let label_of = |columns: &[Column]| -> String { columns.iter().map(Column::label).collect::<Vec<_>>().join(", ") };
-    let diverges =
-        |columns: &[Column]| format!("{} looked worth adding, but the extended model diverges", label_of(columns));
-    let Some((mut extended, ext_sim)) = search.fit(&start_ext, &free_of(&columns)) else {
-        structure.verdict = diverges(&columns);
-        return Ok(structure);
-    };
-    let Some(mut ext_judged) = search.judge(&ext_sim) else {
-        structure.verdict = diverges(&columns);
-        return Ok(structure);
-    };
-    // Every term kept must still earn its place: the held-out score without it (the rest
-    // refitted) must be worse; the term that earns least goes first, as in a diagnosis.
-    let mut earned: Vec<f64>;
-    loop {
-        let ext_score = search.score(ext_judged.sse, cost_of(&columns));
-        earned = columns
-            .iter()
-            .map(|c| {
-                let mut without = extended.clone();
-                without.disc[c.coefficient] = 0.0;
-                let rest: Vec<Column> = columns.iter().copied().filter(|o| o != c).collect();
-                search
-                    .fit(&without, &free_of(&rest))
-                    .and_then(|(_, sim)| search.judge(&sim))
-                    .map_or(f64::INFINITY, |j| search.score(j.sse, cost_of(&rest)) - ext_score)
-            })
-            .collect();
-        let worst = (0..columns.len()).min_by(|&a, &b| earned[a].total_cmp(&earned[b]));
-        match worst {
-            Some(w) if earned[w] <= 0.0 && columns.len() > 1 => {
-                let mut without = extended.clone();
-                without.disc[columns[w].coefficient] = 0.0;
-                columns.remove(w);
-                let Some((next, judged)) =
-                    search.fit(&without, &free_of(&columns)).and_then(|(next, sim)| Some((next, search.judge(&sim)?)))
-                else {
-                    structure.verdict = diverges(&columns);
+    let path_note = format!("no throttle-path effect pays against it ({})", tried.join(", "));
+    let fitted = match best_path {
+        // Every part must still earn its place beside the path effect.
+        Some(path) => match search.fit_terms(&path.model, path.terms) {
+            Ok(fitted) if fitted.terms.iter().any(|t| matches!(t, Term::Path(_))) => fitted,
+            _ => match kept {
+                Some(kept) => kept,
+                None => {
+                    notes.push(path_note);
+                    structure.verdict = format!("{}: the ten parameters suffice", notes.join("; "));
                     return Ok(structure);
-                };
-                (extended, ext_judged) = (next, judged);
+                }
+            },
+        },
+        None => match kept {
+            Some(kept) => kept,
+            None => {
+                notes.push(path_note);
+                structure.verdict = format!("{}: the ten parameters suffice", notes.join("; "));
+                return Ok(structure);
             }
-            _ => break,
-        }
-    }
-    let labels = label_of(&columns);
-    let ext_score = search.score(ext_judged.sse, cost_of(&columns));
+        },
+    };
+
+    let labels = fitted.labels();
+    let ext_score = fitted.score(&search);
     structure.extended_score = Some(ext_score);
-    structure.extended_mae_n = Some(ext_judged.mae_n);
+    structure.extended_mae_n = Some(fitted.judged.mae_n);
     let gain = refit_score - ext_score;
-    let mae_gain = refit_judged.mae_n - ext_judged.mae_n;
-    let admitted = gain > 0.0
-        && earned.iter().all(|&e| e > 0.0)
-        && (mae_gain >= settings.min_gain * floor_n || gain >= settings.strong_evidence);
-    if !admitted {
+    if !(pays(gain, refit_judged.mae_n - fitted.judged.mae_n) && fitted.earned.iter().all(|&e| e > 0.0)) {
         structure.verdict = format!(
             "{labels} does not pay on held-out data against the ten parameters refitted: {gain:+.1} score units \
              (penalty included), MAE {:.3} → {:.3} N",
-            refit_judged.mae_n, ext_judged.mae_n
+            refit_judged.mae_n, fitted.judged.mae_n
         );
         return Ok(structure);
     }
-    let Some(file) = extended.model_file() else {
-        structure.verdict = format!("{labels}: the fitted values leave the discrepancy's bounds");
+    let Some(file) = fitted.model.model_file() else {
+        structure.verdict = format!("{labels}: the fitted values leave the effects' bounds");
         return Ok(structure);
     };
-    let (u_lo, u_hi) = (u.first().copied().unwrap_or(THROTTLE_MIN_PCT), u.last().copied().unwrap_or(100.0));
-    let (range_lo, range_hi) = (u_lo.min(THROTTLE_MIN_PCT), u_hi.max(THROTTLE_MAX_PCT));
+    let recorded = problem.runs.iter().flat_map(|r| r.u.iter().copied()).filter(|u| u.is_finite());
+    let (range_lo, range_hi) =
+        recorded.fold((THROTTLE_MIN_PCT, THROTTLE_MAX_PCT), |(lo, hi), u| (lo.min(u), hi.max(u)));
     if let Some(why) = unbounded_over(&file.plant(), range_lo, range_hi) {
         structure.verdict = format!(
             "{labels} pays on held-out data ({gain:+.1} score units) but the extended model is not bounded over \
@@ -583,12 +621,12 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
         );
         return Ok(structure);
     }
-    for (c, held_out_gain) in columns.iter().zip(earned) {
+    for (t, &held_out_gain) in fitted.terms.iter().zip(&fitted.earned) {
         structure.chosen.push(ChosenTerm {
-            label: c.label(),
-            key: DISCREPANCY_KEYS[c.coefficient],
-            value: extended.disc[c.coefficient],
-            parameters: c.cost(),
+            label: t.label(&fitted.model),
+            key: t.key(),
+            value: t.value(&fitted.model),
+            parameters: t.cost(),
             held_out_gain,
         });
     }
@@ -596,10 +634,216 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
         "the ten parameters extended by {labels}: held-out score {gain:+.1} units against the ten parameters \
          refitted (penalty ln N = {:.1} per parameter included), MAE {:.3} → {:.3} N, bounded over \
          {range_lo:.0}–{range_hi:.0} %",
-        structure.penalty_per_parameter, refit_judged.mae_n, ext_judged.mae_n
+        structure.penalty_per_parameter, refit_judged.mae_n, fitted.judged.mae_n
     );
     structure.model = Some(file);
     Ok(structure)
+}
+
+/// The throttle-path effects of the catalogue tried as structure: what happens to the
+/// throttle before the engine follows it (the model's [`jetbench_model::ThrottlePath`]).
+const PATH_EFFECTS: [EffectKind; 3] = [EffectKind::InputDelay, EffectKind::ActuatorLag, EffectKind::RateLimit];
+
+/// Where a fit of a throttle-path effect may start (a rate limit the same both ways).
+fn path_starts(kind: EffectKind) -> &'static [f64] {
+    match kind {
+        EffectKind::InputDelay => &[0.02, 0.05, 0.1, 0.2],
+        EffectKind::ActuatorLag => &[0.03, 0.08, 0.2, 0.5],
+        _ => &[30.0, 60.0, 120.0, 250.0],
+    }
+}
+
+/// The range a fit of a throttle-path effect's values may explore (the diagnosis's).
+fn path_range(kind: EffectKind) -> (f64, f64) {
+    match kind {
+        EffectKind::InputDelay => (0.0, 1.0),
+        EffectKind::ActuatorLag => (0.002, 3.0),
+        _ => (1.0, 2000.0),
+    }
+}
+
+/// The probe of a throttle-path value `v`: 2 ms of delay or lag, 2 % of a rate limit,
+/// pointing away from the edge of its range.
+fn path_delta(kind: EffectKind, v: f64) -> f64 {
+    let d = match kind {
+        EffectKind::InputDelay | EffectKind::ActuatorLag => 0.002,
+        _ => (0.02 * v).max(0.5),
+    };
+    if v + d > path_range(kind).1 {
+        -d
+    } else {
+        d
+    }
+}
+
+/// A part of the structure: a term of the discrepancy library at its knot, or a
+/// throttle-path effect.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Term {
+    Library(Column),
+    Path(EffectKind),
+}
+
+impl Term {
+    /// Parameters it costs in the penalty.
+    fn cost(&self) -> usize {
+        match self {
+            Term::Library(c) => c.cost(),
+            Term::Path(kind) => kind.keys().len(),
+        }
+    }
+
+    /// The values a fit moves ([`Search::fit`]'s `free`).
+    fn free(&self) -> Vec<usize> {
+        match self {
+            Term::Library(c) => vec![c.coefficient],
+            Term::Path(kind) => (0..kind.keys().len()).map(|i| 9 + i).collect(),
+        }
+    }
+
+    /// `model` without it.
+    fn remove(&self, model: &mut Candidate) {
+        match self {
+            Term::Library(c) => model.disc[c.coefficient] = 0.0,
+            Term::Path(_) => model.path = None,
+        }
+    }
+
+    fn name(&self) -> String {
+        match self {
+            Term::Library(c) => c.label(),
+            Term::Path(kind) => kind.name().to_owned(),
+        }
+    }
+
+    /// In words with its values in `model`.
+    fn label(&self, model: &Candidate) -> String {
+        match (self, model.path) {
+            (Term::Path(kind), Some((_, values))) => {
+                let v: Vec<String> =
+                    kind.keys().iter().zip(values).map(|(k, v)| format!("{k} = {}", round3(v))).collect();
+                format!("{} ({})", kind.name(), v.join(", "))
+            }
+            _ => self.name(),
+        }
+    }
+
+    fn key(&self) -> &'static str {
+        match self {
+            Term::Library(c) => DISCREPANCY_KEYS[c.coefficient],
+            Term::Path(kind) => kind.name(),
+        }
+    }
+
+    /// Its (first) fitted value in `model`.
+    fn value(&self, model: &Candidate) -> f64 {
+        match self {
+            Term::Library(c) => model.disc[c.coefficient],
+            Term::Path(_) => model.path.map_or(f64::NAN, |(_, v)| v[0]),
+        }
+    }
+}
+
+/// `v` to three significant digits, for labels.
+fn round3(v: f64) -> f64 {
+    if v == 0.0 || !v.is_finite() {
+        return v;
+    }
+    let scale = 10f64.powi(2 - v.abs().log10().floor() as i32);
+    (v * scale).round() / scale
+}
+
+fn names(terms: &[Term]) -> String {
+    terms.iter().map(Term::name).collect::<Vec<_>>().join(", ")
+}
+
+fn free_of(terms: &[Term]) -> Vec<usize> {
+    terms.iter().flat_map(Term::free).collect()
+}
+
+fn cost_of(terms: &[Term]) -> usize {
+    terms.iter().map(Term::cost).sum()
+}
+
+/// An extension fitted on the simulation error and judged on held-out data.
+#[derive(Clone, Debug)]
+struct Fitted {
+    terms: Vec<Term>,
+    model: Candidate,
+    judged: Judged,
+    /// What each term earns: how much worse the held-out score is without it, the rest
+    /// refitted (score units, penalty included).
+    earned: Vec<f64>,
+}
+
+impl Fitted {
+    fn score(&self, search: &Search<'_, '_>) -> f64 {
+        search.score(self.judged.sse, cost_of(&self.terms))
+    }
+
+    fn labels(&self) -> String {
+        self.terms.iter().map(|t| t.label(&self.model)).collect::<Vec<_>>().join(", ")
+    }
+}
+
+impl Search<'_, '_> {
+    /// `model` with the throttle-path effect `kind` at the best of its starting values by
+    /// calibration error.
+    fn path_start(&self, model: &Candidate, kind: EffectKind) -> Option<Candidate> {
+        path_starts(kind)
+            .iter()
+            .filter_map(|&v| {
+                let mut c = model.clone();
+                c.path = Some((kind, [v, v]));
+                let sim = self.simulate(&c)?;
+                let e = self.problem.sse(&sim, Part::Calibration).0;
+                e.is_finite().then_some((e, c))
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, c)| c)
+    }
+
+    /// `terms` fitted from `start` and judged (nothing earned yet).
+    fn fit_judged(&self, start: &Candidate, terms: Vec<Term>) -> Option<Fitted> {
+        let (model, sim) = self.fit(start, &free_of(&terms))?;
+        let judged = self.judge(&sim)?;
+        Some(Fitted { terms, model, judged, earned: Vec::new() })
+    }
+
+    /// `terms` fitted from `start`; then every term must earn its place: the held-out score
+    /// without it (the rest refitted) must be worse, and the term that earns least goes
+    /// first, as in a diagnosis. `Err` says which terms diverge.
+    fn fit_terms(&self, start: &Candidate, terms: Vec<Term>) -> Result<Fitted, String> {
+        let diverges =
+            |terms: &[Term]| format!("{} looked worth adding, but the extended model diverges", names(terms));
+        let mut fitted = self.fit_judged(start, terms.clone()).ok_or_else(|| diverges(&terms))?;
+        loop {
+            let score = fitted.score(self);
+            fitted.earned = fitted
+                .terms
+                .iter()
+                .map(|t| {
+                    let mut without = fitted.model.clone();
+                    t.remove(&mut without);
+                    let rest: Vec<Term> = fitted.terms.iter().copied().filter(|o| o != t).collect();
+                    self.fit(&without, &free_of(&rest))
+                        .and_then(|(_, sim)| self.judge(&sim))
+                        .map_or(f64::INFINITY, |j| self.score(j.sse, cost_of(&rest)) - score)
+                })
+                .collect();
+            let worst = (0..fitted.terms.len()).min_by(|&a, &b| fitted.earned[a].total_cmp(&fitted.earned[b]));
+            match worst {
+                Some(w) if fitted.earned[w] <= 0.0 && fitted.terms.len() > 1 => {
+                    let mut without = fitted.model.clone();
+                    fitted.terms[w].remove(&mut without);
+                    let mut rest = fitted.terms.clone();
+                    rest.remove(w);
+                    fitted = self.fit_judged(&without, rest.clone()).ok_or_else(|| diverges(&rest))?;
+                }
+                _ => return Ok(fitted),
+            }
+        }
+    }
 }
 
 impl ChosenTerm {

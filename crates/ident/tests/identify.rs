@@ -110,3 +110,28 @@ fn plant_outside_the_structure_is_called_a_poor_fit() {
     assert!(report.verdict.contains("the fit is poor"), "{}", report.verdict);
     assert!(report.verdict.contains(&format!("{:.2} N", report.noise.mae_n)), "{}", report.verdict);
 }
+
+/// Structure chosen by the data on the way in: a P100 engine that follows its throttle
+/// through a 0.3 s first-order lag (a slow fuel pump, which no ten-parameter model has)
+/// makes `identify` add the catalogue's actuator lag, near the truth, and the extension
+/// reaches the floor where the ten parameters alone do not.
+#[test]
+fn a_lagged_throttle_makes_identify_choose_an_actuator_lag() {
+    let effects = Effects::new(["actuator_lag:time_constant_s=0.3".parse().unwrap()]).unwrap();
+    let plant = Plant::new(Preset::P100Diesel.params(), effects);
+    let run = synth::record_plant(&plant, &campaign(300.0, 4).profile, 7.0, 21).unwrap();
+    let (cal, val) = hold_out(&[run], 0.3);
+    let options = Options { methods: vec![Method::Ls], ..Options::default() };
+    let report = identify(&cal, &val, &options, |_, _| {}).unwrap();
+    let structure = report.structure.as_ref().unwrap().as_ref().unwrap();
+    println!("structure: {}", structure.verdict);
+    let chosen = report.chosen_structure().expect("a throttle-path effect chosen");
+    let lag = chosen.chosen.iter().find(|t| t.key == "actuator_lag").expect("the actuator lag");
+    assert!((lag.value - 0.3).abs() <= 0.25 * 0.3, "time constant {} s against 0.3 s", lag.value);
+    let floor = report.noise.mae_n;
+    let extended = chosen.extended_mae_n.unwrap();
+    assert!(extended <= 1.05 * floor, "extended {extended:.3} N against the floor {floor:.3} N");
+    assert!(chosen.refit_mae_n > extended, "ten parameters {:.3} N, extended {extended:.3} N", chosen.refit_mae_n);
+    let text = report.model_file_text().unwrap();
+    assert!(text.contains("[effects.actuator_lag]") && text.contains("held-out score"), "{text}");
+}

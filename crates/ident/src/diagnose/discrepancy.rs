@@ -3,7 +3,7 @@
 //!
 //! The terms act inside the engine (extra thrust acceleration), so what they do to
 //! the measured thrust is found by simulation: each term of the library, at each of a
-//! few shapes (a knot every 5 % of throttle within the recorded range, thrust-history
+//! few shapes (the knots of [`knots`] within the recorded range, thrust-history
 //! time constants from 5 s to 3 min), is added with a small coefficient and the
 //! change of the simulated output, per unit coefficient, is its sensitivity column.
 //! Linearised around the current model, the residual is then a sparse combination
@@ -12,9 +12,18 @@
 //! validation samples with the same BIC penalty as every hypothesis (a coefficient,
 //! plus its knot or time constant), and the best prefix is kept only if it beats no
 //! term at all. Its coefficients start the joint nonlinear fit of the hypothesis.
+//!
+//! The selection frees what that fit frees. When the hypothesis refits the ten
+//! parameters, their sensitivities are columns of every prefix (and of the "no term"
+//! it must beat), so a term is credited only with what a refit cannot give, as in
+//! `identify`'s structure search ([`crate::structure`]). Selected with the parameters
+//! held, a term could win for mending the held parameters' static map and then stay once
+//! the fit moved them: on the iRonCub group's jet (input gain in `T²`, `Ṫ²`, `T·Ṫ`) a
+//! hinge 10 % flatter above 85 % throttle, which that engine does not have, was picked
+//! first, in place of the refit's own map.
 
 use jetbench_model::discrepancy::{DiscrepancyTerm, DISCREPANCY_DEFAULTS, DISCREPANCY_KEYS, DISCREPANCY_TERMS};
-use jetbench_model::{EffectKind, Effects, Plant};
+use jetbench_model::{EffectKind, Effects, Params, Plant};
 use nalgebra::{DMatrix, DVector};
 
 use super::fit::{Fit, Spec};
@@ -24,7 +33,7 @@ use super::problem::{Part, Problem, Sim};
 pub const MAX_TERMS: usize = 4;
 /// Thrust-history time constants tried, s.
 const HISTORY_S: [f64; 5] = [5.0, 12.0, 30.0, 75.0, 180.0];
-/// Spacing of the knots tried, % throttle.
+/// Spacing of the throttle-map knots tried, % throttle.
 const KNOT_STEP_PCT: f64 = 5.0;
 
 /// One column of the library: a term at one shape.
@@ -65,23 +74,48 @@ pub(crate) struct Selection {
     pub columns: Vec<String>,
 }
 
-fn library(problem: &Problem<'_>, history_max_s: f64) -> Vec<Column> {
-    let mut u: Vec<f64> = problem.runs.iter().flat_map(|r| r.u.iter().copied()).collect();
+/// The throttle-map knots a search tries on `problem`'s recordings: every
+/// [`KNOT_STEP_PCT`] strictly inside 0–100 % (5, 10, ..., 95), within the recorded
+/// throttle's 5–95 % quantiles drawn in by 1 %. At least a twentieth of the samples then
+/// lies on either side of every knot, so no hinge is fitted to the last few rows of the
+/// data. Knots below idle (25 %) count: an engine whose throttle runs 0–100 % (the iRonCub
+/// group's) can bend there, and a recording that stays above idle never reaches them. A
+/// knot at 100 % could never lie inside the range. `diagnose` and `identify`'s structure
+/// search ([`crate::structure`]) both take their knots from here.
+pub(crate) fn knots(problem: &Problem<'_>) -> Vec<f64> {
+    let mut u: Vec<f64> = problem.runs.iter().flat_map(|r| r.u.iter().copied()).filter(|u| u.is_finite()).collect();
+    if u.is_empty() {
+        return Vec::new();
+    }
     u.sort_by(f64::total_cmp);
-    let q = |f: f64| u.get(((u.len().saturating_sub(1)) as f64 * f) as usize).copied().unwrap_or(50.0);
+    let q = |f: f64| u[((u.len() - 1) as f64 * f) as usize];
     let (lo, hi) = (q(0.05) + 1.0, q(0.95) - 1.0);
-    let knots: Vec<f64> = (5..=20).map(|i| i as f64 * KNOT_STEP_PCT).filter(|k| (lo..=hi).contains(k)).collect();
+    (1..).map(|i| f64::from(i) * KNOT_STEP_PCT).take_while(|&k| k < 100.0).filter(|k| (lo..=hi).contains(k)).collect()
+}
+
+/// The coefficient that probes the output's sensitivity to the term of coefficient
+/// `coefficient`: small, so the simulated output moves by a fraction of a newton.
+pub(crate) fn probe(coefficient: usize) -> f64 {
+    match coefficient {
+        0 | 2 => 0.02,
+        4 => 2e-5,
+        7 => 1e-7,
+        _ => 1e-8,
+    }
+}
+
+fn library(problem: &Problem<'_>, history_max_s: f64) -> Vec<Column> {
+    let knots = knots(problem);
     let mut out = Vec::new();
     for term in DISCREPANCY_TERMS {
         match term.coefficient {
-            0 | 2 => out.extend(knots.iter().map(|&k| Column { term, shape: Some(k), probe: 0.02 })),
+            0 | 2 => out.extend(knots.iter().map(|&k| Column { term, shape: Some(k), probe: probe(term.coefficient) })),
             4 => out.extend(HISTORY_S.iter().filter(|&&t| t <= history_max_s).map(|&t| Column {
                 term,
                 shape: Some(t),
-                probe: 2e-5,
+                probe: probe(term.coefficient),
             })),
-            7 => out.push(Column { term, shape: None, probe: 1e-7 }),
-            _ => out.push(Column { term, shape: None, probe: 1e-8 }),
+            _ => out.push(Column { term, shape: None, probe: probe(term.coefficient) }),
         }
     }
     out
@@ -132,6 +166,39 @@ fn sensitivities(
         .collect()
 }
 
+/// Sensitivity of the simulated output to each of the ten parameters of `current`, per
+/// run on its grid (NaN where there is no sample); a parameter whose probe diverges is
+/// left out.
+fn parameter_sensitivities(problem: &Problem<'_>, fixed: &Effects, current: &Spec, sim: &Sim) -> Vec<Vec<Vec<f64>>> {
+    let mut probe_sim = Sim::new();
+    let given = current.params.to_array();
+    (0..given.len())
+        .filter_map(|i| {
+            let delta = 1e-4 * given[i].abs().max(1e-3);
+            let mut params = given;
+            params[i] += delta;
+            let mut spec = current.clone();
+            spec.params = Params::from_array(params);
+            let plant = spec.plant(fixed)?;
+            problem.simulate(&plant, &spec.states, false, &mut probe_sim).ok()?;
+            Some(
+                problem
+                    .runs
+                    .iter()
+                    .enumerate()
+                    .map(|(r, run)| {
+                        (0..run.y.len())
+                            .map(
+                                |k| if run.y[k].is_finite() { (probe_sim[r][k] - sim[r][k]) / delta } else { f64::NAN },
+                            )
+                            .collect()
+                    })
+                    .collect(),
+            )
+        })
+        .collect()
+}
+
 /// Innovations of `columns` (one vector per run) over `part`, in the order of
 /// [`Problem::innovations`].
 fn whitened(problem: &Problem<'_>, runs: &[Vec<f64>], part: Part) -> Vec<f64> {
@@ -151,9 +218,21 @@ pub(crate) fn select(problem: &Problem<'_>, fixed: &Effects, current: &Spec, sim
     let residual: Vec<Vec<f64>> = (0..problem.runs.len()).map(|i| problem.residual(i, sim)).collect();
     let (r_cal, r_val) =
         (whitened(problem, &residual, Part::Calibration), whitened(problem, &residual, Part::Validation));
-    // Columns usable: simulated, and as long as the residual (no divergence).
-    let mut usable = Vec::new();
+    // The ten parameters' sensitivities first when the hypothesis refits them (the fit that
+    // follows frees them, so the selection does too), then the columns of the library
+    // usable: simulated, and as long as the residual (no divergence).
     let (mut cal, mut val) = (Vec::new(), Vec::new());
+    if current.refit {
+        for s in parameter_sensitivities(problem, fixed, current, sim) {
+            let (sc, sv) = (whitened(problem, &s, Part::Calibration), whitened(problem, &s, Part::Validation));
+            if sc.len() == r_cal.len() && sv.len() == r_val.len() && sc.iter().chain(&sv).all(|x| x.is_finite()) {
+                cal.push(sc);
+                val.push(sv);
+            }
+        }
+    }
+    let nuisance: Vec<usize> = (0..cal.len()).collect();
+    let mut usable = Vec::new();
     for (c, s) in sens.iter().enumerate() {
         let Some(s) = s else { continue };
         let (sc, sv) = (whitened(problem, s, Part::Calibration), whitened(problem, s, Part::Validation));
@@ -163,21 +242,23 @@ pub(crate) fn select(problem: &Problem<'_>, fixed: &Effects, current: &Spec, sim
             val.push(sv);
         }
     }
-    let p = usable.len();
-    if p == 0 {
+    if usable.is_empty() {
         return None;
     }
+    let m = nuisance.len();
+    let p = cal.len();
+    // Library column of entry `a` (entries `m..`).
+    let column = |a: usize| columns[usable[a - m]];
     let dot = |x: &[f64], y: &[f64]| -> f64 { x.iter().zip(y).map(|(a, b)| a * b).sum() };
     let gram = DMatrix::from_fn(p, p, |a, b| dot(&cal[a], &cal[b]));
     let rhs = DVector::from_fn(p, |a, _| dot(&cal[a], &r_cal));
     let n_val = r_val.len() as f64;
     let score = |sse: f64, k: usize| n_val * (sse / n_val).ln() + k as f64 * n_val.ln();
-    let base = score(r_val.iter().map(|x| x * x).sum(), 0);
 
     let solve = |active: &[usize]| -> Option<DVector<f64>> {
-        let m = active.len();
-        let a = DMatrix::from_fn(m, m, |i, j| gram[(active[i], active[j])] * if i == j { 1.0 + 1e-10 } else { 1.0 });
-        let b = DVector::from_fn(m, |i, _| rhs[active[i]]);
+        let k = active.len();
+        let a = DMatrix::from_fn(k, k, |i, j| gram[(active[i], active[j])] * if i == j { 1.0 + 1e-10 } else { 1.0 });
+        let b = DVector::from_fn(k, |i, _| rhs[active[i]]);
         a.cholesky().map(|c| c.solve(&b))
     };
     let val_sse = |active: &[usize], theta: &DVector<f64>| -> f64 {
@@ -188,38 +269,46 @@ pub(crate) fn select(problem: &Problem<'_>, fixed: &Effects, current: &Spec, sim
             })
             .sum()
     };
+    let base = if m == 0 {
+        score(r_val.iter().map(|x| x * x).sum(), 0)
+    } else {
+        score(val_sse(&nuisance, &solve(&nuisance)?), 0)
+    };
     let mut active: Vec<usize> = Vec::new();
-    let mut best: Option<(f64, Vec<usize>, DVector<f64>)> = None;
+    let mut best: Option<(f64, Vec<usize>)> = None;
     while active.len() < MAX_TERMS {
-        let family_used = |a: usize| active.iter().any(|&b| columns[usable[b]].term == columns[usable[a]].term);
-        let step = (0..p)
+        let family_used = |a: usize| active.iter().any(|&b| column(b).term == column(a).term);
+        let step = (m..p)
             .filter(|&a| !family_used(a))
             .filter_map(|a| {
-                let mut trial = active.clone();
-                trial.push(a);
+                let mut trial = nuisance.clone();
+                trial.extend(active.iter().copied().chain([a]));
                 let theta = solve(&trial)?;
                 let fitted: f64 = trial.iter().zip(theta.iter()).map(|(&i, t)| rhs[i] * t).sum();
                 Some((fitted, a, trial, theta))
             })
             .max_by(|x, y| x.0.total_cmp(&y.0));
-        let Some((_, _, trial, theta)) = step else { break };
-        active = trial;
-        let k: usize = active.iter().map(|&a| columns[usable[a]].cost()).sum();
-        let s = score(val_sse(&active, &theta), k);
-        if best.as_ref().is_none_or(|(b, _, _)| s < *b) {
-            best = Some((s, active.clone(), theta));
+        let Some((_, a, trial, theta)) = step else { break };
+        active.push(a);
+        let k: usize = active.iter().map(|&a| column(a).cost()).sum();
+        let s = score(val_sse(&trial, &theta), k);
+        if best.as_ref().is_none_or(|(b, _)| s < *b) {
+            best = Some((s, active.clone()));
         }
     }
-    let (s, chosen, theta) = best?;
+    let (s, chosen) = best?;
     if s >= base {
         return None;
     }
+    // The fit starts from the chosen columns' own least squares (the parameters, if they
+    // are refitted, move in the fit itself).
+    let theta = solve(&chosen)?;
     let mut values = DISCREPANCY_DEFAULTS.to_vec();
     let mut free = Vec::new();
     let mut scale = vec![1.0; values.len()];
     let mut labels = Vec::new();
     for (&a, &coefficient) in chosen.iter().zip(theta.iter()) {
-        let c = columns[usable[a]];
+        let c = column(a);
         let rms = (cal[a].iter().map(|x| x * x).sum::<f64>() / cal[a].len().max(1) as f64).sqrt();
         values[c.term.coefficient] = coefficient;
         scale[c.term.coefficient] = if rms > 0.0 { 1.0 / rms } else { c.probe };

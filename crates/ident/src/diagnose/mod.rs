@@ -47,7 +47,7 @@ pub mod design;
 /// Whether a recording could have shown each class of effect at the size that matters:
 /// what `none` and `parameters` must earn.
 pub mod detect;
-mod discrepancy;
+pub(crate) mod discrepancy;
 mod fit;
 /// The recordings on the model's 10 ms grid, their noise model and the calibration and
 /// held-out parts every hypothesis is fitted and judged on.
