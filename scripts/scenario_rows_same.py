@@ -14,7 +14,11 @@ TIME_COLUMN = "time, s"
 
 def rows(path):
     header, out = None, {}
-    for line in open(path, encoding="utf-8"):
+    try:
+        lines = open(path, encoding="utf-8").read().splitlines()
+    except OSError as e:
+        sys.exit(f"{path}: cannot read it ({e.strerror}); give two reports written by scripts/scenarios.py")
+    for line in lines:
         if not line.startswith("| "):
             continue
         cells = [c.strip() for c in line.strip().strip("|").split("|")]

@@ -571,27 +571,15 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
         }
     }
     let path_note = format!("no throttle-path effect pays against it ({})", tried.join(", "));
-    let fitted = match best_path {
-        // Every part must still earn its place beside the path effect.
-        Some(path) => match search.fit_terms(&path.model, path.terms) {
-            Ok(fitted) if fitted.terms.iter().any(|t| matches!(t, Term::Path(_))) => fitted,
-            _ => match kept {
-                Some(kept) => kept,
-                None => {
-                    notes.push(path_note);
-                    structure.verdict = format!("{}: the ten parameters suffice", notes.join("; "));
-                    return Ok(structure);
-                }
-            },
-        },
-        None => match kept {
-            Some(kept) => kept,
-            None => {
-                notes.push(path_note);
-                structure.verdict = format!("{}: the ten parameters suffice", notes.join("; "));
-                return Ok(structure);
-            }
-        },
+    // Every part must still earn its place beside the path effect; without a path effect
+    // that keeps its place, the library's terms stand alone, if any were kept.
+    let with_path = best_path
+        .and_then(|path| search.fit_terms(&path.model, path.terms).ok())
+        .filter(|fitted| fitted.terms.iter().any(|t| matches!(t, Term::Path(_))));
+    let Some(fitted) = with_path.or(kept) else {
+        notes.push(path_note);
+        structure.verdict = format!("{}: the ten parameters suffice", notes.join("; "));
+        return Ok(structure);
     };
 
     let labels = fitted.labels();

@@ -142,26 +142,7 @@ fn sensitivities(
             let spec = current.with(EffectKind::Discrepancy, values);
             let plant: Plant = spec.plant(fixed)?;
             problem.simulate(&plant, &spec.states, false, &mut probe_sim).ok()?;
-            Some(
-                problem
-                    .runs
-                    .iter()
-                    .enumerate()
-                    .map(|(i, run)| {
-                        (0..run.y.len())
-                            .map(
-                                |k| {
-                                    if run.y[k].is_finite() {
-                                        (probe_sim[i][k] - sim[i][k]) / c.probe
-                                    } else {
-                                        f64::NAN
-                                    }
-                                },
-                            )
-                            .collect()
-                    })
-                    .collect(),
-            )
+            Some(divided_difference(problem, &probe_sim, sim, c.probe))
         })
         .collect()
 }
@@ -181,20 +162,22 @@ fn parameter_sensitivities(problem: &Problem<'_>, fixed: &Effects, current: &Spe
             spec.params = Params::from_array(params);
             let plant = spec.plant(fixed)?;
             problem.simulate(&plant, &spec.states, false, &mut probe_sim).ok()?;
-            Some(
-                problem
-                    .runs
-                    .iter()
-                    .enumerate()
-                    .map(|(r, run)| {
-                        (0..run.y.len())
-                            .map(
-                                |k| if run.y[k].is_finite() { (probe_sim[r][k] - sim[r][k]) / delta } else { f64::NAN },
-                            )
-                            .collect()
-                    })
-                    .collect(),
-            )
+            Some(divided_difference(problem, &probe_sim, sim, delta))
+        })
+        .collect()
+}
+
+/// `(probed − base) / step` per run on its grid, NaN where the run has no sample: the
+/// sensitivity of the simulated output to whatever was moved by `step`.
+fn divided_difference(problem: &Problem<'_>, probed: &Sim, base: &Sim, step: f64) -> Vec<Vec<f64>> {
+    problem
+        .runs
+        .iter()
+        .enumerate()
+        .map(|(r, run)| {
+            (0..run.y.len())
+                .map(|k| if run.y[k].is_finite() { (probed[r][k] - base[r][k]) / step } else { f64::NAN })
+                .collect()
         })
         .collect()
 }
