@@ -74,11 +74,42 @@ pub struct Detectability {
     /// (by key, `[low, high]`, `None` for no bound) is no more visible here than the probe,
     /// so it could hide too (see [`could_hide`]). `None` when the probe would show.
     pub could_hide: Option<BTreeMap<&'static str, [Option<f64>; 2]>>,
+    /// A stand resonance at another damping than the size that matters (ζ 0.1), listed because
+    /// the probe at ζ 0.1 would show and this one would not: it says what could hide beside a
+    /// claim, and does not count for `none` or `parameters`, which ask for the size that matters.
+    pub disclosure_only: bool,
 }
 
 /// Dampings at which a hidden stand-resonance probe is measured again, to bound the dampings
-/// that could hide with it (the catalogue's range is 0.005-0.3).
-const DAMPINGS: [f64; 7] = [0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3];
+/// that could hide with it (the catalogue's range is 0.005-0.3). The steps are small where a
+/// resonance's reading changes fastest with ζ (it grows about as ζ² below the resonance), so
+/// that the bound between two of them ([`hidden_dampings`]) is not much above either.
+const DAMPINGS: [f64; 13] = [0.005, 0.01, 0.02, 0.035, 0.05, 0.075, 0.1, 0.125, 0.15, 0.175, 0.2, 0.25, 0.3];
+
+/// The range of [`DAMPINGS`] (first and last index) around `home` over which a resonance is
+/// no more visible than `threshold`, from the energies measured at each damping.
+///
+/// At one frequency each spectral component of the reading a resonance adds,
+/// `|H(jω) − 1|²·|T(jω)|²`, is monotonic in ζ² (a ratio of two functions linear in ζ²), so
+/// anywhere between two measured dampings `a < b` it is at most the larger of its values at
+/// `a` and `b`, and the energy at most `E(a) + E(b)`. A stretch between two neighbouring
+/// dampings could hide when some pair of measured dampings around it (not only its own two
+/// ends) sums below the threshold, and no damping measured between them would show (which
+/// the bound says cannot happen: a recording where it does is not trusted with the bound);
+/// the range grows from `home` over such stretches.
+fn hidden_dampings(energies: &[f64], home: usize, threshold: f64) -> (usize, usize) {
+    let bracket =
+        |i: usize, j: usize| energies[i] + energies[j] < threshold && energies[i..=j].iter().all(|e| *e < threshold);
+    let covered = |k: usize| (0..=k).any(|i| (k + 1..energies.len()).any(|j| bracket(i, j)));
+    let (mut lo, mut hi) = (home, home);
+    while lo > 0 && covered(lo - 1) {
+        lo -= 1;
+    }
+    while hi + 1 < energies.len() && covered(hi) {
+        hi += 1;
+    }
+    (lo, hi)
+}
 
 /// The values of a hidden probe's class that are no more visible than the probe, per key.
 ///
@@ -356,31 +387,27 @@ pub(crate) fn probe_all(
         let threshold = strong_evidence + free as f64 * ln_n;
         let would_show = energy >= threshold;
         let mut hide = (!would_show).then(|| could_hide(kind, &values));
-        if let (Some(region), EffectKind::StandResonance) = (hide.as_mut(), kind) {
-            // The dampings that could hide at this frequency. At one frequency the reading a
-            // resonance adds, component by component of the thrust's spectrum, grows or
-            // shrinks monotonically with ζ² (`|H(jω)−1|²` is a ratio of two functions
-            // linear in ζ²), so between two dampings the energy is at most the sum of theirs:
-            // the range grows from the probe's damping while each neighbouring pair sums
-            // below the threshold.
-            let energies: Vec<f64> = DAMPINGS
+        // A resonance is measured at every damping of [`DAMPINGS`]: its damping is not
+        // ordered, so the probe at ζ 0.1 says nothing of a lighter or heavier one.
+        let dampings: Vec<(f64, f64)> = if kind == EffectKind::StandResonance {
+            DAMPINGS
                 .iter()
                 .map(|&z| {
                     if (z - values[1]).abs() < 1e-12 {
-                        energy
+                        (energy, shape_z)
                     } else {
-                        probe(kind, &[values[0], z]).map_or(f64::INFINITY, |e| e.0)
+                        probe(kind, &[values[0], z]).unwrap_or((f64::INFINITY, 0.0))
                     }
                 })
-                .collect();
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let energies: Vec<f64> = dampings.iter().map(|d| d.0).collect();
+        if let (Some(region), EffectKind::StandResonance) = (hide.as_mut(), kind) {
+            // The dampings that could hide at this frequency (see [`hidden_dampings`]).
             let home = DAMPINGS.iter().position(|&z| (z - values[1]).abs() < 1e-12).unwrap_or(0);
-            let (mut lo, mut hi) = (home, home);
-            while lo > 0 && energies[lo - 1] + energies[lo] < threshold {
-                lo -= 1;
-            }
-            while hi + 1 < DAMPINGS.len() && energies[hi] + energies[hi + 1] < threshold {
-                hi += 1;
-            }
+            let (lo, hi) = hidden_dampings(&energies, home, threshold);
             region.insert("damping_ratio", [Some(DAMPINGS[lo]), Some(DAMPINGS[hi])]);
         }
         out.push(Detectability {
@@ -398,7 +425,34 @@ pub(crate) fn probe_all(
             smallest: (proportional && energy > 0.0).then(|| first * (threshold / energy).sqrt()),
             experiment: experiment_for(effect),
             could_hide: hide,
+            disclosure_only: false,
         });
+        // The probe at ζ 0.1 would show, but a lighter or heavier resonance at this frequency
+        // may not (a lightly damped one adds little below its frequency when the engine's
+        // thrust has no power near it): the least visible damping measured, with the range
+        // around it that could hide, is disclosed beside a claim.
+        let least = (0..energies.len()).min_by(|a, b| energies[*a].total_cmp(&energies[*b]));
+        // Only beside physics found: `none` and `parameters` ask for the size that matters.
+        let beside_physics = !spec.effects.is_empty();
+        if let Some(home) = least.filter(|&h| beside_physics && would_show && energies[h] < threshold) {
+            let (lo, hi) = hidden_dampings(&energies, home, threshold);
+            let at = [values[0], DAMPINGS[home]];
+            let mut region = could_hide(kind, &at);
+            region.insert("damping_ratio", [Some(DAMPINGS[lo]), Some(DAMPINGS[hi])]);
+            out.push(Detectability {
+                effect,
+                probe: kind.keys().iter().copied().zip(at).collect(),
+                size: describe(kind, &at, full_thrust),
+                energy: energies[home],
+                threshold,
+                would_show: false,
+                shape_z: dampings[home].1,
+                smallest: None,
+                experiment: experiment_for(effect),
+                could_hide: Some(region),
+                disclosure_only: true,
+            });
+        }
     }
     resonance_bands(&mut out);
     // A periodic force of 1 N at a period of 30 s (a sine and a cosine: its phase is free).
@@ -431,40 +485,109 @@ pub(crate) fn probe_all(
         experiment: experiment_for(super::rivals::PERIODIC),
         could_hide: (energy < threshold)
             .then(|| BTreeMap::from([("amplitude_n", [Some(0.0), Some(1.0)]), ("period_s", [Some(period_s); 2])])),
+        disclosure_only: false,
     });
     out
 }
 
 /// The frequencies that could hide, for each hidden stand-resonance probe: from its own up to
-/// the next probe frequency when that one is hidden too (over the dampings both hide at), or
-/// its own alone. Between two probe frequencies a resonance picks up the thrust's power near
+/// the next probe frequency when a probe there is hidden too (at ζ 0.1, or at the least
+/// visible damping where ζ 0.1 shows; over the dampings both hide at), or its own alone. Between two probe frequencies a resonance picks up the thrust's power near
 /// its own frequency, which varies smoothly with frequency (throttle steps through the
 /// engine's low-pass): one there is no more visible than at the two probes beside it, both
 /// measured hidden. Above the highest probe nothing is said.
 fn resonance_bands(out: &mut [Detectability]) {
-    let resonance: Vec<usize> =
-        out.iter().enumerate().filter(|(_, p)| p.effect == "stand_resonance").map(|(i, _)| i).collect();
-    for pair in resonance.windows(2) {
-        let (i, j) = (pair[0], pair[1]);
-        let dampings = |p: &Detectability| match p.could_hide.as_ref().and_then(|r| r.get("damping_ratio")) {
-            Some([Some(lo), Some(hi)]) => Some((*lo, *hi)),
-            _ => None,
-        };
-        let (Some((lo_i, hi_i)), Some((lo_j, hi_j))) = (dampings(&out[i]), dampings(&out[j])) else { continue };
-        let (lo, hi) = (lo_i.max(lo_j), hi_i.min(hi_j));
-        let top = out[j].probe.get("frequency_hz").copied();
-        if lo > hi || top.is_none() {
-            continue;
-        }
-        if let Some(region) = out[i].could_hide.as_mut() {
-            let from = region.get("frequency_hz").and_then(|r| r[0]);
-            region.insert("frequency_hz", [from, top]);
-            region.insert("damping_ratio", [Some(lo), Some(hi)]);
-        }
+    let dampings = |p: &Detectability| match p.could_hide.as_ref().and_then(|r| r.get("damping_ratio")) {
+        Some([Some(lo), Some(hi)]) => Some((*lo, *hi)),
+        _ => None,
+    };
+    let resonance = |p: &&Detectability| p.effect == "stand_resonance";
+    let mut frequencies: Vec<f64> =
+        out.iter().filter(resonance).filter_map(|p| p.probe.get("frequency_hz").copied()).collect();
+    frequencies.sort_by(f64::total_cmp);
+    // Every hidden resonance probe (at ζ 0.1, or at the damping least visible where that one
+    // shows): its index, frequency and dampings that could hide.
+    let hidden: Vec<(usize, f64, f64, f64)> = out
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| resonance(p))
+        .filter_map(|(i, p)| {
+            let (lo, hi) = dampings(p)?;
+            Some((i, *p.probe.get("frequency_hz")?, lo, hi))
+        })
+        .collect();
+    for &(i, f, lo, hi) in &hidden {
+        let Some(next) = frequencies.iter().copied().find(|&g| g > f) else { continue };
+        // The widest overlap with a hidden probe at the next frequency.
+        let band = hidden
+            .iter()
+            .filter(|h| h.1 == next)
+            .map(|h| (lo.max(h.2), hi.min(h.3)))
+            .filter(|(a, b)| a <= b)
+            .max_by(|a, b| (a.1 - a.0).total_cmp(&(b.1 - b.0)));
+        let (Some((a, b)), Some(region)) = (band, out[i].could_hide.as_mut()) else { continue };
+        region.insert("frequency_hz", [Some(f), Some(next)]);
+        region.insert("damping_ratio", [Some(a), Some(b)]);
     }
 }
 
 /// True when every probe would show and none is in the residual: `none` may stand.
 pub fn excluded(probes: &[Detectability]) -> bool {
-    !probes.is_empty() && probes.iter().all(|p| p.would_show && p.shape_z < SHAPE_Z)
+    let at_size = || probes.iter().filter(|p| !p.disclosure_only);
+    at_size().next().is_some() && at_size().all(|p| p.would_show && p.shape_z < SHAPE_Z)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hidden_dampings_use_any_bracket_around_a_stretch() {
+        // Neighbours 2 and 3 sum to 53, above the threshold of 50, but the dampings 0 and 3
+        // around that stretch sum to 30: between them every component is at most the larger
+        // of its two values, so the stretch could hide.
+        assert_eq!(hidden_dampings(&[5.0, 10.0, 28.0, 25.0, 60.0], 3, 50.0), (0, 3));
+        // A damping measured visible stops the range, whatever a bracket around it says.
+        assert_eq!(hidden_dampings(&[5.0, 60.0, 5.0], 0, 50.0), (0, 0));
+        assert_eq!(hidden_dampings(&[5.0, 30.0, 30.0], 0, 50.0), (0, 2));
+    }
+
+    fn resonance(frequency_hz: f64, damping: f64, hide: Option<(f64, f64)>) -> Detectability {
+        Detectability {
+            effect: "stand_resonance",
+            probe: BTreeMap::from([("frequency_hz", frequency_hz), ("damping_ratio", damping)]),
+            size: String::new(),
+            energy: 0.0,
+            threshold: 1.0,
+            would_show: hide.is_none(),
+            shape_z: 0.0,
+            smallest: None,
+            experiment: "",
+            could_hide: hide.map(|(lo, hi)| {
+                BTreeMap::from([("frequency_hz", [Some(frequency_hz); 2]), ("damping_ratio", [Some(lo), Some(hi)])])
+            }),
+            disclosure_only: damping != 0.1,
+        }
+    }
+
+    #[test]
+    fn a_light_resonance_hidden_where_the_probe_shows_joins_the_band_above() {
+        // At 2 Hz the probe at ζ 0.1 shows, but ζ 0.005-0.035 hides; at 3 Hz ζ 0.005-0.1 hides.
+        let mut out = vec![
+            resonance(2.0, 0.1, None),
+            resonance(2.0, 0.02, Some((0.005, 0.035))),
+            resonance(3.0, 0.1, Some((0.005, 0.1))),
+            resonance(5.0, 0.1, None),
+        ];
+        resonance_bands(&mut out);
+        let region = |p: &Detectability| p.could_hide.clone().unwrap_or_default();
+        assert_eq!(region(&out[1])["frequency_hz"], [Some(2.0), Some(3.0)]);
+        assert_eq!(region(&out[1])["damping_ratio"], [Some(0.005), Some(0.035)]);
+        // Nothing hides at 5 Hz: 3 Hz stands for itself alone.
+        assert_eq!(region(&out[2])["frequency_hz"], [Some(3.0), Some(3.0)]);
+        // The probes at the size that matters decide `none`; the disclosure alone does not.
+        assert!(!excluded(&out));
+        out.retain(|p| p.would_show || p.disclosure_only);
+        assert!(excluded(&out));
+    }
 }
