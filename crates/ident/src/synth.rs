@@ -17,7 +17,7 @@
 //! # Ok::<(), jetbench_model::ModelError>(())
 //! ```
 
-use jetbench_model::{Effects, ModelError, Params, Plant};
+use jetbench_model::{Effects, ModelError, Params, Plant, SlowStart};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -74,6 +74,19 @@ pub fn record_plant(plant: &Plant, profile: &Series, noise_var_n2: f64, seed: u6
 /// separate streams of `seed`, so the same seed gives the same noise with or without
 /// artefacts.
 pub fn record_bench(plant: &Plant, profile: &Series, bench: &Bench, seed: u64) -> Result<Series, ModelError> {
+    record_bench_from(plant, SlowStart::SETTLED, profile, bench, seed)
+}
+
+/// [`record_bench`] of a recording that starts while the plant's slow states are on their
+/// way (`slow`: a sensor tared a while ago, an engine not yet soaked), the engine itself at
+/// rest at the first throttle.
+pub fn record_bench_from(
+    plant: &Plant,
+    slow: SlowStart,
+    profile: &Series,
+    bench: &Bench,
+    seed: u64,
+) -> Result<Series, ModelError> {
     let var = bench.noise_var_n2;
     let invalid =
         |name: &'static str, value: f64, expected: &'static str| ModelError::InvalidArgument { name, value, expected };
@@ -106,7 +119,9 @@ pub fn record_bench(plant: &Plant, profile: &Series, bench: &Bench, seed: u64) -
     } else {
         ar.with_marginal_var(var).generate(n, seed)
     };
-    let mut engine = plant.at_equilibrium(profile.u_pct.first().copied().unwrap_or(25.0));
+    let u0_pct = profile.u_pct.first().copied().unwrap_or(25.0);
+    let at_rest = plant.at_equilibrium(u0_pct);
+    let mut engine = plant.engine_from(at_rest.state(), slow, u0_pct, 0.0);
     let mut thrust_n = Vec::with_capacity(n);
     for (k, &u) in profile.u_pct.iter().enumerate() {
         thrust_n.push(engine.measured_n() + noise[k]);

@@ -8,7 +8,7 @@
 
 use crate::SavitzkyGolay;
 use jetbench_model::{
-    rk4_step, Effects, Params, Plant, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S, SUBSTEPS,
+    rk4_step, Effects, Params, Plant, SlowStart, State, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_S, SUBSTEPS,
 };
 use serde::Serialize;
 
@@ -42,6 +42,26 @@ impl Dynamics for Plant {
 
     fn free_run_at(&self, t0_s: f64, initial: State, u_pct: &[f64], out: &mut Vec<f64>) -> Option<f64> {
         Plant::free_run(self, t0_s, initial, u_pct, out)
+    }
+}
+
+/// A plant whose slow states (a sensor drift's bias, a thrust history) start at `slow`
+/// rather than settled: what an initial-state fit runs when those starts are known.
+#[derive(Clone, Copy, Debug)]
+pub struct Started<'a> {
+    /// The plant.
+    pub plant: &'a Plant,
+    /// Where its slow states start.
+    pub slow: SlowStart,
+}
+
+impl Dynamics for Started<'_> {
+    fn free_run(&self, initial: State, u_pct: &[f64], out: &mut Vec<f64>) -> Option<f64> {
+        self.free_run_at(0.0, initial, u_pct, out)
+    }
+
+    fn free_run_at(&self, t0_s: f64, initial: State, u_pct: &[f64], out: &mut Vec<f64>) -> Option<f64> {
+        self.plant.free_run_from(SUBSTEPS, t0_s, initial, self.slow, u_pct, out)
     }
 }
 

@@ -54,6 +54,47 @@ pub struct Plant {
     pub turbojet: Option<TurbojetParams>,
 }
 
+/// Where the slow first-order states of a [`Plant`] start, relative to the default start
+/// ([`SlowStart::SETTLED`]): the sensor drift's bias and the discrepancy's thrust history.
+///
+/// A recording starts some time after the sensor was tared and after the engine was
+/// started, so neither state is in general where [`Plant::engine`] puts it (the bias at 0,
+/// the history at the initial thrust). Both are linear first-order states, so a start
+/// away from the default decays with the state's own time constant:
+///
+/// ```text
+/// b(0) = bias_n                      ḃ = (gain·T − b)/time_constant_s       (sensor_drift)
+/// H(0) = T(0) + history_offset_n     Ḣ = (T − H)/history_time_constant_s    (discrepancy)
+/// ```
+///
+/// A state the plant does not have (no sensor drift, no thrust-history term) ignores its
+/// start. The other states of the model are fast (the throttle path, the stand) or not
+/// states at all (a gain drift is a function of the time since the recording's start).
+///
+/// ```
+/// use jetbench_model::{Effects, Plant, Preset, SlowStart};
+///
+/// let plant = Plant::new(Preset::P100Diesel.params(), Effects::new(["sensor_drift:gain=0.04,time_constant_s=30".parse()?])?);
+/// let at_rest = plant.at_equilibrium(60.0);
+/// // The sensor was tared a while ago: 2 N of bias already at the start.
+/// let warm = plant.engine_from(at_rest.state(), SlowStart { bias_n: 2.0, ..SlowStart::SETTLED }, 60.0, 0.0);
+/// assert!((warm.measured_n() - at_rest.measured_n() - 2.0).abs() < 1e-12);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SlowStart {
+    /// The sensor drift's bias at the start, N (0: just after a tare).
+    pub bias_n: f64,
+    /// The thrust history's distance from the initial thrust at the start, N (0: settled
+    /// at the initial thrust; negative: the engine has run lower, or was cold).
+    pub history_offset_n: f64,
+}
+
+impl SlowStart {
+    /// The default start: the bias zero as just after a tare, the history settled.
+    pub const SETTLED: Self = Self { bias_n: 0.0, history_offset_n: 0.0 };
+}
+
 /// One 10 ms step of a [`PlantEngine`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PlantSample {
@@ -90,10 +131,17 @@ impl Plant {
 
     /// A stepping simulator started at `initial` with every effect at rest for the
     /// throttle `u0_pct` (the [`crate::ThrottlePath`] settled at it, sensor bias zero as just
-    /// after a tare, the stand at rest, the thrust history at the initial thrust),
-    /// `t0_s` seconds after the start of the recording.
+    /// after a tare, the stand at rest, the thrust history at the initial thrust:
+    /// [`SlowStart::SETTLED`]), `t0_s` seconds after the start of the recording.
+    /// [`Plant::engine_from`] starts the slow states elsewhere.
     pub fn engine(&self, initial: State, u0_pct: f64, t0_s: f64) -> PlantEngine {
-        PlantEngine::new(self, initial, u0_pct, t0_s, SUBSTEPS)
+        PlantEngine::new(self, initial, SlowStart::SETTLED, u0_pct, t0_s, SUBSTEPS)
+    }
+
+    /// Like [`Plant::engine`], with the slow states started at `slow` (see [`SlowStart`]):
+    /// a recording that begins while they are still on their way.
+    pub fn engine_from(&self, initial: State, slow: SlowStart, u0_pct: f64, t0_s: f64) -> PlantEngine {
+        PlantEngine::new(self, initial, slow, u0_pct, t0_s, SUBSTEPS)
     }
 
     /// Like [`Plant::engine`], integrating with `substeps` RK4 steps per [`STEP_S`]
@@ -101,7 +149,7 @@ impl Plant {
     /// a cheaper simulator for a controller's prediction or a fit, accurate to a few
     /// hundredths of a newton on this model with 1.
     pub fn coarse_engine(&self, initial: State, u0_pct: f64, t0_s: f64, substeps: usize) -> PlantEngine {
-        PlantEngine::new(self, initial, u0_pct, t0_s, substeps)
+        PlantEngine::new(self, initial, SlowStart::SETTLED, u0_pct, t0_s, substeps)
     }
 
     /// The thrust at rest for `u0_pct`, effects included (a discrepancy moves it): the
@@ -162,7 +210,20 @@ impl Plant {
         u_pct: &[f64],
         out: &mut Vec<f64>,
     ) -> Option<f64> {
-        let mut engine = PlantEngine::new(self, initial, u_pct.first().copied().unwrap_or(0.0), t0_s, substeps);
+        self.free_run_from(substeps, t0_s, initial, SlowStart::SETTLED, u_pct, out)
+    }
+
+    /// [`Plant::free_run_with`] with the slow states started at `slow` (see [`SlowStart`]).
+    pub fn free_run_from(
+        &self,
+        substeps: usize,
+        t0_s: f64,
+        initial: State,
+        slow: SlowStart,
+        u_pct: &[f64],
+        out: &mut Vec<f64>,
+    ) -> Option<f64> {
+        let mut engine = PlantEngine::new(self, initial, slow, u_pct.first().copied().unwrap_or(0.0), t0_s, substeps);
         out.clear();
         out.push(engine.measured_n());
         for (k, &u) in u_pct.iter().enumerate().take(u_pct.len().saturating_sub(1)) {
@@ -290,7 +351,7 @@ struct Drive {
 }
 
 impl PlantEngine {
-    fn new(plant: &Plant, initial: State, u0_pct: f64, t0_s: f64, substeps: usize) -> Self {
+    fn new(plant: &Plant, initial: State, slow: SlowStart, u0_pct: f64, t0_s: f64, substeps: usize) -> Self {
         // A turbojet's pump and governor are stiffer than the model: always 1 kHz.
         let substeps = if plant.turbojet.is_some() { SUBSTEPS } else { substeps };
         let substeps = [10, 5, 2, 1].into_iter().find(|&d| d <= substeps.max(1)).unwrap_or(1);
@@ -300,6 +361,16 @@ impl PlantEngine {
         let mut path = ThrottlePath::new(&plant.effects);
         path.start_at(u0_pct);
         let p = plant.params;
+        let drift = values(EffectKind::SensorDrift).map(|v| (v[0], FirstOrder::new(v[1], h)));
+        let discrepancy = values(EffectKind::Discrepancy).filter(|_| plant.turbojet.is_none()).map(|v| {
+            let law = DiscrepancyLaw::new(v);
+            Discrepancy {
+                law,
+                v_below: p.v(law.knot_below_pct),
+                v_above: p.v(law.knot_above_pct),
+                history: FirstOrder::new(law.history_time_constant_s, h),
+            }
+        });
         Self {
             params: p,
             state: initial,
@@ -310,25 +381,26 @@ impl PlantEngine {
             failed: false,
             path,
             gain_per_s: values(EffectKind::GainDrift).map_or(0.0, |v| v[0] / 60.0),
-            discrepancy: values(EffectKind::Discrepancy).filter(|_| plant.turbojet.is_none()).map(|v| {
-                let law = DiscrepancyLaw::new(v);
-                Discrepancy {
-                    law,
-                    v_below: p.v(law.knot_below_pct),
-                    v_above: p.v(law.knot_above_pct),
-                    history: FirstOrder::new(law.history_time_constant_s, h),
-                }
-            }),
+            discrepancy,
             play_n: values(EffectKind::BearingFriction).map(|v| v[0]),
             stand: values(EffectKind::StandResonance).map(|v| Stand::new(v[0], v[1], h)),
-            drift: values(EffectKind::SensorDrift).map(|v| (v[0], FirstOrder::new(v[1], h))),
+            drift,
             turbojet: plant.turbojet.map(|params| Turbojet::at_thrust(params, initial.thrust_n, u0_pct)),
             frame_n: initial.thrust_n,
             sensor_n: initial.thrust_n,
             sensor_rate_n_per_s: 0.0,
-            bias_n: 0.0,
-            history_n: initial.thrust_n,
+            // A state the plant does not have stays at its default, so that the reading
+            // of a plant without a drift never carries a bias.
+            bias_n: if drift.is_some() { slow.bias_n } else { 0.0 },
+            history_n: initial.thrust_n + if discrepancy.is_some() { slow.history_offset_n } else { 0.0 },
         }
+    }
+
+    /// Where the slow states are now, relative to the engine's thrust (see [`SlowStart`]):
+    /// an engine started from this, the state and the throttle it follows carries on as
+    /// this one does.
+    pub fn slow_states(&self) -> SlowStart {
+        SlowStart { bias_n: self.bias_n, history_offset_n: self.history_n - self.state.thrust_n }
     }
 
     /// The engine's state.
@@ -671,6 +743,74 @@ mod tests {
         assert!((bias - 0.05 * nominal[29_999]).abs() < 0.01, "{bias}");
         let sag = run(&Plant::new(p, with(&["gain_drift:per_minute=0.01"])), &u);
         assert!(sag[29_999] < nominal[29_999] - 1.0 && (sag[100] - nominal[100]).abs() < 0.1);
+    }
+
+    #[test]
+    fn a_started_slow_state_gives_the_reading_it_should() {
+        let p = Preset::P220Kerosene.params();
+        let u = step_input();
+        let initial = State { thrust_n: Plant::new(p, Effects::none()).rest_thrust_n(u[0]), thrust_rate_n_per_s: 0.0 };
+        let from = |plant: &Plant, slow: SlowStart, substeps: usize| {
+            let mut out = Vec::new();
+            assert!(plant.free_run_from(substeps, 0.0, initial, slow, &u, &mut out).is_none());
+            out
+        };
+        // A bias started at b₀ adds b₀·e^(−t/τ) to the reading, and nothing else.
+        let drift = Plant::new(p, with(&["sensor_drift:gain=0.04,time_constant_s=30"]));
+        for substeps in [1, SUBSTEPS] {
+            let (tared, warm) = (
+                from(&drift, SlowStart::SETTLED, substeps),
+                from(&drift, SlowStart { bias_n: 3.0, ..SlowStart::SETTLED }, substeps),
+            );
+            for (k, (a, b)) in tared.iter().zip(&warm).enumerate() {
+                let expected = 3.0 * (-(k as f64) * STEP_S / 30.0).exp();
+                assert!((b - a - expected).abs() < 1e-9, "row {k}: {} vs {expected}", b - a);
+            }
+        }
+        // A history below the thrust (a cold engine) gives more thrust at first, through the
+        // engine, the gap fading with the history's time constant (at a steady throttle).
+        let soak = Plant::new(p, with(&["discrepancy:gain_history_per_n=-0.0004,history_time_constant_s=10"]));
+        let steady = vec![60.0; 6000];
+        let t60 = State { thrust_n: soak.rest_thrust_n(60.0), thrust_rate_n_per_s: 0.0 };
+        let steady_from = |slow: SlowStart| {
+            let mut out = Vec::new();
+            assert!(soak.free_run_from(1, 0.0, t60, slow, &steady, &mut out).is_none());
+            out
+        };
+        let (settled, cold) =
+            (steady_from(SlowStart::SETTLED), steady_from(SlowStart { history_offset_n: -60.0, ..SlowStart::SETTLED }));
+        let gaps: Vec<f64> = cold.iter().zip(&settled).map(|(c, s)| c - s).collect();
+        let widest = gaps.iter().copied().fold(0.0, f64::max);
+        assert!(widest > 0.05 && gaps.iter().all(|g| *g > -0.01), "more thrust at first: {widest}");
+        assert!(gaps[5999] < 0.05 * widest, "it fades: {} after {widest}", gaps[5999]);
+        // A plant without the state ignores its start.
+        let plain = Plant::new(p, Effects::none());
+        let odd = SlowStart { bias_n: 5.0, history_offset_n: -40.0 };
+        assert_eq!(from(&plain, SlowStart::SETTLED, 1), from(&plain, odd, 1));
+        // An engine started from another's state and slow states carries on as it does.
+        let plant = Plant::new(
+            p,
+            with(&[
+                "sensor_drift:gain=0.05,time_constant_s=25",
+                "discrepancy:gain_history_per_n=-0.0005,history_time_constant_s=30",
+                "gain_drift:per_minute=0.01",
+            ]),
+        );
+        let mut first = plant.at_equilibrium(30.0);
+        for _ in 0..2000 {
+            first.step(90.0).unwrap();
+        }
+        let slow = first.slow_states();
+        assert!(slow.bias_n > 1.0 && slow.history_offset_n < -10.0, "on their way: {slow:?}");
+        let mut second = plant.engine_from(first.state(), slow, 90.0, first.time_s());
+        assert!((second.measured_n() - first.measured_n()).abs() < 1e-12);
+        for k in 0..1000 {
+            let (a, b) = (
+                first.step(if k < 500 { 90.0 } else { 50.0 }).unwrap(),
+                second.step(if k < 500 { 90.0 } else { 50.0 }).unwrap(),
+            );
+            assert!((a.measured_n - b.measured_n).abs() < 1e-9, "row {k}: {} vs {}", a.measured_n, b.measured_n);
+        }
     }
 
     #[test]

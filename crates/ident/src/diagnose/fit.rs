@@ -2,11 +2,17 @@
 //! are free, fitted together on the calibration samples by Levenberg–Marquardt on the
 //! innovations of the noise model (the prediction-error criterion of coloured noise;
 //! for white noise, plain least squares on the output error).
+//!
+//! A hypothesis with a slow first-order state fits where that state starts in each run
+//! (see [`super::problem::RunStart`]): the thrust history's offset as one more free
+//! value per run, the sensor bias's start in closed form inside every evaluation (it is
+//! linear in the reading, [`Problem::fit_bias_starts`]). Both are charged as parameters
+//! ([`Spec::free_count`]), so a free start cannot buy a claim.
 
 use jetbench_model::{Effect, EffectKind, Effects, Params, Plant, State};
 use nalgebra::{DMatrix, DVector};
 
-use super::problem::{Part, Problem, Sim};
+use super::problem::{Part, Problem, RunStart, Sim};
 
 /// Iterations of a fit (each costs one simulation per free parameter).
 const MAX_ITERATIONS: usize = 25;
@@ -20,6 +26,9 @@ const TOLERANCE_SCORE: f64 = 0.25;
 /// wandering off and spoiling the held-out part.
 pub(crate) const REFIT_PRIOR: f64 = 0.1;
 
+/// Unit of a thrust history's starting offset, N: the scale of a fit's steps.
+const HISTORY_OFFSET_SCALE_N: f64 = 10.0;
+
 /// What is free in a hypothesis, and where a fit starts.
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct Spec {
@@ -32,9 +41,10 @@ pub(crate) struct Spec {
     pub discrepancy_free: Vec<usize>,
     /// Scales of the discrepancy's values (the size that moves the output by about 1 N).
     pub discrepancy_scale: Vec<f64>,
-    /// Where each run starts: fitted to its first two seconds under this hypothesis (or
-    /// the one it grew from), held during a fit.
-    pub states: Vec<State>,
+    /// Where each run starts: the engine state fitted to its first two seconds under this
+    /// hypothesis (or the one it grew from), held during a fit; the slow states' starts,
+    /// fitted with the hypothesis when it has them.
+    pub states: Vec<RunStart>,
     /// The ten parameters as given: the centre of a refit's prior, and its scales.
     pub given: Params,
     /// Longest thrust-history time constant a fit may explore, s: a third of the longest
@@ -50,15 +60,27 @@ impl Spec {
             effects: Vec::new(),
             discrepancy_free: Vec::new(),
             discrepancy_scale: Vec::new(),
-            states,
+            states: states.into_iter().map(RunStart::from).collect(),
             given: params,
             history_max_s: f64::INFINITY,
         }
     }
 
-    /// Parameters a fit of this hypothesis estimates (its BIC count).
+    /// Parameters a fit of this hypothesis estimates (its BIC count): the free values,
+    /// and the slow states' starts, one per run and state.
     pub fn free_count(&self) -> usize {
-        self.layout().len()
+        self.layout().len() + if self.fits_bias_start() { self.states.len() } else { 0 }
+    }
+
+    /// True when each run's sensor-bias start is fitted (the hypothesis has a sensor drift).
+    pub fn fits_bias_start(&self) -> bool {
+        self.has(EffectKind::SensorDrift)
+    }
+
+    /// True when each run's thrust-history start is fitted (the hypothesis has a
+    /// discrepancy with a thrust-history term).
+    pub fn fits_history_start(&self) -> bool {
+        self.values(EffectKind::Discrepancy).is_some_and(|v| v[4] != 0.0)
     }
 
     /// The effect values of `kind`, if fitted.
@@ -112,6 +134,9 @@ impl Spec {
                 out.extend((0..values.len()).map(|i| Slot::Value(e, i)));
             }
         }
+        if self.fits_history_start() {
+            out.extend((0..self.states.len()).map(Slot::History));
+        }
         out
     }
 
@@ -124,7 +149,7 @@ impl Spec {
             .into_iter()
             .filter_map(|slot| {
                 let Slot::Value(e, i) = slot else { return None };
-                let (kind, (lo, hi), v) = (self.effects[e].0, self.bounds(slot), self.get(slot));
+                let (kind, (lo, hi), v) = (self.effects[e].0, self.value_bounds(self.effects[e].0, i), self.get(slot));
                 let tolerance = 1e-3 * self.scale(slot);
                 ((v - lo).abs() <= tolerance || (hi - v).abs() <= tolerance)
                     .then(|| format!("{kind}: {} = {v:.4} at the edge of what a fit can tell", kind.keys()[i]))
@@ -169,13 +194,21 @@ impl Spec {
                     effect_scale(kind, i)
                 }
             }
+            Slot::History(_) => HISTORY_OFFSET_SCALE_N,
         }
     }
 
-    fn bounds(&self, slot: Slot) -> (f64, f64) {
+    /// The range a fit may explore; `reading_max_n` is the highest reading of the
+    /// recordings: a thrust history starts between 0 (a cold engine) and the highest
+    /// thrust.
+    fn bounds(&self, slot: Slot, reading_max_n: f64) -> (f64, f64) {
         match slot {
             Slot::Param(_) => (f64::NEG_INFINITY, f64::INFINITY),
             Slot::Value(e, i) => self.value_bounds(self.effects[e].0, i),
+            Slot::History(run) => {
+                let t0 = self.states[run].state.thrust_n;
+                (-t0.max(0.0), (reading_max_n - t0).max(0.0))
+            }
         }
     }
 
@@ -193,6 +226,7 @@ impl Spec {
         match slot {
             Slot::Param(i) => self.params.to_array()[i],
             Slot::Value(e, i) => self.effects[e].1[i],
+            Slot::History(run) => self.states[run].slow.history_offset_n,
         }
     }
 
@@ -204,15 +238,18 @@ impl Spec {
                 self.params = Params::from_array(a);
             }
             Slot::Value(e, i) => self.effects[e].1[i] = value,
+            Slot::History(run) => self.states[run].slow.history_offset_n = value,
         }
     }
 }
 
-/// One free parameter: one of the ten, or value `i` of effect `e`.
+/// One free parameter: one of the ten, value `i` of effect `e`, or where a run's thrust
+/// history starts.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Slot {
     Param(usize),
     Value(usize, usize),
+    History(usize),
 }
 
 /// Typical size of an effect parameter: the unit a fit works in, and the scale of its
@@ -288,7 +325,8 @@ pub(crate) struct Fit {
 pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option<Fit> {
     let layout = spec.layout();
     let scales: Vec<f64> = layout.iter().map(|&s| spec.scale(s)).collect();
-    let bounds: Vec<(f64, f64)> = layout.iter().map(|&s| spec.bounds(s)).collect();
+    let reading_max_n = problem.reading_max_n();
+    let bounds: Vec<(f64, f64)> = layout.iter().map(|&s| spec.bounds(s, reading_max_n)).collect();
     let build = |x: &[f64]| -> Spec {
         let mut s = spec.clone();
         for (j, &slot) in layout.iter().enumerate() {
@@ -310,8 +348,7 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
         .collect();
     let mut evaluate = |x: &[f64], r: &mut Vec<f64>| -> Option<f64> {
         let spec = build(x);
-        let plant = spec.plant(fixed)?;
-        problem.simulate(&plant, &spec.states, true, &mut sim).ok()?;
+        simulate_calibration(problem, fixed, &spec, &mut sim)?;
         problem.innovations(&sim, Part::Calibration, r);
         // The refit's prior, as pseudo-residuals in the innovations' units.
         for (j, slot) in layout.iter().enumerate() {
@@ -329,7 +366,11 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
     let mut r = Vec::new();
     let mut sse = evaluate(&x, &mut r)?;
     if k == 0 {
-        return Some(Fit { spec: build(&x), param_stderr: [f64::NAN; 10], stderr: Vec::new() });
+        return Some(Fit {
+            spec: with_bias_starts(problem, fixed, build(&x)),
+            param_stderr: [f64::NAN; 10],
+            stderr: Vec::new(),
+        });
     }
     let mut lambda = 1e-3;
     let mut jac = DMatrix::<f64>::zeros(r.len(), k);
@@ -396,7 +437,77 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
         match *slot {
             Slot::Param(i) => param_stderr[i] = error(j),
             Slot::Value(e, i) => stderr[e].1[i] = error(j),
+            Slot::History(_) => {}
         }
     }
-    Some(Fit { spec: build(&x), param_stderr, stderr })
+    Some(Fit { spec: with_bias_starts(problem, fixed, build(&x)), param_stderr, stderr })
+}
+
+/// Simulates `spec` over the calibration part, its sensor-bias starts fitted there when it
+/// has a sensor drift (the bias started at 0, its fitted start's decay added: the same
+/// reading as a simulation from that start). `None` when it diverges; the fitted starts
+/// otherwise (empty without a drift).
+fn simulate_calibration(problem: &Problem<'_>, fixed: &Effects, spec: &Spec, sim: &mut Sim) -> Option<Vec<f64>> {
+    let plant = spec.plant(fixed)?;
+    let Some(drift) = spec.values(EffectKind::SensorDrift).filter(|_| spec.fits_bias_start()) else {
+        problem.simulate(&plant, &spec.states, true, sim).ok()?;
+        return Some(Vec::new());
+    };
+    let tared: Vec<RunStart> = spec
+        .states
+        .iter()
+        .map(|s| RunStart { slow: jetbench_model::SlowStart { bias_n: 0.0, ..s.slow }, ..*s })
+        .collect();
+    problem.simulate(&plant, &tared, true, sim).ok()?;
+    Some(problem.fit_bias_starts(sim, drift[0], drift[1], Part::Calibration))
+}
+
+/// `spec` with its sensor-bias starts fitted on the calibration part (see
+/// [`simulate_calibration`]); as it is without a drift or when it diverges.
+fn with_bias_starts(problem: &Problem<'_>, fixed: &Effects, mut spec: Spec) -> Spec {
+    if !spec.fits_bias_start() {
+        return spec;
+    }
+    let mut sim = Sim::new();
+    if let Some(biases) = simulate_calibration(problem, fixed, &spec, &mut sim) {
+        for (start, b) in spec.states.iter_mut().zip(biases) {
+            start.slow.bias_n = b;
+        }
+    }
+    spec
+}
+
+/// The sum of squared innovations of `spec` over the calibration part, its sensor-bias
+/// starts fitted (what a fit of it starts from). `None` when it diverges.
+pub(crate) fn calibration_sse(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option<f64> {
+    let mut sim = Sim::new();
+    simulate_calibration(problem, fixed, spec, &mut sim)?;
+    Some(problem.sse(&sim, Part::Calibration).0)
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::diagnose::{diagnose, Cause, Options};
+    use crate::{excite, synth};
+    use jetbench_model::{Effect, Effects, ModelFile, Plant, Preset, SlowStart};
+
+    /// A recording that begins before the engine has soaked (its thrust history starts far
+    /// below the thrust, as on a bench where the recording starts soon after the engine
+    /// did): with the history's start fitted, the diagnosis names the soak (a discrepancy)
+    /// and no gain drift takes up the unsettled start.
+    #[test]
+    fn an_unsettled_soak_at_the_start_is_named_without_a_gain_drift() {
+        let params = Preset::P100Diesel.params();
+        let soak: Effect = "discrepancy:gain_history_per_n=-0.0005,history_time_constant_s=60".parse().unwrap();
+        let plant = Plant::new(params, Effects::new([soak]).unwrap());
+        let profile = excite::campaign(300.0, 29).profile;
+        let t0 = plant.rest_thrust_n(profile.u_pct[0]);
+        let cold = SlowStart { history_offset_n: -0.8 * t0, ..SlowStart::SETTLED };
+        let data = [synth::record_bench_from(&plant, cold, &profile, &synth::Bench::default(), 30).unwrap()];
+        let d = diagnose(&ModelFile::new(params), &data, &Options::default(), &mut |_| {}).unwrap();
+        let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
+        assert_eq!(d.cause, Cause::MissingPhysics, "{}", d.verdict);
+        assert_eq!(names, ["discrepancy"], "{}", d.verdict);
+        assert!(d.refit.is_none(), "{}", d.verdict);
+    }
 }

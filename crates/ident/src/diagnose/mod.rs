@@ -402,11 +402,11 @@ impl Search<'_, '_> {
     }
 
     /// `scored` with each run's initial state fitted anew under it (the same model, a
-    /// better start), when that simulates.
+    /// better start; the slow states' fitted starts kept), when that simulates.
     fn restart(&self, scored: Scored) -> Scored {
         let Some(plant) = scored.fit.spec.plant(&self.model.effects) else { return scored };
         let mut fit = scored.fit.clone();
-        fit.spec.states = self.problem.initial_states(&plant);
+        fit.spec.states = self.problem.restarted(&plant, &fit.spec.states);
         self.evaluate(fit).unwrap_or(scored)
     }
 
@@ -416,14 +416,11 @@ impl Search<'_, '_> {
 
     /// A catalogue effect added to `current`: the best of a coarse grid, then a joint fit.
     fn try_effect(&self, current: &Spec, kind: EffectKind, peak_hz: Option<f64>) -> Option<Scored> {
-        let mut sim = Sim::new();
         let start = fit::start_grid(kind, peak_hz)
             .into_iter()
             .filter_map(|g| {
                 let spec = current.with(kind, g.clone());
-                let plant = spec.plant(&self.model.effects)?;
-                self.problem.simulate(&plant, &spec.states, true, &mut sim).ok()?;
-                Some((self.problem.sse(&sim, Part::Calibration).0, g))
+                Some((fit::calibration_sse(self.problem, &self.model.effects, &spec)?, g))
             })
             .min_by(|a, b| a.0.total_cmp(&b.0))?
             .1;
@@ -981,7 +978,7 @@ fn throttle_play_rivals(search: &Search<'_, '_>, current: &Scored) {
                 *u = held;
             }
         }
-        let states = problem.initial_states(&plant);
+        let states = problem.restarted(&plant, &spec.states);
         let mut sim = Sim::new();
         if problem.simulate(&plant, &states, false, &mut sim).is_err() {
             continue;

@@ -19,15 +19,22 @@
 //! rest). A run is never restarted at the split, because the slow states some
 //! effects add (a sensor bias, a sagging gain) are known only by running through the
 //! recording from its start.
+//!
+//! A recording starts some time after the sensor was tared and the engine started, so
+//! the slow first-order states (a sensor drift's bias, a discrepancy's thrust history)
+//! are in general still on their way at a run's start. Where a hypothesis has them,
+//! their starting values are fitted per run with the rest of it ([`RunStart`]), over
+//! the calibration part (two seconds do not show a decay of tens of seconds), and
+//! charged as parameters like every other fitted value.
 
 use std::ops::Range;
 
-use jetbench_model::{Plant, State, STEP_S};
+use jetbench_model::{Plant, SlowStart, State, STEP_S};
 use serde::Serialize;
 
 use crate::noise::{self, ArModel, NoiseEstimate};
 use crate::series::Series;
-use crate::validate::fit_initial_state_at;
+use crate::validate::{fit_initial_state_at, Started};
 use crate::IdentError;
 
 /// Longest gap a run is simulated through with the throttle held, s.
@@ -39,6 +46,21 @@ const OUTLIER_HALF_WINDOW: usize = 5;
 /// RK4 steps per 10 ms in every simulation of a diagnosis: within 0.005 N of the
 /// reference 1 kHz integration on every effect, ten times cheaper.
 pub const SUBSTEPS: usize = 1;
+
+/// Where a run's simulation starts: the engine's state, fitted to the run's first two
+/// seconds, and its slow states, fitted over the calibration part when the hypothesis has
+/// them (settled, the model's default, otherwise).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(crate) struct RunStart {
+    pub state: State,
+    pub slow: SlowStart,
+}
+
+impl From<State> for RunStart {
+    fn from(state: State) -> Self {
+        Self { state, slow: SlowStart::SETTLED }
+    }
+}
 
 /// Which samples a sum runs over.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -251,6 +273,63 @@ impl<'a> Problem<'a> {
         self.runs.iter().map(|run| fit_initial_state_at(plant, run.t0_s, &run.y, &run.u)).collect()
     }
 
+    /// `starts` with each run's engine state fitted anew to its first two seconds under
+    /// `plant`, its slow states kept where they start.
+    pub fn restarted(&self, plant: &Plant, starts: &[RunStart]) -> Vec<RunStart> {
+        self.runs
+            .iter()
+            .zip(starts)
+            .map(|(run, start)| RunStart {
+                state: fit_initial_state_at(&Started { plant, slow: start.slow }, run.t0_s, &run.y, &run.u),
+                slow: start.slow,
+            })
+            .collect()
+    }
+
+    /// The highest reading of the recordings, N: no thrust history and no sensor bias
+    /// (a share of the thrust) starts above what the thrust ever was.
+    pub fn reading_max_n(&self) -> f64 {
+        self.runs.iter().flat_map(|r| r.y.iter().copied()).filter(|y| y.is_finite()).fold(0.0, f64::max)
+    }
+
+    /// Fits each run's sensor-bias start to the residual of `sim` over `part` and adds its
+    /// decay to `sim`: the bias offset `b₀` adds `b₀·e^(−t/τ)` to the reading and nothing
+    /// else (the bias is a linear first-order state, [`SlowStart`]), so it is a linear
+    /// least-squares fit on the prewhitened residual, one column per run. `sim` must have
+    /// been simulated with the bias starting at 0. A bias follows `gain·T` from a tare, so it
+    /// starts between 0 and `gain` times the highest reading: the fit is held there.
+    /// Returns the starts, one per run.
+    pub fn fit_bias_starts(&self, sim: &mut Sim, gain: f64, time_constant_s: f64, part: Part) -> Vec<f64> {
+        let reach = gain * self.reading_max_n();
+        let (lo, hi) = (reach.min(0.0), reach.max(0.0));
+        let decay = (-STEP_S / time_constant_s).exp();
+        let (mut wr, mut wz) = (Vec::new(), Vec::new());
+        let mut out = Vec::with_capacity(self.runs.len());
+        for (i, run) in self.runs.iter().enumerate() {
+            let Some(m) = sim.get_mut(i) else {
+                out.push(0.0);
+                continue;
+            };
+            let residual = |k: usize| run.y.get(k).map_or(f64::NAN, |y| y - m.get(k).copied().unwrap_or(f64::NAN));
+            self.run_innovations(i, residual, part, &mut wr);
+            self.run_innovations(
+                i,
+                |k| if residual(k).is_finite() { decay.powi(k as i32) } else { f64::NAN },
+                part,
+                &mut wz,
+            );
+            let (zz, zr) = wz.iter().zip(&wr).fold((0.0, 0.0), |(zz, zr), (z, r)| (zz + z * z, zr + z * r));
+            let b = if zz > 0.0 && zr.is_finite() { (zr / zz).clamp(lo, hi) } else { 0.0 };
+            let mut z = 1.0;
+            for v in m.iter_mut() {
+                *v += b * z;
+                z *= decay;
+            }
+            out.push(b);
+        }
+        out
+    }
+
     /// The longest run, s.
     pub fn longest_run_s(&self) -> f64 {
         self.runs.iter().map(|r| r.u.len() as f64 * STEP_S).fold(0.0, f64::max)
@@ -292,24 +371,26 @@ impl<'a> Problem<'a> {
         &self.noise.model
     }
 
-    /// Simulates `plant` over every run from `states` (only up to the split when
-    /// `calibration_only`). `Err` carries (series, time s) of a divergence.
-    pub fn simulate(
+    /// Simulates `plant` over every run from `starts` (engine states alone start the slow
+    /// states settled; only up to the split when `calibration_only`). `Err` carries
+    /// (series, time s) of a divergence.
+    pub fn simulate<S: Copy + Into<RunStart>>(
         &self,
         plant: &Plant,
-        states: &[State],
+        starts: &[S],
         calibration_only: bool,
         out: &mut Sim,
     ) -> Result<(), (usize, f64)> {
         out.resize_with(self.runs.len(), Vec::new);
         let mut failure = None;
-        for ((run, sim), &initial) in self.runs.iter().zip(out.iter_mut()).zip(states) {
+        for ((run, sim), &start) in self.runs.iter().zip(out.iter_mut()).zip(starts) {
             let end = if calibration_only { run.cut.min(run.u.len()) } else { run.u.len() };
             if end == 0 {
                 sim.clear();
                 continue;
             }
-            if let Some(at) = plant.free_run_with(SUBSTEPS, run.t0_s, initial, &run.u[..end], sim) {
+            let RunStart { state, slow } = start.into();
+            if let Some(at) = plant.free_run_from(SUBSTEPS, run.t0_s, state, slow, &run.u[..end], sim) {
                 failure.get_or_insert((run.series, run.t0_s + at));
             }
         }
@@ -346,36 +427,44 @@ impl<'a> Problem<'a> {
     /// over `part` alone (every fit evaluates this once per simulation).
     pub fn innovations(&self, sim: &Sim, part: Part, out: &mut Vec<f64>) {
         out.clear();
-        let phi = &self.ar().phi;
+        let mut w = Vec::new();
         for (i, run) in self.runs.iter().enumerate() {
             let m = sim.get(i).map_or(&[][..], Vec::as_slice);
-            let stride = run.stride;
-            // Residual at strided index `j` (grid index `j·stride`), NaN without a sample or a simulation.
-            let r = |j: usize| {
-                let k = j * stride;
-                run.y.get(k).map_or(f64::NAN, |y| y - m.get(k).copied().unwrap_or(f64::NAN))
-            };
-            let n = run.y.len().div_ceil(stride);
-            let split = run.cut.min(run.y.len()).div_ceil(stride);
-            let (lo, hi) = match part {
-                Part::Calibration => (0, split),
-                Part::Validation => (split, n),
-            };
-            'samples: for j in lo.max(phi.len())..hi {
-                let mut w = r(j);
-                if !w.is_finite() {
-                    continue;
+            // Residual at grid index `k`, NaN without a sample or a simulation.
+            let r = |k: usize| run.y.get(k).map_or(f64::NAN, |y| y - m.get(k).copied().unwrap_or(f64::NAN));
+            self.run_innovations(i, r, part, &mut w);
+            out.extend_from_slice(&w);
+        }
+    }
+
+    /// The innovations over `part` of run `i`'s grid vector `x(k)` (NaN where there is no
+    /// value), at the run's stride, in the order [`Problem::innovations`] puts them.
+    fn run_innovations(&self, i: usize, x: impl Fn(usize) -> f64, part: Part, out: &mut Vec<f64>) {
+        out.clear();
+        let phi = &self.ar().phi;
+        let run = &self.runs[i];
+        let stride = run.stride;
+        let r = |j: usize| x(j * stride);
+        let n = run.y.len().div_ceil(stride);
+        let split = run.cut.min(run.y.len()).div_ceil(stride);
+        let (lo, hi) = match part {
+            Part::Calibration => (0, split),
+            Part::Validation => (split, n),
+        };
+        'samples: for j in lo.max(phi.len())..hi {
+            let mut w = r(j);
+            if !w.is_finite() {
+                continue;
+            }
+            for (q, p) in phi.iter().enumerate() {
+                let past = r(j - 1 - q);
+                if !past.is_finite() {
+                    continue 'samples;
                 }
-                for (q, p) in phi.iter().enumerate() {
-                    let past = r(j - 1 - q);
-                    if !past.is_finite() {
-                        continue 'samples;
-                    }
-                    w -= p * past;
-                }
-                if w.is_finite() {
-                    out.push(w);
-                }
+                w -= p * past;
+            }
+            if w.is_finite() {
+                out.push(w);
             }
         }
     }
