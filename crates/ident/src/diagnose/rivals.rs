@@ -690,11 +690,11 @@ mod tests {
         let tied = entry(&[EffectKind::Discrepancy], false, &scaled(1.0), 4, 0.0, 1.0, false);
         let w = weigh(&[tied.clone(), nothing], &refit);
         assert!(!w.dominant && w.leader.is_none(), "{:?}", w.rivals);
-        assert!(!weigh(&[refit.clone()], &tied).dominant);
+        assert!(!weigh(std::slice::from_ref(&refit), &tied).dominant);
         // Against the given parameters (nested in the refit) the count stays: a refit 12 units
         // better in misfit does not pay for its ten parameters, and nothing is the better claim.
         let close = entry(&[], false, &scaled(1.001), 0, 0.0, 1.001, false);
-        assert!(!weigh(&[close.clone()], &refit).dominant);
+        assert!(!weigh(std::slice::from_ref(&close), &refit).dominant);
         assert!(weigh(&[refit], &close).dominant);
     }
 
