@@ -77,42 +77,6 @@ impl Entry {
     fn score_of(&self, sse: f64, n: f64) -> f64 {
         n * (sse / n).ln() + self.free as f64 * n.ln() + self.prior
     }
-
-    /// `score_of` without the count of parameters: the misfit and the refit's prior.
-    fn fit_of(&self, sse: f64, n: f64) -> f64 {
-        n * (sse / n).ln() + self.prior
-    }
-
-    /// The held-out misfit and the refit's prior, on every sample (see [`on_fit`]).
-    fn fit_cost(&self) -> f64 {
-        self.score - self.free as f64 * (self.w2.len() as f64).ln()
-    }
-}
-
-/// True when `a` and `b` are judged on held-out fit and the refit's prior alone, without the
-/// count of their parameters: one refits the ten parameters and the other does not, and
-/// neither is nested in the other (physics against a refit). That is the account the
-/// search's own choice between physics and a refit uses, and [`fits_better`]: the held-out
-/// data already charge each for what it overfits, and moving the ten parameters away from
-/// the identified ones costs the prior it pays. A penalty of `ln N` for each of the ten on top
-/// (about 90 units on a few minutes held out) let a discrepancy of four terms win the
-/// resamples against a refit that fitted as well or better, so "only the parameters are off"
-/// could never be claimed. Between nested explanations (the refit against the same physics
-/// with the given parameters, or against nothing) the count stays: held-out fit alone never
-/// prefers the smaller of two nested models by more than noise, so the part more must pay
-/// for itself, as the search's bar for a part does.
-fn on_fit(a: &Entry, b: &Entry) -> bool {
-    a.refit != b.refit && !related(a, b)
-}
-
-/// How far `a` is behind `b` on the full held-out data (score units; negative: ahead), by
-/// the account of [`on_fit`].
-fn behind(a: &Entry, b: &Entry) -> f64 {
-    if on_fit(a, b) {
-        a.fit_cost() - b.fit_cost()
-    } else {
-        a.score - b.score
-    }
 }
 
 /// An explanation kept as a rival, as the JSON shows it.
@@ -165,21 +129,21 @@ pub struct Rivals {
 /// whose held-out score is ahead of every other by more than a [`TIE`]: the same test the
 /// search's explanation must pass to be claimed, applied to each explanation in turn.
 /// `beats[k][j]` counts the resamples in which explanation `k` scores better than `j`,
-/// `wins[j]` those in which `j` scores better than every other, out of `resamples`;
-/// `gap(k, j)` is how far `k` is behind `j` on all the held-out data (score units).
+/// `wins[j]` those in which `j` scores best, out of `resamples`.
 /// `margin(k, j)` is the lead `j` needs over `k` ([`TIE`] or [`DISTINCT`], see [`margin`]).
 pub(crate) fn leader(
-    count: usize,
-    gap: impl Fn(usize, usize) -> f64,
+    scores: &[f64],
     beats: &[Vec<usize>],
     wins: &[usize],
     resamples: usize,
     margin: impl Fn(usize, usize) -> f64,
 ) -> Option<usize> {
     let share = |c: usize| c as f64 / resamples.max(1) as f64;
-    (0..count).find(|&j| {
+    (0..scores.len()).find(|&j| {
         share(wins[j]) >= 1.0 - RIVAL_WIN_SHARE
-            && (0..count).filter(|&k| k != j).all(|k| share(beats[k][j]) < RIVAL_WIN_SHARE && gap(k, j) > margin(k, j))
+            && (0..scores.len())
+                .filter(|&k| k != j)
+                .all(|k| share(beats[k][j]) < RIVAL_WIN_SHARE && scores[k] - scores[j] > margin(k, j))
     })
 }
 
@@ -190,15 +154,10 @@ fn nested(a: &Entry, b: &Entry) -> bool {
     within(a, b) || within(b, a)
 }
 
-/// One nested in the other, and neither a swap that only looks nested.
-fn related(a: &Entry, b: &Entry) -> bool {
-    nested(a, b) && !a.swapped && !b.swapped
-}
-
 /// The score lead a claim `a` needs over a rival `b`: a [`TIE`] when one is nested in the
 /// other (and neither is a swap that only looks nested), [`DISTINCT`] otherwise.
 fn margin(a: &Entry, b: &Entry) -> f64 {
-    if related(a, b) {
+    if nested(a, b) && !a.swapped && !b.swapped {
         TIE
     } else {
         DISTINCT
@@ -395,12 +354,6 @@ fn tells_apart(a: (&[&'static str], bool), b: (&[&'static str], bool)) -> String
 }
 
 /// The rivals of `chosen` among `pool` (every explanation the search fitted).
-///
-/// Two explanations are compared by their held-out score, `N·ln(SSE/N) + k·ln N` plus the
-/// refit's prior, except physics against a refit that are not nested, which are compared on
-/// the misfit and the prior alone ([`on_fit`]): one account of what a refit costs, the same
-/// as the claim rules'. An explanation's weight is the share of resamples in which it beats
-/// every other explanation so compared.
 pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
     let n = chosen.w2.len();
     let block = ((BLOCK_S / STEP_S).round() as usize).clamp(1, n.max(1));
@@ -418,15 +371,12 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         }
     }
     best.insert(chosen.label(), chosen);
-    let all: Vec<&Entry> = best.into_values().collect();
-    // The best by score, and the window around it by the same account as the comparisons.
-    let top = all.iter().copied().min_by(|a, b| a.score.total_cmp(&b.score));
-    let mut entries: Vec<&Entry> = all.iter().copied().filter(|e| top.is_none_or(|t| behind(e, t) <= WINDOW)).collect();
+    let top = best.values().map(|e| e.score).fold(f64::INFINITY, f64::min);
+    let mut entries: Vec<&Entry> = best.into_values().filter(|e| e.score <= top + WINDOW).collect();
     if !entries.iter().any(|e| e.label() == chosen.label()) {
         entries.push(chosen);
     }
     let ci = entries.iter().position(|e| e.label() == chosen.label()).unwrap_or(0);
-    let m = entries.len();
     // Prefix sums of squared innovations: a block's sum in O(1).
     let prefix: Vec<Vec<f64>> = entries
         .iter()
@@ -440,14 +390,13 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
                 .collect()
         })
         .collect();
-    let judged_on_fit: Vec<Vec<bool>> =
-        entries.iter().map(|a| entries.iter().map(|b| on_fit(a, b)).collect()).collect();
-    let mut wins = vec![0usize; m];
-    let mut pairwise = vec![vec![0usize; m]; m];
+    let mut wins = vec![0usize; entries.len()];
+    let mut beats = vec![0usize; entries.len()];
+    let mut pairwise = vec![vec![0usize; entries.len()]; entries.len()];
     let mut rng = Rng(0x5EE_D0FB_0075 ^ n as u64);
     let blocks = n.div_ceil(block).max(1);
     let starts = n.saturating_sub(block) + 1;
-    let mut sse = vec![0.0; m];
+    let mut sse = vec![0.0; entries.len()];
     for _ in 0..RESAMPLES {
         sse.iter_mut().for_each(|s| *s = 0.0);
         let mut len = 0usize;
@@ -459,46 +408,29 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
                 sse[j] += p[e] - p[s];
             }
         }
-        let len = len as f64;
-        let scores: Vec<f64> = entries.iter().zip(&sse).map(|(e, s)| e.score_of(*s, len)).collect();
-        let fits: Vec<f64> = entries.iter().zip(&sse).map(|(e, s)| e.fit_of(*s, len)).collect();
-        let better = |j: usize, k: usize| {
-            if judged_on_fit[j][k] {
-                fits[j] < fits[k]
-            } else {
-                scores[j] < scores[k]
+        let scores: Vec<f64> = entries.iter().zip(&sse).map(|(e, s)| e.score_of(*s, len as f64)).collect();
+        let winner = (0..scores.len()).min_by(|a, b| scores[*a].total_cmp(&scores[*b])).unwrap_or(ci);
+        wins[winner] += 1;
+        for j in 0..scores.len() {
+            if scores[j] < scores[ci] {
+                beats[j] += 1;
             }
-        };
-        for j in 0..m {
-            let mut all_beaten = true;
-            for k in (0..m).filter(|&k| k != j) {
-                if better(j, k) {
+            for k in 0..scores.len() {
+                if scores[j] < scores[k] {
                     pairwise[j][k] += 1;
-                } else {
-                    all_beaten = false;
                 }
-            }
-            if all_beaten {
-                wins[j] += 1;
             }
         }
     }
-    let beats: Vec<usize> = (0..m).map(|j| if j == ci { 0 } else { pairwise[j][ci] }).collect();
     let share = |c: usize| c as f64 / RESAMPLES as f64;
     let dominated = |j: usize| {
-        share(beats[j]) < RIVAL_WIN_SHARE && behind(entries[j], entries[ci]) > margin(entries[ci], entries[j])
+        share(beats[j]) < RIVAL_WIN_SHARE && entries[j].score - entries[ci].score > margin(entries[ci], entries[j])
     };
-    // Scores are shown behind the explanation of the highest weight (the best score on ties).
-    let head =
-        (0..m).max_by(|&a, &b| wins[a].cmp(&wins[b]).then(entries[b].score.total_cmp(&entries[a].score))).unwrap_or(ci);
     let mut rivals: Vec<(usize, Rival)> = entries
         .iter()
         .enumerate()
         .filter(|(j, e)| {
-            *j == ci
-                || share(wins[*j]) >= 0.01
-                || share(beats[*j]) >= 0.01
-                || behind(e, entries[head]) <= margin(entries[ci], e)
+            *j == ci || share(wins[*j]) >= 0.01 || share(beats[*j]) >= 0.01 || e.score - top <= margin(entries[ci], e)
         })
         .map(|(j, e)| {
             let rival = Rival {
@@ -506,7 +438,7 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
                 refit: e.refit,
                 weight: share(wins[j]),
                 beats_best_share: share(beats[j]),
-                score_behind: behind(e, entries[head]),
+                score_behind: e.score - top,
                 mae_val_n: e.mae_val_n,
                 side: side(&e.effects, e.refit),
                 meaning: meaning(&e.effects, e.refit),
@@ -521,17 +453,9 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         })
         .collect();
     let dominant = n >= MIN_BLOCKS * block && rivals.iter().all(|(j, r)| *j == ci || r.dominated);
+    let scores: Vec<f64> = entries.iter().map(|e| e.score).collect();
     let leader = (n >= MIN_BLOCKS * block && !dominant)
-        .then(|| {
-            leader(
-                m,
-                |k, j| behind(entries[k], entries[j]),
-                &pairwise,
-                &wins,
-                RESAMPLES,
-                |k, j| margin(entries[j], entries[k]),
-            )
-        })
+        .then(|| leader(&scores, &pairwise, &wins, RESAMPLES, |k, j| margin(entries[j], entries[k])))
         .flatten()
         .filter(|&j| j != ci)
         .map(|j| entries[j].label());
@@ -547,7 +471,7 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
                 refit: e.refit,
                 weight: share(wins[ci]),
                 beats_best_share: 0.0,
-                score_behind: behind(e, entries[head]),
+                score_behind: e.score - top,
                 mae_val_n: e.mae_val_n,
                 side: side(&e.effects, e.refit),
                 meaning: meaning(&e.effects, e.refit),
@@ -674,31 +598,6 @@ mod tests {
     }
 
     #[test]
-    fn a_refit_pays_its_prior_against_physics_and_its_count_against_nothing() {
-        let n = 6000; // ln N ≈ 8.7: the ten parameters' count is about 87 units
-        let noise = innovations(6, n, 1.0);
-        let scaled = |f: f64| noise.iter().map(|x| x * f).collect::<Vec<_>>();
-        let refit = entry(&[], true, &scaled(1.0), 10, 2.0, 1.0, false);
-        let nothing = entry(&[], false, &scaled(1.05), 0, 0.0, 1.05, false);
-        // A discrepancy of four terms 1 % larger in innovation size (about 60 units of misfit):
-        // with the refit charged its count it would lead the refit by 35 - 87 + 60 - 2 ≈ 6
-        // units; on fit and prior the refit leads it by 58.
-        let discrepancy = entry(&[EffectKind::Discrepancy], false, &scaled(1.005), 4, 0.0, 1.005, false);
-        let w = weigh(&[discrepancy.clone(), nothing.clone()], &refit);
-        assert!(w.dominant, "{:?}", w.rivals);
-        // The same discrepancy fitting exactly as well as the refit: neither is claimed.
-        let tied = entry(&[EffectKind::Discrepancy], false, &scaled(1.0), 4, 0.0, 1.0, false);
-        let w = weigh(&[tied.clone(), nothing], &refit);
-        assert!(!w.dominant && w.leader.is_none(), "{:?}", w.rivals);
-        assert!(!weigh(std::slice::from_ref(&refit), &tied).dominant);
-        // Against the given parameters (nested in the refit) the count stays: a refit 12 units
-        // better in misfit does not pay for its ten parameters, and nothing is the better claim.
-        let close = entry(&[], false, &scaled(1.001), 0, 0.0, 1.001, false);
-        assert!(!weigh(std::slice::from_ref(&close), &refit).dominant);
-        assert!(weigh(&[refit], &close).dominant);
-    }
-
-    #[test]
     fn look_alikes_go_both_ways_and_a_delay_stands_in_for_a_lag() {
         for (a, b) in LOOK_ALIKES {
             assert!(look_alikes(a).any(|k| k == b) && look_alikes(b).any(|k| k == a), "{a} {b}");
@@ -724,12 +623,11 @@ mod tests {
     #[test]
     fn the_leader_rule_needs_the_weight_and_the_score() {
         // Explanation 0 wins every resample but is within a tie of explanation 1 on score.
-        let gap = |scores: [f64; 2]| move |k: usize, j: usize| scores[k] - scores[j];
         let beats = vec![vec![0, 400], vec![0, 0]];
-        assert_eq!(leader(2, gap([0.0, 1.5]), &beats, &[400, 0], 400, |_, _| TIE), None);
-        assert_eq!(leader(2, gap([0.0, 2.5]), &beats, &[400, 0], 400, |_, _| TIE), Some(0));
+        assert_eq!(leader(&[0.0, 1.5], &beats, &[400, 0], 400, |_, _| TIE), None);
+        assert_eq!(leader(&[0.0, 2.5], &beats, &[400, 0], 400, |_, _| TIE), Some(0));
         // Ahead on score, but another explanation beats it in 5 % of the resamples.
         let beats = vec![vec![0, 380], vec![20, 0]];
-        assert_eq!(leader(2, gap([0.0, 30.0]), &beats, &[380, 20], 400, |_, _| TIE), None);
+        assert_eq!(leader(&[0.0, 30.0], &beats, &[380, 20], 400, |_, _| TIE), None);
     }
 }
