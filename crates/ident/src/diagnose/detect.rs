@@ -72,44 +72,19 @@ pub struct Detectability {
     pub experiment: &'static str,
     /// When it would not show: every effect of this class whose values lie in these ranges
     /// (by key, `[low, high]`, `None` for no bound) is no more visible here than the probe,
-    /// so it could hide too (see [`could_hide`]). `None` when the probe would show.
+    /// so it could hide too (see [`could_hide`]; for a stand resonance, the dampings around
+    /// the probe's not measured to show). `None` when the probe would show.
     pub could_hide: Option<BTreeMap<&'static str, [Option<f64>; 2]>>,
-    /// A stand resonance at another damping than the size that matters (ζ 0.1), listed because
-    /// the probe at ζ 0.1 would show and this one would not: it says what could hide beside a
-    /// claim, and does not count for `none` or `parameters`, which ask for the size that matters.
+    /// A region of stand resonances not measured to show (its frequencies and dampings in
+    /// `could_hide`, see [`hidden_regions`]): it says what could hide beside a claim, and does
+    /// not count for `none` or `parameters`, which ask for the probes at the size that matters.
     pub disclosure_only: bool,
 }
 
-/// Dampings at which a hidden stand-resonance probe is measured again, to bound the dampings
-/// that could hide with it (the catalogue's range is 0.005-0.3). The steps are small where a
-/// resonance's reading changes fastest with ζ (it grows about as ζ² below the resonance), so
-/// that the bound between two of them ([`hidden_dampings`]) is not much above either.
+/// Dampings at which a stand resonance is measured at each frequency (the catalogue's range
+/// is 0.005-0.3). The steps are small where a resonance's reading changes fastest with ζ (it
+/// grows about as ζ² below the resonance).
 const DAMPINGS: [f64; 13] = [0.005, 0.01, 0.02, 0.035, 0.05, 0.075, 0.1, 0.125, 0.15, 0.175, 0.2, 0.25, 0.3];
-
-/// The range of [`DAMPINGS`] (first and last index) around `home` over which a resonance is
-/// no more visible than `threshold`, from the energies measured at each damping.
-///
-/// At one frequency each spectral component of the reading a resonance adds,
-/// `|H(jω) − 1|²·|T(jω)|²`, is monotonic in ζ² (a ratio of two functions linear in ζ²), so
-/// anywhere between two measured dampings `a < b` it is at most the larger of its values at
-/// `a` and `b`, and the energy at most `E(a) + E(b)`. A stretch between two neighbouring
-/// dampings could hide when some pair of measured dampings around it (not only its own two
-/// ends) sums below the threshold, and no damping measured between them would show (which
-/// the bound says cannot happen: a recording where it does is not trusted with the bound);
-/// the range grows from `home` over such stretches.
-fn hidden_dampings(energies: &[f64], home: usize, threshold: f64) -> (usize, usize) {
-    let bracket =
-        |i: usize, j: usize| energies[i] + energies[j] < threshold && energies[i..=j].iter().all(|e| *e < threshold);
-    let covered = |k: usize| (0..=k).any(|i| (k + 1..energies.len()).any(|j| bracket(i, j)));
-    let (mut lo, mut hi) = (home, home);
-    while lo > 0 && covered(lo - 1) {
-        lo -= 1;
-    }
-    while hi + 1 < energies.len() && covered(hi) {
-        hi += 1;
-    }
-    (lo, hi)
-}
 
 /// The values of a hidden probe's class that are no more visible than the probe, per key.
 ///
@@ -120,9 +95,9 @@ fn hidden_dampings(energies: &[f64], home: usize, threshold: f64) -> (usize, usi
 /// not ordered that way (a slower drift is smaller at first and larger later): it is
 /// pinned to the probe's value.
 ///
-/// The resonance is handled in [`probe_all`]: its damping is not ordered (a light damping
-/// rings more after a step, a heavy one lags more behind a ramp), so the dampings that could
-/// hide are measured, and its frequency is bounded by the probes above it.
+/// The resonance is measured over frequency and damping instead ([`resonance_columns`]):
+/// neither is ordered (a light damping rings more after a step, a heavy one lags more behind
+/// a ramp; a resonance picks up the thrust's power near its own frequency).
 fn could_hide(kind: EffectKind, v: &[f64]) -> BTreeMap<&'static str, [Option<f64>; 2]> {
     let up_to = |x: f64| [Some(0.0), Some(x)];
     let at = |x: f64| [Some(x), Some(x)];
@@ -168,12 +143,18 @@ fn probes(full_thrust_n: f64) -> Vec<(EffectKind, Vec<f64>, bool)> {
         (EffectKind::GainDrift, vec![0.005], true),
         (EffectKind::BearingFriction, vec![0.5], true),
     ];
-    for f in [0.5, 1.0, 2.0, 3.0, 5.0, 8.0] {
-        out.push((EffectKind::StandResonance, vec![f, 0.1], false));
-    }
     out.push((EffectKind::Discrepancy, soak, true));
     out
 }
+
+/// The stand-resonance probes' frequencies, Hz (see [`probes`]), all at [`PROBE_DAMPING`].
+const RESONANCE_HZ: [f64; 6] = [0.5, 1.0, 2.0, 3.0, 5.0, 8.0];
+/// The damping of a stand resonance at the size that matters.
+const PROBE_DAMPING: f64 = 0.1;
+/// How many times the frequencies between two neighbouring probes are halved (geometrically)
+/// where the dampings that could hide differ at the two ends: three leave each probe interval
+/// in eight, about 5-9 % of the frequency apart.
+const BISECTIONS: u32 = 3;
 
 /// The class name of the thrust-history gain probe (a heat or fuel soak).
 pub const GAIN_HISTORY: &str = "gain_history";
@@ -386,30 +367,6 @@ pub(crate) fn probe_all(
         };
         let threshold = strong_evidence + free as f64 * ln_n;
         let would_show = energy >= threshold;
-        let mut hide = (!would_show).then(|| could_hide(kind, &values));
-        // A resonance is measured at every damping of [`DAMPINGS`]: its damping is not
-        // ordered, so the probe at ζ 0.1 says nothing of a lighter or heavier one.
-        let dampings: Vec<(f64, f64)> = if kind == EffectKind::StandResonance {
-            DAMPINGS
-                .iter()
-                .map(|&z| {
-                    if (z - values[1]).abs() < 1e-12 {
-                        (energy, shape_z)
-                    } else {
-                        probe(kind, &[values[0], z]).unwrap_or((f64::INFINITY, 0.0))
-                    }
-                })
-                .collect()
-        } else {
-            Vec::new()
-        };
-        let energies: Vec<f64> = dampings.iter().map(|d| d.0).collect();
-        if let (Some(region), EffectKind::StandResonance) = (hide.as_mut(), kind) {
-            // The dampings that could hide at this frequency (see [`hidden_dampings`]).
-            let home = DAMPINGS.iter().position(|&z| (z - values[1]).abs() < 1e-12).unwrap_or(0);
-            let (lo, hi) = hidden_dampings(&energies, home, threshold);
-            region.insert("damping_ratio", [Some(DAMPINGS[lo]), Some(DAMPINGS[hi])]);
-        }
         out.push(Detectability {
             effect,
             probe: if kind == EffectKind::Discrepancy {
@@ -424,37 +381,21 @@ pub(crate) fn probe_all(
             shape_z,
             smallest: (proportional && energy > 0.0).then(|| first * (threshold / energy).sqrt()),
             experiment: experiment_for(effect),
-            could_hide: hide,
+            could_hide: (!would_show).then(|| could_hide(kind, &values)),
             disclosure_only: false,
         });
-        // The probe at ζ 0.1 would show, but a lighter or heavier resonance at this frequency
-        // may not (a lightly damped one adds little below its frequency when the engine's
-        // thrust has no power near it): the least visible damping measured, with the range
-        // around it that could hide, is disclosed beside a claim.
-        let least = (0..energies.len()).min_by(|a, b| energies[*a].total_cmp(&energies[*b]));
-        // Only beside physics found: `none` and `parameters` ask for the size that matters.
-        let beside_physics = !spec.effects.is_empty();
-        if let Some(home) = least.filter(|&h| beside_physics && would_show && energies[h] < threshold) {
-            let (lo, hi) = hidden_dampings(&energies, home, threshold);
-            let at = [values[0], DAMPINGS[home]];
-            let mut region = could_hide(kind, &at);
-            region.insert("damping_ratio", [Some(DAMPINGS[lo]), Some(DAMPINGS[hi])]);
-            out.push(Detectability {
-                effect,
-                probe: kind.keys().iter().copied().zip(at).collect(),
-                size: describe(kind, &at, full_thrust),
-                energy: energies[home],
-                threshold,
-                would_show: false,
-                shape_z: dampings[home].1,
-                smallest: None,
-                experiment: experiment_for(effect),
-                could_hide: Some(region),
-                disclosure_only: true,
-            });
-        }
     }
-    resonance_bands(&mut out);
+    let resonance = EffectKind::StandResonance;
+    if !spec.has(resonance) && fixed.get(resonance).is_none() {
+        let threshold = strong_evidence + resonance.keys().len() as f64 * ln_n;
+        // Beside physics found, the frequencies between the probes are measured where what
+        // hides changes: that is what a claim discloses. `none` and `parameters` ask only for
+        // the probes at the size that matters.
+        let beside_physics = !spec.effects.is_empty();
+        let columns =
+            resonance_columns(|f, z| probe(resonance, &[f, z]), threshold, if beside_physics { BISECTIONS } else { 0 });
+        out.extend(resonance_probes(&columns, threshold, full_thrust));
+    }
     // A periodic force of 1 N at a period of 30 s (a sine and a cosine: its phase is free).
     let period_s = 30.0;
     let (mut energy, mut shape_z) = (f64::INFINITY, 0.0f64);
@@ -490,44 +431,175 @@ pub(crate) fn probe_all(
     out
 }
 
-/// The frequencies that could hide, for each hidden stand-resonance probe: from its own up to
-/// the next probe frequency when a probe there is hidden too (at ζ 0.1, or at the least
-/// visible damping where ζ 0.1 shows; over the dampings both hide at), or its own alone. Between two probe frequencies a resonance picks up the thrust's power near
-/// its own frequency, which varies smoothly with frequency (throttle steps through the
-/// engine's low-pass): one there is no more visible than at the two probes beside it, both
-/// measured hidden. Above the highest probe nothing is said.
-fn resonance_bands(out: &mut [Detectability]) {
-    let dampings = |p: &Detectability| match p.could_hide.as_ref().and_then(|r| r.get("damping_ratio")) {
-        Some([Some(lo), Some(hi)]) => Some((*lo, *hi)),
-        _ => None,
-    };
-    let resonance = |p: &&Detectability| p.effect == "stand_resonance";
-    let mut frequencies: Vec<f64> =
-        out.iter().filter(resonance).filter_map(|p| p.probe.get("frequency_hz").copied()).collect();
-    frequencies.sort_by(f64::total_cmp);
-    // Every hidden resonance probe (at ζ 0.1, or at the damping least visible where that one
-    // shows): its index, frequency and dampings that could hide.
-    let hidden: Vec<(usize, f64, f64, f64)> = out
-        .iter()
-        .enumerate()
-        .filter(|(_, p)| resonance(p))
-        .filter_map(|(i, p)| {
-            let (lo, hi) = dampings(p)?;
-            Some((i, *p.probe.get("frequency_hz")?, lo, hi))
-        })
-        .collect();
-    for &(i, f, lo, hi) in &hidden {
-        let Some(next) = frequencies.iter().copied().find(|&g| g > f) else { continue };
-        // The widest overlap with a hidden probe at the next frequency.
-        let band = hidden
-            .iter()
-            .filter(|h| h.1 == next)
-            .map(|h| (lo.max(h.2), hi.min(h.3)))
-            .filter(|(a, b)| a <= b)
-            .max_by(|a, b| (a.1 - a.0).total_cmp(&(b.1 - b.0)));
-        let (Some((a, b)), Some(region)) = (band, out[i].could_hide.as_mut()) else { continue };
-        region.insert("frequency_hz", [Some(f), Some(next)]);
-        region.insert("damping_ratio", [Some(a), Some(b)]);
+/// A stand resonance measured at one frequency, at every damping of [`DAMPINGS`].
+struct Column {
+    frequency_hz: f64,
+    /// Energy and matched-filter statistic at each damping (`None` where the model with it
+    /// could not be simulated).
+    at: Vec<Option<(f64, f64)>>,
+    /// At each damping: it would not show here (or could not be measured).
+    hidden: Vec<bool>,
+    /// Halvings of the probe interval this frequency lies in (0 for a probe's own).
+    depth: u32,
+}
+
+impl Column {
+    fn measure(
+        frequency_hz: f64,
+        depth: u32,
+        threshold: f64,
+        probe: &mut impl FnMut(f64, f64) -> Option<(f64, f64)>,
+    ) -> Self {
+        let at: Vec<Option<(f64, f64)>> = DAMPINGS.iter().map(|&z| probe(frequency_hz, z)).collect();
+        let hidden = at.iter().map(|m| m.is_none_or(|m| m.0 < threshold)).collect();
+        Self { frequency_hz, at, hidden, depth }
+    }
+
+    fn energy(&self, k: usize) -> f64 {
+        self.at[k].map_or(f64::INFINITY, |m| m.0)
+    }
+
+    /// The dampings (first and last index) that could hide at this frequency: from the
+    /// damping below the lightest measured hidden to the one above the heaviest.
+    fn hull(&self) -> Option<(usize, usize)> {
+        let first = self.hidden.iter().position(|h| *h)?;
+        let last = self.hidden.iter().rposition(|h| *h)?;
+        Some((first.saturating_sub(1), (last + 1).min(DAMPINGS.len() - 1)))
+    }
+}
+
+/// A stand resonance measured over frequency and damping: at each probe frequency
+/// ([`RESONANCE_HZ`]), and, up to `bisections` times, at the geometric middle of two
+/// neighbouring frequencies where the dampings that hide differ, so that what nothing
+/// measured decides is a narrow band (see [`hidden_regions`]).
+fn resonance_columns(
+    mut probe: impl FnMut(f64, f64) -> Option<(f64, f64)>,
+    threshold: f64,
+    bisections: u32,
+) -> Vec<Column> {
+    let mut columns: Vec<Column> = RESONANCE_HZ.iter().map(|&f| Column::measure(f, 0, threshold, &mut probe)).collect();
+    let mut i = 0;
+    while i + 1 < columns.len() {
+        let (a, b) = (&columns[i], &columns[i + 1]);
+        let depth = a.depth.max(b.depth) + 1;
+        if a.hidden != b.hidden && depth <= bisections {
+            let middle = (a.frequency_hz * b.frequency_hz).sqrt();
+            columns.insert(i + 1, Column::measure(middle, depth, threshold, &mut probe));
+            // The lower half is looked at again first, then the upper.
+            continue;
+        }
+        i += 1;
+    }
+    columns
+}
+
+/// A region of frequencies and of dampings (first and last index into [`DAMPINGS`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Region {
+    frequency_hz: [f64; 2],
+    damping: (usize, usize),
+}
+
+/// The regions where a resonance could hide: everywhere between two neighbouring measured
+/// frequencies and two neighbouring dampings unless all four corners were measured to show.
+///
+/// Between measured points a resonance's reading changes smoothly (it picks up the thrust's
+/// power near its own frequency, and each spectral component is monotonic in ζ²), so a cell
+/// whose four corners show is taken to show; a cell with a hidden corner is not excluded by
+/// anything measured, and a claim that leaves it unsaid would be one the recording does not
+/// support. For each interval of frequencies the dampings of such cells are given as one
+/// range (from the lightest to the heaviest), and intervals with the same range are joined.
+/// Above the highest probe frequency and below the lowest nothing is said.
+fn hidden_regions(columns: &[Column]) -> Vec<Region> {
+    let mut out: Vec<Region> = Vec::new();
+    for pair in columns.windows(2) {
+        let (a, b) = (&pair[0], &pair[1]);
+        let hidden = |k: usize| a.hidden[k] || b.hidden[k];
+        let cells: Vec<usize> = (0..DAMPINGS.len() - 1).filter(|&j| hidden(j) || hidden(j + 1)).collect();
+        let (Some(&lo), Some(&hi)) = (cells.first(), cells.last()) else { continue };
+        let region = Region { frequency_hz: [a.frequency_hz, b.frequency_hz], damping: (lo, hi + 1) };
+        match out.last_mut() {
+            Some(last) if last.damping == region.damping && last.frequency_hz[1] == region.frequency_hz[0] => {
+                last.frequency_hz[1] = region.frequency_hz[1];
+            }
+            _ => out.push(region),
+        }
+    }
+    out
+}
+
+/// The stand-resonance probes from what was measured: the probe at the size that matters at
+/// each probe frequency, and each region that could hide as a disclosure of its own (it says
+/// what could hide beside a claim and does not count for `none` or `parameters`).
+fn resonance_probes(columns: &[Column], threshold: f64, full_thrust_n: f64) -> Vec<Detectability> {
+    let kind = EffectKind::StandResonance;
+    let effect = kind.name();
+    let home = DAMPINGS.iter().position(|&z| z == PROBE_DAMPING).unwrap_or(0);
+    let mut out = Vec::new();
+    for c in columns.iter().filter(|c| c.depth == 0) {
+        let Some((energy, shape_z)) = c.at[home] else { continue };
+        let values = [c.frequency_hz, PROBE_DAMPING];
+        let would_show = energy >= threshold;
+        let could_hide = (!would_show).then(|| {
+            let (lo, hi) = c.hull().unwrap_or((home, home));
+            BTreeMap::from([
+                ("frequency_hz", [Some(c.frequency_hz); 2]),
+                ("damping_ratio", [Some(DAMPINGS[lo]), Some(DAMPINGS[hi])]),
+            ])
+        });
+        out.push(Detectability {
+            effect,
+            probe: kind.keys().iter().copied().zip(values).collect(),
+            size: describe(kind, &values, full_thrust_n),
+            energy,
+            threshold,
+            would_show,
+            shape_z,
+            smallest: None,
+            experiment: experiment_for(effect),
+            could_hide,
+            disclosure_only: false,
+        });
+    }
+    for region in hidden_regions(columns) {
+        let [f0, f1] = region.frequency_hz;
+        let (lo, hi) = region.damping;
+        // The most visible point measured hidden in it stands for it.
+        let corners = columns.iter().filter(|c| c.frequency_hz >= f0 && c.frequency_hz <= f1);
+        let Some((c, k)) = corners
+            .flat_map(|c| (lo..=hi).filter(|&k| c.hidden[k]).map(move |k| (c, k)))
+            .max_by(|a, b| a.0.energy(a.1).total_cmp(&b.0.energy(b.1)))
+        else {
+            continue;
+        };
+        let (energy, shape_z) = c.at[k].unwrap_or((f64::INFINITY, 0.0));
+        let (z0, z1) = (DAMPINGS[lo], DAMPINGS[hi]);
+        out.push(Detectability {
+            effect,
+            probe: kind.keys().iter().copied().zip([f0, DAMPINGS[k]]).collect(),
+            size: format!("a stand resonance at {} with ζ {z0:.3}-{z1:.3}", frequency_range(f0, f1)),
+            energy,
+            threshold,
+            would_show: false,
+            shape_z,
+            smallest: None,
+            experiment: experiment_for(effect),
+            could_hide: Some(BTreeMap::from([
+                ("frequency_hz", [Some(f0), Some(f1)]),
+                ("damping_ratio", [Some(z0), Some(z1)]),
+            ])),
+            disclosure_only: true,
+        });
+    }
+    out
+}
+
+/// `2.4-3.0 Hz`, or `3.0 Hz` for one frequency.
+pub(crate) fn frequency_range(f0: f64, f1: f64) -> String {
+    if f1 > f0 {
+        format!("{f0:.2}-{f1:.2} Hz")
+    } else {
+        format!("{f0:.2} Hz")
     }
 }
 
@@ -541,53 +613,58 @@ pub fn excluded(probes: &[Detectability]) -> bool {
 mod tests {
     use super::*;
 
-    #[test]
-    fn hidden_dampings_use_any_bracket_around_a_stretch() {
-        // Neighbours 2 and 3 sum to 53, above the threshold of 50, but the dampings 0 and 3
-        // around that stretch sum to 30: between them every component is at most the larger
-        // of its two values, so the stretch could hide.
-        assert_eq!(hidden_dampings(&[5.0, 10.0, 28.0, 25.0, 60.0], 3, 50.0), (0, 3));
-        // A damping measured visible stops the range, whatever a bracket around it says.
-        assert_eq!(hidden_dampings(&[5.0, 60.0, 5.0], 0, 50.0), (0, 0));
-        assert_eq!(hidden_dampings(&[5.0, 30.0, 30.0], 0, 50.0), (0, 2));
+    /// A made-up recording on which a resonance hides above `edge_hz` at dampings up to
+    /// `heavy`, and everywhere above 4 Hz.
+    fn field(edge_hz: f64, heavy: f64) -> impl FnMut(f64, f64) -> Option<(f64, f64)> {
+        move |f, z| Some((if (f > edge_hz && z <= heavy) || f > 4.0 { 10.0 } else { 500.0 }, 0.0))
     }
 
-    fn resonance(frequency_hz: f64, damping: f64, hide: Option<(f64, f64)>) -> Detectability {
-        Detectability {
-            effect: "stand_resonance",
-            probe: BTreeMap::from([("frequency_hz", frequency_hz), ("damping_ratio", damping)]),
-            size: String::new(),
-            energy: 0.0,
-            threshold: 1.0,
-            would_show: hide.is_none(),
-            shape_z: 0.0,
-            smallest: None,
-            experiment: "",
-            could_hide: hide.map(|(lo, hi)| {
-                BTreeMap::from([("frequency_hz", [Some(frequency_hz); 2]), ("damping_ratio", [Some(lo), Some(hi)])])
-            }),
-            disclosure_only: damping != 0.1,
-        }
+    /// True when some region holds this frequency and damping.
+    fn disclosed(regions: &[Region], f: f64, z: f64) -> bool {
+        regions.iter().any(|r| {
+            r.frequency_hz[0] <= f && f <= r.frequency_hz[1] && DAMPINGS[r.damping.0] <= z && z <= DAMPINGS[r.damping.1]
+        })
     }
 
     #[test]
-    fn a_light_resonance_hidden_where_the_probe_shows_joins_the_band_above() {
-        // At 2 Hz the probe at ζ 0.1 shows, but ζ 0.005-0.035 hides; at 3 Hz ζ 0.005-0.1 hides.
-        let mut out = vec![
-            resonance(2.0, 0.1, None),
-            resonance(2.0, 0.02, Some((0.005, 0.035))),
-            resonance(3.0, 0.1, Some((0.005, 0.1))),
-            resonance(5.0, 0.1, None),
-        ];
-        resonance_bands(&mut out);
-        let region = |p: &Detectability| p.could_hide.clone().unwrap_or_default();
-        assert_eq!(region(&out[1])["frequency_hz"], [Some(2.0), Some(3.0)]);
-        assert_eq!(region(&out[1])["damping_ratio"], [Some(0.005), Some(0.035)]);
-        // Nothing hides at 5 Hz: 3 Hz stands for itself alone.
-        assert_eq!(region(&out[2])["frequency_hz"], [Some(3.0), Some(3.0)]);
-        // The probes at the size that matters decide `none`; the disclosure alone does not.
+    fn frequencies_between_a_probe_that_shows_and_one_that_hides_are_measured() {
+        let columns = resonance_columns(field(2.37, 0.3), 100.0, BISECTIONS);
+        let frequencies: Vec<f64> = columns.iter().map(|c| c.frequency_hz).collect();
+        // 2-3 Hz is halved three times around the edge; nothing else differs at its two ends.
+        assert_eq!(frequencies.len(), RESONANCE_HZ.len() + 3, "{frequencies:?}");
+        let regions = hidden_regions(&columns);
+        // What nothing measured decides is an eighth of the interval, around the edge.
+        let below = frequencies.iter().copied().filter(|&f| f < 2.37).fold(0.0, f64::max);
+        assert!(below > 2.37 / 1.06, "{frequencies:?}");
+        assert_eq!(regions, vec![Region { frequency_hz: [below, 8.0], damping: (0, DAMPINGS.len() - 1) }]);
+        assert!(disclosed(&regions, 2.37, 0.3) && !disclosed(&regions, 2.3, 0.1));
+        // Without bisections the probes alone: nothing excludes 2-3 Hz.
+        let coarse = hidden_regions(&resonance_columns(field(2.37, 0.3), 100.0, 0));
+        assert_eq!(coarse, vec![Region { frequency_hz: [2.0, 8.0], damping: (0, DAMPINGS.len() - 1) }]);
+    }
+
+    #[test]
+    fn a_region_holds_the_dampings_not_measured_to_show() {
+        // Between 2.37 and 4 Hz only dampings up to 0.1 hide; above 4 Hz all of them.
+        let regions = hidden_regions(&resonance_columns(field(2.37, 0.1), 100.0, BISECTIONS));
+        // Up to the first damping measured to show (0.125): between it and 0.1 nothing decides.
+        assert!(disclosed(&regions, 2.4, 0.1) && disclosed(&regions, 3.5, 0.125), "{regions:?}");
+        assert!(!disclosed(&regions, 2.4, 0.15) && !disclosed(&regions, 3.5, 0.2), "{regions:?}");
+        // Heavier dampings from within an eighth of 3-5 Hz below 4 Hz.
+        assert!(disclosed(&regions, 3.95, 0.3) && !disclosed(&regions, 3.8, 0.3), "{regions:?}");
+        // A staircase of two.
+        assert_eq!(regions.len(), 2, "{regions:?}");
+    }
+
+    #[test]
+    fn the_disclosures_do_not_decide_none() {
+        let columns = resonance_columns(field(2.37, 0.3), 100.0, BISECTIONS);
+        let mut out = resonance_probes(&columns, 100.0, 100.0);
+        // The probes at 3, 5 and 8 Hz hide at the size that matters.
+        assert_eq!(out.iter().filter(|p| !p.disclosure_only && !p.would_show).count(), 3);
         assert!(!excluded(&out));
         out.retain(|p| p.would_show || p.disclosure_only);
+        assert!(out.iter().any(|p| p.disclosure_only));
         assert!(excluded(&out));
     }
 }

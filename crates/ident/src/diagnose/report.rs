@@ -598,53 +598,60 @@ fn hidden_beside(d: &Diagnosis) -> String {
     if hidden.is_empty() {
         return String::new();
     }
-    let sizes: Vec<String> = hidden
-        .iter()
-        .map(|p| {
-            format!(
-                "{} ({:.0} % of the evidence a claim needs){}",
-                p.size,
-                100.0 * p.energy / p.threshold,
-                resonance_band(p)
-            )
-        })
-        .collect();
     let mut experiments: Vec<&str> = hidden.iter().map(|p| p.experiment).collect();
     experiments.dedup();
     format!(
         " Beside it, this recording could not have shown {} (nor any smaller: a shorter delay or lag, a smaller \
          drift, band or force, a faster rate limit): the claim does not exclude them ({}).",
-        sizes.join(", "),
+        hidden_sizes(&hidden).join(", "),
         experiments.join("; ")
     )
 }
 
-/// The frequencies and dampings a hidden stand-resonance probe stands for (see
-/// [`detect::Detectability::could_hide`]), in words; empty for other classes.
-fn resonance_band(p: &detect::Detectability) -> String {
-    let Some(region) = p.could_hide.as_ref().filter(|_| p.effect == "stand_resonance") else { return String::new() };
-    match (region.get("frequency_hz"), region.get("damping_ratio")) {
-        (Some([Some(f0), Some(f1)]), Some([Some(z0), Some(z1)])) => {
-            let at = if f1 > f0 { format!("{f0:.1}-{f1:.1} Hz") } else { format!("{f0:.1} Hz") };
-            format!(", nor one at {at} with ζ {z0:.3}-{z1:.3}")
-        }
-        _ => String::new(),
+/// Each hidden probe in words with the share of the evidence a claim needs that it gives; the
+/// stand resonance's regions that could hide (see [`detect::Detectability::could_hide`])
+/// after its probes, in one phrase.
+fn hidden_sizes(hidden: &[&detect::Detectability]) -> Vec<String> {
+    let share = |p: &detect::Detectability| 100.0 * p.energy / p.threshold;
+    let resonance = |p: &&&detect::Detectability| p.effect == "stand_resonance";
+    let mut sizes: Vec<String> = hidden
+        .iter()
+        .filter(|p| !p.disclosure_only)
+        .map(|p| format!("{} ({:.0} % of the evidence a claim needs)", p.size, share(p)))
+        .collect();
+    let regions: Vec<&&detect::Detectability> = hidden.iter().filter(resonance).filter(|p| p.disclosure_only).collect();
+    let words: Vec<String> = regions
+        .iter()
+        .filter_map(|p| {
+            let region = p.could_hide.as_ref()?;
+            match (region.get("frequency_hz"), region.get("damping_ratio")) {
+                (Some([Some(f0), Some(f1)]), Some([Some(z0), Some(z1)])) => {
+                    Some(format!("{} with ζ {z0:.3}-{z1:.3}", detect::frequency_range(*f0, *f1)))
+                }
+                _ => None,
+            }
+        })
+        .collect();
+    if words.is_empty() {
+        return sizes;
     }
+    // The regions stand for every resonance not measured to show, so no share is given.
+    let phrase = format!("{} (wherever it was not measured to show)", words.join(" or "));
+    match sizes.iter().rposition(|s| s.starts_with("a stand resonance")) {
+        Some(last) => sizes[last] += &format!(", nor one at {phrase}"),
+        None => sizes.push(format!("a stand resonance at {phrase}")),
+    }
+    sizes
 }
 
 /// Nothing found, but this recording could not have shown every class of effect (or its
 /// residual carries one's shape): what could hide, and the experiment that would tell.
 fn undetectable(d: &Diagnosis) -> String {
-    let hidden: Vec<String> = d
-        .detectability
-        .iter()
-        .filter(|p| !p.would_show)
-        .map(|p| format!("{} ({:.0} % of the evidence a claim needs)", p.size, 100.0 * p.energy / p.threshold))
-        .collect();
+    let hidden = hidden_sizes(&d.detectability.iter().filter(|p| !p.would_show).collect::<Vec<_>>());
     let shaped: Vec<String> = d
         .detectability
         .iter()
-        .filter(|p| p.shape_z >= detect::SHAPE_Z)
+        .filter(|p| !p.disclosure_only && p.shape_z >= detect::SHAPE_Z)
         .map(|p| format!("{} (matched filter {:.1} standard deviations)", p.size, p.shape_z))
         .collect();
     let mut experiments: Vec<&str> = d
