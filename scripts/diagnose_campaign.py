@@ -634,6 +634,12 @@ def main():
     parser.add_argument("--deadline-s", type=float, help="stop starting cases after this long; report those done")
     parser.add_argument("--case", type=int, action="append", default=[],
                         help="run only this case of the draw (repeatable): the same case as in the full campaign")
+    parser.add_argument("--from-case", type=int, default=0,
+                        help="run only the cases of the draw from this index on (to finish a campaign stopped at "
+                        "its deadline; --merge joins the parts)")
+    parser.add_argument("--merge", nargs="+", metavar="JSON",
+                        help="do not diagnose: report the results of earlier runs of the same draw (their --json "
+                        "files) together, each case once")
     parser.add_argument("--keep", help="folder to keep each case's recording (CSV), given model (TOML) and "
                         "diagnosis (JSON) in, to rerun `jetbench diagnose` on it by hand")
     parser.add_argument("--simulate-only", action="store_true",
@@ -649,10 +655,21 @@ def main():
         parser.error("N and SEED are needed (or --self-test)")
     if args.simulate_only and not args.keep:
         parser.error("--simulate-only needs --keep DIR")
+    if args.merge:
+        results = merged(args.merge)
+        rng = random.Random(args.seed)
+        drawn = [draw_case(rng, i) for i in range(args.n)]
+        foreign = [r["case"]["index"] for r in results
+                   if r["case"]["index"] >= args.n or json.loads(json.dumps(drawn[r["case"]["index"]])) != r["case"]]
+        if foreign:
+            sys.exit(f"--merge: cases {foreign[:5]} are not those of the draw of {args.n} with seed {args.seed}")
+        finish(args, results, len(results), sum(r.get("time_s", 0.0) for r in results) / max(args.jobs, 1))
+        return
     rng = random.Random(args.seed)
     cases = [draw_case(rng, i) for i in range(args.n)]
     if args.case:
         cases = [c for c in cases if c["index"] in args.case]
+    cases = [c for c in cases if c["index"] >= args.from_case]
     if args.keep:
         Path(args.keep).mkdir(parents=True, exist_ok=True)
     if args.simulate_only:
@@ -680,9 +697,24 @@ def main():
                   f"{r.get('found')} {'' if not c else ('true' if t else 'FALSE')} {r['time_s']:.1f} s",
                   file=sys.stderr, flush=True)
     results.sort(key=lambda r: r["case"]["index"])
-    report = summarise(results, len(results), args.seed, time.monotonic() - start)
-    if len(results) < len(cases):
-        report += f"\nStopped at the deadline: {len(results)} of the {len(cases)} cases drawn were diagnosed.\n"
+    finish(args, results, len(cases), time.monotonic() - start)
+
+
+def merged(paths):
+    """The results of several runs of one draw (their --json files), each case once (the last
+    run's), in the order of the draw."""
+    by_case = {}
+    for path in paths:
+        for r in json.loads(Path(path).read_text())["results"]:
+            by_case[r["case"]["index"]] = r
+    return [by_case[i] for i in sorted(by_case)]
+
+
+def finish(args, results, drawn, elapsed_s):
+    """Report, plot and write the results."""
+    report = summarise(results, len(results), args.seed, elapsed_s)
+    if len(results) < drawn:
+        report += f"\nStopped at the deadline: {len(results)} of the {drawn} cases drawn were diagnosed.\n"
     graded = [grade(r) for r in results]
     if args.plot:
         plot_svg(results, args.plot)
