@@ -317,9 +317,12 @@ def expected(case):
     return sorted({"discrepancy" if n in OUTSIDE else n for n in case["effects"]})
 
 
-def simulate(case, path):
-    rng = random.Random(case["seed"])
-    u = profile(rng, case["duration_s"])
+def simulate(case, path, throttle=None, seed=None):
+    """The case's recording into `path` (CSV); its throttle is the case's random profile, or
+    `throttle` (one value per 10 ms) for a second recording of the same engine, whose noise is
+    drawn from `seed`. Returns the truth model's held-out MAE."""
+    rng = random.Random(case["seed"] if seed is None else seed)
+    u = profile(rng, case["duration_s"]) if throttle is None else throttle
     times = [k * STEP_S for k in range(len(u))]
     true, read = Engine(case["params"], case["effects"]).run(times, u)
     sigma = math.sqrt(case["noise_var"])
@@ -371,21 +374,54 @@ def prepare(case, workdir):
     return csv, model, truth, truth_mae
 
 
-def run_case(jetbench, case, workdir, keep=False):
+def run_case(jetbench, case, workdir, keep=False, discriminate=False):
     csv, model, truth, truth_mae = prepare(case, workdir)
     start = time.monotonic()
     out = subprocess.run([jetbench, "diagnose", "--model", str(model), str(csv), "--json"],
                          capture_output=True, text=True)
     elapsed = time.monotonic() - start
-    if keep:
-        Path(workdir, f"case{case['index']}.json").write_text(out.stdout)
-    else:
-        csv.unlink()
-        model.unlink()
-        truth.unlink()
+    first = Path(workdir, f"case{case['index']}.json")
+    first.write_text(out.stdout)
+    result = ({"case": case, "error": out.stderr.strip()[-300:], "time_s": elapsed, "truth_mae": truth_mae}
+              if out.returncode != 0 else outcome(case, json.loads(out.stdout), elapsed, truth_mae))
+    if discriminate and result.get("cause") == "ambiguous":
+        result["second"] = designed(jetbench, case, workdir, csv, model, first)
+    if not keep:
+        for f in (csv, model, truth, first):
+            f.unlink(missing_ok=True)
+    return result
+
+
+def designed(jetbench, case, workdir, csv, model, first):
+    """The loop an engineer runs on an ambiguous verdict: `jetbench excite --discriminate` designs
+    a campaign from the diagnosis, this file's engine records it (the same truth, fresh noise),
+    and `jetbench diagnose` takes both recordings. Returns the second diagnosis's outcome (or an
+    error), graded like the first."""
+    design = Path(workdir, f"case{case['index']}.design.csv")
+    second = Path(workdir, f"case{case['index']}.second.csv")
+    start = time.monotonic()
+    out = subprocess.run([jetbench, "excite", "--discriminate", str(first), "--model", str(model),
+                          "--seed", str(case["index"]), "--out", str(design)], capture_output=True, text=True)
     if out.returncode != 0:
-        return {"case": case, "error": out.stderr.strip()[-300:], "time_s": elapsed, "truth_mae": truth_mae}
-    d = json.loads(out.stdout)
+        return {"case": case, "error": "excite: " + out.stderr.strip()[-300:], "time_s": time.monotonic() - start}
+    with open(design) as f:
+        rows = [line.split(",") for line in f.read().splitlines()[1:] if line]
+    throttle = [float(r[1]) for r in rows]
+    simulate(case, second, throttle=throttle, seed=case["seed"] + 7919)
+    out = subprocess.run([jetbench, "diagnose", "--model", str(model), str(csv), str(second), "--json"],
+                         capture_output=True, text=True)
+    elapsed = time.monotonic() - start
+    design.unlink(missing_ok=True)
+    second.unlink(missing_ok=True)
+    if out.returncode != 0:
+        return {"case": case, "error": out.stderr.strip()[-300:], "time_s": elapsed}
+    r = outcome(case, json.loads(out.stdout), elapsed, None)
+    r["design_s"] = len(throttle) * STEP_S
+    return r
+
+
+def outcome(case, d, elapsed, truth_mae):
+    """What the campaign keeps of a diagnosis (`diagnose --json`)."""
     return {
         "case": case,
         "cause": d["cause"],
@@ -525,12 +561,49 @@ def summarise(results, n, seed, elapsed_s):
             lines.append(f"- case {case['index']} ({klass(case)}, {case['plant']}, {case['noise']} noise, "
                          f"{case['duration_s']} s): truth {case['effects'] or ('parameters off' if case['params_off'] else 'none')}; "
                          f"said {r['cause']} {r['found']}{' + refit' if r['refit'] else ''}")
+    lines += designed_section(results)
     lines += ["", "## Time per case", ""]
     times = sorted(r["time_s"] for r in results)
     if times:
         lines.append(f"median {times[len(times) // 2]:.1f} s, 95th percentile {times[int(0.95 * (len(times) - 1))]:.1f} s, "
                      f"longest {times[-1]:.1f} s (two cases at a time).")
     return "\n".join(lines) + "\n"
+
+
+def designed_section(results):
+    """What the designed experiment did to the ambiguous cases (`--discriminate`)."""
+    tried = [r for r in results if "second" in r]
+    if not tried:
+        return []
+    seconds = [r["second"] for r in tried]
+    graded = [grade(s) for s in seconds]
+    true = sum(t for _, t in graded)
+    claims = sum(c for c, _ in graded)
+    errors = sum("error" in s for s in seconds)
+    still = sum(s.get("cause") == "ambiguous" for s in seconds)
+    other = len(seconds) - claims - still - errors
+    first = [grade(r) for r in results]
+    all_claims = sum(c for c, _ in first) + claims
+    all_true = sum(t for _, t in first) + true
+    lines = ["", "## With the designed experiment", "",
+             f"Each of the {len(tried)} ambiguous cases got the loop an engineer would run: `jetbench excite "
+             "--discriminate` designed a campaign from the diagnosis (its default length and throttle limits), this "
+             "file's engine recorded it (the same truth, fresh noise), and `jetbench diagnose` took both recordings.",
+             "",
+             f"- claims: {claims} ({true} true, {claims - true} false); still ambiguous: {still}; unexplained or "
+             f"insufficient data: {other}; errors: {errors};",
+             f"- precision of claims over the whole campaign with the experiment: {all_true}/{all_claims}"
+             + (f" = {100 * all_true / all_claims:.1f} %" if all_claims else ""),
+             f"- ambiguous after it: {still}/{len(results)} = {100 * still / max(1, len(results)):.0f} % of the cases.",
+             ""]
+    for r, s, (c, t) in zip(tried, seconds, graded):
+        case = r["case"]
+        what = s.get("cause", "error: " + s.get("error", "")[:120])
+        lines.append(f"- case {case['index']} ({klass(case)}): truth {case['effects'] or ('parameters off' if case['params_off'] else 'none')}; "
+                     f"first {r['rivals'][0][0] if r.get('rivals') else []} leading; with the experiment {what} "
+                     f"{s.get('found', '')}{' + refit' if s.get('refit') else ''}"
+                     f"{'' if not c else (' (true)' if t else ' (FALSE)')}, {s['time_s']:.0f} s")
+    return lines
 
 
 def plot_svg(results, path):
@@ -634,6 +707,10 @@ def main():
     parser.add_argument("--deadline-s", type=float, help="stop starting cases after this long; report those done")
     parser.add_argument("--case", type=int, action="append", default=[],
                         help="run only this case of the draw (repeatable): the same case as in the full campaign")
+    parser.add_argument("--discriminate", action="store_true",
+                        help="on every ambiguous case, run the loop an engineer would: `jetbench excite "
+                        "--discriminate` designs a campaign, this file's engine records it, and `jetbench diagnose` "
+                        "takes both recordings; the report grades that answer too")
     parser.add_argument("--from-case", type=int, default=0,
                         help="run only the cases of the draw from this index on (to finish a campaign stopped at "
                         "its deadline; --merge joins the parts)")
@@ -682,7 +759,8 @@ def main():
     with tempfile.TemporaryDirectory() as tmp, concurrent.futures.ProcessPoolExecutor(args.jobs) as pool:
         workdir = args.keep or tmp
         results = []
-        futures = [pool.submit(functools.partial(run_case, args.jetbench, workdir=workdir, keep=bool(args.keep)), c)
+        futures = [pool.submit(functools.partial(run_case, args.jetbench, workdir=workdir, keep=bool(args.keep),
+                                                     discriminate=args.discriminate), c)
                    for c in cases]
         for future in concurrent.futures.as_completed(futures):
             if args.deadline_s and time.monotonic() - start > args.deadline_s:
@@ -696,6 +774,11 @@ def main():
             print(f"case {r['case']['index']:4d} {klass(r['case']):22s} {r.get('cause', 'error'):18s} "
                   f"{r.get('found')} {'' if not c else ('true' if t else 'FALSE')} {r['time_s']:.1f} s",
                   file=sys.stderr, flush=True)
+            if "second" in r:
+                two = r["second"]
+                c, t = grade(two)
+                print(f"     with the designed experiment: {two.get('cause', 'error'):18s} {two.get('found')} "
+                      f"{'' if not c else ('true' if t else 'FALSE')} {two['time_s']:.1f} s", file=sys.stderr, flush=True)
     results.sort(key=lambda r: r["case"]["index"])
     finish(args, results, len(cases), time.monotonic() - start)
 
