@@ -509,5 +509,8 @@ mod tests {
         assert_eq!(d.cause, Cause::MissingPhysics, "{}", d.verdict);
         assert_eq!(names, ["discrepancy"], "{}", d.verdict);
         assert!(d.refit.is_none(), "{}", d.verdict);
+        // The report says where the history started: well below the thrust, as it did.
+        let start = d.starts.first().and_then(|s| s.history_offset_n);
+        assert!(start.is_some_and(|h| h < -0.4 * t0 && h > -1.2 * t0), "{:?} against {}", d.starts, -0.8 * t0);
     }
 }

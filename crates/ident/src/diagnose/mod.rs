@@ -229,6 +229,23 @@ pub struct Refit {
     pub evidence: Evidence,
 }
 
+/// Where one run of the improved model starts its slow first-order states: fitted with the
+/// hypothesis (a recording starts some time after the tare and after the engine started, so
+/// a drift's bias and a soak's thrust history are still on their way), `None` where the
+/// improved model has no such state.
+#[derive(Clone, Debug, Serialize)]
+pub struct SlowStartFound {
+    /// The recording (its index among those given).
+    pub recording: usize,
+    /// Time of the run's first sample in that recording, s.
+    pub from_s: f64,
+    /// The sensor drift's bias at that sample, N (a sensor drift found).
+    pub sensor_bias_n: Option<f64>,
+    /// The thrust history's offset from the thrust at that sample, N (a discrepancy with a
+    /// thrust-history term found).
+    pub history_offset_n: Option<f64>,
+}
+
 /// The result of [`diagnose`].
 #[derive(Clone, Debug, Serialize)]
 pub struct Diagnosis {
@@ -285,6 +302,9 @@ pub struct Diagnosis {
     /// The sine the periodic rival fitted to the calibration part of the improved model's
     /// residual (a rival, not a finding: see `rivals`).
     pub periodic_rival: Option<residual::Periodic>,
+    /// Where each run of the improved model starts its slow states, when it has them: they
+    /// are fitted per run and charged as parameters (see [`problem::RunStart`]).
+    pub starts: Vec<SlowStartFound>,
     /// The improved model (refitted parameters, effects added).
     #[serde(skip)]
     pub improved: ModelFile,
@@ -583,6 +603,18 @@ pub fn diagnose(
             amplitude_n: s.amplitude_n(),
             share: s.share,
         }),
+        starts: problem
+            .runs
+            .iter()
+            .zip(&current.fit.spec.states)
+            .filter(|_| current.fit.spec.fits_bias_start() || current.fit.spec.fits_history_start())
+            .map(|(run, start)| SlowStartFound {
+                recording: run.series,
+                from_s: run.t0_s,
+                sensor_bias_n: current.fit.spec.fits_bias_start().then_some(start.slow.bias_n),
+                history_offset_n: current.fit.spec.fits_history_start().then_some(start.slow.history_offset_n),
+            })
+            .collect(),
         improved,
         sim_before: problem.per_row(&before.sim),
         sim_after: problem.per_row(&current.sim),
