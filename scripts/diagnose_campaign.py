@@ -712,8 +712,8 @@ def main():
                         "--discriminate` designs a campaign, this file's engine records it, and `jetbench diagnose` "
                         "takes both recordings; the report grades that answer too")
     parser.add_argument("--from-case", type=int, default=0,
-                        help="run only the cases of the draw from this index on (to finish a campaign stopped at "
-                        "its deadline; --merge joins the parts)")
+                        help="run the cases of the draw from this index on (to finish a campaign stopped at its "
+                        "deadline; --merge joins the parts), beside any --case")
     parser.add_argument("--merge", nargs="+", metavar="JSON",
                         help="do not diagnose: report the results of earlier runs of the same draw (their --json "
                         "files) together, each case once")
@@ -744,9 +744,9 @@ def main():
         return
     rng = random.Random(args.seed)
     cases = [draw_case(rng, i) for i in range(args.n)]
-    if args.case:
-        cases = [c for c in cases if c["index"] in args.case]
-    cases = [c for c in cases if c["index"] >= args.from_case]
+    if args.case or args.from_case:
+        # Either selects: the cases named, and every case from --from-case on.
+        cases = [c for c in cases if c["index"] in args.case or 0 < args.from_case <= c["index"]]
     if args.keep:
         Path(args.keep).mkdir(parents=True, exist_ok=True)
     if args.simulate_only:
