@@ -1089,4 +1089,32 @@ mod tests {
         }
         assert!((e.state().thrust_n - plant.rest_thrust_n(50.0)).abs() < 0.01);
     }
+
+    /// A sensor side run on a kept engine path reads what a full run of that plant reads,
+    /// bit for bit: with an engine side that shapes the throttle and has a thrust history,
+    /// every sensor-side effect changed, over the whole run and a prefix of it.
+    #[test]
+    fn the_sensor_side_replayed_on_a_kept_path_is_the_full_run_bit_for_bit() {
+        let p = Preset::P100Diesel.params();
+        let engine =
+            ["actuator_lag:time_constant_s=0.2", "discrepancy:gain_history_per_n=-0.0005,history_time_constant_s=30"];
+        let recorded = Plant::new(p, with(&engine));
+        let sensor = [
+            "bearing_friction:force_n=1.5",
+            "stand_resonance:frequency_hz=3,damping_ratio=0.05",
+            "sensor_drift:gain=0.03,time_constant_s=40",
+        ];
+        let replayed = Plant::new(p, with(&[&engine[..], &sensor[..]].concat()));
+        assert_eq!(recorded.engine_side(), replayed.engine_side());
+        let u = step_input();
+        let initial = State { thrust_n: recorded.rest_thrust_n(u[0]), thrust_rate_n_per_s: 0.0 };
+        let slow = SlowStart { bias_n: 0.4, history_offset_n: -3.0 };
+        let (mut out, mut path, mut expected, mut got) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        assert!(recorded.free_run_recorded(1, 2.0, initial, slow, &u, &mut out, &mut path).is_none());
+        for len in [u.len(), 700] {
+            assert!(replayed.free_run_from(1, 2.0, initial, slow, &u[..len], &mut expected).is_none());
+            replayed.replay_sensor(1, initial, slow, &path, len, None, &mut got);
+            assert_eq!(got, expected, "{len} samples");
+        }
+    }
 }
