@@ -285,6 +285,7 @@ impl Plant {
     /// values, bit for bit, as [`Plant::free_run_from`] of this plant, which steps the
     /// engine again. `diverged_s` is what the recorded run returned (its samples from then
     /// on are NaN). Not for a turbojet plant (its path is not recorded).
+    #[allow(clippy::too_many_arguments)]
     pub fn replay_sensor(
         &self,
         substeps: usize,

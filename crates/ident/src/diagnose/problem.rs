@@ -179,12 +179,22 @@ pub(crate) type Sim = Vec<Vec<f64>>;
 pub(crate) struct SimCache {
     /// `e^(−STEP_S/τ)` (its bits) and its powers `0, 1, …`.
     decay_powers: (u64, Vec<f64>),
-    /// The plant's engine side ([`Plant::engine_side`]), each run's engine state and
-    /// thrust-history start, and whether the validation part was run too.
-    key: Option<(Plant, Vec<(State, f64)>, bool)>,
+    /// Whose engine path it is.
+    key: Option<EngineKey>,
     /// Per run: the engine's thrust at every substep, and where it diverged (s from the
     /// run's start).
     runs: Vec<(Vec<f64>, Option<f64>)>,
+}
+
+/// What fixes the engine's path in a simulation of every run.
+#[derive(Clone, Debug, PartialEq)]
+struct EngineKey {
+    /// The plant's engine side ([`Plant::engine_side`]).
+    plant: Plant,
+    /// Each run's engine state and thrust-history start.
+    starts: Vec<(State, f64)>,
+    /// True when the validation part was run too.
+    whole: bool,
 }
 
 impl<'a> Problem<'a> {
@@ -429,7 +439,7 @@ impl<'a> Problem<'a> {
         failure.map_or(Ok(()), Err)
     }
 
-    /// [`Problem::simulate`], the same values bit for bit, on the engine path in `paths`
+    /// [`Problem::simulate`], the same values bit for bit, on the engine path in `cache`
     /// when it is this plant's (see [`SimCache`]); otherwise simulated in full and its
     /// path kept there.
     pub fn simulate_reusing(
@@ -437,7 +447,7 @@ impl<'a> Problem<'a> {
         plant: &Plant,
         starts: &[RunStart],
         calibration_only: bool,
-        paths: &mut SimCache,
+        cache: &mut SimCache,
         out: &mut Sim,
     ) -> Result<(), (usize, f64)> {
         if plant.turbojet.is_some() {
@@ -448,12 +458,15 @@ impl<'a> Problem<'a> {
         let end = |run: &Run| if calibration_only { run.cut.min(run.u.len()) } else { run.u.len() };
         out.resize_with(self.runs.len(), Vec::new);
         let mut failure = None;
-        let reusable = paths.key.as_ref().is_some_and(|(p, s, whole)| {
-            (*whole || calibration_only) && *p == engine && *s == engine_starts && paths.runs.len() == self.runs.len()
+        let reusable = cache.key.as_ref().is_some_and(|key| {
+            (key.whole || calibration_only)
+                && key.plant == engine
+                && key.starts == engine_starts
+                && cache.runs.len() == self.runs.len()
         });
         if reusable {
             for (((run, sim), start), (path, diverged_s)) in
-                self.runs.iter().zip(out.iter_mut()).zip(starts).zip(&paths.runs)
+                self.runs.iter().zip(out.iter_mut()).zip(starts).zip(&cache.runs)
             {
                 let end = end(run);
                 plant.replay_sensor(SUBSTEPS, start.state, start.slow, path, end, *diverged_s, sim);
@@ -464,9 +477,9 @@ impl<'a> Problem<'a> {
             }
             return failure.map_or(Ok(()), Err);
         }
-        paths.runs.resize_with(self.runs.len(), Default::default);
+        cache.runs.resize_with(self.runs.len(), Default::default);
         for (((run, sim), start), (path, diverged_s)) in
-            self.runs.iter().zip(out.iter_mut()).zip(starts).zip(paths.runs.iter_mut())
+            self.runs.iter().zip(out.iter_mut()).zip(starts).zip(cache.runs.iter_mut())
         {
             let end = end(run);
             *diverged_s = None;
@@ -481,7 +494,7 @@ impl<'a> Problem<'a> {
                 failure.get_or_insert((run.series, run.t0_s + at));
             }
         }
-        paths.key = Some((engine, engine_starts, !calibration_only));
+        cache.key = Some(EngineKey { plant: engine, starts: engine_starts, whole: !calibration_only });
         failure.map_or(Ok(()), Err)
     }
 
