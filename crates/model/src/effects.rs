@@ -82,6 +82,13 @@ impl EffectKind {
         EffectKind::SensorDrift,
     ];
 
+    /// True for an effect on the reading alone (the bearing's play, the stand, the
+    /// sensor's drift): the engine runs the same with or without it, so a simulation may
+    /// keep the engine's path and run only the sensor side again ([`crate::Plant::replay_sensor`]).
+    pub fn is_sensor_side(self) -> bool {
+        matches!(self, EffectKind::SensorDrift | EffectKind::BearingFriction | EffectKind::StandResonance)
+    }
+
     /// Name in model files (`[effects.<name>]`), on the command line and in JSON.
     pub fn name(self) -> &'static str {
         match self {

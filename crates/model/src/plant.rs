@@ -237,6 +237,96 @@ impl Plant {
         }
         None
     }
+
+    /// This plant without its sensor-side effects ([`EffectKind::is_sensor_side`]): two
+    /// plants with the same engine side drive the sensor with the same engine thrust.
+    pub fn engine_side(&self) -> Plant {
+        let mut effects = self.effects.clone();
+        for kind in EffectKind::ALL.into_iter().filter(|k| k.is_sensor_side()) {
+            effects = effects.without(kind);
+        }
+        Plant { params: self.params, effects, turbojet: self.turbojet }
+    }
+
+    /// [`Plant::free_run_from`] that also keeps the engine's path: the thrust at the end
+    /// of every substep, in `thrust_n` (up to a divergence), so that
+    /// [`Plant::replay_sensor`] can run another sensor side on it without stepping the
+    /// engine again.
+    #[allow(clippy::too_many_arguments)]
+    pub fn free_run_recorded(
+        &self,
+        substeps: usize,
+        t0_s: f64,
+        initial: State,
+        slow: SlowStart,
+        u_pct: &[f64],
+        out: &mut Vec<f64>,
+        thrust_n: &mut Vec<f64>,
+    ) -> Option<f64> {
+        let mut engine = PlantEngine::new(self, initial, slow, u_pct.first().copied().unwrap_or(0.0), t0_s, substeps);
+        out.clear();
+        thrust_n.clear();
+        out.push(engine.measured_n());
+        for (k, &u) in u_pct.iter().enumerate().take(u_pct.len().saturating_sub(1)) {
+            match engine.step_recorded(u, thrust_n) {
+                Ok(s) => out.push(s.measured_n),
+                Err(_) => {
+                    out.resize(u_pct.len(), f64::NAN);
+                    return Some((k + 1) as f64 * STEP_S);
+                }
+            }
+        }
+        None
+    }
+
+    /// The reading of this plant along an engine path kept by [`Plant::free_run_recorded`]
+    /// of a plant with the same engine side ([`Plant::engine_side`]), from the same
+    /// `initial` state and thrust-history start, over its first `len` samples: the same
+    /// values, bit for bit, as [`Plant::free_run_from`] of this plant, which steps the
+    /// engine again. `diverged_s` is what the recorded run returned (its samples from then
+    /// on are NaN). Not for a turbojet plant (its path is not recorded).
+    #[allow(clippy::too_many_arguments)]
+    pub fn replay_sensor(
+        &self,
+        substeps: usize,
+        initial: State,
+        slow: SlowStart,
+        thrust_n: &[f64],
+        len: usize,
+        diverged_s: Option<f64>,
+        out: &mut Vec<f64>,
+    ) {
+        let mut engine = PlantEngine::new(self, initial, slow, 0.0, 0.0, substeps);
+        out.clear();
+        if len == 0 {
+            return;
+        }
+        out.push(engine.measured_n());
+        let mut t_start = initial.thrust_n;
+        for step in thrust_n.chunks_exact(engine.substeps).take(len - 1) {
+            for &t in step {
+                engine.sense(t_start, t);
+                t_start = t;
+            }
+            out.push(engine.measured_n());
+        }
+        debug_assert!(diverged_s.is_some() || out.len() == len, "the path covers the run unless it diverged");
+        out.resize(len, f64::NAN);
+    }
+}
+
+/// The throttle map for a throttle the engine follows, `u_pct`, %: `v(u)` and the
+/// discrepancy's hinges.
+#[inline(always)]
+fn drive_of(params: &Params, discrepancy: Option<&Discrepancy>, u_pct: f64) -> Drive {
+    let v = params.v(u_pct);
+    match discrepancy {
+        Some(disc) if disc.law.has_hinges() => {
+            let (below, above) = DiscrepancyLaw::hinges(v, disc.v_below, disc.v_above);
+            Drive { v, below, above }
+        }
+        _ => Drive { v, below: 0.0, above: 0.0 },
+    }
 }
 
 /// A linear first-order state `ẋ = (u − x)/τ` advanced over `h` with `u` moving
@@ -439,6 +529,27 @@ impl PlantEngine {
     /// Advances one [`STEP_S`] with `throttle_pct` commanded; fails like
     /// [`crate::Engine::step`] on divergence or a non-finite throttle.
     pub fn step(&mut self, throttle_pct: f64) -> Result<PlantSample, ModelError> {
+        self.step_with(throttle_pct, |_| {})
+    }
+
+    /// [`PlantEngine::step`] that appends the engine's thrust at the end of each substep
+    /// to `thrust_n` (only for a step that does not diverge).
+    fn step_recorded(&mut self, throttle_pct: f64, thrust_n: &mut Vec<f64>) -> Result<PlantSample, ModelError> {
+        let mark = thrust_n.len();
+        let sample = self.step_with(throttle_pct, |t| thrust_n.push(t));
+        if sample.is_err() {
+            thrust_n.truncate(mark);
+        }
+        sample
+    }
+
+    /// [`PlantEngine::step`], handing each substep's thrust to `substep_thrust_n`.
+    #[inline(always)]
+    fn step_with(
+        &mut self,
+        throttle_pct: f64,
+        mut substep_thrust_n: impl FnMut(f64),
+    ) -> Result<PlantSample, ModelError> {
         if !throttle_pct.is_finite() {
             return Err(ModelError::InvalidThrottle { throttle_pct });
         }
@@ -478,6 +589,7 @@ impl PlantEngine {
                 return Err(self.diverged(at));
             }
             self.sense(t_start, t);
+            substep_thrust_n(t);
         }
         self.state = State { thrust_n: t, thrust_rate_n_per_s: d };
         self.steps += 1;
@@ -523,14 +635,7 @@ impl PlantEngine {
 
     /// The throttle map for a throttle the engine follows.
     fn drive_of(&self, u_pct: f64) -> Drive {
-        let v = self.params.v(u_pct);
-        match self.discrepancy {
-            Some(disc) if disc.law.has_hinges() => {
-                let (below, above) = DiscrepancyLaw::hinges(v, disc.v_below, disc.v_above);
-                Drive { v, below, above }
-            }
-            _ => Drive { v, below: 0.0, above: 0.0 },
-        }
+        drive_of(&self.params, self.discrepancy.as_ref(), u_pct)
     }
 
     /// Runs the throttle path over the ticks of substep `i` and averages the throttle
@@ -549,17 +654,18 @@ impl PlantEngine {
                 }
             };
         }
+        if self.ticks == 1 {
+            let u = self.path.tick(i);
+            return self.drive_of(u);
+        }
         let mut sum = Drive::default();
-        for j in 0..self.ticks {
-            let u = self.path.tick(i * self.ticks + j);
-            let drive = self.drive_of(u);
-            if self.ticks == 1 {
-                return drive;
-            }
+        let (params, discrepancy) = (self.params, self.discrepancy);
+        self.path.ticks(i * self.ticks, self.ticks, |u| {
+            let drive = drive_of(&params, discrepancy.as_ref(), u);
             sum.v += drive.v;
             sum.below += drive.below;
             sum.above += drive.above;
-        }
+        });
         let n = self.ticks as f64;
         Drive { v: sum.v / n, below: sum.below / n, above: sum.above / n }
     }
@@ -983,5 +1089,33 @@ mod tests {
             e.step(50.0).unwrap();
         }
         assert!((e.state().thrust_n - plant.rest_thrust_n(50.0)).abs() < 0.01);
+    }
+
+    /// A sensor side run on a kept engine path reads what a full run of that plant reads,
+    /// bit for bit: with an engine side that shapes the throttle and has a thrust history,
+    /// every sensor-side effect changed, over the whole run and a prefix of it.
+    #[test]
+    fn the_sensor_side_replayed_on_a_kept_path_is_the_full_run_bit_for_bit() {
+        let p = Preset::P100Diesel.params();
+        let engine =
+            ["actuator_lag:time_constant_s=0.2", "discrepancy:gain_history_per_n=-0.0005,history_time_constant_s=30"];
+        let recorded = Plant::new(p, with(&engine));
+        let sensor = [
+            "bearing_friction:force_n=1.5",
+            "stand_resonance:frequency_hz=3,damping_ratio=0.05",
+            "sensor_drift:gain=0.03,time_constant_s=40",
+        ];
+        let replayed = Plant::new(p, with(&[&engine[..], &sensor[..]].concat()));
+        assert_eq!(recorded.engine_side(), replayed.engine_side());
+        let u = step_input();
+        let initial = State { thrust_n: recorded.rest_thrust_n(u[0]), thrust_rate_n_per_s: 0.0 };
+        let slow = SlowStart { bias_n: 0.4, history_offset_n: -3.0 };
+        let (mut out, mut path, mut expected, mut got) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        assert!(recorded.free_run_recorded(1, 2.0, initial, slow, &u, &mut out, &mut path).is_none());
+        for len in [u.len(), 700] {
+            assert!(replayed.free_run_from(1, 2.0, initial, slow, &u[..len], &mut expected).is_none());
+            replayed.replay_sensor(1, initial, slow, &path, len, None, &mut got);
+            assert_eq!(got, expected, "{len} samples");
+        }
     }
 }

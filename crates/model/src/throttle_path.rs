@@ -228,11 +228,38 @@ impl ThrottlePath {
     /// just pushed, %: the commanded throttle averaged over the tick one delay earlier
     /// (averaging makes the response a smooth function of the delay, which a fit
     /// needs), then rate-limited, then lagged. Ticks must be read in order, each once.
+    #[inline]
     pub fn tick(&mut self, tick: usize) -> f64 {
-        let mut u = match self.delay {
+        let u = match self.delay {
             None => self.rows.back(0),
             Some(d) => self.delayed_mean(tick as f64 * TICK_S - d.delay_s, TICK_S),
         };
+        self.shape(u)
+    }
+
+    /// [`ThrottlePath::tick`] for ticks `first..first + count` in order, each throttle
+    /// handed to `each`: the same values, with what does not change from tick to tick
+    /// (the row without a delay) read once.
+    #[inline]
+    pub fn ticks(&mut self, first: usize, count: usize, mut each: impl FnMut(f64)) {
+        match self.delay {
+            None => {
+                let u = self.rows.back(0);
+                for _ in 0..count {
+                    each(self.shape(u));
+                }
+            }
+            Some(_) => {
+                for tick in first..first + count {
+                    each(self.tick(tick));
+                }
+            }
+        }
+    }
+
+    /// The rate limit and the lag over one tick, from the delayed command `u`, %.
+    #[inline(always)]
+    fn shape(&mut self, mut u: f64) -> f64 {
         if let Some((up, down)) = self.rate_limit {
             self.rate_limited_pct += (u - self.rate_limited_pct).clamp(-down, up);
             u = self.rate_limited_pct;

@@ -12,7 +12,7 @@
 use jetbench_model::{Effect, EffectKind, Effects, Params, Plant, State};
 use nalgebra::{DMatrix, DVector};
 
-use super::problem::{Part, Problem, RunStart, Sim};
+use super::problem::{Part, Problem, RunStart, Sim, SimCache};
 
 /// Iterations of a fit (each costs one simulation per free parameter).
 const MAX_ITERATIONS: usize = 25;
@@ -340,6 +340,7 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
         }
     };
     let mut sim = Sim::new();
+    let mut cache = SimCache::default();
     let sigma_w = problem.ar().innovation_var.sqrt();
     let given: Vec<f64> = layout
         .iter()
@@ -348,7 +349,7 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
         .collect();
     let mut evaluate = |x: &[f64], r: &mut Vec<f64>| -> Option<f64> {
         let spec = build(x);
-        simulate_calibration(problem, fixed, &spec, &mut sim)?;
+        simulate_calibration(problem, fixed, &spec, &mut cache, &mut sim)?;
         problem.innovations(&sim, Part::Calibration, r);
         // The refit's prior, as pseudo-residuals in the innovations' units.
         for (j, slot) in layout.iter().enumerate() {
@@ -367,7 +368,7 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
     let mut sse = evaluate(&x, &mut r)?;
     if k == 0 {
         return Some(Fit {
-            spec: with_bias_starts(problem, fixed, build(&x)),
+            spec: with_bias_starts(problem, fixed, build(&x), &mut SimCache::default()),
             param_stderr: [f64::NAN; 10],
             stderr: Vec::new(),
         });
@@ -375,9 +376,13 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
     let mut lambda = 1e-3;
     let mut jac = DMatrix::<f64>::zeros(r.len(), k);
     let mut trial_r = Vec::new();
+    // The sensor-side values' columns first, while the engine path kept is that of `x`
+    // (see [`SimCache`]); each column is the same in any order.
+    let sensor_side = |j: &usize| matches!(layout[*j], Slot::Value(e, _) if spec.effects[e].0.is_sensor_side());
+    let columns: Vec<usize> = (0..k).filter(sensor_side).chain((0..k).filter(|j| !sensor_side(j))).collect();
     for _ in 0..MAX_ITERATIONS {
         // Forward differences, stepping inward at an upper bound.
-        for j in 0..k {
+        for &j in &columns {
             let mut xj = x.clone();
             let mut h = 1e-4 * x[j].abs().max(1.0);
             if xj[j] + h > bounds[j].1 / scales[j] {
@@ -440,17 +445,23 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
             Slot::History(_) => {}
         }
     }
-    Some(Fit { spec: with_bias_starts(problem, fixed, build(&x)), param_stderr, stderr })
+    Some(Fit { spec: with_bias_starts(problem, fixed, build(&x), &mut cache), param_stderr, stderr })
 }
 
 /// Simulates `spec` over the calibration part, its sensor-bias starts fitted there when it
 /// has a sensor drift (the bias started at 0, its fitted start's decay added: the same
 /// reading as a simulation from that start). `None` when it diverges; the fitted starts
 /// otherwise (empty without a drift).
-fn simulate_calibration(problem: &Problem<'_>, fixed: &Effects, spec: &Spec, sim: &mut Sim) -> Option<Vec<f64>> {
+fn simulate_calibration(
+    problem: &Problem<'_>,
+    fixed: &Effects,
+    spec: &Spec,
+    cache: &mut SimCache,
+    sim: &mut Sim,
+) -> Option<Vec<f64>> {
     let plant = spec.plant(fixed)?;
     let Some(drift) = spec.values(EffectKind::SensorDrift).filter(|_| spec.fits_bias_start()) else {
-        problem.simulate(&plant, &spec.states, true, sim).ok()?;
+        problem.simulate_reusing(&plant, &spec.states, true, cache, sim).ok()?;
         return Some(Vec::new());
     };
     let tared: Vec<RunStart> = spec
@@ -458,18 +469,18 @@ fn simulate_calibration(problem: &Problem<'_>, fixed: &Effects, spec: &Spec, sim
         .iter()
         .map(|s| RunStart { slow: jetbench_model::SlowStart { bias_n: 0.0, ..s.slow }, ..*s })
         .collect();
-    problem.simulate(&plant, &tared, true, sim).ok()?;
-    Some(problem.fit_bias_starts(sim, drift[0], drift[1], Part::Calibration))
+    problem.simulate_reusing(&plant, &tared, true, cache, sim).ok()?;
+    Some(problem.fit_bias_starts(sim, drift[0], drift[1], Part::Calibration, cache))
 }
 
 /// `spec` with its sensor-bias starts fitted on the calibration part (see
 /// [`simulate_calibration`]); as it is without a drift or when it diverges.
-fn with_bias_starts(problem: &Problem<'_>, fixed: &Effects, mut spec: Spec) -> Spec {
+fn with_bias_starts(problem: &Problem<'_>, fixed: &Effects, mut spec: Spec, cache: &mut SimCache) -> Spec {
     if !spec.fits_bias_start() {
         return spec;
     }
     let mut sim = Sim::new();
-    if let Some(biases) = simulate_calibration(problem, fixed, &spec, &mut sim) {
+    if let Some(biases) = simulate_calibration(problem, fixed, &spec, cache, &mut sim) {
         for (start, b) in spec.states.iter_mut().zip(biases) {
             start.slow.bias_n = b;
         }
@@ -478,10 +489,16 @@ fn with_bias_starts(problem: &Problem<'_>, fixed: &Effects, mut spec: Spec) -> S
 }
 
 /// The sum of squared innovations of `spec` over the calibration part, its sensor-bias
-/// starts fitted (what a fit of it starts from). `None` when it diverges.
-pub(crate) fn calibration_sse(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option<f64> {
+/// starts fitted (what a fit of it starts from), on the engine path in `cache` when it is
+/// this spec's. `None` when it diverges.
+pub(crate) fn calibration_sse(
+    problem: &Problem<'_>,
+    fixed: &Effects,
+    spec: &Spec,
+    cache: &mut SimCache,
+) -> Option<f64> {
     let mut sim = Sim::new();
-    simulate_calibration(problem, fixed, spec, &mut sim)?;
+    simulate_calibration(problem, fixed, spec, cache, &mut sim)?;
     Some(problem.sse(&sim, Part::Calibration).0)
 }
 

@@ -70,7 +70,7 @@ use serde::Serialize;
 use crate::series::Series;
 use crate::IdentError;
 use fit::{Fit, Spec};
-use problem::{DataReport, Part, Problem, Sim};
+use problem::{DataReport, Part, Problem, Sim, SimCache};
 use residual::Analysis;
 use rivals::{Entry, Rival};
 
@@ -364,13 +364,16 @@ struct Search<'p, 'a> {
     floor_n: f64,
     /// Every explanation fitted, for the rivals.
     pool: RefCell<Vec<Entry>>,
+    /// The engine path of the last hypothesis scored: rivals that differ from it on the
+    /// sensor side alone are scored without stepping the engine again.
+    cache: RefCell<SimCache>,
 }
 
 impl Search<'_, '_> {
     fn evaluate(&self, fit: Fit) -> Option<Scored> {
         let plant = fit.spec.plant(&self.model.effects)?;
         let mut sim = Sim::new();
-        self.problem.simulate(&plant, &fit.spec.states, false, &mut sim).ok()?;
+        self.problem.simulate_reusing(&plant, &fit.spec.states, false, &mut self.cache.borrow_mut(), &mut sim).ok()?;
         let (sse_val, n_val) = self.problem.sse(&sim, Part::Validation);
         let mae_val = self.problem.mae(&sim, Part::Validation);
         let scored =
@@ -436,11 +439,13 @@ impl Search<'_, '_> {
 
     /// A catalogue effect added to `current`: the best of a coarse grid, then a joint fit.
     fn try_effect(&self, current: &Spec, kind: EffectKind, peak_hz: Option<f64>) -> Option<Scored> {
+        // A sensor-side effect's grid runs on one engine path (see [`SimCache`]).
+        let mut cache = SimCache::default();
         let start = fit::start_grid(kind, peak_hz)
             .into_iter()
             .filter_map(|g| {
                 let spec = current.with(kind, g.clone());
-                Some((fit::calibration_sse(self.problem, &self.model.effects, &spec)?, g))
+                Some((fit::calibration_sse(self.problem, &self.model.effects, &spec, &mut cache)?, g))
             })
             .min_by(|a, b| a.0.total_cmp(&b.0))?
             .1;
@@ -487,7 +492,14 @@ pub fn diagnose(
     progress("simulating the model over the recording");
     let mut given = Spec::new(model.model, problem.given_states());
     given.history_max_s = problem.longest_run_s() / 3.0;
-    let search = Search { problem: &problem, model, options, floor_n, pool: RefCell::new(Vec::new()) };
+    let search = Search {
+        problem: &problem,
+        model,
+        options,
+        floor_n,
+        pool: RefCell::new(Vec::new()),
+        cache: RefCell::new(SimCache::default()),
+    };
     let before = search.fit(&given).ok_or_else(|| diverged(&problem, &nominal, data))?;
     progress("analysing the residual");
     let analysis_before = residual::analyse(&problem, &before.sim);

@@ -165,6 +165,38 @@ pub(crate) struct Problem<'a> {
 /// Simulated measured thrust per run, on its grid.
 pub(crate) type Sim = Vec<Vec<f64>>;
 
+/// What consecutive simulations of a fit share, so that none is computed twice:
+///
+/// - the engine's path in the last simulation by [`Problem::simulate_reusing`]: a plant that
+///   differs from that one on the sensor side alone (a stand, a drift, a bearing's play) is
+///   simulated by running its sensor side on the path, without stepping the engine again
+///   (a fit of a sensor-side effect, and the grid it starts from, step the engine once);
+/// - the powers of a sensor drift's decay per grid step, which
+///   [`Problem::fit_bias_starts`] regresses on, for the last time constant.
+///
+/// Every value is the one computed afresh, bit for bit.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct SimCache {
+    /// `e^(−STEP_S/τ)` (its bits) and its powers `0, 1, …`.
+    decay_powers: (u64, Vec<f64>),
+    /// Whose engine path it is.
+    key: Option<EngineKey>,
+    /// Per run: the engine's thrust at every substep, and where it diverged (s from the
+    /// run's start).
+    runs: Vec<(Vec<f64>, Option<f64>)>,
+}
+
+/// What fixes the engine's path in a simulation of every run.
+#[derive(Clone, Debug, PartialEq)]
+struct EngineKey {
+    /// The plant's engine side ([`Plant::engine_side`]).
+    plant: Plant,
+    /// Each run's engine state and thrust-history start.
+    starts: Vec<(State, f64)>,
+    /// True when the validation part was run too.
+    whole: bool,
+}
+
 impl<'a> Problem<'a> {
     /// Puts `data` on the grid, rejects outliers, estimates the noise, splits each file
     /// at `1 − holdout` of its duration and fits each run's initial state under `nominal`.
@@ -299,10 +331,25 @@ impl<'a> Problem<'a> {
     /// been simulated with the bias starting at 0. A bias follows `gain·T` from a tare, so it
     /// starts between 0 and `gain` times the highest reading: the fit is held there.
     /// Returns the starts, one per run.
-    pub fn fit_bias_starts(&self, sim: &mut Sim, gain: f64, time_constant_s: f64, part: Part) -> Vec<f64> {
+    pub fn fit_bias_starts(
+        &self,
+        sim: &mut Sim,
+        gain: f64,
+        time_constant_s: f64,
+        part: Part,
+        cache: &mut SimCache,
+    ) -> Vec<f64> {
         let reach = gain * self.reading_max_n();
         let (lo, hi) = (reach.min(0.0), reach.max(0.0));
         let decay = (-STEP_S / time_constant_s).exp();
+        let longest = self.runs.iter().map(|r| r.y.len()).max().unwrap_or(0);
+        let (bits, powers) = &mut cache.decay_powers;
+        if *bits != decay.to_bits() || powers.len() < longest {
+            *bits = decay.to_bits();
+            powers.clear();
+            powers.extend((0..longest).map(|k| decay.powi(k as i32)));
+        }
+        let powers = &cache.decay_powers.1;
         let (mut wr, mut wz) = (Vec::new(), Vec::new());
         let mut out = Vec::with_capacity(self.runs.len());
         for (i, run) in self.runs.iter().enumerate() {
@@ -312,12 +359,7 @@ impl<'a> Problem<'a> {
             };
             let residual = |k: usize| run.y.get(k).map_or(f64::NAN, |y| y - m.get(k).copied().unwrap_or(f64::NAN));
             self.run_innovations(i, residual, part, &mut wr);
-            self.run_innovations(
-                i,
-                |k| if residual(k).is_finite() { decay.powi(k as i32) } else { f64::NAN },
-                part,
-                &mut wz,
-            );
+            self.run_innovations(i, |k| if residual(k).is_finite() { powers[k] } else { f64::NAN }, part, &mut wz);
             let (zz, zr) = wz.iter().zip(&wr).fold((0.0, 0.0), |(zz, zr), (z, r)| (zz + z * z, zr + z * r));
             let b = if zz > 0.0 && zr.is_finite() { (zr / zz).clamp(lo, hi) } else { 0.0 };
             let mut z = 1.0;
@@ -394,6 +436,65 @@ impl<'a> Problem<'a> {
                 failure.get_or_insert((run.series, run.t0_s + at));
             }
         }
+        failure.map_or(Ok(()), Err)
+    }
+
+    /// [`Problem::simulate`], the same values bit for bit, on the engine path in `cache`
+    /// when it is this plant's (see [`SimCache`]); otherwise simulated in full and its
+    /// path kept there.
+    pub fn simulate_reusing(
+        &self,
+        plant: &Plant,
+        starts: &[RunStart],
+        calibration_only: bool,
+        cache: &mut SimCache,
+        out: &mut Sim,
+    ) -> Result<(), (usize, f64)> {
+        if plant.turbojet.is_some() {
+            return self.simulate(plant, starts, calibration_only, out);
+        }
+        let engine = plant.engine_side();
+        let engine_starts: Vec<(State, f64)> = starts.iter().map(|s| (s.state, s.slow.history_offset_n)).collect();
+        let end = |run: &Run| if calibration_only { run.cut.min(run.u.len()) } else { run.u.len() };
+        out.resize_with(self.runs.len(), Vec::new);
+        let mut failure = None;
+        let reusable = cache.key.as_ref().is_some_and(|key| {
+            (key.whole || calibration_only)
+                && key.plant == engine
+                && key.starts == engine_starts
+                && cache.runs.len() == self.runs.len()
+        });
+        if reusable {
+            for (((run, sim), start), (path, diverged_s)) in
+                self.runs.iter().zip(out.iter_mut()).zip(starts).zip(&cache.runs)
+            {
+                let end = end(run);
+                plant.replay_sensor(SUBSTEPS, start.state, start.slow, path, end, *diverged_s, sim);
+                // A divergence the run reaches (within the samples asked for) fails it.
+                if let Some(at) = diverged_s.filter(|at| (at / STEP_S).round() as usize <= end.saturating_sub(1)) {
+                    failure.get_or_insert((run.series, run.t0_s + at));
+                }
+            }
+            return failure.map_or(Ok(()), Err);
+        }
+        cache.runs.resize_with(self.runs.len(), Default::default);
+        for (((run, sim), start), (path, diverged_s)) in
+            self.runs.iter().zip(out.iter_mut()).zip(starts).zip(cache.runs.iter_mut())
+        {
+            let end = end(run);
+            *diverged_s = None;
+            if end == 0 {
+                sim.clear();
+                path.clear();
+                continue;
+            }
+            *diverged_s =
+                plant.free_run_recorded(SUBSTEPS, run.t0_s, start.state, start.slow, &run.u[..end], sim, path);
+            if let Some(at) = *diverged_s {
+                failure.get_or_insert((run.series, run.t0_s + at));
+            }
+        }
+        cache.key = Some(EngineKey { plant: engine, starts: engine_starts, whole: !calibration_only });
         failure.map_or(Ok(()), Err)
     }
 
