@@ -37,6 +37,7 @@ import json
 import math
 import os
 import random
+import re
 import subprocess
 import sys
 import tempfile
@@ -60,6 +61,8 @@ PLANTS = {
     "p100-fast": ROOT / "recordings/scenarios/plants/p100-fast.toml",
 }
 U_MIN, U_MAX = 25.0, 100.0
+# The longest designed experiment the campaign plays (`--discriminate`), s.
+MAX_DESIGN_S = 600
 CATALOGUE = ["input_delay", "actuator_lag", "rate_limit", "sensor_drift", "gain_drift", "bearing_friction",
              "stand_resonance"]
 OUTSIDE = ["heat_soak", "fuel_soak", "dead_band", "soft_dead_band", "spool_asymmetry", "throttle_play"]
@@ -400,10 +403,16 @@ def designed(jetbench, case, workdir, csv, model, first):
     design = Path(workdir, f"case{case['index']}.design.csv")
     second = Path(workdir, f"case{case['index']}.second.csv")
     start = time.monotonic()
-    out = subprocess.run([jetbench, "excite", "--discriminate", str(first), "--model", str(model),
-                          "--seed", str(case["index"]), "--out", str(design)], capture_output=True, text=True)
+    excite = [jetbench, "excite", "--discriminate", str(first), "--model", str(model), "--seed", str(case["index"]),
+              "--out", str(design)]
+    out = subprocess.run(excite, capture_output=True, text=True)
+    # When the default length is too short, excite says how long would do: the engineer reruns
+    # with it, up to ten minutes of bench time.
+    longer = re.search(r"rerun with --duration (\d+)", out.stderr)
+    if out.returncode != 0 and longer and int(longer.group(1)) <= MAX_DESIGN_S:
+        out = subprocess.run(excite + ["--duration", longer.group(1)], capture_output=True, text=True)
     if out.returncode != 0:
-        return {"case": case, "error": "excite: " + out.stderr.strip()[-300:], "time_s": time.monotonic() - start}
+        return {"case": case, "refused": out.stderr.strip()[-400:], "time_s": time.monotonic() - start}
     with open(design) as f:
         rows = [line.split(",") for line in f.read().splitlines()[1:] if line]
     throttle = [float(r[1]) for r in rows]
@@ -580,8 +589,9 @@ def designed_section(results):
     true = sum(t for _, t in graded)
     claims = sum(c for c, _ in graded)
     errors = sum("error" in s for s in seconds)
+    refused = sum("refused" in s for s in seconds)
     still = sum(s.get("cause") == "ambiguous" for s in seconds)
-    other = len(seconds) - claims - still - errors
+    other = len(seconds) - claims - still - errors - refused
     first = [grade(r) for r in results]
     all_claims = sum(c for c, _ in first) + claims
     all_true = sum(t for _, t in first) + true
@@ -590,6 +600,8 @@ def designed_section(results):
              "--discriminate` designed a campaign from the diagnosis (its default length and throttle limits), this "
              "file's engine recorded it (the same truth, fresh noise), and `jetbench diagnose` took both recordings.",
              "",
+             f"- no experiment designed: {refused} (excite refused and said why: a rival it cannot simulate, or "
+             f"more than {MAX_DESIGN_S} s needed);",
              f"- claims: {claims} ({true} true, {claims - true} false); still ambiguous: {still}; unexplained or "
              f"insufficient data: {other}; errors: {errors};",
              f"- precision of claims over the whole campaign with the experiment: {all_true}/{all_claims}"
@@ -598,11 +610,13 @@ def designed_section(results):
              ""]
     for r, s, (c, t) in zip(tried, seconds, graded):
         case = r["case"]
-        what = s.get("cause", "error: " + s.get("error", "")[:120])
+        what = s.get("cause") or ("no design: " + s["refused"].splitlines()[-1][:160] if "refused" in s
+                                  else "error: " + s.get("error", "")[:120])
         lines.append(f"- case {case['index']} ({klass(case)}): truth {case['effects'] or ('parameters off' if case['params_off'] else 'none')}; "
                      f"first {r['rivals'][0][0] if r.get('rivals') else []} leading; with the experiment {what} "
                      f"{s.get('found', '')}{' + refit' if s.get('refit') else ''}"
-                     f"{'' if not c else (' (true)' if t else ' (FALSE)')}, {s['time_s']:.0f} s")
+                     f"{'' if not c else (' (true)' if t else ' (FALSE)')}"
+                     + (f", a {s['design_s']:.0f} s design" if "design_s" in s else "") + f", {s['time_s']:.0f} s")
     return lines
 
 
@@ -777,7 +791,7 @@ def main():
             if "second" in r:
                 two = r["second"]
                 c, t = grade(two)
-                print(f"     with the designed experiment: {two.get('cause', 'error'):18s} {two.get('found')} "
+                print(f"     with the designed experiment: {two.get('cause') or ('no design' if 'refused' in two else 'error'):18s} {two.get('found')} "
                       f"{'' if not c else ('true' if t else 'FALSE')} {two['time_s']:.1f} s", file=sys.stderr, flush=True)
     results.sort(key=lambda r: r["case"]["index"])
     finish(args, results, len(cases), time.monotonic() - start)
