@@ -595,18 +595,21 @@ def designed_section(results):
     first = [grade(r) for r in results]
     all_claims = sum(c for c, _ in first) + claims
     all_true = sum(t for _, t in first) + true
+    ambiguous = sum(r.get("cause") == "ambiguous" for r in results)
     lines = ["", "## With the designed experiment", "",
-             f"Each of the {len(tried)} ambiguous cases got the loop an engineer would run: `jetbench excite "
-             "--discriminate` designed a campaign from the diagnosis (its default length and throttle limits), this "
+             f"{len(tried)} of the {ambiguous} ambiguous cases (those of the runs with `--discriminate`) got the "
+             "loop an engineer would run: `jetbench excite "
+             "--discriminate` designed a campaign from the diagnosis (its default throttle limits; the length it "
+             f"asked for when 120 s was too short, up to {MAX_DESIGN_S} s), this "
              "file's engine recorded it (the same truth, fresh noise), and `jetbench diagnose` took both recordings.",
              "",
              f"- no experiment designed: {refused} (excite refused and said why: a rival it cannot simulate, or "
              f"more than {MAX_DESIGN_S} s needed);",
              f"- claims: {claims} ({true} true, {claims - true} false); still ambiguous: {still}; unexplained or "
              f"insufficient data: {other}; errors: {errors};",
-             f"- precision of claims over the whole campaign with the experiment: {all_true}/{all_claims}"
+             f"- precision of claims over the whole campaign, the second answers counted too: {all_true}/{all_claims}"
              + (f" = {100 * all_true / all_claims:.1f} %" if all_claims else ""),
-             f"- ambiguous after it: {still}/{len(results)} = {100 * still / max(1, len(results)):.0f} % of the cases.",
+             f"- still ambiguous after it: {still} of the {len(tried)} cases it was run on.",
              ""]
     for r, s, (c, t) in zip(tried, seconds, graded):
         case = r["case"]
