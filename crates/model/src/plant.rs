@@ -223,11 +223,28 @@ impl Plant {
         u_pct: &[f64],
         out: &mut Vec<f64>,
     ) -> Option<f64> {
+        self.run_stepping(substeps, t0_s, initial, slow, u_pct, out, PlantEngine::step)
+    }
+
+    /// The free run behind [`Plant::free_run_from`] and [`Plant::free_run_recorded`], each
+    /// step taken by `step`.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn run_stepping(
+        &self,
+        substeps: usize,
+        t0_s: f64,
+        initial: State,
+        slow: SlowStart,
+        u_pct: &[f64],
+        out: &mut Vec<f64>,
+        mut step: impl FnMut(&mut PlantEngine, f64) -> Result<PlantSample, ModelError>,
+    ) -> Option<f64> {
         let mut engine = PlantEngine::new(self, initial, slow, u_pct.first().copied().unwrap_or(0.0), t0_s, substeps);
         out.clear();
         out.push(engine.measured_n());
         for (k, &u) in u_pct.iter().enumerate().take(u_pct.len().saturating_sub(1)) {
-            match engine.step(u) {
+            match step(&mut engine, u) {
                 Ok(s) => out.push(s.measured_n),
                 Err(_) => {
                     out.resize(u_pct.len(), f64::NAN);
@@ -263,20 +280,8 @@ impl Plant {
         out: &mut Vec<f64>,
         thrust_n: &mut Vec<f64>,
     ) -> Option<f64> {
-        let mut engine = PlantEngine::new(self, initial, slow, u_pct.first().copied().unwrap_or(0.0), t0_s, substeps);
-        out.clear();
         thrust_n.clear();
-        out.push(engine.measured_n());
-        for (k, &u) in u_pct.iter().enumerate().take(u_pct.len().saturating_sub(1)) {
-            match engine.step_recorded(u, thrust_n) {
-                Ok(s) => out.push(s.measured_n),
-                Err(_) => {
-                    out.resize(u_pct.len(), f64::NAN);
-                    return Some((k + 1) as f64 * STEP_S);
-                }
-            }
-        }
-        None
+        self.run_stepping(substeps, t0_s, initial, slow, u_pct, out, |engine, u| engine.step_recorded(u, thrust_n))
     }
 
     /// The reading of this plant along an engine path kept by [`Plant::free_run_recorded`]
