@@ -121,7 +121,8 @@ pub struct DataReport {
     pub sigma_n: f64,
     /// Standard deviation of the noise model's innovations (what prewhitening leaves), N.
     pub innovation_sigma_n: f64,
-    /// The noise floor: the mean absolute value of the noise (Gaussian), N.
+    /// The noise floor: the mean absolute value of the noise on the held-out part, N
+    /// ([`noise::held_out_floor`]).
     pub floor_n: f64,
     /// Samples left out as outliers.
     pub outliers_removed: usize,
@@ -236,9 +237,15 @@ impl<'a> Problem<'a> {
         // is found as the end of the range of what is left.
         let outliers = reject_outliers(&mut runs);
         let clipped = remove_clipped(&mut runs);
-        let noise =
-            noise::estimate(&runs.iter().map(|r| r.y.iter().copied().step_by(r.stride).collect()).collect::<Vec<_>>())
-                .ok_or_else(|| IdentError::TooLittleData("too few samples to estimate the sensor noise".into()))?;
+        let stretches: Vec<Vec<f64>> = runs.iter().map(|r| r.y.iter().copied().step_by(r.stride).collect()).collect();
+        let mut noise = noise::estimate(&stretches)
+            .ok_or_else(|| IdentError::TooLittleData("too few samples to estimate the sensor noise".into()))?;
+        // The floor the held-out MAE is judged against is the noise's on the held-out part:
+        // a noise that grows with thrust has its own scale there.
+        let held_out_from: Vec<usize> = runs.iter().map(|r| r.cut.div_ceil(r.stride)).collect();
+        if let Some(floor_n) = noise::held_out_floor(noise.sigma_n, &stretches, &held_out_from) {
+            noise.mae_n = floor_n;
+        }
         let count = |part: Part| -> usize {
             runs.iter()
                 .map(|r| r.y.iter().enumerate().filter(|(k, y)| y.is_finite() && r.in_part(*k, part)).count())
@@ -391,9 +398,11 @@ impl<'a> Problem<'a> {
         let model = noise::fit_to_series(&residuals)?;
         let mut refined = self.clone();
         let sigma_n = model.marginal_var().sqrt();
+        // The held-out part's scale against the whole's, as the data's own floor measured it.
+        let held_out_scale = self.noise.mae_n / self.noise.sigma_n;
         refined.noise = NoiseEstimate {
             sigma_n,
-            mae_n: sigma_n * (2.0 / std::f64::consts::PI).sqrt(),
+            mae_n: sigma_n * held_out_scale,
             contrasts: self.noise.contrasts,
             bic: Vec::new(),
             model,
