@@ -330,24 +330,20 @@ fn residual_is_noise(d: &Diagnosis) -> bool {
     d.after.whiteness.white && d.periodic.is_none() && d.mae_after_n <= 1.1 * d.noise_floor_n
 }
 
-/// How far above the noise floor the validation MAE of a physics claim may stay when its
-/// residual is not white: not at all. The whiteness test already says something remains; a
-/// claim is made over it only when the MAE does not say so too. Measured over the 36 claims of
-/// the stored campaigns (seeds 1327-9901, several builds) whose residual was not white, 11 of
-/// them false: under noise of constant scale 9 of the false ones sat 0.5-7.5 % above the
-/// floor (the tenth, at 0.98, on a clipped recording), the true ones on both sides of it (7
-/// above, 8 at or below). The 3 % allowed before (three standard errors of the MAE of 5000
-/// samples of white noise) let 8 of those 9 through and stopped none of the true ones; the
-/// floor stops all 9 and 7 true ones. Under noise that grows with thrust the floor itself was
-/// off by up to 15 % until it was taken on the held-out part ([`crate::noise::held_out_floor`]).
-pub(crate) const INCOMPLETE_MAE: f64 = 1.0;
-
-/// The model found leaves more than noise: its residual is not white under the noise model
-/// and its validation MAE is above the floor ([`INCOMPLETE_MAE`]). A claim of physics that
-/// does not reach what its own residual's whiteness allows is incomplete, and is not made
-/// (throttle play taken for a sensor drift and a refit left 7.5 % above the floor).
+/// The model found leaves more than noise: its residual is not white under the noise model.
+/// A claim of physics says the model with it explains the recording, the standard `none` is
+/// held to; an explanation that leaves more may name the wrong parts (what it does not hold is
+/// then mimicked in part by what it does), so it is named, not claimed.
+///
+/// Until the stored campaigns were read for it, a claim was allowed over such a residual
+/// when its validation MAE stayed within 3 % of the floor: of those 36 claims (seeds
+/// 1327-9901, several builds), 11 were false, against 13 false of 429 claims over a white
+/// residual. No bound on the MAE separates them: the false ones sat 0.82-1.075× the floor, the
+/// true ones 0.87-1.026×, and on a 100 s recording the held-out MAE and the floor each move by
+/// a per cent or two by chance (a delay with a gain drift, claimed as the drift alone at 0.98×
+/// the floor, its residual 115 times the noise model's power below 0.1 Hz).
 pub(crate) fn incomplete(d: &Diagnosis) -> bool {
-    !d.after.whiteness.white && d.mae_after_n > INCOMPLETE_MAE * d.noise_floor_n
+    !d.after.whiteness.white
 }
 
 /// True when the periodic rival (a sine at its own period on what is read) is not
@@ -480,8 +476,8 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
                     0,
                     format!(
                         "the search found {}{} (validation MAE {} → {}), but what it leaves is not noise (Ljung–Box p \
-                         {:.1e} under the noise model, MAE {:.2}× the floor): an explanation that falls short of \
-                         the floor may name the wrong parts, so nothing is claimed",
+                         {:.1e} under the noise model, MAE {:.2}× the floor): an explanation that leaves more than \
+                         noise may name the wrong parts, so it is named, not claimed",
                         names.join(" + "),
                         if d.refit.is_some() { " with the ten parameters refitted" } else { "" },
                         figure(d.mae_before_n, 2, " N"),
