@@ -291,10 +291,17 @@ fn a_claim_discloses_what_could_hide_beside_it_with_its_size() {
                     assert!(lo.unwrap() <= probe.unwrap() && probe.unwrap() <= hi.unwrap(), "{p:?}")
                 }
                 ("stand_resonance", "frequency_hz") => assert_eq!(*lo, probe, "{p:?}"),
-                // A rate limit hides above the probe's; the others up to it.
+                // A rate limit hides above the probe's; the others up to it, and beside physics
+                // up to the first larger size measured to show, which the verdict names.
                 ("rate_limit", _) => assert_eq!((*lo, *hi), (probe, None), "{p:?}"),
                 ("input_delay" | "actuator_lag" | "gain_drift" | "bearing_friction", _) => {
-                    assert_eq!((*lo, *hi), (Some(0.0), probe), "{p:?}")
+                    assert_eq!(*lo, Some(0.0), "{p:?}");
+                    let (hi, probe) = (hi.unwrap(), probe.unwrap());
+                    assert!(hi >= probe, "{p:?}");
+                    assert_eq!(hi > probe, p.hidden_up_to.is_some(), "{p:?}");
+                    if let Some(up_to) = &p.hidden_up_to {
+                        assert!(d.verdict.contains(up_to.as_str()), "{up_to}: {}", d.verdict);
+                    }
                 }
                 _ => {}
             }

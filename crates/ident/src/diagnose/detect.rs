@@ -31,6 +31,8 @@
 //! effect. So `δ` is first fitted on the calibration part by a linearised refit (the
 //! output's prewhitened sensitivities to the ten parameters, with the refit's prior), and
 //! only what the refit could not absorb counts, on the held-out part, in `E` and `z`.
+//! Beside physics found, the values of the effects found are re-fitted the same way (freely,
+//! as the search fits them): a lag re-fitted longer takes in most of a delay beside it.
 //! The probes' sizes are what matters at a 100 Hz bench, independent of any recording (see
 //! [`probes`]).
 
@@ -75,6 +77,10 @@ pub struct Detectability {
     /// so it could hide too (see [`could_hide`]; for a stand resonance, the dampings around
     /// the probe's not measured to show). `None` when the probe would show.
     pub could_hide: Option<BTreeMap<&'static str, [Option<f64>; 2]>>,
+    /// Beside physics found, when sizes larger than the probe's could hide too: the first
+    /// size measured to show (or the largest a bench can have), in words. Every size below
+    /// it is in `could_hide`.
+    pub hidden_up_to: Option<String>,
     /// A region of stand resonances not measured to show (its frequencies and dampings in
     /// `could_hide`, see [`hidden_regions`]): it says what could hide beside a claim, and does
     /// not count for `none` or `parameters`, which ask for the probes at the size that matters.
@@ -230,46 +236,68 @@ fn aligned(problem: &Problem<'_>, vectors: &[&[Vec<f64>]], part: Part) -> Vec<Ve
     out
 }
 
-/// What a refit of the ten parameters absorbs of an effect: the model's output
-/// sensitivities to each parameter (prewhitened, on the calibration and the held-out part)
-/// and the refit's prior. An effect the refitted parameters can mimic on the calibration
-/// part leaves, on the held-out part, only what they could not: that is what would tell
-/// it from "the parameters are off".
-struct Refit {
-    /// Sensitivity of the reading to each of the ten parameters, per unit of the parameter,
-    /// as grid vectors per run.
+/// What the model found absorbs of another effect: the output's sensitivities to what it
+/// fits (prewhitened, on the calibration and the held-out part), with a prior where it has
+/// one. An effect the model found can mimic on the calibration part leaves, on the held-out
+/// part, only what it could not: that is what would tell the two apart.
+///
+/// - **The ten parameters**, when the model found refits them, with the refit's prior: "the
+///   parameters are off" is claimed only when every class of effect would have shown beside
+///   a refit.
+/// - **The values of the effects found**, freely, as the search fits them: a lag re-fitted
+///   longer takes in most of a delay beside it, so a claim of the lag discloses the delays it
+///   could take in, not only those a fixed lag would leave.
+struct Absorb {
+    /// Sensitivity of the reading to each value, per unit of the value, as grid vectors per
+    /// run.
     columns: Vec<Vec<Vec<f64>>>,
-    /// The prior's weight on each parameter, in innovation variances per unit².
+    /// The prior's weight on each value, in innovation variances per unit² (0: none).
     prior: Vec<f64>,
 }
 
-impl Refit {
+impl Absorb {
     fn new(problem: &Problem<'_>, fixed: &Effects, spec: &Spec, sim: &Sim, s2: f64) -> Option<Self> {
-        let mut columns = Vec::with_capacity(10);
-        let mut prior = Vec::with_capacity(10);
+        let mut columns = Vec::new();
+        let mut prior = Vec::new();
         let mut moved = Sim::new();
-        for i in 0..10 {
-            let unit = spec.param_unit(i);
-            let h = 1e-3 * unit;
-            let mut a = spec.params.to_array();
-            a[i] += h;
-            let mut next = spec.clone();
-            next.params = jetbench_model::Params::from_array(a);
+        let mut column = |next: &Spec, h: f64| -> Option<Vec<Vec<f64>>> {
             let plant = next.plant(fixed)?;
-            let column: Vec<Vec<f64>> = if problem.simulate(&plant, &spec.states, false, &mut moved).is_ok() {
+            Some(if problem.simulate(&plant, &spec.states, false, &mut moved).is_ok() {
                 moved.iter().zip(sim).map(|(a, b)| a.iter().zip(b).map(|(x, y)| (x - y) / h).collect()).collect()
             } else {
                 // The model diverges just beside the point: that direction absorbs nothing.
                 sim.iter().map(|run| vec![0.0; run.len()]).collect()
-            };
-            columns.push(column);
-            prior.push(s2 / (REFIT_PRIOR * unit).powi(2));
+            })
+        };
+        if spec.refit {
+            for i in 0..10 {
+                let unit = spec.param_unit(i);
+                let h = 1e-3 * unit;
+                let mut a = spec.params.to_array();
+                a[i] += h;
+                let mut next = spec.clone();
+                next.params = jetbench_model::Params::from_array(a);
+                columns.push(column(&next, h)?);
+                prior.push(s2 / (REFIT_PRIOR * unit).powi(2));
+            }
         }
-        Some(Self { columns, prior })
+        for (e, i, unit) in spec.free_values() {
+            let (kind, values) = &spec.effects[e];
+            // The fit's own step, inward at an upper bound.
+            let mut h = 1e-4 * values[i].abs().max(unit);
+            if values[i] + h > spec.value_bounds(*kind, i).1 {
+                h = -h;
+            }
+            let mut moved_values = values.clone();
+            moved_values[i] += h;
+            columns.push(column(&spec.with(*kind, moved_values), h)?);
+            prior.push(0.0);
+        }
+        (!columns.is_empty()).then_some(Self { columns, prior })
     }
 
-    /// `delta`'s held-out part once the refit has absorbed what it can of it on the
-    /// calibration part (a linearised fit with the refit's prior), and the residual's
+    /// `delta`'s held-out part once the model found has absorbed what it can of it on the
+    /// calibration part (a linearised fit, with the refit's prior), and the residual's
     /// held-out part on the same samples.
     fn remainder(&self, problem: &Problem<'_>, delta: &[Vec<f64>], residual: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
         let mut vectors: Vec<&[Vec<f64>]> = vec![delta, residual];
@@ -287,6 +315,11 @@ impl Refit {
                 a[(q, p)] = v;
             }
             a[(p, p)] += self.prior[p];
+        }
+        // A value the calibration part does not move at all absorbs nothing (and keeps the
+        // system solvable).
+        for p in 0..k {
+            a[(p, p)] = if a[(p, p)] > 0.0 { a[(p, p)] * (1.0 + 1e-9) } else { 1.0 };
         }
         let theta = a.cholesky().map_or_else(|| DVector::zeros(k), |c| c.solve(&b));
         let mut left = std::mem::take(&mut val[0]);
@@ -311,10 +344,11 @@ fn measure(wd: &[f64], wr: &[f64], s2: f64) -> (f64, f64) {
 }
 
 /// Every probe on the model found (`spec`, simulated as `sim`): whether this recording would
-/// show it, and whether its residual carries its shape. When the model found refits the ten
-/// parameters, a probe is measured by what the refit could not absorb of it (a linearised
-/// refit on the calibration part, with its prior): "the parameters are off" is claimed only
-/// when every class of effect would have shown beside a refit.
+/// show it, and whether its residual carries its shape. A probe is measured by what the model
+/// found could not absorb of it (a linearised re-fit on the calibration part of the effects'
+/// values and, when it refits them, the ten parameters with their prior; see [`Absorb`]):
+/// "the parameters are off" is claimed only when every class of effect would have shown
+/// beside a refit, and a claim discloses what its own effects could take in.
 pub(crate) fn probe_all(
     problem: &Problem<'_>,
     fixed: &Effects,
@@ -331,9 +365,9 @@ pub(crate) fn probe_all(
     }
     let s2 = w.iter().map(|x| x * x).sum::<f64>() / n as f64;
     let ln_n = (n as f64).ln();
-    let refit = if spec.refit { Refit::new(problem, fixed, spec, sim, s2) } else { None };
+    let absorb = Absorb::new(problem, fixed, spec, sim, s2);
     let held_out = |delta: &[Vec<f64>]| -> (f64, f64) {
-        let (wd, wr) = match &refit {
+        let (wd, wr) = match &absorb {
             Some(r) => r.remainder(problem, delta, &residual),
             None => {
                 let mut both = aligned(problem, &[delta, residual.as_slice()], Part::Validation);
@@ -354,6 +388,9 @@ pub(crate) fn probe_all(
         Some(held_out(&delta))
     };
     let mut out = Vec::new();
+    // Beside physics found, what hides is measured beyond the probes: that is what a claim
+    // discloses. `none` and `parameters` ask only for the probes at the size that matters.
+    let beside_physics = !spec.effects.is_empty();
     for (kind, values, proportional) in probes(full_thrust) {
         if spec.has(kind) || fixed.get(kind).is_some() {
             continue;
@@ -367,6 +404,46 @@ pub(crate) fn probe_all(
         };
         let threshold = strong_evidence + free as f64 * ln_n;
         let would_show = energy >= threshold;
+        let mut region = (!would_show).then(|| could_hide(kind, &values));
+        let mut hidden_up_to = None;
+        if let (Some(region), true, true) = (region.as_mut(), proportional, beside_physics) {
+            // Larger sizes, doubling, until one shows (then once between, geometrically):
+            // every size not measured to show could hide, up to the first that did, or up to
+            // the largest a bench can have.
+            let index = if kind == EffectKind::Discrepancy { 4 } else { 0 };
+            let (low, high) = kind.physical()[index];
+            let edge = if values[index] < 0.0 { low } else { high };
+            let at = |size: f64| {
+                let mut v = values.clone();
+                v[index] = size;
+                v
+            };
+            let (mut hidden, mut shown) = (values[index], None);
+            while shown.is_none() && hidden.abs() < edge.abs() {
+                let next = if (2.0 * hidden).abs() >= edge.abs() { edge } else { 2.0 * hidden };
+                match probe(kind, &at(next)) {
+                    Some((e, _)) if e < threshold => hidden = next,
+                    Some(_) => shown = Some(next),
+                    None => break,
+                }
+            }
+            if let Some(first) = shown {
+                let between = hidden.signum() * (hidden * first).abs().sqrt();
+                if probe(kind, &at(between)).is_some_and(|(e, _)| e >= threshold) {
+                    shown = Some(between);
+                }
+            }
+            let upper = shown.unwrap_or(edge);
+            if upper.abs() > values[index].abs() {
+                let key = if kind == EffectKind::Discrepancy { "gain_history_per_n" } else { kind.keys()[0] };
+                region.insert(key, if upper < 0.0 { [Some(upper), Some(0.0)] } else { [Some(0.0), Some(upper)] });
+                let size = describe(kind, &at(upper), full_thrust);
+                hidden_up_to = Some(match shown {
+                    Some(_) => format!("{size}, the first size measured to show beside the model found"),
+                    None => format!("{size}, the largest a bench can have: no size up to it was measured to show"),
+                });
+            }
+        }
         out.push(Detectability {
             effect,
             probe: if kind == EffectKind::Discrepancy {
@@ -381,7 +458,8 @@ pub(crate) fn probe_all(
             shape_z,
             smallest: (proportional && energy > 0.0).then(|| first * (threshold / energy).sqrt()),
             experiment: experiment_for(effect),
-            could_hide: (!would_show).then(|| could_hide(kind, &values)),
+            could_hide: region,
+            hidden_up_to,
             disclosure_only: false,
         });
     }
@@ -389,9 +467,7 @@ pub(crate) fn probe_all(
     if !spec.has(resonance) && fixed.get(resonance).is_none() {
         let threshold = strong_evidence + resonance.keys().len() as f64 * ln_n;
         // Beside physics found, the frequencies between the probes are measured where what
-        // hides changes: that is what a claim discloses. `none` and `parameters` ask only for
-        // the probes at the size that matters.
-        let beside_physics = !spec.effects.is_empty();
+        // hides changes.
         let columns =
             resonance_columns(|f, z| probe(resonance, &[f, z]), threshold, if beside_physics { BISECTIONS } else { 0 });
         out.extend(resonance_probes(&columns, threshold, full_thrust));
@@ -426,6 +502,7 @@ pub(crate) fn probe_all(
         experiment: experiment_for(super::rivals::PERIODIC),
         could_hide: (energy < threshold)
             .then(|| BTreeMap::from([("amplitude_n", [Some(0.0), Some(1.0)]), ("period_s", [Some(period_s); 2])])),
+        hidden_up_to: None,
         disclosure_only: false,
     });
     out
@@ -558,6 +635,7 @@ fn resonance_probes(columns: &[Column], threshold: f64, full_thrust_n: f64) -> V
             smallest: None,
             experiment: experiment_for(effect),
             could_hide,
+            hidden_up_to: None,
             disclosure_only: false,
         });
     }
@@ -588,6 +666,7 @@ fn resonance_probes(columns: &[Column], threshold: f64, full_thrust_n: f64) -> V
                 ("frequency_hz", [Some(f0), Some(f1)]),
                 ("damping_ratio", [Some(z0), Some(z1)]),
             ])),
+            hidden_up_to: None,
             disclosure_only: true,
         });
     }

@@ -140,6 +140,18 @@ impl Spec {
         out
     }
 
+    /// The effect values a fit of this hypothesis estimates, each as (effect index, value
+    /// index, its unit): what the model found re-fits when it meets another effect's reading.
+    pub fn free_values(&self) -> Vec<(usize, usize, f64)> {
+        self.layout()
+            .into_iter()
+            .filter_map(|slot| match slot {
+                Slot::Value(e, i) => Some((e, i, self.scale(slot))),
+                _ => None,
+            })
+            .collect()
+    }
+
     /// Which fitted values sit on the edge of the range a fit may explore: a fit there
     /// has found no optimum (a time constant gone to the upper bound is a constant, a
     /// rate limit there is no limit), so it names nothing.

@@ -619,7 +619,12 @@ fn hidden_sizes(hidden: &[&detect::Detectability]) -> Vec<String> {
     let mut sizes: Vec<String> = hidden
         .iter()
         .filter(|p| !p.disclosure_only)
-        .map(|p| format!("{} ({:.0} % of the evidence a claim needs)", p.size, share(p)))
+        .map(|p| match &p.hidden_up_to {
+            Some(up_to) => {
+                format!("{} ({:.0} % of the evidence a claim needs; nor any up to {up_to})", p.size, share(p))
+            }
+            None => format!("{} ({:.0} % of the evidence a claim needs)", p.size, share(p)),
+        })
         .collect();
     let regions: Vec<&&detect::Detectability> = hidden.iter().filter(resonance).filter(|p| p.disclosure_only).collect();
     let words: Vec<String> = regions
