@@ -215,15 +215,7 @@ fn describe(kind: EffectKind, v: &[f64], full_thrust_n: f64) -> String {
 fn aligned(problem: &Problem<'_>, vectors: &[&[Vec<f64>]], part: Part) -> Vec<Vec<f64>> {
     let mut out = vec![Vec::new(); vectors.len()];
     for (i, run) in problem.runs.iter().enumerate() {
-        // Where the recording has no sample, neither has an effect's reading.
-        let white: Vec<Vec<f64>> = vectors
-            .iter()
-            .map(|v| {
-                let masked: Vec<f64> =
-                    v[i].iter().zip(&run.y).map(|(d, y)| if y.is_finite() { *d } else { f64::NAN }).collect();
-                problem.whiten(i, &masked)
-            })
-            .collect();
+        let white: Vec<Vec<f64>> = vectors.iter().map(|v| masked_white(problem, i, &v[i])).collect();
         let len = white.iter().map(Vec::len).min().unwrap_or(0);
         for j in (0..len).filter(|j| run.in_part(j * run.stride, part)) {
             if white.iter().all(|w| w[j].is_finite()) {
@@ -253,10 +245,36 @@ struct Absorb {
     columns: Vec<Vec<Vec<f64>>>,
     /// The prior's weight on each value, in innovation variances per unit² (0: none).
     prior: Vec<f64>,
+    /// What every probe shares, computed once (see [`Prepared`]).
+    prepared: Prepared,
+}
+
+/// The columns and the residual prewhitened on the samples where all of them have an
+/// innovation, and the calibration part's normal equations factorised. A probe whose reading
+/// has an innovation on every one of those samples (one that does not diverge) is absorbed
+/// with them: the same sums in the same order as [`Absorb::remainder_anew`] makes, without
+/// prewhitening every column and forming the normal equations again for each of the hundreds
+/// of probes.
+struct Prepared {
+    /// Where those samples are, (run, index at the run's stride), calibration then held-out.
+    at: [Vec<(usize, usize)>; 2],
+    /// The columns' values there, calibration then held-out: `values[part][p][sample]`.
+    values: [Vec<Vec<f64>>; 2],
+    /// The residual's held-out values there.
+    residual: Vec<f64>,
+    /// The normal equations (with the prior) factorised; `None` when not positive definite.
+    normal: Option<nalgebra::Cholesky<f64, nalgebra::Dyn>>,
 }
 
 impl Absorb {
-    fn new(problem: &Problem<'_>, fixed: &Effects, spec: &Spec, sim: &Sim, s2: f64) -> Option<Self> {
+    fn new(
+        problem: &Problem<'_>,
+        fixed: &Effects,
+        spec: &Spec,
+        sim: &Sim,
+        residual: &[Vec<f64>],
+        s2: f64,
+    ) -> Option<Self> {
         let mut columns = Vec::new();
         let mut prior = Vec::new();
         let mut moved = Sim::new();
@@ -293,35 +311,47 @@ impl Absorb {
             columns.push(column(&spec.with(*kind, moved_values), h)?);
             prior.push(0.0);
         }
-        (!columns.is_empty()).then_some(Self { columns, prior })
+        if columns.is_empty() {
+            return None;
+        }
+        let prepared = Prepared::new(problem, &columns, &prior, residual);
+        Some(Self { columns, prior, prepared })
     }
 
     /// `delta`'s held-out part once the model found has absorbed what it can of it on the
     /// calibration part (a linearised fit, with the refit's prior), and the residual's
     /// held-out part on the same samples.
     fn remainder(&self, problem: &Problem<'_>, delta: &[Vec<f64>], residual: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
+        let white: Vec<Vec<f64>> = (0..problem.runs.len()).map(|i| masked_white(problem, i, &delta[i])).collect();
+        let prepared = &self.prepared;
+        let at = |part: usize| -> Option<Vec<f64>> {
+            prepared.at[part].iter().map(|&(i, j)| white[i].get(j).copied().filter(|w| w.is_finite())).collect()
+        };
+        let (Some(cal), Some(mut left)) = (at(0), at(1)) else {
+            return self.remainder_anew(problem, delta, residual);
+        };
+        let k = self.columns.len();
+        let b =
+            DVector::from_iterator(k, prepared.values[0].iter().map(|x| x.iter().zip(&cal).map(|(x, d)| x * d).sum()));
+        let theta = prepared.normal.as_ref().map_or_else(|| DVector::zeros(k), |c| c.solve(&b));
+        for (t, column) in theta.iter().zip(&prepared.values[1]) {
+            for (l, x) in left.iter_mut().zip(column) {
+                *l -= t * x;
+            }
+        }
+        (left, prepared.residual.clone())
+    }
+
+    /// [`Absorb::remainder`] from scratch, for a probe whose reading lacks an innovation where
+    /// the columns have one.
+    fn remainder_anew(&self, problem: &Problem<'_>, delta: &[Vec<f64>], residual: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
         let mut vectors: Vec<&[Vec<f64>]> = vec![delta, residual];
         vectors.extend(self.columns.iter().map(Vec::as_slice));
         let cal = aligned(problem, &vectors, Part::Calibration);
         let mut val = aligned(problem, &vectors, Part::Validation);
         let k = self.columns.len();
-        let mut a = DMatrix::<f64>::zeros(k, k);
-        let mut b = DVector::<f64>::zeros(k);
-        for p in 0..k {
-            b[p] = cal[2 + p].iter().zip(&cal[0]).map(|(x, d)| x * d).sum();
-            for q in p..k {
-                let v: f64 = cal[2 + p].iter().zip(&cal[2 + q]).map(|(x, y)| x * y).sum();
-                a[(p, q)] = v;
-                a[(q, p)] = v;
-            }
-            a[(p, p)] += self.prior[p];
-        }
-        // A value the calibration part does not move at all absorbs nothing (and keeps the
-        // system solvable).
-        for p in 0..k {
-            a[(p, p)] = if a[(p, p)] > 0.0 { a[(p, p)] * (1.0 + 1e-9) } else { 1.0 };
-        }
-        let theta = a.cholesky().map_or_else(|| DVector::zeros(k), |c| c.solve(&b));
+        let b = DVector::from_iterator(k, (0..k).map(|p| cal[2 + p].iter().zip(&cal[0]).map(|(x, d)| x * d).sum()));
+        let theta = normal_equations(&cal[2..], &self.prior).map_or_else(|| DVector::zeros(k), |c| c.solve(&b));
         let mut left = std::mem::take(&mut val[0]);
         for (p, t) in theta.iter().enumerate() {
             for (l, x) in left.iter_mut().zip(&val[2 + p]) {
@@ -330,6 +360,61 @@ impl Absorb {
         }
         (left, std::mem::take(&mut val[1]))
     }
+}
+
+impl Prepared {
+    fn new(problem: &Problem<'_>, columns: &[Vec<Vec<f64>>], prior: &[f64], residual: &[Vec<f64>]) -> Self {
+        let mut at = [Vec::new(), Vec::new()];
+        let mut values = [vec![Vec::new(); columns.len()], vec![Vec::new(); columns.len()]];
+        let mut held_out_residual = Vec::new();
+        for (i, run) in problem.runs.iter().enumerate() {
+            let white_residual = masked_white(problem, i, &residual[i]);
+            let white: Vec<Vec<f64>> = columns.iter().map(|c| masked_white(problem, i, &c[i])).collect();
+            let len = white.iter().map(Vec::len).chain([white_residual.len()]).min().unwrap_or(0);
+            for j in 0..len {
+                if !white_residual[j].is_finite() || white.iter().any(|w| !w[j].is_finite()) {
+                    continue;
+                }
+                let part = usize::from(!run.in_part(j * run.stride, Part::Calibration));
+                at[part].push((i, j));
+                for (v, w) in values[part].iter_mut().zip(&white) {
+                    v.push(w[j]);
+                }
+                if part == 1 {
+                    held_out_residual.push(white_residual[j]);
+                }
+            }
+        }
+        let normal = normal_equations(&values[0], prior);
+        Self { at, values, residual: held_out_residual, normal }
+    }
+}
+
+/// `x` of run `i` prewhitened, NaN where the recording has no sample (neither has an
+/// effect's reading there).
+fn masked_white(problem: &Problem<'_>, i: usize, x: &[f64]) -> Vec<f64> {
+    let masked: Vec<f64> =
+        x.iter().zip(&problem.runs[i].y).map(|(d, y)| if y.is_finite() { *d } else { f64::NAN }).collect();
+    problem.whiten(i, &masked)
+}
+
+/// The normal equations of a linearised fit on `columns` (each the prewhitened values on the
+/// same samples) with `prior` on its diagonal, factorised; `None` when not positive definite.
+fn normal_equations(columns: &[Vec<f64>], prior: &[f64]) -> Option<nalgebra::Cholesky<f64, nalgebra::Dyn>> {
+    let k = columns.len();
+    let mut a = DMatrix::<f64>::zeros(k, k);
+    for p in 0..k {
+        for q in p..k {
+            let v: f64 = columns[p].iter().zip(&columns[q]).map(|(x, y)| x * y).sum();
+            a[(p, q)] = v;
+            a[(q, p)] = v;
+        }
+        a[(p, p)] += prior[p];
+        // A value the calibration part does not move at all absorbs nothing (and keeps the
+        // system solvable).
+        a[(p, p)] = if a[(p, p)] > 0.0 { a[(p, p)] * (1.0 + 1e-9) } else { 1.0 };
+    }
+    a.cholesky()
 }
 
 /// Energy (innovation variances) and matched-filter statistic of a prewhitened reading
@@ -365,7 +450,7 @@ pub(crate) fn probe_all(
     }
     let s2 = w.iter().map(|x| x * x).sum::<f64>() / n as f64;
     let ln_n = (n as f64).ln();
-    let absorb = Absorb::new(problem, fixed, spec, sim, s2);
+    let absorb = Absorb::new(problem, fixed, spec, sim, &residual, s2);
     let held_out = |delta: &[Vec<f64>]| -> (f64, f64) {
         let (wd, wr) = match &absorb {
             Some(r) => r.remainder(problem, delta, &residual),
