@@ -365,7 +365,10 @@ fn restricted_likelihood(windows: &[Vec<f64>], phi: &[f64]) -> Option<(f64, f64)
     // Covariance of the second differences per unit innovation variance.
     let c: Vec<f64> =
         (0..max_len as i64).map(|l| 6.0 * at(l) - 4.0 * (at(l - 1) + at(l + 1)) + at(l - 2) + at(l + 2)).collect();
-    let mut by_len: Vec<Option<(nalgebra::Cholesky<f64, nalgebra::Dyn>, f64)>> = vec![None; max_len + 1];
+    // Per window length: the covariance's factor, its log-determinant, and two vectors of
+    // that length reused for every window (the contrasts, and their solve).
+    type Factor = (nalgebra::Cholesky<f64, nalgebra::Dyn>, f64, DVector<f64>, DVector<f64>);
+    let mut by_len: Vec<Option<Factor>> = vec![None; max_len + 1];
     let (mut quad, mut logdet, mut n) = (0.0, 0.0, 0usize);
     for z in windows {
         let m = z.len();
@@ -373,12 +376,14 @@ fn restricted_likelihood(windows: &[Vec<f64>], phi: &[f64]) -> Option<(f64, f64)
             let cov = DMatrix::from_fn(m, m, |i, j| c[i.abs_diff(j)]);
             let chol = cov.cholesky()?;
             let ld = 2.0 * chol.l_dirty().diagonal().iter().map(|d| d.ln()).sum::<f64>();
-            by_len[m] = Some((chol, ld));
+            by_len[m] = Some((chol, ld, DVector::zeros(m), DVector::zeros(m)));
         }
-        let (chol, ld) = by_len[m].as_ref()?;
-        let v = DVector::from_column_slice(z);
-        quad += v.dot(&chol.solve(&v));
-        logdet += ld;
+        let (chol, ld, v, solved) = by_len[m].as_mut()?;
+        v.copy_from_slice(z);
+        solved.copy_from(v);
+        chol.solve_mut(solved);
+        quad += v.dot(solved);
+        logdet += *ld;
         n += m;
     }
     // A noise-free recording (simulated with no noise) has no variance to take a log of.

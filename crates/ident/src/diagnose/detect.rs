@@ -44,7 +44,7 @@ use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
 use super::fit::{Spec, REFIT_PRIOR};
-use super::problem::{Part, Problem, Sim};
+use super::problem::{Part, Problem, Sim, SimCache};
 
 /// Matched-filter statistic above which the residual carries a probe's shape: about one in
 /// 30 000 under noise alone, for each of the couple of dozen probes.
@@ -464,10 +464,18 @@ pub(crate) fn probe_all(
     };
     let full_thrust = sim.iter().flatten().copied().filter(|v| v.is_finite()).fold(0.0f64, f64::max);
     let mut with = Sim::new();
+    // Every sensor-side probe (a stand at each frequency and damping, a drift, a play) drives
+    // its sensor with the engine of the model found: its path is kept from the first of them
+    // and each replays it, the same values as a full simulation.
+    let mut engine_path = SimCache::default();
     // Energy and matched-filter statistic of one probe on the model found.
     let mut probe = |kind: EffectKind, values: &[f64]| -> Option<(f64, f64)> {
         let plant = spec.with(kind, values.to_vec()).plant(fixed)?;
-        problem.simulate(&plant, &spec.states, false, &mut with).ok()?;
+        if kind.is_sensor_side() {
+            problem.simulate_reusing(&plant, &spec.states, false, &mut engine_path, &mut with).ok()?;
+        } else {
+            problem.simulate(&plant, &spec.states, false, &mut with).ok()?;
+        }
         let delta: Vec<Vec<f64>> =
             with.iter().zip(sim).map(|(a, b)| a.iter().zip(b).map(|(x, y)| x - y).collect()).collect();
         Some(held_out(&delta))
