@@ -377,7 +377,27 @@ def prepare(case, workdir):
     return csv, model, truth, truth_mae
 
 
-def run_case(jetbench, case, workdir, keep=False, discriminate=False):
+def truth_whiteness(jetbench, case, workdir, csv):
+    """With the truth itself given as the model (the plant's parameters and the effects at
+    their values, in the catalogue's form): the p-value of the whiteness test on its residual,
+    or None for a case whose truth the catalogue cannot write (an artefact, physics outside it,
+    parameters that are off, for which the given model is not the truth)."""
+    if case["artefact"] or case["params_off"] or any(n in OUTSIDE for n in case["effects"]):
+        return None
+    model = Path(workdir) / f"case{case['index']}.truth.toml"
+    text = "[model]\n" + "".join(f"{k} = {case['params'][k]!r}\n" for k in KEYS)
+    for name, values in case["effects"].items():
+        text += f"[effects.{name}]\n" + "".join(f"{k} = {v!r}\n" for k, v in values.items())
+    model.write_text(text)
+    out = subprocess.run([jetbench, "diagnose", "--model", str(model), str(csv), "--json"],
+                         capture_output=True, text=True)
+    model.unlink(missing_ok=True)
+    if out.returncode != 0:
+        return None
+    return json.loads(out.stdout)["before"]["whiteness"]["p_value"]
+
+
+def run_case(jetbench, case, workdir, keep=False, discriminate=False, truth_given=False):
     csv, model, truth, truth_mae = prepare(case, workdir)
     start = time.monotonic()
     out = subprocess.run([jetbench, "diagnose", "--model", str(model), str(csv), "--json"],
@@ -389,6 +409,8 @@ def run_case(jetbench, case, workdir, keep=False, discriminate=False):
               if out.returncode != 0 else outcome(case, json.loads(out.stdout), elapsed, truth_mae))
     if discriminate and result.get("cause") == "ambiguous":
         result["second"] = designed(jetbench, case, workdir, csv, model, first)
+    if truth_given:
+        result["truth_white_p"] = truth_whiteness(jetbench, case, workdir, csv)
     if not keep:
         for f in (csv, model, truth, first):
             f.unlink(missing_ok=True)
@@ -580,12 +602,37 @@ def summarise(results, n, seed, elapsed_s):
                          f"{case['duration_s']} s): truth {case['effects'] or ('parameters off' if case['params_off'] else 'none')}; "
                          f"said {r['cause']} {r['found']}{' + refit' if r['refit'] else ''}")
     lines += designed_section(results)
+    lines += truth_section(results)
     lines += ["", "## Time per case", ""]
     times = sorted(r["time_s"] for r in results)
     if times:
         lines.append(f"median {times[len(times) // 2]:.1f} s, 95th percentile {times[int(0.95 * (len(times) - 1))]:.1f} s, "
                      f"longest {times[-1]:.1f} s (two cases at a time).")
     return "\n".join(lines) + "\n"
+
+
+def truth_section(results):
+    """How often the whiteness test rejects the truth itself (`--truth-given`): its level where
+    the model is exact (no effect), and where the catalogue's form of the effects meets this
+    file's engine."""
+    rows = {}
+    for r in results:
+        p = r.get("truth_white_p")
+        if p is not None:
+            n = len(r["case"]["effects"])
+            rows.setdefault("no effect" if n == 0 else "one effect" if n == 1 else "two effects", []).append(p)
+    if not rows:
+        return []
+    lines = ["", "## The whiteness test with the truth given", "",
+             "Each case whose truth the catalogue can write, diagnosed again with that truth as the model: how often "
+             "the whiteness test calls its residual not white (p < 0.01, the test's level).", "",
+             "| cases | with the truth given | residual not white |", "|---|---|---|"]
+    for name in ("no effect", "one effect", "two effects"):
+        ps = rows.get(name, [])
+        if ps:
+            bad = sum(p < 0.01 for p in ps)
+            lines.append(f"| {name} | {len(ps)} | {bad} ({100 * bad / len(ps):.0f} %) |")
+    return lines
 
 
 def designed_section(results):
@@ -737,6 +784,9 @@ def main():
                         help="on every ambiguous case, run the loop an engineer would: `jetbench excite "
                         "--discriminate` designs a campaign, this file's engine records it, and `jetbench diagnose` "
                         "takes both recordings; the report grades that answer too")
+    parser.add_argument("--truth-given", action="store_true",
+                        help="also diagnose each case whose truth the catalogue can write with that truth as the "
+                        "model, and report how often the whiteness test calls its residual not white")
     parser.add_argument("--from-case", type=int, default=0,
                         help="run the cases of the draw from this index on (to finish a campaign stopped at its "
                         "deadline; --merge joins the parts), beside any --case")
@@ -786,7 +836,8 @@ def main():
         workdir = args.keep or tmp
         results = []
         futures = [pool.submit(functools.partial(run_case, args.jetbench, workdir=workdir, keep=bool(args.keep),
-                                                     discriminate=args.discriminate), c)
+                                                     discriminate=args.discriminate,
+                                                     truth_given=args.truth_given), c)
                    for c in cases]
         for future in concurrent.futures.as_completed(futures):
             if args.deadline_s and time.monotonic() - start > args.deadline_s:
