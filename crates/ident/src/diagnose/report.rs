@@ -721,9 +721,10 @@ fn ambiguous(d: &Diagnosis) -> String {
         .iter()
         .map(|r| {
             format!(
-                "{} (weight {:.0} %, {:.1} behind): {}",
+                "{} (weight {:.0} %; held-out fit {:.1} behind the best, {:.1} with its parameters charged): {}",
                 label(&r.effects, r.refit),
                 100.0 * r.weight,
+                r.fit_behind,
                 r.score_behind,
                 r.meaning
             )

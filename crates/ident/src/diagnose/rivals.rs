@@ -74,8 +74,20 @@ impl Entry {
         (self.effects.clone(), self.refit)
     }
 
+    /// How well it predicts `n` held-out samples of squared innovation sum `sse`, its prior
+    /// charged: `N·ln(SSE/N)` + prior, score units.
+    fn fit_of(&self, sse: f64, n: f64) -> f64 {
+        n * (sse / n).ln() + self.prior
+    }
+
+    /// The fit with the penalty per parameter: the score the search admits a part by.
     fn score_of(&self, sse: f64, n: f64) -> f64 {
-        n * (sse / n).ln() + self.free as f64 * n.ln() + self.prior
+        self.fit_of(sse, n) + self.free as f64 * n.ln()
+    }
+
+    /// The fit over all its held-out samples.
+    fn fit(&self) -> f64 {
+        self.score - self.free as f64 * (self.w2.len() as f64).ln()
     }
 }
 
@@ -92,6 +104,9 @@ pub struct Rival {
     pub beats_best_share: f64,
     /// Held-out score behind the best rival (score units, 0 for the best).
     pub score_behind: f64,
+    /// Held-out fit behind the best fit, without the penalty per parameter (score units, 0
+    /// for the best): what it is judged on against an explanation of other parts.
+    pub fit_behind: f64,
     /// Validation MAE with it, N.
     pub mae_val_n: f64,
     /// Where its physics lives: `none`, `parameters`, `sensor`, `engine`, `sensor+engine`.
@@ -129,21 +144,22 @@ pub struct Rivals {
 /// whose held-out score is ahead of every other by more than a [`TIE`]: the same test the
 /// search's explanation must pass to be claimed, applied to each explanation in turn.
 /// `beats[k][j]` counts the resamples in which explanation `k` scores better than `j`,
-/// `wins[j]` those in which `j` scores best, out of `resamples`.
-/// `margin(k, j)` is the lead `j` needs over `k` ([`TIE`] or [`DISTINCT`], see [`margin`]).
+/// `wins[j]` those in which `j` scores best, out of `resamples`. `lead(j, k)` is how far `j`
+/// is ahead of `k` on all the held-out data and `margin(k, j)` the lead `j` needs over `k`
+/// (both as [`compared`] says).
 pub(crate) fn leader(
-    scores: &[f64],
     beats: &[Vec<usize>],
     wins: &[usize],
     resamples: usize,
+    lead: impl Fn(usize, usize) -> f64,
     margin: impl Fn(usize, usize) -> f64,
 ) -> Option<usize> {
     let share = |c: usize| c as f64 / resamples.max(1) as f64;
-    (0..scores.len()).find(|&j| {
+    (0..wins.len()).find(|&j| {
         share(wins[j]) >= 1.0 - RIVAL_WIN_SHARE
-            && (0..scores.len())
+            && (0..wins.len())
                 .filter(|&k| k != j)
-                .all(|k| share(beats[k][j]) < RIVAL_WIN_SHARE && scores[k] - scores[j] > margin(k, j))
+                .all(|k| share(beats[k][j]) < RIVAL_WIN_SHARE && lead(j, k) > margin(k, j))
     })
 }
 
@@ -154,13 +170,40 @@ fn nested(a: &Entry, b: &Entry) -> bool {
     within(a, b) || within(b, a)
 }
 
-/// The score lead a claim `a` needs over a rival `b`: a [`TIE`] when one is nested in the
-/// other (and neither is a swap that only looks nested), [`DISTINCT`] otherwise.
+/// True when the lead between `a` and `b` is measured on the score, with its penalty per
+/// parameter: one is nested in the other (and neither is a swap that only looks nested).
+/// The parts one has beyond the other must then pay for themselves, the bar the search
+/// admits a part by.
+///
+/// Between explanations of other parts the lead is measured on the held-out fit alone (with
+/// a refit's prior), as [`fits_better`] judges physics against a refit: each was fitted on
+/// the calibration part, so the held-out data already charge it for what it overfits. A
+/// penalty per parameter on top would let the one with fewer parameters lead one that
+/// predicts the held-out data better: a one-parameter gain drift claimed over a
+/// three-parameter heat soak that fitted the last 30 s of a 100 s recording better, by the
+/// penalty alone. (The resamples still compare scores: a rival with more parameters must
+/// also win its share of them with its penalty paid.)
+fn on_score(a: &Entry, b: &Entry) -> bool {
+    nested(a, b) && !a.swapped && !b.swapped
+}
+
+/// The lead a claim `a` needs over a rival `b`: a [`TIE`] on the score when one is nested
+/// in the other, [`DISTINCT`] on the fit otherwise (see [`on_score`]).
 fn margin(a: &Entry, b: &Entry) -> f64 {
-    if nested(a, b) && !a.swapped && !b.swapped {
+    if on_score(a, b) {
         TIE
     } else {
         DISTINCT
+    }
+}
+
+/// How far `a` is ahead of `b` over all the held-out data, on what the two are compared on
+/// ([`on_score`]): positive when `a` does better.
+fn compared(a: &Entry, b: &Entry) -> f64 {
+    if on_score(a, b) {
+        b.score - a.score
+    } else {
+        b.fit() - a.fit()
     }
 }
 
@@ -354,6 +397,11 @@ fn tells_apart(a: (&[&'static str], bool), b: (&[&'static str], bool)) -> String
 }
 
 /// The rivals of `chosen` among `pool` (every explanation the search fitted).
+///
+/// Each resample is won by the best score. A rival is dominated when the claim beats it in
+/// all but [`RIVAL_WIN_SHARE`] of the resamples *and* leads it over all the held-out data on
+/// what the two are compared on ([`on_score`]): a rival of other parts that predicts the
+/// held-out data as well is not dominated by its parameter count.
 pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
     let n = chosen.w2.len();
     let block = ((BLOCK_S / STEP_S).round() as usize).clamp(1, n.max(1));
@@ -372,11 +420,14 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
     }
     best.insert(chosen.label(), chosen);
     let top = best.values().map(|e| e.score).fold(f64::INFINITY, f64::min);
-    let mut entries: Vec<&Entry> = best.into_values().filter(|e| e.score <= top + WINDOW).collect();
+    let top_fit = best.values().map(|e| e.fit()).fold(f64::INFINITY, f64::min);
+    let mut entries: Vec<&Entry> =
+        best.into_values().filter(|e| e.score <= top + WINDOW || e.fit() <= top_fit + WINDOW).collect();
     if !entries.iter().any(|e| e.label() == chosen.label()) {
         entries.push(chosen);
     }
     let ci = entries.iter().position(|e| e.label() == chosen.label()).unwrap_or(0);
+    let m = entries.len();
     // Prefix sums of squared innovations: a block's sum in O(1).
     let prefix: Vec<Vec<f64>> = entries
         .iter()
@@ -390,13 +441,12 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
                 .collect()
         })
         .collect();
-    let mut wins = vec![0usize; entries.len()];
-    let mut beats = vec![0usize; entries.len()];
-    let mut pairwise = vec![vec![0usize; entries.len()]; entries.len()];
+    let mut wins = vec![0usize; m];
+    let mut pairwise = vec![vec![0usize; m]; m];
     let mut rng = Rng(0x5EE_D0FB_0075 ^ n as u64);
     let blocks = n.div_ceil(block).max(1);
     let starts = n.saturating_sub(block) + 1;
-    let mut sse = vec![0.0; entries.len()];
+    let mut sse = vec![0.0; m];
     for _ in 0..RESAMPLES {
         sse.iter_mut().for_each(|s| *s = 0.0);
         let mut len = 0usize;
@@ -409,13 +459,10 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
             }
         }
         let scores: Vec<f64> = entries.iter().zip(&sse).map(|(e, s)| e.score_of(*s, len as f64)).collect();
-        let winner = (0..scores.len()).min_by(|a, b| scores[*a].total_cmp(&scores[*b])).unwrap_or(ci);
+        let winner = (0..m).min_by(|a, b| scores[*a].total_cmp(&scores[*b])).unwrap_or(ci);
         wins[winner] += 1;
-        for j in 0..scores.len() {
-            if scores[j] < scores[ci] {
-                beats[j] += 1;
-            }
-            for k in 0..scores.len() {
+        for j in 0..m {
+            for k in 0..m {
                 if scores[j] < scores[k] {
                     pairwise[j][k] += 1;
                 }
@@ -423,39 +470,50 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         }
     }
     let share = |c: usize| c as f64 / RESAMPLES as f64;
+    let beats = |j: usize| pairwise[j][ci];
     let dominated = |j: usize| {
-        share(beats[j]) < RIVAL_WIN_SHARE && entries[j].score - entries[ci].score > margin(entries[ci], entries[j])
+        share(beats(j)) < RIVAL_WIN_SHARE && compared(entries[ci], entries[j]) > margin(entries[ci], entries[j])
+    };
+    let rival = |j: usize, e: &Entry| Rival {
+        effects: e.effects.clone(),
+        refit: e.refit,
+        weight: share(wins[j]),
+        beats_best_share: if j == ci { 0.0 } else { share(beats(j)) },
+        score_behind: e.score - top,
+        fit_behind: e.fit() - top_fit,
+        mae_val_n: e.mae_val_n,
+        side: side(&e.effects, e.refit),
+        meaning: meaning(&e.effects, e.refit),
+        tells_apart: if j == ci {
+            String::new()
+        } else {
+            tells_apart((&e.effects, e.refit), (&chosen.effects, chosen.refit))
+        },
+        dominated: j != ci && dominated(j),
     };
     let mut rivals: Vec<(usize, Rival)> = entries
         .iter()
         .enumerate()
         .filter(|(j, e)| {
-            *j == ci || share(wins[*j]) >= 0.01 || share(beats[*j]) >= 0.01 || e.score - top <= margin(entries[ci], e)
+            *j == ci
+                || share(wins[*j]) >= 0.01
+                || share(beats(*j)) >= 0.01
+                || e.score - top <= margin(entries[ci], e)
+                || compared(entries[ci], e) <= margin(entries[ci], e)
         })
-        .map(|(j, e)| {
-            let rival = Rival {
-                effects: e.effects.clone(),
-                refit: e.refit,
-                weight: share(wins[j]),
-                beats_best_share: share(beats[j]),
-                score_behind: e.score - top,
-                mae_val_n: e.mae_val_n,
-                side: side(&e.effects, e.refit),
-                meaning: meaning(&e.effects, e.refit),
-                tells_apart: if j == ci {
-                    String::new()
-                } else {
-                    tells_apart((&e.effects, e.refit), (&chosen.effects, chosen.refit))
-                },
-                dominated: j != ci && dominated(j),
-            };
-            (j, rival)
-        })
+        .map(|(j, e)| (j, rival(j, e)))
         .collect();
     let dominant = n >= MIN_BLOCKS * block && rivals.iter().all(|(j, r)| *j == ci || r.dominated);
-    let scores: Vec<f64> = entries.iter().map(|e| e.score).collect();
     let leader = (n >= MIN_BLOCKS * block && !dominant)
-        .then(|| leader(&scores, &pairwise, &wins, RESAMPLES, |k, j| margin(entries[j], entries[k])))
+        .then(|| {
+            leader(
+                &pairwise,
+                &wins,
+                RESAMPLES,
+                |j, k| compared(entries[j], entries[k]),
+                |k, j| margin(entries[j], entries[k]),
+            )
+        })
         .flatten()
         .filter(|&j| j != ci)
         .map(|j| entries[j].label());
@@ -463,22 +521,7 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
     rivals.truncate(6);
     if !rivals.iter().any(|(j, _)| *j == ci) {
         // The search's explanation is always listed, even when it weighs little.
-        let e = entries[ci];
-        rivals.push((
-            ci,
-            Rival {
-                effects: e.effects.clone(),
-                refit: e.refit,
-                weight: share(wins[ci]),
-                beats_best_share: 0.0,
-                score_behind: e.score - top,
-                mae_val_n: e.mae_val_n,
-                side: side(&e.effects, e.refit),
-                meaning: meaning(&e.effects, e.refit),
-                tells_apart: String::new(),
-                dominated: false,
-            },
-        ));
+        rivals.push((ci, rival(ci, entries[ci])));
     }
     Rivals { rivals: rivals.into_iter().map(|(_, r)| r).collect(), dominant, held_out_s, needed_s, leader }
 }
@@ -575,6 +618,31 @@ mod tests {
     }
 
     #[test]
+    fn an_explanation_of_other_parts_that_fits_better_is_not_dominated_by_its_parameter_count() {
+        let n = 3000; // 30 s held out, as on a 100 s recording
+        let noise = innovations(6, n, 1.0);
+        // A heat soak of three parameters fits the held-out data 1.5 units better than a gain
+        // drift of one: 16 units behind on the score, which charges 2·ln N for the two more.
+        let ahead = (-1.5f64 / n as f64).exp().sqrt();
+        let drift = explanation(&[EffectKind::GainDrift], false, &noise);
+        let mut soak =
+            explanation(&[EffectKind::Discrepancy], false, &noise.iter().map(|x| x * ahead).collect::<Vec<_>>());
+        soak.free = 3;
+        soak.score += 2.0 * (n as f64).ln();
+        assert!(soak.score > drift.score + 10.0);
+        let w = weigh(std::slice::from_ref(&soak), &drift);
+        assert!(!w.dominant, "the drift is claimed over a soak that predicts better: {:?}", w.rivals);
+        assert_eq!(w.leader, None, "1.5 units is no lead either: {:?}", w.rivals);
+        let r = w.rivals.iter().find(|r| r.effects == ["discrepancy"]).expect("the soak is listed");
+        assert!(r.fit_behind == 0.0 && r.score_behind > 10.0, "{r:?}");
+        // The same numbers for the drift with a part more (nested): the part does not pay.
+        let mut more = soak.clone();
+        more.effects = vec!["discrepancy", "gain_drift"];
+        let w = weigh(&[more], &drift);
+        assert!(w.dominant, "{:?}", w.rivals);
+    }
+
+    #[test]
     fn physics_must_fit_better_than_a_refit_and_each_added_part_must_earn_its_place() {
         let n = 6000;
         let noise = innovations(4, n, 1.0);
@@ -624,10 +692,11 @@ mod tests {
     fn the_leader_rule_needs_the_weight_and_the_score() {
         // Explanation 0 wins every resample but is within a tie of explanation 1 on score.
         let beats = vec![vec![0, 400], vec![0, 0]];
-        assert_eq!(leader(&[0.0, 1.5], &beats, &[400, 0], 400, |_, _| TIE), None);
-        assert_eq!(leader(&[0.0, 2.5], &beats, &[400, 0], 400, |_, _| TIE), Some(0));
+        let lead = |scores: [f64; 2]| move |j: usize, k: usize| scores[k] - scores[j];
+        assert_eq!(leader(&beats, &[400, 0], 400, lead([0.0, 1.5]), |_, _| TIE), None);
+        assert_eq!(leader(&beats, &[400, 0], 400, lead([0.0, 2.5]), |_, _| TIE), Some(0));
         // Ahead on score, but another explanation beats it in 5 % of the resamples.
         let beats = vec![vec![0, 380], vec![20, 0]];
-        assert_eq!(leader(&[0.0, 30.0], &beats, &[380, 20], 400, |_, _| TIE), None);
+        assert_eq!(leader(&beats, &[380, 20], 400, lead([0.0, 30.0]), |_, _| TIE), None);
     }
 }
