@@ -27,9 +27,10 @@
 //! the calibration part (two seconds do not show a decay of tens of seconds), and
 //! charged as parameters like every other fitted value.
 
+use std::cell::RefCell;
 use std::ops::Range;
 
-use jetbench_model::{Plant, SlowStart, State, STEP_S};
+use jetbench_model::{DriveKey, DriveTrack, Plant, SlowStart, State, STEP_S};
 use serde::Serialize;
 
 use crate::noise::{self, ArModel, NoiseEstimate};
@@ -161,6 +162,66 @@ pub(crate) struct Problem<'a> {
     pub n_val: usize,
     pub noise: NoiseEstimate,
     pub report: DataReport,
+    /// The drives of the last simulations, read again by every simulation with the same
+    /// throttle path and map ([`DriveCache`]).
+    drives: RefCell<DriveCache>,
+}
+
+/// Plants with the same throttle path and throttle map ([`Plant::drive_key`]) drive their
+/// engines alike over a run's throttles: a refit's Jacobian columns of the ten
+/// parameters but `B_UU`, a gain drift's, a sensor-side effect's, and every probe and fit
+/// that leaves the path alone. The drives of the last few paths are kept per run
+/// ([`DriveTrack`]), each track checking its own key and throttles when read, so that
+/// a reading is the same, bit for bit, as one that runs the path.
+#[derive(Debug, Default)]
+struct DriveCache {
+    slots: Vec<DriveSlot>,
+    /// Counts lookups, to give up the least recently used path.
+    clock: u64,
+}
+
+/// The drives of one throttle path, per run.
+#[derive(Debug)]
+struct DriveSlot {
+    key: DriveKey,
+    used: u64,
+    runs: Vec<DriveTrack>,
+}
+
+/// Paths kept: a fit alternates between its point and a column or two that move the path
+/// (a rate limit's two values, a delay), each about 2 MB of drives per 600 s run.
+const DRIVE_SLOTS: usize = 4;
+
+impl Clone for DriveCache {
+    /// Empty: a copy of a problem may be given other throttles (the tracks would not be
+    /// read on those, but would be copied for nothing).
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
+impl DriveCache {
+    /// The tracks of `key`'s path, one per run: kept ones, or those of the least recently
+    /// used path (to be overwritten, reusing their memory).
+    fn tracks(&mut self, key: DriveKey, runs: usize) -> &mut [DriveTrack] {
+        self.clock += 1;
+        let at = match self.slots.iter().position(|s| s.key == key) {
+            Some(i) => i,
+            None if self.slots.len() < DRIVE_SLOTS => {
+                self.slots.push(DriveSlot { key, used: 0, runs: Vec::new() });
+                self.slots.len() - 1
+            }
+            None => {
+                let oldest = (0..self.slots.len()).min_by_key(|&i| self.slots[i].used).unwrap_or(0);
+                self.slots[oldest].key = key;
+                oldest
+            }
+        };
+        let slot = &mut self.slots[at];
+        slot.used = self.clock;
+        slot.runs.resize_with(runs, DriveTrack::default);
+        &mut slot.runs
+    }
 }
 
 /// Simulated measured thrust per run, on its grid.
@@ -276,7 +337,7 @@ impl<'a> Problem<'a> {
             clipped_rows: clipped.iter().map(|c| c.1).sum(),
             clipped_at_n: clipped.iter().map(|c| c.0).collect(),
         };
-        let mut problem = Self { data, runs, cut, n_cal, n_val, noise, report };
+        let mut problem = Self { data, runs, cut, n_cal, n_val, noise, report, drives: RefCell::default() };
         let states = problem.initial_states(nominal);
         for (run, state) in problem.runs.iter_mut().zip(states) {
             run.initial = state;
@@ -434,14 +495,17 @@ impl<'a> Problem<'a> {
     ) -> Result<(), (usize, f64)> {
         out.resize_with(self.runs.len(), Vec::new);
         let mut failure = None;
-        for ((run, sim), &start) in self.runs.iter().zip(out.iter_mut()).zip(starts) {
+        let mut drives = self.drives.borrow_mut();
+        let mut tracks = plant.drive_key(SUBSTEPS).map(|key| drives.tracks(key, self.runs.len()));
+        for (i, ((run, sim), &start)) in self.runs.iter().zip(out.iter_mut()).zip(starts).enumerate() {
             let end = if calibration_only { run.cut.min(run.u.len()) } else { run.u.len() };
             if end == 0 {
                 sim.clear();
                 continue;
             }
             let RunStart { state, slow } = start.into();
-            if let Some(at) = plant.free_run_from(SUBSTEPS, run.t0_s, state, slow, &run.u[..end], sim) {
+            let track = tracks.as_deref_mut().map(|t| &mut t[i]);
+            if let Some(at) = plant.free_run_keeping(SUBSTEPS, run.t0_s, state, slow, &run.u[..end], sim, None, track) {
                 failure.get_or_insert((run.series, run.t0_s + at));
             }
         }
@@ -487,8 +551,10 @@ impl<'a> Problem<'a> {
             return failure.map_or(Ok(()), Err);
         }
         cache.runs.resize_with(self.runs.len(), Default::default);
-        for (((run, sim), start), (path, diverged_s)) in
-            self.runs.iter().zip(out.iter_mut()).zip(starts).zip(cache.runs.iter_mut())
+        let mut drives = self.drives.borrow_mut();
+        let mut tracks = plant.drive_key(SUBSTEPS).map(|key| drives.tracks(key, self.runs.len()));
+        for (i, (((run, sim), start), (path, diverged_s))) in
+            self.runs.iter().zip(out.iter_mut()).zip(starts).zip(cache.runs.iter_mut()).enumerate()
         {
             let end = end(run);
             *diverged_s = None;
@@ -497,8 +563,10 @@ impl<'a> Problem<'a> {
                 path.clear();
                 continue;
             }
+            let track = tracks.as_deref_mut().map(|t| &mut t[i]);
+            let u = &run.u[..end];
             *diverged_s =
-                plant.free_run_recorded(SUBSTEPS, run.t0_s, start.state, start.slow, &run.u[..end], sim, path);
+                plant.free_run_keeping(SUBSTEPS, run.t0_s, start.state, start.slow, u, sim, Some(path), track);
             if let Some(at) = *diverged_s {
                 failure.get_or_insert((run.series, run.t0_s + at));
             }
