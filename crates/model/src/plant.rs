@@ -223,28 +223,28 @@ impl Plant {
         u_pct: &[f64],
         out: &mut Vec<f64>,
     ) -> Option<f64> {
-        self.run_stepping(substeps, t0_s, initial, slow, u_pct, out, PlantEngine::step)
+        let engine = self.run_engine(substeps, t0_s, initial, slow, u_pct);
+        Self::run_stepping(engine, u_pct, out, |engine, _, u| engine.step(u))
     }
 
-    /// The free run behind [`Plant::free_run_from`] and [`Plant::free_run_recorded`], each
-    /// step taken by `step`.
-    #[allow(clippy::too_many_arguments)]
+    /// The engine a free run of `u_pct` starts with.
+    fn run_engine(&self, substeps: usize, t0_s: f64, initial: State, slow: SlowStart, u_pct: &[f64]) -> PlantEngine {
+        PlantEngine::new(self, initial, slow, u_pct.first().copied().unwrap_or(0.0), t0_s, substeps)
+    }
+
+    /// The free run behind [`Plant::free_run_from`] and [`Plant::free_run_keeping`], each
+    /// step `k` taken by `step`.
     #[inline(always)]
     fn run_stepping(
-        &self,
-        substeps: usize,
-        t0_s: f64,
-        initial: State,
-        slow: SlowStart,
+        mut engine: PlantEngine,
         u_pct: &[f64],
         out: &mut Vec<f64>,
-        mut step: impl FnMut(&mut PlantEngine, f64) -> Result<PlantSample, ModelError>,
+        mut step: impl FnMut(&mut PlantEngine, usize, f64) -> Result<PlantSample, ModelError>,
     ) -> Option<f64> {
-        let mut engine = PlantEngine::new(self, initial, slow, u_pct.first().copied().unwrap_or(0.0), t0_s, substeps);
         out.clear();
         out.push(engine.measured_n());
         for (k, &u) in u_pct.iter().enumerate().take(u_pct.len().saturating_sub(1)) {
-            match step(&mut engine, u) {
+            match step(&mut engine, k, u) {
                 Ok(s) => out.push(s.measured_n),
                 Err(_) => {
                     out.resize(u_pct.len(), f64::NAN);
@@ -280,8 +280,64 @@ impl Plant {
         out: &mut Vec<f64>,
         thrust_n: &mut Vec<f64>,
     ) -> Option<f64> {
-        thrust_n.clear();
-        self.run_stepping(substeps, t0_s, initial, slow, u_pct, out, |engine, u| engine.step_recorded(u, thrust_n))
+        self.free_run_keeping(substeps, t0_s, initial, slow, u_pct, out, Some(thrust_n), None)
+    }
+
+    /// What fixes this plant's drives ([`DriveTrack`]) with `substeps` RK4 steps per
+    /// [`STEP_S`]; `None` when it has none worth keeping (no input delay, rate limit or
+    /// actuator lag: the drive is the throttle map of the throttle held; or a turbojet,
+    /// which follows its throttle tick by tick).
+    pub fn drive_key(&self, substeps: usize) -> Option<DriveKey> {
+        if self.turbojet.is_some() {
+            return None;
+        }
+        PlantEngine::new(self, State::default(), SlowStart::SETTLED, 0.0, 0.0, substeps).drive_key()
+    }
+
+    /// [`Plant::free_run_from`] that keeps what the next run may reuse: the engine's path in
+    /// `thrust_n`, as [`Plant::free_run_recorded`] does, and the drives in `drives`. The
+    /// drives are read from there when it holds this plant's ([`Plant::drive_key`]) over
+    /// these throttles (any plant's, other parameters and effects aside), and are run and
+    /// kept there otherwise. The readings are the same, bit for bit, either way: the
+    /// drives do not depend on the engine's state.
+    #[allow(clippy::too_many_arguments)]
+    pub fn free_run_keeping(
+        &self,
+        substeps: usize,
+        t0_s: f64,
+        initial: State,
+        slow: SlowStart,
+        u_pct: &[f64],
+        out: &mut Vec<f64>,
+        thrust_n: Option<&mut Vec<f64>>,
+        drives: Option<&mut DriveTrack>,
+    ) -> Option<f64> {
+        let engine = self.run_engine(substeps, t0_s, initial, slow, u_pct);
+        let mut thrust_n = thrust_n;
+        if let Some(path) = thrust_n.as_deref_mut() {
+            path.clear();
+        }
+        let (Some(key), Some(track)) = (engine.drive_key(), drives) else {
+            return Self::run_stepping(engine, u_pct, out, |e, _, u| {
+                e.step_keeping(u, DriveSource::Path, thrust_n.as_deref_mut())
+            });
+        };
+        let steps = u_pct.len().saturating_sub(1);
+        let per_step = engine.substeps;
+        if track.holds(key, &u_pct[..steps], steps * per_step) {
+            let kept = &track.drives;
+            return Self::run_stepping(engine, u_pct, out, |e, k, u| {
+                e.step_keeping(u, DriveSource::Kept(&kept[k * per_step..(k + 1) * per_step]), thrust_n.as_deref_mut())
+            });
+        }
+        track.key = Some(key);
+        track.u_pct.clear();
+        track.u_pct.extend_from_slice(&u_pct[..steps]);
+        track.drives.clear();
+        let to = &mut track.drives;
+        Self::run_stepping(engine, u_pct, out, |e, _, u| {
+            e.step_keeping(u, DriveSource::Recording(to), thrust_n.as_deref_mut())
+        })
     }
 
     /// The reading of this plant along an engine path kept by [`Plant::free_run_recorded`]
@@ -445,6 +501,57 @@ struct Drive {
     above: f64,
 }
 
+/// Where a step's drives come from.
+enum DriveSource<'a> {
+    /// The throttle path, run now.
+    Path,
+    /// The throttle path, run now, each drive appended here.
+    Recording(&'a mut Vec<Drive>),
+    /// Kept from an earlier run of the same drives: this step's, one per substep. The path
+    /// is not run, so [`PlantSample::engine_throttle_pct`] is not meaningful (a free run
+    /// reports readings alone).
+    Kept(&'a [Drive]),
+}
+
+/// What fixes the drives of a plant's engine over given throttles, bit for bit: the
+/// throttle path's settings (input delay, rate limit, actuator lag), the throttle map's
+/// curvature `B_UU`, the discrepancy's hinges (where it has them) and the substeps. The
+/// rest of a plant (the other parameters, a gain drift, the sensor side, a discrepancy's
+/// other terms) acts after the drive.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DriveKey {
+    substeps: usize,
+    path: [Option<u64>; 4],
+    b_uu: u64,
+    hinges: Option<[u64; 2]>,
+}
+
+/// The drives of one free run (the throttle map `v(u)` and the discrepancy's hinges the
+/// engine integrates over each substep, from the throttle path), kept by
+/// [`Plant::free_run_keeping`] so that a run of any plant with the same [`DriveKey`] over
+/// the same throttles reads them instead of running the path again: a rate limit or a
+/// lag is a chain of [`SUBSTEPS`] ticks per step, a sixth of a fit's time on 600 s
+/// recordings.
+#[derive(Clone, Debug, Default)]
+pub struct DriveTrack {
+    key: Option<DriveKey>,
+    /// The throttles of the run they were kept from (those the steps took), %.
+    u_pct: Vec<f64>,
+    /// One per substep, up to the end of that run (or a little past a divergence).
+    drives: Vec<Drive>,
+}
+
+impl DriveTrack {
+    /// True when this holds `count` drives of `key` over throttles starting with `u_pct`
+    /// (compared bit for bit).
+    fn holds(&self, key: DriveKey, u_pct: &[f64], count: usize) -> bool {
+        self.key == Some(key)
+            && self.drives.len() >= count
+            && self.u_pct.len() >= u_pct.len()
+            && self.u_pct.iter().zip(u_pct).all(|(a, b)| a.to_bits() == b.to_bits())
+    }
+}
+
 impl PlantEngine {
     fn new(plant: &Plant, initial: State, slow: SlowStart, u0_pct: f64, t0_s: f64, substeps: usize) -> Self {
         // A turbojet's pump and governor are stiffer than the model: always 1 kHz.
@@ -534,25 +641,45 @@ impl PlantEngine {
     /// Advances one [`STEP_S`] with `throttle_pct` commanded; fails like
     /// [`crate::Engine::step`] on divergence or a non-finite throttle.
     pub fn step(&mut self, throttle_pct: f64) -> Result<PlantSample, ModelError> {
-        self.step_with(throttle_pct, |_| {})
+        self.step_with(throttle_pct, DriveSource::Path, |_| {})
     }
 
-    /// [`PlantEngine::step`] that appends the engine's thrust at the end of each substep
-    /// to `thrust_n` (only for a step that does not diverge).
-    fn step_recorded(&mut self, throttle_pct: f64, thrust_n: &mut Vec<f64>) -> Result<PlantSample, ModelError> {
+    /// [`PlantEngine::step`] with its drives from `drives`, appending the engine's thrust
+    /// at the end of each substep to `thrust_n` when given (only for a step that does not
+    /// diverge).
+    #[inline(always)]
+    fn step_keeping(
+        &mut self,
+        throttle_pct: f64,
+        drives: DriveSource<'_>,
+        thrust_n: Option<&mut Vec<f64>>,
+    ) -> Result<PlantSample, ModelError> {
+        let Some(thrust_n) = thrust_n else { return self.step_with(throttle_pct, drives, |_| {}) };
         let mark = thrust_n.len();
-        let sample = self.step_with(throttle_pct, |t| thrust_n.push(t));
+        let sample = self.step_with(throttle_pct, drives, |t| thrust_n.push(t));
         if sample.is_err() {
             thrust_n.truncate(mark);
         }
         sample
     }
 
-    /// [`PlantEngine::step`], handing each substep's thrust to `substep_thrust_n`.
+    /// What fixes this engine's drives, if it has any worth keeping (see [`Plant::drive_key`]).
+    fn drive_key(&self) -> Option<DriveKey> {
+        (self.turbojet.is_none() && self.path.shapes()).then(|| DriveKey {
+            substeps: self.substeps,
+            path: self.path.settings(),
+            b_uu: self.params.b_uu.to_bits(),
+            hinges: self.discrepancy.filter(|d| d.law.has_hinges()).map(|d| [d.v_below.to_bits(), d.v_above.to_bits()]),
+        })
+    }
+
+    /// [`PlantEngine::step`] with its drives from `drives`, handing each substep's thrust to
+    /// `substep_thrust_n`.
     #[inline(always)]
     fn step_with(
         &mut self,
         throttle_pct: f64,
+        mut drives: DriveSource<'_>,
         mut substep_thrust_n: impl FnMut(f64),
     ) -> Result<PlantSample, ModelError> {
         if !throttle_pct.is_finite() {
@@ -571,7 +698,21 @@ impl PlantEngine {
         let p = self.params;
         let (mut t, mut d) = (self.state.thrust_n, self.state.thrust_rate_n_per_s);
         for i in 0..self.substeps {
-            let mut drive = if shaped { self.shaped_drive(i) } else { held };
+            let mut drive = match &mut drives {
+                DriveSource::Kept(kept) => kept[i],
+                DriveSource::Path => {
+                    if shaped {
+                        self.shaped_drive(i)
+                    } else {
+                        held
+                    }
+                }
+                DriveSource::Recording(to) => {
+                    let drive = if shaped { self.shaped_drive(i) } else { held };
+                    to.push(drive);
+                    drive
+                }
+            };
             if self.gain_per_s != 0.0 {
                 let t_mid = self.t0_s + self.steps as f64 * STEP_S + (i as f64 + 0.5) * h;
                 drive.v *= 1.0 - self.gain_per_s * t_mid;
@@ -677,6 +818,7 @@ impl PlantEngine {
 
     /// The sensor side and the thrust history, after the engine moved from `t0` to `t1`
     /// over a substep.
+    #[inline(always)]
     fn sense(&mut self, t0: f64, t1: f64) {
         let frame_before = self.frame_n;
         match self.play_n {
@@ -1094,6 +1236,90 @@ mod tests {
             e.step(50.0).unwrap();
         }
         assert!((e.state().thrust_n - plant.rest_thrust_n(50.0)).abs() < 0.01);
+    }
+
+    /// A run on kept drives reads what a full run reads, bit for bit: drives kept by a plant
+    /// that differs in everything the drive does not depend on (the other parameters, a gain
+    /// drift, the sensor side, the discrepancy's other terms), over the whole run and a
+    /// prefix; and a plant whose drive differs (another rate limit, `B_UU`, throttles) runs
+    /// its own path instead of reading the kept one.
+    #[test]
+    fn a_run_on_kept_drives_is_the_full_run_bit_for_bit() {
+        let p = Preset::P100Diesel.params();
+        let path = [
+            "input_delay:delay_s=0.037",
+            "rate_limit:up_pct_per_s=60,down_pct_per_s=90",
+            "actuator_lag:time_constant_s=0.15",
+        ];
+        let hinges =
+            "discrepancy:map_below=0.5,knot_below_pct=45,gain_history_per_n=-0.0004,history_time_constant_s=20";
+        let keeper = Plant::new(p, with(&[&path[..], &[hinges]].concat()));
+        let mut other = p.to_array();
+        other[0] *= 1.02;
+        other[6] *= 0.98;
+        let reader = Plant::new(
+            Params::from_array(other),
+            with(
+                &[
+                    &path[..],
+                    &[
+                        "discrepancy:map_below=0.5,knot_below_pct=45,gain_history_per_n=-0.0002,history_time_constant_s=40",
+                        "gain_drift:per_minute=0.01",
+                        "stand_resonance:frequency_hz=3,damping_ratio=0.05",
+                    ],
+                ]
+                .concat(),
+            ),
+        );
+        for substeps in [1, 2, SUBSTEPS] {
+            assert!(keeper.drive_key(substeps).is_some() && keeper.drive_key(substeps) == reader.drive_key(substeps));
+        }
+        let u = step_input();
+        let initial = State { thrust_n: keeper.rest_thrust_n(u[0]), thrust_rate_n_per_s: 0.0 };
+        let slow = SlowStart { bias_n: 0.0, history_offset_n: -2.0 };
+        for substeps in [1, SUBSTEPS] {
+            let (mut track, mut out, mut expected) = (DriveTrack::default(), Vec::new(), Vec::new());
+            assert!(keeper
+                .free_run_keeping(substeps, 1.0, initial, slow, &u, &mut out, None, Some(&mut track))
+                .is_none());
+            assert!(keeper.free_run_from(substeps, 1.0, initial, slow, &u, &mut expected).is_none());
+            assert_eq!(out, expected, "the keeping run itself");
+            for len in [u.len(), 700] {
+                assert!(reader.free_run_from(substeps, 1.0, initial, slow, &u[..len], &mut expected).is_none());
+                let (mut got, mut thrust_n) = (Vec::new(), Vec::new());
+                let kept = track.drives.clone();
+                reader.free_run_keeping(
+                    substeps,
+                    1.0,
+                    initial,
+                    slow,
+                    &u[..len],
+                    &mut got,
+                    Some(&mut thrust_n),
+                    Some(&mut track),
+                );
+                assert_eq!(got, expected, "{substeps} substeps, {len} samples");
+                assert_eq!(track.drives.len(), kept.len(), "read, not run again");
+                assert_eq!(thrust_n.len(), (len - 1) * if substeps == 1 { 1 } else { SUBSTEPS });
+            }
+            // Another drive: the kept one is not read.
+            let faster = Plant::new(p, with(&[path[0], "rate_limit:up_pct_per_s=61,down_pct_per_s=90", path[2]]));
+            let mut curved = p.to_array();
+            curved[9] += 1e-4;
+            let curved = Plant::new(Params::from_array(curved), with(&path));
+            let moved: Vec<f64> = u.iter().map(|x| x + 1.0).collect();
+            for (plant, u) in [(&faster, &u), (&curved, &u), (&keeper, &moved)] {
+                let mut fresh = track.clone();
+                assert!(plant.free_run_from(substeps, 1.0, initial, slow, u, &mut expected).is_none());
+                assert!(plant
+                    .free_run_keeping(substeps, 1.0, initial, slow, u, &mut out, None, Some(&mut fresh))
+                    .is_none());
+                assert_eq!(out, expected, "{substeps} substeps");
+                assert!(fresh.holds(plant.drive_key(substeps).unwrap(), &u[..u.len() - 1], (u.len() - 1) * substeps));
+            }
+        }
+        // Without a throttle path there is nothing to keep.
+        assert_eq!(Plant::new(p, with(&["gain_drift:per_minute=0.01"])).drive_key(1), None);
     }
 
     /// A sensor side run on a kept engine path reads what a full run of that plant reads,

@@ -198,6 +198,18 @@ impl ThrottlePath {
         self.delay.map_or(0.0, |d| d.delay_s)
     }
 
+    /// The path's settings, bit for bit: two paths with the same settings shape the same
+    /// throttles alike (the input delay, the rate limit's steps per tick, the lag's
+    /// step response after one tick).
+    pub(crate) fn settings(&self) -> [Option<u64>; 4] {
+        [
+            self.delay.map(|d| d.delay_s.to_bits()),
+            self.rate_limit.map(|r| r.0.to_bits()),
+            self.rate_limit.map(|r| r.1.to_bits()),
+            self.lag_alpha.map(f64::to_bits),
+        ]
+    }
+
     /// True when the path changes the throttle at all (any of its three effects).
     pub fn shapes(&self) -> bool {
         self.delay.is_some() || self.rate_limit.is_some() || self.lag_alpha.is_some()

@@ -27,9 +27,10 @@
 //! the calibration part (two seconds do not show a decay of tens of seconds), and
 //! charged as parameters like every other fitted value.
 
+use std::cell::RefCell;
 use std::ops::Range;
 
-use jetbench_model::{Plant, SlowStart, State, STEP_S};
+use jetbench_model::{DriveKey, DriveTrack, Plant, SlowStart, State, STEP_S};
 use serde::Serialize;
 
 use crate::noise::{self, ArModel, NoiseEstimate};
@@ -161,6 +162,66 @@ pub(crate) struct Problem<'a> {
     pub n_val: usize,
     pub noise: NoiseEstimate,
     pub report: DataReport,
+    /// The drives of the last simulations, read again by every simulation with the same
+    /// throttle path and map ([`DriveCache`]).
+    drives: RefCell<DriveCache>,
+}
+
+/// Plants with the same throttle path and throttle map ([`Plant::drive_key`]) drive their
+/// engines alike over a run's throttles: a refit's Jacobian columns of the ten
+/// parameters but `B_UU`, a gain drift's, a sensor-side effect's, and every probe and fit
+/// that leaves the path alone. The drives of the last few paths are kept per run
+/// ([`DriveTrack`]), each track checking its own key and throttles when read, so that
+/// a reading is the same, bit for bit, as one that runs the path.
+#[derive(Debug, Default)]
+struct DriveCache {
+    slots: Vec<DriveSlot>,
+    /// Counts lookups, to give up the least recently used path.
+    clock: u64,
+}
+
+/// The drives of one throttle path, per run.
+#[derive(Debug)]
+struct DriveSlot {
+    key: DriveKey,
+    used: u64,
+    runs: Vec<DriveTrack>,
+}
+
+/// Paths kept: a fit alternates between its point and a column or two that move the path
+/// (a rate limit's two values, a delay), each about 2 MB of drives per 600 s run.
+const DRIVE_SLOTS: usize = 4;
+
+impl Clone for DriveCache {
+    /// Empty: a copy of a problem may be given other throttles (the tracks would not be
+    /// read on those, but would be copied for nothing).
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
+impl DriveCache {
+    /// The tracks of `key`'s path, one per run: kept ones, or those of the least recently
+    /// used path (to be overwritten, reusing their memory).
+    fn tracks(&mut self, key: DriveKey, runs: usize) -> &mut [DriveTrack] {
+        self.clock += 1;
+        let at = match self.slots.iter().position(|s| s.key == key) {
+            Some(i) => i,
+            None if self.slots.len() < DRIVE_SLOTS => {
+                self.slots.push(DriveSlot { key, used: 0, runs: Vec::new() });
+                self.slots.len() - 1
+            }
+            None => {
+                let oldest = (0..self.slots.len()).min_by_key(|&i| self.slots[i].used).unwrap_or(0);
+                self.slots[oldest].key = key;
+                oldest
+            }
+        };
+        let slot = &mut self.slots[at];
+        slot.used = self.clock;
+        slot.runs.resize_with(runs, DriveTrack::default);
+        &mut slot.runs
+    }
 }
 
 /// Simulated measured thrust per run, on its grid.
@@ -276,7 +337,7 @@ impl<'a> Problem<'a> {
             clipped_rows: clipped.iter().map(|c| c.1).sum(),
             clipped_at_n: clipped.iter().map(|c| c.0).collect(),
         };
-        let mut problem = Self { data, runs, cut, n_cal, n_val, noise, report };
+        let mut problem = Self { data, runs, cut, n_cal, n_val, noise, report, drives: RefCell::default() };
         let states = problem.initial_states(nominal);
         for (run, state) in problem.runs.iter_mut().zip(states) {
             run.initial = state;
@@ -353,8 +414,7 @@ impl<'a> Problem<'a> {
         let (bits, powers) = &mut cache.decay_powers;
         if *bits != decay.to_bits() || powers.len() < longest {
             *bits = decay.to_bits();
-            powers.clear();
-            powers.extend((0..longest).map(|k| decay.powi(k as i32)));
+            powers_by_squaring(decay, longest, powers);
         }
         let powers = &cache.decay_powers.1;
         let (mut wr, mut wz) = (Vec::new(), Vec::new());
@@ -434,14 +494,17 @@ impl<'a> Problem<'a> {
     ) -> Result<(), (usize, f64)> {
         out.resize_with(self.runs.len(), Vec::new);
         let mut failure = None;
-        for ((run, sim), &start) in self.runs.iter().zip(out.iter_mut()).zip(starts) {
+        let mut drives = self.drives.borrow_mut();
+        let mut tracks = plant.drive_key(SUBSTEPS).map(|key| drives.tracks(key, self.runs.len()));
+        for (i, ((run, sim), &start)) in self.runs.iter().zip(out.iter_mut()).zip(starts).enumerate() {
             let end = if calibration_only { run.cut.min(run.u.len()) } else { run.u.len() };
             if end == 0 {
                 sim.clear();
                 continue;
             }
             let RunStart { state, slow } = start.into();
-            if let Some(at) = plant.free_run_from(SUBSTEPS, run.t0_s, state, slow, &run.u[..end], sim) {
+            let track = tracks.as_deref_mut().map(|t| &mut t[i]);
+            if let Some(at) = plant.free_run_keeping(SUBSTEPS, run.t0_s, state, slow, &run.u[..end], sim, None, track) {
                 failure.get_or_insert((run.series, run.t0_s + at));
             }
         }
@@ -487,8 +550,10 @@ impl<'a> Problem<'a> {
             return failure.map_or(Ok(()), Err);
         }
         cache.runs.resize_with(self.runs.len(), Default::default);
-        for (((run, sim), start), (path, diverged_s)) in
-            self.runs.iter().zip(out.iter_mut()).zip(starts).zip(cache.runs.iter_mut())
+        let mut drives = self.drives.borrow_mut();
+        let mut tracks = plant.drive_key(SUBSTEPS).map(|key| drives.tracks(key, self.runs.len()));
+        for (i, (((run, sim), start), (path, diverged_s))) in
+            self.runs.iter().zip(out.iter_mut()).zip(starts).zip(cache.runs.iter_mut()).enumerate()
         {
             let end = end(run);
             *diverged_s = None;
@@ -497,8 +562,10 @@ impl<'a> Problem<'a> {
                 path.clear();
                 continue;
             }
+            let track = tracks.as_deref_mut().map(|t| &mut t[i]);
+            let u = &run.u[..end];
             *diverged_s =
-                plant.free_run_recorded(SUBSTEPS, run.t0_s, start.state, start.slow, &run.u[..end], sim, path);
+                plant.free_run_keeping(SUBSTEPS, run.t0_s, start.state, start.slow, u, sim, Some(path), track);
             if let Some(at) = *diverged_s {
                 failure.get_or_insert((run.series, run.t0_s + at));
             }
@@ -619,6 +686,28 @@ impl<'a> Problem<'a> {
     }
 }
 
+/// Replaces `out` with `base.powi(k)` for `k` in `0..count`, the same values bit for bit,
+/// one product each. `powi` is binary exponentiation (`__powidf2`: the product of the
+/// squares `base^(2^j)` at the exponent's set bits, lowest first, each square the one
+/// before squared), so the power of `k` is that of `k` without its highest bit times
+/// that bit's square; `powi` itself squares again for every `k` (3 % of a 600 s
+/// diagnosis).
+fn powers_by_squaring(base: f64, count: usize, out: &mut Vec<f64>) {
+    let mut squares = [base; usize::BITS as usize];
+    for j in 1..squares.len() {
+        squares[j] = squares[j - 1] * squares[j - 1];
+    }
+    out.clear();
+    out.reserve(count);
+    for k in 0..count {
+        let power = match k.checked_ilog2() {
+            None => 1.0,
+            Some(highest) => out[k - (1 << highest)] * squares[highest as usize],
+        };
+        out.push(power);
+    }
+}
+
 /// Marks samples far from their neighbours' median as missing; returns them.
 fn reject_outliers(runs: &mut [Run]) -> Vec<Outlier> {
     let mut deviations: Vec<Vec<f64>> = Vec::with_capacity(runs.len());
@@ -717,6 +806,20 @@ mod tests {
     use super::*;
     use crate::{excite, synth};
     use jetbench_model::{Effects, Preset};
+
+    /// The drift's decay powers are `powi`'s, bit for bit, for decays over the range of
+    /// time constants a fit explores and over a 600 s run.
+    #[test]
+    fn powers_by_squaring_are_powi_bit_for_bit() {
+        for time_constant_s in [0.5, 1.0, 7.3, 20.0, 31.49, 250.0, 1000.0] {
+            let decay = (-STEP_S / time_constant_s).exp();
+            let mut powers = Vec::new();
+            powers_by_squaring(decay, 70_000, &mut powers);
+            for (k, p) in powers.iter().enumerate() {
+                assert_eq!(p.to_bits(), decay.powi(k as i32).to_bits(), "τ = {time_constant_s} s, k = {k}");
+            }
+        }
+    }
 
     /// The in-place innovations are the residuals whitened run by run, value for value, on a
     /// recording with coloured noise, lost rows and spikes (strides and gaps included).
