@@ -322,6 +322,42 @@ pub(crate) fn start_grid(kind: EffectKind, peak_hz: Option<f64>) -> Vec<Vec<f64>
     }
 }
 
+/// The index of the value that is zero when a catalogue effect is absent (its size): a
+/// delay, a lag, a drift's gain or rate, a play band. A rate limit is absent only at an
+/// infinite rate, a resonance has no size, and the discrepancy's terms are judged one by
+/// one ([`super::discrepancy::idle_term`]).
+fn size_index(kind: EffectKind) -> Option<usize> {
+    match kind {
+        EffectKind::InputDelay
+        | EffectKind::ActuatorLag
+        | EffectKind::SensorDrift
+        | EffectKind::GainDrift
+        | EffectKind::BearingFriction => Some(0),
+        EffectKind::RateLimit | EffectKind::StandResonance | EffectKind::Discrepancy => None,
+    }
+}
+
+/// The effects of `fit` whose fitted size is within two standard errors of zero, with the
+/// size, its key and its standard error, least significant first: the calibration data
+/// cannot tell such an effect from none, so it is no part of a claim. A size the fit gives
+/// no standard error for (a value held, a singular fit) is not judged.
+pub(crate) fn idle_effects(fit: &Fit) -> Vec<(EffectKind, &'static str, f64, f64)> {
+    let mut idle: Vec<(EffectKind, &'static str, f64, f64)> = fit
+        .spec
+        .effects
+        .iter()
+        .filter_map(|(kind, values)| {
+            let i = size_index(*kind)?;
+            let (_, errors) = fit.stderr.iter().find(|(k, _)| k == kind)?;
+            let (value, error) = (*values.get(i)?, *errors.get(i)?);
+            (error.is_finite() && error > 0.0 && value.abs() < 2.0 * error)
+                .then(|| (*kind, kind.keys()[i], value, error))
+        })
+        .collect();
+    idle.sort_by(|a, b| (a.2.abs() / a.3).total_cmp(&(b.2.abs() / b.3)));
+    idle
+}
+
 /// A fitted hypothesis.
 #[derive(Clone, Debug)]
 pub(crate) struct Fit {
@@ -516,9 +552,38 @@ pub(crate) fn calibration_sse(
 
 #[cfg(test)]
 mod tests {
+    use super::{idle_effects, Fit, Spec};
     use crate::diagnose::{diagnose, Cause, Options};
     use crate::{excite, synth};
-    use jetbench_model::{Effect, Effects, ModelFile, Plant, Preset, SlowStart};
+    use jetbench_model::{Effect, EffectKind, Effects, ModelFile, Plant, Preset, SlowStart};
+
+    /// A gain drift of 0.05 ± 0.05 %/min beside a lag of 0.40 ± 0.007 s and a rate limit:
+    /// the drift is idle (the data cannot tell it from none); the lag is not, and a rate
+    /// limit has no size that vanishes, so it is never judged so.
+    #[test]
+    fn an_effect_within_two_standard_errors_of_zero_is_idle() {
+        let spec = Spec::new(Preset::P100Diesel.params(), Vec::new())
+            .with(EffectKind::ActuatorLag, vec![0.40])
+            .with(EffectKind::RateLimit, vec![61.4, 81.0])
+            .with(EffectKind::GainDrift, vec![0.0005]);
+        let mut fit = Fit {
+            stderr: vec![
+                (EffectKind::ActuatorLag, vec![0.007]),
+                (EffectKind::RateLimit, vec![0.9, 18.0]),
+                (EffectKind::GainDrift, vec![0.0005]),
+            ],
+            param_stderr: [f64::NAN; 10],
+            spec,
+        };
+        let idle: Vec<EffectKind> = idle_effects(&fit).into_iter().map(|(k, ..)| k).collect();
+        assert_eq!(idle, [EffectKind::GainDrift]);
+        // Three standard errors out, the drift is an effect; without a standard error, it is
+        // not judged.
+        fit.stderr[2].1[0] = 0.0005 / 3.0;
+        assert!(idle_effects(&fit).is_empty());
+        fit.stderr[2].1[0] = f64::NAN;
+        assert!(idle_effects(&fit).is_empty());
+    }
 
     /// A recording that begins before the engine has soaked (its thrust history starts far
     /// below the thrust, as on a bench where the recording starts soon after the engine

@@ -162,7 +162,8 @@ pub struct Candidate {
     pub fit_gain: Option<f64>,
     /// Parameters fitted.
     pub parameters: usize,
-    /// Why it cannot be a claim (outside its physical range), if so.
+    /// Why it cannot be a claim (outside its physical range, or an effect whose size is
+    /// within two standard errors of zero), if so.
     pub unphysical: Option<String>,
     /// What else there is to say (the discrepancy's terms, a divergence).
     pub note: Option<String>,
@@ -255,6 +256,11 @@ pub struct Diagnosis {
     pub effects: Vec<FoundEffect>,
     /// The re-identified parameters, when the given ones were off.
     pub refit: Option<Refit>,
+    /// Physics claimed on the given parameters although a refit with the same physics fits
+    /// the held-out data better, by less than blames the parameters: what the refit gained.
+    /// The physics is needed either way; whether the parameters are off as well, the
+    /// recording cannot tell, and this says so.
+    pub parameters_open: Option<String>,
     /// Validation MAE of the given model, N.
     pub mae_before_n: f64,
     /// Validation MAE of the improved model, N.
@@ -279,7 +285,9 @@ pub struct Diagnosis {
     pub after: Analysis,
     /// Every hypothesis tried.
     pub rounds: Vec<Round>,
-    /// Parts dropped at the end because the held-out score did not need them.
+    /// Parts dropped at the end (the held-out score did not need them, or their size is
+    /// within two standard errors of zero), and why the claim is not the search's pick
+    /// when it is not.
     pub dropped: Vec<String>,
     /// Every explanation kept as a rival, best first, with its weight (the share of
     /// block-bootstrap resamples of the held-out data it wins) and what tells it apart
@@ -354,6 +362,23 @@ impl Scored {
             .collect();
         (!problems.is_empty()).then(|| problems.join("; "))
     }
+
+    /// What stops it being a claim although it is physical: an effect whose size the data
+    /// cannot tell from zero ([`fit::idle_effects`]).
+    fn unsupported(&self) -> Option<String> {
+        let idle: Vec<String> = fit::idle_effects(&self.fit)
+            .into_iter()
+            .map(|(kind, key, value, error)| {
+                format!("{kind}: {key} = {value:.4} ± {error:.4}, within two standard errors of zero")
+            })
+            .collect();
+        (!idle.is_empty()).then(|| idle.join("; "))
+    }
+
+    /// Why it cannot be claimed: [`Scored::unphysical`], else [`Scored::unsupported`].
+    fn not_a_claim(&self) -> Option<String> {
+        self.unphysical().or_else(|| self.unsupported())
+    }
 }
 
 /// The search's state, with everything it needs.
@@ -389,7 +414,7 @@ impl Search<'_, '_> {
         let mut w = Vec::new();
         self.problem.innovations(&s.sim, Part::Validation, &mut w);
         let kinds: Vec<EffectKind> = s.fit.spec.effects.iter().map(|(k, _)| *k).collect();
-        rivals::entry(
+        let mut entry = rivals::entry(
             &kinds,
             s.fit.spec.refit,
             &w,
@@ -397,7 +422,9 @@ impl Search<'_, '_> {
             s.fit.spec.prior_cost(),
             s.mae_val,
             s.unphysical().is_some(),
-        )
+        );
+        entry.idle = fit::idle_effects(&s.fit).into_iter().map(|(k, ..)| k.name()).collect();
+        entry
     }
 
     /// How many standard errors `b` fits the held-out data worse than `a` (a paired test
@@ -532,6 +559,7 @@ pub fn diagnose(
     let sine = periodic_rivals(&search, &before, &current);
     progress("weighing the rival explanations on resampled held-out data");
     let mut weighed = rivals::weigh(&search.pool.borrow(), &search.entry(&current));
+    let mut parameters_open = None;
     if let Some(claim) = lead(&search, &before, &current, &weighed) {
         // A rival dominates every other explanation where the search's own pick does not:
         // the greedy order of the search is no evidence, the held-out data are.
@@ -549,6 +577,7 @@ pub fn diagnose(
                 100.0 * weight
             ));
             (current, kept, weighed) = (claim.0, claim.1, again);
+            parameters_open = claim.2;
         }
     }
     progress("analysing the improved model");
@@ -580,6 +609,7 @@ pub fn diagnose(
         cause: Cause::None,
         effects,
         refit,
+        parameters_open,
         mae_before_n: before.mae_val,
         mae_after_n: current.mae_val,
         noise_floor_n: floor_n,
@@ -647,13 +677,17 @@ pub fn diagnose(
 /// - physics with the given parameters must fit the held-out data better than the best
 ///   refit of the ten parameters, as in the search's choice between the two
 ///   ([`rivals::fits_better`]): a discrepancy that fits no better than a refit is no
-///   evidence of missing physics.
+///   evidence of missing physics. Unless the best refit holds the same physics, and that
+///   physics earns its place beside the refit alone as the search admits a part: then the
+///   physics is needed whether the parameters are off or not, and is claimed, with what
+///   the refit gained said beside it (the third value): the parameters are neither
+///   cleared nor blamed.
 fn lead(
     search: &Search<'_, '_>,
     before: &Scored,
     current: &Scored,
     weighed: &rivals::Rivals,
-) -> Option<(Scored, Vec<Kept>)> {
+) -> Option<(Scored, Vec<Kept>, Option<String>)> {
     let (effects, refit) = weighed.leader.clone()?;
     let options = search.options;
     let chosen = search.entry(current);
@@ -668,6 +702,7 @@ fn lead(
     };
     let leader = best(&effects, refit)?;
     let min_gain_n = options.min_gain * search.floor_n;
+    let mut open = None;
     let mut smaller: Vec<(Vec<&'static str>, bool)> = effects
         .iter()
         .filter(|e| !chosen.effects.contains(e))
@@ -694,13 +729,33 @@ fn lead(
             });
         if let Some(r) = refitted {
             if !rivals::fits_better(leader, r, options.ambiguity, options.significance_z) {
-                return None;
+                let alone = best(&[], true)?;
+                if leader.effects.is_empty()
+                    || r.effects != leader.effects
+                    || !rivals::earns(r, alone, options.strong_evidence, min_gain_n)
+                {
+                    return None;
+                }
+                open = Some(format!(
+                    "a refit of the ten parameters with the same physics fits the held-out data {:.1} units of \
+                     N·ln(SSE/N) better (its prior paid), not by the {:.0} units and {:.0} standard errors that blame \
+                     the parameters; the physics is needed with the parameters refitted too (it gains {:.1} units of \
+                     score over the refit alone): whether the parameters are off as well, this recording cannot tell \
+                     (re-identify them on a second recording of other steps, jetbench identify)",
+                    leader.fit() - r.fit(),
+                    options.ambiguity,
+                    options.significance_z,
+                    alone.score - r.score
+                ));
             }
         }
     }
     let fit = leader.fit.clone()?;
     drop(pool);
     let scored = search.evaluate(fit)?;
+    if scored.unsupported().is_some() {
+        return None;
+    }
     let evidence = |name: &str| Evidence {
         summary: String::new(),
         mae_val_before_n: before.mae_val,
@@ -720,7 +775,7 @@ fn lead(
     for (kind, _) in &scored.fit.spec.effects {
         kept.push(Kept { name: kind.name(), evidence: evidence(kind.name()) });
     }
-    Some((scored, kept))
+    Some((scored, kept, open))
 }
 
 fn diverged(problem: &Problem<'_>, nominal: &jetbench_model::Plant, data: &[Series]) -> IdentError {
@@ -923,7 +978,7 @@ fn decide(
                 score_gain: s.as_ref().map(|s| base - s.score()),
                 fit_gain: s.as_ref().map(|s| base_misfit - s.misfit()),
                 parameters: s.as_ref().map_or(0, |s| s.fit.spec.free_count() - current.fit.spec.free_count()),
-                unphysical: s.as_ref().and_then(Scored::unphysical),
+                unphysical: s.as_ref().and_then(Scored::not_a_claim),
                 note: note.clone().or_else(|| s.is_none().then(|| "the model diverges".to_owned())),
             }
         })
@@ -948,7 +1003,8 @@ fn decide(
                 .find(|c| c.score_gain.is_some_and(|g| g > 0.0) && c.unphysical.is_some())
                 .map_or("no hypothesis improves the held-out fit enough".to_owned(), |c| {
                     format!(
-                        "{} would improve the fit only outside its physical range ({}): evidence, not a claim",
+                        "{} would improve the fit only outside its physical range or at a size the data cannot \
+                         tell from none ({}): evidence, not a claim",
                         c.name,
                         c.unphysical.as_deref().unwrap_or("")
                     )
@@ -959,9 +1015,24 @@ fn decide(
     (accepted, reason, candidates)
 }
 
-/// Drops every kept part whose removal does not worsen the held-out score (the whole
-/// model refitted without it), one at a time, until each is needed.
+/// Drops every kept effect whose size the data cannot tell from zero, then every kept part
+/// whose removal does not worsen the held-out score (the whole model refitted without it),
+/// one at a time, until each is needed.
 fn prune(search: &Search<'_, '_>, mut current: Scored, kept: &mut Vec<Kept>, dropped: &mut Vec<String>) -> Scored {
+    // An effect whose size the data cannot tell from zero goes first, whatever the score
+    // says: it is no physics found. A refit or a joint fit can leave one behind that was
+    // significant when it was admitted.
+    while let Some((kind, key, value, error)) = fit::idle_effects(&current.fit).into_iter().next() {
+        let Some(i) = kept.iter().position(|p| p.name == kind.name()) else { break };
+        let Some(without) = search.fit(&current.fit.spec.without(kind)) else { break };
+        kept.remove(i);
+        dropped.push(format!(
+            "{kind}: its size ({key} = {value:.4} ± {error:.4}) is within two standard errors of zero once the rest \
+             is fitted with it: the data cannot tell it from none ({:+.1} on the held-out score without it)",
+            current.score() - without.score()
+        ));
+        current = without;
+    }
     while kept.len() > 1 {
         let base = current.score();
         let mut best: Option<(usize, Scored)> = None;

@@ -447,6 +447,9 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
             if let Some(r) = &d.refit {
                 text.push(format!("The parameters were off too and are refitted jointly: {}", r.evidence.summary));
             }
+            if let Some(open) = &d.parameters_open {
+                text.push(format!("The parameters are not cleared: {open}."));
+            }
             format!("{} {mae}; {whiteness}.{}{}", text.join(" "), remains(), hidden_beside(d))
         }
         Cause::Ambiguous => format!("{} {mae} with the leading explanation.", ambiguous(d)),

@@ -60,6 +60,10 @@ pub(crate) struct Entry {
     pub mae_val_n: f64,
     /// Outside a physical range: evidence, never an explanation.
     pub unphysical: bool,
+    /// Its effects whose size is within two standard errors of zero (see
+    /// [`super::fit::idle_effects`]): with them it is no other explanation than the one
+    /// without them.
+    pub idle: Vec<&'static str>,
     /// The fit itself, when the explanation is one the model can hold (a rival outside it,
     /// such as throttle play or a periodic force, has none): what is claimed if it leads.
     pub fit: Option<Fit>,
@@ -74,6 +78,14 @@ impl Entry {
         (self.effects.clone(), self.refit)
     }
 
+    /// True when this is `other` with effects added whose size the data cannot tell from
+    /// zero: not a rival of `other`, the same explanation.
+    fn idles_into(&self, other: &Entry) -> bool {
+        !self.idle.is_empty()
+            && self.refit == other.refit
+            && self.effects.iter().filter(|e| !self.idle.contains(e)).eq(other.effects.iter())
+    }
+
     /// How well it predicts `n` held-out samples of squared innovation sum `sse`, its prior
     /// charged: `N·ln(SSE/N)` + prior, score units.
     fn fit_of(&self, sse: f64, n: f64) -> f64 {
@@ -86,7 +98,7 @@ impl Entry {
     }
 
     /// The fit over all its held-out samples.
-    fn fit(&self) -> f64 {
+    pub(crate) fn fit(&self) -> f64 {
         self.score - self.free as f64 * (self.w2.len() as f64).ln()
     }
 }
@@ -410,7 +422,7 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
     // One entry per explanation (its best fit), physical, on the same samples.
     let mut best: BTreeMap<(Vec<&'static str>, bool), &Entry> = BTreeMap::new();
     for e in pool.iter().chain(std::iter::once(chosen)) {
-        if e.unphysical || e.w2.len() != n || !e.score.is_finite() {
+        if e.unphysical || e.w2.len() != n || !e.score.is_finite() || e.idles_into(chosen) {
             continue;
         }
         let slot = best.entry(e.label()).or_insert(e);
@@ -542,7 +554,19 @@ pub(crate) fn entry(
     let n = w2.len() as f64;
     let sse: f64 = w2.iter().sum();
     let score = n * (sse / n).ln() + free as f64 * n.ln() + prior;
-    Entry { effects: names, refit, w2, free, prior, score, mae_val_n: mae, unphysical, fit: None, swapped: false }
+    Entry {
+        effects: names,
+        refit,
+        w2,
+        free,
+        prior,
+        score,
+        mae_val_n: mae,
+        unphysical,
+        idle: Vec::new(),
+        fit: None,
+        swapped: false,
+    }
 }
 
 #[cfg(test)]
@@ -581,6 +605,30 @@ mod tests {
         // Weighed as the claim, the leader dominates every rival.
         let again = weigh(&[chosen.clone(), third], &best);
         assert!(again.dominant && again.leader.is_none());
+    }
+
+    /// The claim with a gain drift added whose size the data cannot tell from zero is the
+    /// same explanation, however it scores: it neither leads nor makes the claim ambiguous.
+    /// A rival of other parts with an idle effect is still a rival.
+    #[test]
+    fn the_claim_with_an_idle_effect_added_is_no_rival() {
+        let n = 6000;
+        let noise = innovations(5, n, 1.0);
+        let chosen = explanation(
+            &[EffectKind::ActuatorLag, EffectKind::RateLimit],
+            false,
+            &noise.iter().map(|x| x * 1.01).collect::<Vec<_>>(),
+        );
+        let mut idle =
+            explanation(&[EffectKind::ActuatorLag, EffectKind::RateLimit, EffectKind::GainDrift], false, &noise);
+        let w = weigh(std::slice::from_ref(&idle), &chosen);
+        assert!(!w.dominant, "a significant drift that fits better is a rival: {:?}", w.rivals);
+        idle.idle = vec!["gain_drift"];
+        let w = weigh(std::slice::from_ref(&idle), &chosen);
+        assert!(w.dominant && w.leader.is_none(), "{:?}", w.rivals);
+        let mut other = explanation(&[EffectKind::InputDelay, EffectKind::GainDrift], false, &noise);
+        other.idle = vec!["gain_drift"];
+        assert!(!weigh(&[other], &chosen).dominant);
     }
 
     #[test]
