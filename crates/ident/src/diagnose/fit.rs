@@ -35,6 +35,9 @@ pub(crate) struct Spec {
     /// The ten parameters, and whether they are refitted.
     pub params: Params,
     pub refit: bool,
+    /// With `refit`, the one parameter refitted, the other nine held as given (`None`: all
+    /// ten): a parameter that is off, told from physics that imitates it.
+    pub refit_only: Option<usize>,
     /// Fitted effects with their values (a discrepancy with all its values).
     pub effects: Vec<(EffectKind, Vec<f64>)>,
     /// Which discrepancy values are free (coefficients of its terms and their shapes).
@@ -57,6 +60,7 @@ impl Spec {
         Self {
             params,
             refit: false,
+            refit_only: None,
             effects: Vec::new(),
             discrepancy_free: Vec::new(),
             discrepancy_scale: Vec::new(),
@@ -126,7 +130,11 @@ impl Spec {
     }
 
     fn layout(&self) -> Vec<Slot> {
-        let mut out: Vec<Slot> = if self.refit { (0..10).map(Slot::Param).collect() } else { Vec::new() };
+        let mut out: Vec<Slot> = match (self.refit, self.refit_only) {
+            (false, _) => Vec::new(),
+            (true, Some(i)) => vec![Slot::Param(i)],
+            (true, None) => (0..10).map(Slot::Param).collect(),
+        };
         for (e, (kind, values)) in self.effects.iter().enumerate() {
             if *kind == EffectKind::Discrepancy {
                 out.extend(self.discrepancy_free.iter().map(|&i| Slot::Value(e, i)));

@@ -207,6 +207,15 @@ fn explain_refit(
             format!("{k} {g:.4} → {:.4}{relative}, {:.0} standard errors", g + d, z.abs())
         })
         .collect();
+    let refitted: Vec<&str> = errors.iter().filter(|(_, e)| e.is_finite()).map(|(k, _)| *k).collect();
+    if let [only] = refitted[..] {
+        let (g, v) = (given[only], params[only]);
+        return format!(
+            "{only} alone refitted on the calibration part ({g:.4} → {v:.4}, {:.1} standard errors) explains the \
+             residual on held-out data.",
+            ((v - g) / errors[only]).abs()
+        );
+    }
     format!(
         "The ten parameters refitted on the calibration part explain the residual on held-out data; the surest \
          changes: {}.",
