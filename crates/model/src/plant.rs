@@ -55,9 +55,9 @@ pub struct Plant {
     pub turbojet: Option<TurbojetParams>,
 }
 
-/// Plants [`Plant::free_runs_in_lockstep`] steps side by side: enough independent chains
-/// of operations to fill a core's floating-point units (two gain about as much as four).
-pub const LOCKSTEP_LANES: usize = 2;
+/// Most plants [`Plant::free_runs_in_lockstep`] steps side by side (fewer in pairs):
+/// enough independent chains of operations to fill a core's floating-point units.
+pub const LOCKSTEP_LANES: usize = 4;
 
 /// Where the slow first-order states of a [`Plant`] start, relative to the default start
 /// ([`SlowStart::SETTLED`]): the sensor drift's bias and the discrepancy's thrust history.
@@ -428,38 +428,54 @@ impl Plant {
             }
             None
         };
+        // The widest groups first; a remainder of two or three still goes in pairs.
         let mut at = 0;
         while at < engines.len() {
-            let Some(group) = engines.get(at..at + LOCKSTEP_LANES) else {
-                for i in at..engines.len() {
-                    diverged_s[i] = alone(engines[i].clone(), 0, &mut outs[i]);
+            let (engines, outs, diverged_s) = (&engines[at..], &mut outs[at..], &mut diverged_s[at..]);
+            at += match engines.len() {
+                1 => {
+                    diverged_s[0] = alone(engines[0].clone(), 0, &mut outs[0]);
+                    1
                 }
-                return;
+                2 | 3 => Self::run_group::<2>(engines, u_pct, outs, diverged_s, drive, &alone),
+                _ => Self::run_group::<LOCKSTEP_LANES>(engines, u_pct, outs, diverged_s, drive, &alone),
             };
-            let mut lanes: [PlantEngine; LOCKSTEP_LANES] = std::array::from_fn(|l| group[l].clone());
-            let (outs, diverged_s) = (&mut outs[at..at + LOCKSTEP_LANES], &mut diverged_s[at..at + LOCKSTEP_LANES]);
-            for (k, &u) in u_pct.iter().enumerate().take(steps) {
-                let stepped = PlantEngine::step_lanes(&mut lanes, u, k, drive);
-                if stepped.iter().all(|s| *s) {
-                    for (engine, out) in lanes.iter().zip(outs.iter_mut()) {
-                        out.push(engine.measured_n());
-                    }
-                    continue;
-                }
-                // A lane diverged: it stops there, the others carry on alone.
-                for (lane, engine) in lanes.iter().enumerate() {
-                    if stepped[lane] {
-                        outs[lane].push(engine.measured_n());
-                        diverged_s[lane] = alone(engine.clone(), k + 1, &mut outs[lane]);
-                    } else {
-                        outs[lane].resize(u_pct.len(), f64::NAN);
-                        diverged_s[lane] = Some((k + 1) as f64 * STEP_S);
-                    }
-                }
-                break;
-            }
-            at += LOCKSTEP_LANES;
         }
+    }
+
+    /// The first `N` runs of [`Plant::run_lanes`] in lockstep, those beside one that
+    /// diverges carried on by `alone` from the next step. Returns `N`.
+    #[inline(always)]
+    fn run_group<const N: usize>(
+        engines: &[PlantEngine],
+        u_pct: &[f64],
+        outs: &mut [Vec<f64>],
+        diverged_s: &mut [Option<f64>],
+        drive: impl Fn(&mut PlantEngine, usize, usize, Option<Drive>) -> Drive + Copy,
+        alone: &impl Fn(PlantEngine, usize, &mut Vec<f64>) -> Option<f64>,
+    ) -> usize {
+        let mut lanes: [PlantEngine; N] = std::array::from_fn(|l| engines[l].clone());
+        for (k, &u) in u_pct.iter().enumerate().take(u_pct.len().saturating_sub(1)) {
+            let stepped = PlantEngine::step_lanes(&mut lanes, u, k, drive);
+            if stepped.iter().all(|s| *s) {
+                for (engine, out) in lanes.iter().zip(outs.iter_mut()) {
+                    out.push(engine.measured_n());
+                }
+                continue;
+            }
+            // A lane diverged: it stops there, the others carry on alone.
+            for (lane, engine) in lanes.iter().enumerate() {
+                if stepped[lane] {
+                    outs[lane].push(engine.measured_n());
+                    diverged_s[lane] = alone(engine.clone(), k + 1, &mut outs[lane]);
+                } else {
+                    outs[lane].resize(u_pct.len(), f64::NAN);
+                    diverged_s[lane] = Some((k + 1) as f64 * STEP_S);
+                }
+            }
+            break;
+        }
+        N
     }
 
     /// The reading of this plant along an engine path kept by [`Plant::free_run_recorded`]
@@ -1605,7 +1621,12 @@ mod tests {
         let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         let rest_n = Plant::new(p, Effects::none()).rest_thrust_n(u[0]);
         for substeps in [1, SUBSTEPS] {
-            for (plants, kept) in [(&alike[..], true), (&alike[..4], true), (&apart[..4], false), (&apart[..], false)] {
+            // Five: four in lockstep and one alone; three: a pair and one; the unstable plant
+            // in a pair and alone; a turbojet among them: each alone.
+            let counts = [(&alike[..], true), (&alike[..3], true), (&alike[1..], true), (&alike[3..], true)];
+            for (plants, kept) in
+                counts.into_iter().chain([(&apart[..4], false), (&apart[1..4], false), (&apart[..], false)])
+            {
                 let starts: Vec<(State, SlowStart)> = (0..plants.len())
                     .map(|i| {
                         let state = State { thrust_n: rest_n + i as f64, thrust_rate_n_per_s: 0.0 };
@@ -1635,7 +1656,11 @@ mod tests {
                     let diverged = plant.free_run_from(substeps, 1.0, state, slow, &u, &mut alone);
                     assert_eq!(bits(&outs[i]), bits(&alone), "plant {i}, {substeps} substeps");
                     assert_eq!(diverged_s[i], diverged, "plant {i}, {substeps} substeps");
-                    assert_eq!(diverged.is_some(), kept && i == 4, "plant {i} diverges, only it");
+                    assert_eq!(
+                        diverged.is_some(),
+                        std::ptr::eq(plant, &alike[4]),
+                        "plant {i} diverges, only the unstable"
+                    );
                 }
                 if kept {
                     // The kept drives are what the plants read: other drives, other readings.
