@@ -156,6 +156,38 @@ pub fn rk4_step(t: f64, d: f64, h: f64, accel: impl Fn(f64, f64) -> f64) -> (f64
     (t + h / 6.0 * (k1.0 + 2.0 * k2.0 + 2.0 * k3.0 + k4.0), d + h / 6.0 * (k1.1 + 2.0 * k2.1 + 2.0 * k3.1 + k4.1))
 }
 
+/// [`rk4_step`] of `N` independent states at once, stage by stage, with `accel(lane, t, d)`:
+/// each lane's operations are those of [`rk4_step`], in its order (the same values bit for
+/// bit), and the lanes' chains of dependent operations sit side by side for the core to
+/// overlap.
+#[inline(always)]
+pub(crate) fn rk4_step_lanes<const N: usize>(
+    t: [f64; N],
+    d: [f64; N],
+    h: f64,
+    accel: impl Fn(usize, f64, f64) -> f64,
+) -> ([f64; N], [f64; N]) {
+    let (mut k1, mut k2, mut k3, mut k4) = ([(0.0, 0.0); N], [(0.0, 0.0); N], [(0.0, 0.0); N], [(0.0, 0.0); N]);
+    for l in 0..N {
+        k1[l] = (d[l], accel(l, t[l], d[l]));
+    }
+    for l in 0..N {
+        k2[l] = (d[l] + 0.5 * h * k1[l].1, accel(l, t[l] + 0.5 * h * k1[l].0, d[l] + 0.5 * h * k1[l].1));
+    }
+    for l in 0..N {
+        k3[l] = (d[l] + 0.5 * h * k2[l].1, accel(l, t[l] + 0.5 * h * k2[l].0, d[l] + 0.5 * h * k2[l].1));
+    }
+    for l in 0..N {
+        k4[l] = (d[l] + h * k3[l].1, accel(l, t[l] + h * k3[l].0, d[l] + h * k3[l].1));
+    }
+    let (mut t_next, mut d_next) = ([0.0; N], [0.0; N]);
+    for l in 0..N {
+        t_next[l] = t[l] + h / 6.0 * (k1[l].0 + 2.0 * k2[l].0 + 2.0 * k3[l].0 + k4[l].0);
+        d_next[l] = d[l] + h / 6.0 * (k1[l].1 + 2.0 * k2[l].1 + 2.0 * k3[l].1 + k4[l].1);
+    }
+    (t_next, d_next)
+}
+
 /// Free run: one throttle value per [`STEP_S`]; returns the state after each step.
 pub fn simulate(params: &Params, initial: State, throttle_pct: &[f64]) -> Result<Vec<State>, ModelError> {
     let mut engine = Engine::new(*params, initial);

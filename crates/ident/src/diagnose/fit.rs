@@ -12,7 +12,7 @@
 use jetbench_model::{Effect, EffectKind, Effects, Params, Plant, State};
 use nalgebra::{DMatrix, DVector};
 
-use super::problem::{Part, Problem, RunStart, Sim, SimCache};
+use super::problem::{Part, Problem, RunStart, Sim, SimCache, SUBSTEPS};
 
 /// Iterations of a fit (each costs one simulation per free parameter).
 const MAX_ITERATIONS: usize = 25;
@@ -403,10 +403,9 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
         .zip(&scales)
         .map(|(&s, sc)| if let Slot::Param(i) = s { spec.given.to_array()[i] / sc } else { 0.0 })
         .collect();
-    let mut evaluate = |x: &[f64], r: &mut Vec<f64>| -> Option<f64> {
-        let spec = build(x);
-        simulate_calibration(problem, fixed, &spec, &mut cache, &mut sim)?;
-        problem.innovations(&sim, Part::Calibration, r);
+    // The innovations of a simulation of `x`, into `r`, and their sum of squares.
+    let score = |x: &[f64], sim: &Sim, r: &mut Vec<f64>| -> Option<f64> {
+        problem.innovations(sim, Part::Calibration, r);
         // The refit's prior, as pseudo-residuals in the innovations' units.
         for (j, slot) in layout.iter().enumerate() {
             if let Slot::Param(_) = slot {
@@ -416,12 +415,17 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
         let sse: f64 = r.iter().map(|v| v * v).sum();
         sse.is_finite().then_some(sse)
     };
+    let mut evaluate = |x: &[f64], r: &mut Vec<f64>, cache: &mut SimCache| -> Option<f64> {
+        let spec = build(x);
+        simulate_calibration(problem, fixed, &spec, cache, &mut sim)?;
+        score(x, &sim, r)
+    };
 
     let mut x: Vec<f64> = layout.iter().zip(&scales).map(|(&s, sc)| spec.get(s) / sc).collect();
     clamp(&mut x);
     let k = x.len();
     let mut r = Vec::new();
-    let mut sse = evaluate(&x, &mut r)?;
+    let mut sse = evaluate(&x, &mut r, &mut cache)?;
     if k == 0 {
         return Some(Fit {
             spec: with_bias_starts(problem, fixed, build(&x), &mut SimCache::default()),
@@ -432,27 +436,66 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
     let mut lambda = 1e-3;
     let mut jac = DMatrix::<f64>::zeros(r.len(), k);
     let mut trial_r = Vec::new();
+    let mut column_sims: Vec<Sim> = Vec::new();
     // The sensor-side values' columns first, while the engine path kept is that of `x`
     // (see [`SimCache`]); each column is the same in any order.
     let sensor_side = |j: &usize| matches!(layout[*j], Slot::Value(e, _) if spec.effects[e].0.is_sensor_side());
     let columns: Vec<usize> = (0..k).filter(sensor_side).chain((0..k).filter(|j| !sensor_side(j))).collect();
     for _ in 0..MAX_ITERATIONS {
         // Forward differences, stepping inward at an upper bound.
-        for &j in &columns {
+        let beside = |j: usize| {
             let mut xj = x.clone();
             let mut h = 1e-4 * x[j].abs().max(1.0);
             if xj[j] + h > bounds[j].1 / scales[j] {
                 h = -h;
             }
             xj[j] += h;
-            if evaluate(&xj, &mut trial_r).is_none() || trial_r.len() != r.len() {
-                // The model diverges just beside the point: that direction is not fitted.
-                jac.column_mut(j).fill(0.0);
-                continue;
+            (xj, h)
+        };
+        // `r` is the innovation of `y − ŷ`, so the column of ∂ŷ/∂x is −∂r/∂x; a model that
+        // diverges just beside the point leaves that direction unfitted.
+        let set_column = |jac: &mut DMatrix<f64>, j: usize, h: f64, trial_r: Option<&[f64]>| match trial_r {
+            Some(trial_r) if trial_r.len() == r.len() => {
+                for (row, (a, b)) in r.iter().zip(trial_r).enumerate() {
+                    jac[(row, j)] = (a - b) / h;
+                }
             }
-            // `r` is the innovation of `y − ŷ`, so the column of ∂ŷ/∂x is −∂r/∂x.
-            for (row, (a, b)) in r.iter().zip(&trial_r).enumerate() {
-                jac[(row, j)] = (a - b) / h;
+            _ => jac.column_mut(j).fill(0.0),
+        };
+        for &j in columns.iter().filter(|j| sensor_side(j)) {
+            let (xj, h) = beside(j);
+            let ran = evaluate(&xj, &mut trial_r, &mut cache).is_some();
+            set_column(&mut jac, j, h, ran.then_some(trial_r.as_slice()));
+        }
+        // The engine-side columns simulated side by side, those of one throttle path
+        // together on its kept drives.
+        let engine_side: Vec<(usize, Spec, f64, Vec<f64>)> = columns
+            .iter()
+            .filter(|j| !sensor_side(j))
+            .map(|&j| {
+                let (xj, h) = beside(j);
+                (j, build(&xj), h, xj)
+            })
+            .collect();
+        let plants: Vec<Option<Plant>> = engine_side.iter().map(|(_, spec, ..)| spec.plant(fixed)).collect();
+        for group in lockstep_groups(&plants) {
+            let group_plants: Vec<&Plant> = group.iter().filter_map(|&c| plants[c].as_ref()).collect();
+            let starts: Vec<Vec<RunStart>> = group.iter().map(|&c| calibration_starts(&engine_side[c].1)).collect();
+            let start_refs: Vec<&[RunStart]> = starts.iter().map(Vec::as_slice).collect();
+            column_sims.resize_with(group.len(), Sim::new);
+            let ran = problem.simulate_in_lockstep(&group_plants, &start_refs, true, &mut column_sims);
+            for ((&c, ran), column_sim) in group.iter().zip(ran).zip(column_sims.iter_mut()) {
+                let (j, spec, h, xj) = &engine_side[c];
+                let scored = ran && {
+                    finish_calibration(problem, spec, column_sim, &mut cache);
+                    score(xj, column_sim, &mut trial_r).is_some()
+                };
+                set_column(&mut jac, *j, *h, scored.then_some(trial_r.as_slice()));
+            }
+        }
+        for (c, plant) in plants.iter().enumerate() {
+            if plant.is_none() {
+                set_column(&mut jac, engine_side[c].0, engine_side[c].2, None);
             }
         }
         let jtj = jac.tr_mul(&jac);
@@ -469,7 +512,7 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
             };
             let mut next: Vec<f64> = x.iter().zip(step.iter()).map(|(a, b)| a + b).collect();
             clamp(&mut next);
-            match evaluate(&next, &mut trial_r) {
+            match evaluate(&next, &mut trial_r, &mut cache) {
                 Some(s) if s < sse && trial_r.len() == r.len() => {
                     let gain = r.len() as f64 * (sse / s).ln();
                     x = next;
@@ -516,17 +559,47 @@ fn simulate_calibration(
     sim: &mut Sim,
 ) -> Option<Vec<f64>> {
     let plant = spec.plant(fixed)?;
-    let Some(drift) = spec.values(EffectKind::SensorDrift).filter(|_| spec.fits_bias_start()) else {
-        problem.simulate_reusing(&plant, &spec.states, true, cache, sim).ok()?;
-        return Some(Vec::new());
-    };
-    let tared: Vec<RunStart> = spec
-        .states
-        .iter()
-        .map(|s| RunStart { slow: jetbench_model::SlowStart { bias_n: 0.0, ..s.slow }, ..*s })
-        .collect();
-    problem.simulate_reusing(&plant, &tared, true, cache, sim).ok()?;
-    Some(problem.fit_bias_starts(sim, drift[0], drift[1], Part::Calibration, cache))
+    problem.simulate_reusing(&plant, &calibration_starts(spec), true, cache, sim).ok()?;
+    Some(finish_calibration(problem, spec, sim, cache))
+}
+
+/// Where [`simulate_calibration`] starts each run: `spec`'s starts, the sensor bias at 0
+/// when it has a drift.
+fn calibration_starts(spec: &Spec) -> Vec<RunStart> {
+    if !spec.fits_bias_start() {
+        return spec.states.clone();
+    }
+    spec.states.iter().map(|s| RunStart { slow: jetbench_model::SlowStart { bias_n: 0.0, ..s.slow }, ..*s }).collect()
+}
+
+/// [`simulate_calibration`] after the simulation from [`calibration_starts`]: the
+/// sensor-bias starts fitted, their decays added to `sim` (none without a drift).
+fn finish_calibration(problem: &Problem<'_>, spec: &Spec, sim: &mut Sim, cache: &mut SimCache) -> Vec<f64> {
+    match spec.values(EffectKind::SensorDrift).filter(|_| spec.fits_bias_start()) {
+        Some(drift) => problem.fit_bias_starts(sim, drift[0], drift[1], Part::Calibration, cache),
+        None => Vec::new(),
+    }
+}
+
+/// The groups [`Problem::simulate_in_lockstep`] steps together: the columns whose plants
+/// share a throttle path and map ([`Plant::drive_key`], read once from the kept drives),
+/// then the rest (each on its own path). Columns without a plant are in none.
+fn lockstep_groups(plants: &[Option<Plant>]) -> Vec<Vec<usize>> {
+    let keys: Vec<_> = plants.iter().map(|p| p.as_ref().map(|p| p.drive_key(SUBSTEPS))).collect();
+    let (mut groups, mut rest): (Vec<Vec<usize>>, Vec<usize>) = (Vec::new(), Vec::new());
+    for (c, key) in keys.iter().enumerate() {
+        let Some(key) = key else { continue };
+        let alike: Vec<usize> = (0..keys.len()).filter(|&o| keys[o] == Some(*key)).collect();
+        if key.is_none() || alike.len() < 2 {
+            rest.push(c);
+        } else if alike[0] == c {
+            groups.push(alike);
+        }
+    }
+    if !rest.is_empty() {
+        groups.push(rest);
+    }
+    groups
 }
 
 /// `spec` with its sensor-bias starts fitted on the calibration part (see

@@ -574,6 +574,71 @@ impl<'a> Problem<'a> {
         failure.map_or(Ok(()), Err)
     }
 
+    /// [`Problem::simulate`] of several plants, each from its own `starts`, stepped in
+    /// lockstep ([`Plant::free_runs_in_lockstep`]): the same values, bit for bit, in
+    /// `outs`, and per plant whether it ran without diverging. Plants of one throttle path
+    /// and map read its kept drives ([`DriveCache`]; the first runs and keeps them when
+    /// they are not there); others run their own paths, kept nowhere (a fit's columns that
+    /// move the path are not simulated again). Leaves every [`SimCache`] alone.
+    pub fn simulate_in_lockstep(
+        &self,
+        plants: &[&Plant],
+        starts: &[&[RunStart]],
+        calibration_only: bool,
+        outs: &mut [Sim],
+    ) -> Vec<bool> {
+        let count = plants.len().min(starts.len()).min(outs.len());
+        let mut ran = vec![true; count];
+        for out in outs.iter_mut() {
+            out.resize_with(self.runs.len(), Vec::new);
+        }
+        let keys: Vec<_> = plants[..count].iter().map(|p| p.drive_key(SUBSTEPS)).collect();
+        let shared = keys.first().copied().flatten().filter(|key| keys.iter().all(|k| *k == Some(*key)));
+        let mut drives = self.drives.borrow_mut();
+        let mut tracks = shared.map(|key| drives.tracks(key, self.runs.len()));
+        let (mut sims, mut diverged_s) = (vec![Vec::new(); count], vec![None; count]);
+        for (i, run) in self.runs.iter().enumerate() {
+            let end = if calibration_only { run.cut.min(run.u.len()) } else { run.u.len() };
+            if end == 0 {
+                outs.iter_mut().for_each(|out| out[i].clear());
+                continue;
+            }
+            let u = &run.u[..end];
+            let run_starts: Vec<(State, SlowStart)> = starts[..count].iter().map(|s| (s[i].state, s[i].slow)).collect();
+            for (sim, out) in sims.iter_mut().zip(outs.iter_mut()) {
+                std::mem::swap(sim, &mut out[i]);
+            }
+            let mut first = 0;
+            let track = tracks.as_deref_mut().map(|t| &mut t[i]);
+            let track = match track {
+                Some(track) if !track.holds_run_of(plants[0], SUBSTEPS, u) => {
+                    // The first plant keeps its drives for the others.
+                    let (state, slow) = run_starts[0];
+                    diverged_s[0] =
+                        plants[0].free_run_keeping(SUBSTEPS, run.t0_s, state, slow, u, &mut sims[0], None, Some(track));
+                    first = 1;
+                    Some(&*track)
+                }
+                track => track.map(|t| &*t),
+            };
+            Plant::free_runs_in_lockstep(
+                &plants[first..count],
+                SUBSTEPS,
+                run.t0_s,
+                &run_starts[first..],
+                u,
+                track,
+                &mut sims[first..],
+                &mut diverged_s[first..],
+            );
+            for (j, (sim, out)) in sims.iter_mut().zip(outs.iter_mut()).enumerate() {
+                std::mem::swap(sim, &mut out[i]);
+                ran[j] &= diverged_s[j].is_none();
+            }
+        }
+        ran
+    }
+
     /// Residual `y − ŷ` of run `i` on its grid (NaN where there is no sample or no simulation).
     pub fn residual(&self, i: usize, sim: &Sim) -> Vec<f64> {
         let run = &self.runs[i];
