@@ -1075,15 +1075,20 @@ pub(crate) fn named(params: &Params) -> BTreeMap<&'static str, f64> {
     Params::NAMES.iter().copied().zip(params.to_array()).collect()
 }
 
-/// One parameter that is off, as a rival of a discrepancy: each of the ten refitted alone,
-/// the other nine and no effect as given. A discrepancy's terms can imitate one parameter
-/// (an input gain in T·Ṫ and the state's K_TD, a throttle-map hinge and B_UU), and a refit of
-/// all ten, charged for nine parameters the data do not ask to move, fits the held-out data
-/// worse than one term: K_TD 11 % off on 150 s was claimed as the iRonCub input-gain term B_TD,
-/// 17 units of fit ahead of the ten refitted. Each joins the weighing as `refit`; the best
-/// stands for the parameters.
+/// One parameter that is off, as a rival of a discrepancy's static terms: each of the ten
+/// refitted alone, the other nine and no effect as given. A static term is a parameter in
+/// another form (an input gain in T·Ṫ and the state's K_TD, a throttle-map hinge and B_UU), and
+/// a refit of all ten, charged for nine parameters the data do not ask to move, fits the
+/// held-out data worse than one term: K_TD 11 % off on 150 s was claimed as the iRonCub
+/// input-gain term B_TD, 17 units of fit ahead of the ten refitted. Each joins the weighing as
+/// `refit`; the best stands for the parameters. A discrepancy of the thrust-history gain alone
+/// has a state of its own, as a drift has, and gets no such rival: a constant parameter
+/// imitates it only as far as the recording is short, as it does a gain drift.
 fn one_parameter_rivals(search: &Search<'_, '_>, before: &Scored, current: &Scored) {
-    if !current.fit.spec.has(EffectKind::Discrepancy) || !search.options.refit {
+    let history = [4, 5]; // gain_history_per_n and its time constant, in DISCREPANCY_KEYS
+    let spec = &current.fit.spec;
+    let has_static = spec.has(EffectKind::Discrepancy) && spec.discrepancy_free.iter().any(|i| !history.contains(i));
+    if !has_static || !search.options.refit {
         return;
     }
     for i in 0..Params::NAMES.len() {
