@@ -1640,16 +1640,10 @@ mod tests {
                 }
                 let refs: Vec<&Plant> = plants.iter().collect();
                 let (mut outs, mut diverged_s) = (vec![Vec::new(); plants.len()], vec![None; plants.len()]);
-                Plant::free_runs_in_lockstep(
-                    &refs,
-                    substeps,
-                    1.0,
-                    &starts,
-                    &u,
-                    Some(&track),
-                    &mut outs,
-                    &mut diverged_s,
-                );
+                let lockstep = |drives: &DriveTrack, outs: &mut [Vec<f64>], diverged_s: &mut [Option<f64>]| {
+                    Plant::free_runs_in_lockstep(&refs, substeps, 1.0, &starts, &u, Some(drives), outs, diverged_s)
+                };
+                lockstep(&track, &mut outs, &mut diverged_s);
                 for (i, plant) in plants.iter().enumerate() {
                     let mut alone = Vec::new();
                     let (state, slow) = starts[i];
@@ -1666,16 +1660,7 @@ mod tests {
                     // The kept drives are what the plants read: other drives, other readings.
                     let mut other = track.clone();
                     other.drives.iter_mut().for_each(|d| d.v *= 1.01);
-                    Plant::free_runs_in_lockstep(
-                        &refs,
-                        substeps,
-                        1.0,
-                        &starts,
-                        &u,
-                        Some(&other),
-                        &mut outs,
-                        &mut diverged_s,
-                    );
+                    lockstep(&other, &mut outs, &mut diverged_s);
                     let mut alone = Vec::new();
                     plants[1].free_run_from(substeps, 1.0, starts[1].0, starts[1].1, &u, &mut alone);
                     assert_ne!(bits(&outs[1]), bits(&alone), "{substeps} substeps");
