@@ -35,9 +35,10 @@ pub(crate) struct Spec {
     /// The ten parameters, and whether they are refitted.
     pub params: Params,
     pub refit: bool,
-    /// With `refit`, the one parameter refitted, the other nine held as given (`None`: all
-    /// ten): a parameter that is off, told from physics that imitates it.
-    pub refit_only: Option<usize>,
+    /// With `refit`, the parameters refitted (indices into the ten), the others held as
+    /// given (`None`: all ten): a few parameters that are off, told from physics that
+    /// imitates them.
+    pub refit_only: Option<Vec<usize>>,
     /// Fitted effects with their values (a discrepancy with all its values).
     pub effects: Vec<(EffectKind, Vec<f64>)>,
     /// Which discrepancy values are free (coefficients of its terms and their shapes).
@@ -130,9 +131,9 @@ impl Spec {
     }
 
     fn layout(&self) -> Vec<Slot> {
-        let mut out: Vec<Slot> = match (self.refit, self.refit_only) {
+        let mut out: Vec<Slot> = match (self.refit, &self.refit_only) {
             (false, _) => Vec::new(),
-            (true, Some(i)) => vec![Slot::Param(i)],
+            (true, Some(subset)) => subset.iter().map(|&i| Slot::Param(i)).collect(),
             (true, None) => (0..10).map(Slot::Param).collect(),
         };
         for (e, (kind, values)) in self.effects.iter().enumerate() {

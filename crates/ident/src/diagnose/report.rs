@@ -208,12 +208,22 @@ fn explain_refit(
         })
         .collect();
     let refitted: Vec<&str> = errors.iter().filter(|(_, e)| e.is_finite()).map(|(k, _)| *k).collect();
-    if let [only] = refitted[..] {
-        let (g, v) = (given[only], params[only]);
+    if refitted.len() < params.len() {
+        // A sparse refit: every parameter it moved, the others as given.
+        let moved: Vec<String> = refitted
+            .iter()
+            .map(|k| {
+                let (g, v) = (given[k], params[k]);
+                format!("{k} {g:.4} → {v:.4}, {:.1} standard errors", ((v - g) / errors[k]).abs())
+            })
+            .collect();
+        let alone = if refitted.len() == 1 { "alone refitted" } else { "refitted together" };
         return format!(
-            "{only} alone refitted on the calibration part ({g:.4} → {v:.4}, {:.1} standard errors) explains the \
-             residual on held-out data.",
-            ((v - g) / errors[only]).abs()
+            "{} {alone} on the calibration part ({}; the other {} as given) explain{} the residual on held-out data.",
+            refitted.join(" and "),
+            moved.join("; "),
+            params.len() - refitted.len(),
+            if refitted.len() == 1 { "s" } else { "" }
         );
     }
     format!(

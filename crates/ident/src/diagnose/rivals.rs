@@ -11,7 +11,7 @@
 
 use std::collections::BTreeMap;
 
-use jetbench_model::{EffectKind, STEP_S};
+use jetbench_model::{EffectKind, Params, STEP_S};
 use serde::Serialize;
 
 use super::fit::Fit;
@@ -380,10 +380,16 @@ pub fn signature_of(kind: &str) -> &'static str {
     }
 }
 
-fn meaning(effects: &[&'static str], refit: bool) -> String {
+/// What an explanation would mean at the bench; `only`: the parameters a sparse refit moved.
+fn meaning(effects: &[&'static str], refit: bool, only: Option<&[usize]>) -> String {
     let mut parts: Vec<String> = effects.iter().map(|e| format!("{e}: {}", meaning_of(e))).collect();
-    if refit {
-        parts.push("the ten parameters are off: re-identify".to_owned());
+    match only {
+        _ if !refit => {}
+        Some(only) => {
+            let names: Vec<&str> = only.iter().filter_map(|&i| Params::NAMES.get(i).copied()).collect();
+            parts.push(format!("{} off, the other parameters right: re-identify", names.join(" and ")));
+        }
+        None => parts.push("the ten parameters are off: re-identify".to_owned()),
     }
     if parts.is_empty() {
         "the model as given explains the recording".to_owned()
@@ -495,7 +501,7 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         fit_behind: e.fit() - top_fit,
         mae_val_n: e.mae_val_n,
         side: side(&e.effects, e.refit),
-        meaning: meaning(&e.effects, e.refit),
+        meaning: meaning(&e.effects, e.refit, e.fit.as_ref().and_then(|f| f.spec.refit_only.as_deref())),
         tells_apart: if j == ci {
             String::new()
         } else {
@@ -587,6 +593,13 @@ mod tests {
 
     fn explanation(effects: &[EffectKind], refit: bool, w: &[f64]) -> Entry {
         entry(effects, refit, w, effects.len() + if refit { 10 } else { 0 }, 0.0, 1.0, false)
+    }
+
+    #[test]
+    fn a_sparse_refit_means_the_parameters_it_moved() {
+        assert_eq!(meaning(&[], true, Some(&[6, 7])), "B_U and B_T off, the other parameters right: re-identify");
+        assert_eq!(meaning(&[], true, None), "the ten parameters are off: re-identify");
+        assert_eq!(meaning(&[], false, None), "the model as given explains the recording");
     }
 
     #[test]
