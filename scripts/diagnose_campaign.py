@@ -127,7 +127,9 @@ class Engine:
         return u + self.p["B_UU"] * u * u
 
     def run(self, times, throttle):
-        """True thrust and the force read, per row (before noise)."""
+        """True thrust and the force read, per row (before noise): at the row's time, before the
+        row's throttle acts, as a bench samples the force and sends the command in the same tick
+        (the state at the end of the row before; the first row's, at the end of the settle)."""
         e, dt = self.e, STEP_S / SUBSTEPS
         n = len(throttle)
         delay = int(round(e["input_delay"]["delay_s"] / dt)) if "input_delay" in e else 0
@@ -161,10 +163,11 @@ class Engine:
         # the step-by-step loop would with the thrust held; a ringing stand is put at rest.
         check = -settle + int(SETTLE_MIN_S / dt)
         k = -settle
+        start = -SUBSTEPS  # the settle's last row, whose end is the first row's sample
         while k < n * SUBSTEPS:
-            if k == check and k < 0:
+            if k == check and k < start:
                 if abs(d) < 1e-7 and abs(accel(t, d, v(lag if lag is not None else ue), h, 1.0)) < 1e-7:
-                    left = -k * dt
+                    left = (start - k) * dt
                     if drift is not None:
                         bias = drift[0] * t + (bias - drift[0] * t) * math.exp(-left / e["sensor_drift"]["time_constant_s"])
                     if h_a is not None:
@@ -174,7 +177,7 @@ class Engine:
                         x, xd = t, 0.0
                     if band is not None and m is not None:
                         m = min(max(m, t - band), t + band)
-                    k = 0
+                    k = start
                 else:
                     check += int(1.0 / dt)
             uc = u_fine[max(k, 0)]
@@ -216,10 +219,12 @@ class Engine:
             if drift is not None:
                 bias += (drift[0] * t - bias) * drift[1]
                 y += bias
-            if k >= 0 and (k + 1) % SUBSTEPS == 0:
+            if k >= start and (k + 1) % SUBSTEPS == 0:
                 true.append(t)
                 read.append(y)
             k += 1
+        # The end of the last row is no sample of this recording.
+        true, read = true[:n], read[:n]
         if "periodic_force" in e:
             pf = e["periodic_force"]
             read = [y + pf["amplitude_n"] * math.sin(2 * math.pi * tt / pf["period_s"]) for y, tt in zip(read, times)]

@@ -443,7 +443,8 @@ fn the_campaign_grader_counts_a_left_out_effect_only_when_disclosed_at_its_size(
 /// `insufficient_data` (each could not have shown some class of effect at the size that
 /// matters, so `none` is not claimed; before the detectability probes they were `none`), a
 /// delay with a gain drift under coloured noise is `ambiguous` against a lag with the drift,
-/// and a heteroscedastic noise-only case `unexplained`.
+/// and a heteroscedastic noise-only case is `insufficient_data` too (it was `unexplained`
+/// while the simulator sampled each row 10 ms late, after the row's throttle had acted).
 #[test]
 fn a_small_random_campaign_makes_no_false_claim() {
     let root = repo_root();

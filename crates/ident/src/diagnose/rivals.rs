@@ -42,6 +42,9 @@ pub const DISTINCT: f64 = 10.0;
 pub const WINDOW: f64 = 40.0;
 /// The name of the periodic rival: a sine at its own period added to what is read.
 pub const PERIODIC: &str = "periodic";
+/// The name of the slow-history rival: the discrepancy's thrust history with a time constant
+/// beyond what the recording lets settle, in place of a gain drift beside it.
+pub const SLOW_HISTORY: &str = "slow_history";
 
 /// One explanation the search fitted: its parts and its held-out innovations.
 #[derive(Clone, Debug)]
@@ -338,6 +341,10 @@ pub fn meaning_of(kind: &str) -> &'static str {
         "stand_resonance" => "the stand and sensor ring after fast thrust changes (sensor side)",
         "discrepancy" => "engine physics outside the catalogue (see its terms)",
         "throttle_play" => "play (backlash) in the throttle path, outside the catalogue: the engine side",
+        SLOW_HISTORY => {
+            "the engine's gain follows its history more slowly than this recording settles (a slow soak), not a \
+             drift with run time"
+        }
         PERIODIC => "something on the stand or the sensor repeats at its own period (a force, a thermal cycle): not engine physics",
         _ => "",
     }
@@ -367,6 +374,10 @@ pub fn signature_of(kind: &str) -> &'static str {
         "throttle_play" => {
             "play in the throttle path shifts the steady thrust after a reversal by the same throttle \
              (its thrust effect grows with the map's slope), where friction shifts the reading by the same force"
+        }
+        SLOW_HISTORY => {
+            "a slow soak recovers during a long idle hold after high thrust and levels off in a long run at one \
+             thrust, where a gain drift keeps growing with run time"
         }
         PERIODIC => {
             "a periodic disturbance keeps its period whatever the throttle does: hold the throttle constant for a few \
@@ -593,6 +604,15 @@ mod tests {
 
     fn explanation(effects: &[EffectKind], refit: bool, w: &[f64]) -> Entry {
         entry(effects, refit, w, effects.len() + if refit { 10 } else { 0 }, 0.0, 1.0, false)
+    }
+
+    #[test]
+    fn a_slow_soak_is_engine_side_and_says_what_tells_it_from_a_drift() {
+        assert_eq!(side_of(SLOW_HISTORY), "engine");
+        assert!(meaning_of(SLOW_HISTORY).contains("slow soak"));
+        assert!(signature_of(SLOW_HISTORY).contains("idle hold"));
+        assert!(tells_apart((&["discrepancy", SLOW_HISTORY], false), (&["discrepancy", "gain_drift"], false))
+            .contains("keeps growing with run time"));
     }
 
     #[test]
