@@ -217,17 +217,34 @@ pub struct FoundEffect {
     pub evidence: Evidence,
 }
 
-/// The ten parameters re-identified.
+/// The ten parameters re-identified (all, or the few that are off).
 #[derive(Clone, Debug, Serialize)]
 pub struct Refit {
-    /// The ten parameters refitted, by name (`K_T`, ..., `B_UU`), in the model file's units.
+    /// The ten parameters, by name (`K_T`, ..., `B_UU`), in the model file's units: refitted,
+    /// or as given where a sparse refit left them.
     pub params: BTreeMap<&'static str, f64>,
+    /// The parameters refitted: all ten, or the few a sparse refit moved.
+    pub refitted: Vec<&'static str>,
     /// Their standard errors on the calibration part, same units.
     pub uncertainty: BTreeMap<&'static str, f64>,
     /// Change from the given model, %.
     pub change_pct: BTreeMap<&'static str, f64>,
     /// Why the refit is there: the held-out gain and what the residual showed.
     pub evidence: Evidence,
+}
+
+impl Refit {
+    /// The refit in words: "a refit of the ten parameters", or of the few it moved.
+    pub fn what(&self) -> String {
+        match self.refitted.len() {
+            10 => "a refit of the ten parameters".to_owned(),
+            n => {
+                const WORDS: [&str; 10] =
+                    ["no", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine"];
+                format!("a refit of {} (the other {} as given)", self.refitted.join(" and "), WORDS[10 - n.min(10)])
+            }
+        }
+    }
 }
 
 /// Where one run of the improved model starts its slow first-order states: fitted with the
@@ -424,6 +441,7 @@ impl Search<'_, '_> {
             s.unphysical().is_some(),
         );
         entry.idle = fit::idle_effects(&s.fit).into_iter().map(|(k, ..)| k.name()).collect();
+        entry.refit_only = s.fit.spec.refit_only.clone();
         entry
     }
 
@@ -554,7 +572,13 @@ pub fn diagnose(
     progress("fitting the close runners-up in place of each effect kept");
     swap_rivals(&search, &current, &rounds);
     progress("refitting a few parameters at a time, rivals of a discrepancy");
-    sparse_refit_rivals(&search, &before, &current);
+    if let Some(sparse) = sparse_refit_rivals(&search, &before, &current) {
+        // "The parameters are off" found: the few that are off say it with fewer parameters
+        // to pay for, when the held-out score agrees.
+        if current.fit.spec.refit && current.fit.spec.effects.is_empty() && sparse.score() < current.score() {
+            current = sparse;
+        }
+    }
     progress("trying play in the throttle path, a rival outside the catalogue");
     throttle_play_rivals(&search, &current);
     progress("trying a soak slower than the recording settles, a rival of a gain drift");
@@ -1093,13 +1117,22 @@ pub(crate) fn named(params: &Params) -> BTreeMap<&'static str, f64> {
 /// thrust-history gain alone has a state of its own, as a drift has, and gets no such rival: a
 /// constant parameter imitates it only as far as the recording is short, as it does a gain
 /// drift.
-fn sparse_refit_rivals(search: &Search<'_, '_>, before: &Scored, current: &Scored) {
+fn sparse_refit_rivals(search: &Search<'_, '_>, before: &Scored, current: &Scored) -> Option<Scored> {
     let history = [4, 5]; // gain_history_per_n and its time constant, in DISCREPANCY_KEYS
     let spec = &current.fit.spec;
     let has_static = spec.has(EffectKind::Discrepancy) && spec.discrepancy_free.iter().any(|i| !history.contains(i));
-    if !has_static || !search.options.refit {
-        return;
+    // A refit found stands for "the parameters are off"; the few that are off stand for it
+    // better than all ten, which pay for every parameter the data do not ask to move.
+    if !(has_static || spec.refit) || !search.options.refit {
+        return None;
     }
+    // The best on held-out score of the sparse refits.
+    let mut best: Option<Scored> = None;
+    let keep = |best: &mut Option<Scored>, fitted: Option<Scored>| {
+        if let Some(s) = fitted.filter(|s| best.as_ref().is_none_or(|b| s.score() < b.score())) {
+            *best = Some(s);
+        }
+    };
     let refit = |subset: Vec<usize>, from: &Spec| {
         let mut spec = from.clone();
         spec.refit = true;
@@ -1108,15 +1141,15 @@ fn sparse_refit_rivals(search: &Search<'_, '_>, before: &Scored, current: &Score
     };
     for i in 0..Params::NAMES.len() {
         for j in i..Params::NAMES.len() {
-            refit(if i == j { vec![i] } else { vec![i, j] }, &before.fit.spec);
+            keep(&mut best, refit(if i == j { vec![i] } else { vec![i, j] }, &before.fit.spec));
         }
     }
     let mut subset: Vec<usize> = (0..Params::NAMES.len()).collect();
-    let Some(mut pared) = refit(subset.clone(), &before.fit.spec) else { return };
+    let Some(mut pared) = refit(subset.clone(), &before.fit.spec) else { return best };
     while subset.len() > 3 {
         let (params, given) = (pared.fit.spec.params.to_array(), pared.fit.spec.given.to_array());
         let moved = |i: usize| ((params[i] - given[i]) / pared.fit.param_stderr[i]).abs();
-        let Some(least) = subset.iter().copied().min_by(|&a, &b| moved(a).total_cmp(&moved(b))) else { return };
+        let Some(least) = subset.iter().copied().min_by(|&a, &b| moved(a).total_cmp(&moved(b))) else { break };
         subset.retain(|&i| i != least);
         // From the values the wider refit found, the pared parameter back as given.
         let mut from = pared.fit.spec.clone();
@@ -1124,10 +1157,14 @@ fn sparse_refit_rivals(search: &Search<'_, '_>, before: &Scored, current: &Score
         values[least] = given[least];
         from.params = Params::from_array(values);
         match refit(subset.clone(), &from) {
-            Some(next) => pared = next,
-            None => return,
+            Some(next) => {
+                keep(&mut best, Some(next.clone()));
+                pared = next;
+            }
+            None => break,
         }
     }
+    best
 }
 
 /// Play (backlash) in the throttle path, outside the catalogue and the discrepancy's

@@ -65,7 +65,8 @@ pub(crate) fn found(
                 .map(|(k, g)| (k, if g != 0.0 { 100.0 * (params[k] - g) / g.abs() } else { f64::NAN }))
                 .collect::<BTreeMap<_, _>>();
             evidence.summary = explain_refit(&named(&given.model), &uncertainty, &params);
-            refit = Some(Refit { params, uncertainty, change_pct, evidence });
+            let refitted = uncertainty.iter().filter(|(_, e)| e.is_finite()).map(|(k, _)| *k).collect();
+            refit = Some(Refit { params, refitted, uncertainty, change_pct, evidence });
             continue;
         }
         let Ok(kind) = name.parse::<EffectKind>() else { continue };
@@ -343,6 +344,12 @@ pub(crate) fn cause(d: &Diagnosis) -> Cause {
     }
 }
 
+/// `text` with its first letter in upper case: a phrase opening a sentence.
+fn upper_first(text: &str) -> String {
+    let mut chars = text.chars();
+    chars.next().map_or(String::new(), |c| c.to_uppercase().chain(chars).collect())
+}
+
 /// The improved model's residual is noise: white under the noise model, no slow periodic
 /// part, and its MAE within 10 % of the floor.
 fn residual_is_noise(d: &Diagnosis) -> bool {
@@ -477,13 +484,14 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
         Cause::Unexplained => {
             let why = d.rounds.last().map_or(String::new(), |r| format!(" ({})", r.reason));
             let mut what: Vec<String> = d.before.findings.clone();
-            if d.effects.is_empty() && d.refit.is_some() {
+            if let (true, Some(refit)) = (d.effects.is_empty(), &d.refit) {
                 what.insert(
                     0,
                     format!(
-                        "a refit of the ten parameters improves the held-out fit (validation MAE {} → {}) but its \
-                         residual is not noise (Ljung–Box p {:.1e} under the noise model, MAE {:.2}× the floor): \
-                         the parameters alone do not explain the recording",
+                        "{} improves the held-out fit (validation MAE {} → {}) but its residual is not noise \
+                         (Ljung–Box p {:.1e} under the noise model, MAE {:.2}× the floor): the parameters alone do \
+                         not explain the recording",
+                        refit.what(),
                         figure(d.mae_before_n, 2, " N"),
                         figure(d.mae_after_n, 2, " N"),
                         d.after.whiteness.p_value,
@@ -501,7 +509,7 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
                          {:.1e} under the noise model, MAE {:.2}× the floor): an explanation that leaves more than \
                          noise may name the wrong parts, so it is named, not claimed",
                         names.join(" + "),
-                        if d.refit.is_some() { " with the ten parameters refitted" } else { "" },
+                        d.refit.as_ref().map_or(String::new(), |r| format!(" with {}", r.what())),
                         figure(d.mae_before_n, 2, " N"),
                         figure(d.mae_after_n, 2, " N"),
                         d.after.whiteness.p_value,
@@ -701,10 +709,11 @@ fn undetectable(d: &Diagnosis) -> String {
         ));
     }
     let opening = match &d.refit {
-        Some(_) => format!(
-            "A refit of the ten parameters explains the held-out data (validation MAE {} → {}, noise floor {}), but \
-             \"only the parameters are off\" cannot be claimed: the refitted parameters could mimic what this \
-             recording shows of other physics, and",
+        Some(refit) => format!(
+            "{} explains the held-out data (validation MAE {} → {}, noise floor {}), but \"only the parameters are \
+             off\" cannot be claimed: the refitted parameters could mimic what this recording shows of other physics, \
+             and",
+            upper_first(&refit.what()),
             figure(d.mae_before_n, 2, " N"),
             figure(d.mae_after_n, 2, " N"),
             figure(d.noise_floor_n, 2, " N")

@@ -53,6 +53,8 @@ pub(crate) struct Entry {
     pub effects: Vec<&'static str>,
     /// The ten parameters refitted.
     pub refit: bool,
+    /// With `refit`, the parameters a sparse refit moved (`None`: all ten).
+    pub refit_only: Option<Vec<usize>>,
     /// Squared held-out innovations, in order.
     pub w2: Vec<f64>,
     /// Parameters fitted (BIC count) and the refit's prior cost, score units.
@@ -512,7 +514,7 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         fit_behind: e.fit() - top_fit,
         mae_val_n: e.mae_val_n,
         side: side(&e.effects, e.refit),
-        meaning: meaning(&e.effects, e.refit, e.fit.as_ref().and_then(|f| f.spec.refit_only.as_deref())),
+        meaning: meaning(&e.effects, e.refit, e.refit_only.as_deref()),
         tells_apart: if j == ci {
             String::new()
         } else {
@@ -581,6 +583,7 @@ pub(crate) fn entry(
         mae_val_n: mae,
         unphysical,
         idle: Vec::new(),
+        refit_only: None,
         fit: None,
         swapped: false,
     }
