@@ -1188,25 +1188,8 @@ fn throttle_play_rivals(search: &Search<'_, '_>, current: &Scored) {
             }
         }
         let states = problem.restarted(&plant, &spec.states);
-        let mut sim = Sim::new();
-        if problem.simulate(&plant, &states, false, &mut sim).is_err() {
-            continue;
-        }
-        let mut w = Vec::new();
-        problem.innovations(&sim, Part::Validation, &mut w);
-        let kinds: Vec<EffectKind> = spec.effects.iter().map(|(k, _)| *k).collect();
-        let mut entry = rivals::entry(
-            &kinds,
-            spec.refit,
-            &w,
-            spec.free_count() + 1,
-            spec.prior_cost(),
-            problem.mae(&sim, Part::Validation),
-            false,
-        );
-        entry.effects.push("throttle_play");
-        entry.effects.sort_unstable();
-        if entry.score.is_finite() && best.as_ref().is_none_or(|b| entry.score < b.score) {
+        let Some(entry) = unclaimable_entry(&problem, &plant, &spec, &states, 1, "throttle_play") else { continue };
+        if best.as_ref().is_none_or(|b| entry.score < b.score) {
             best = Some(entry);
         }
     }
@@ -1235,27 +1218,38 @@ fn slow_history_rivals(search: &Search<'_, '_>, current: &Scored) {
     slow = slow.with(EffectKind::Discrepancy, start);
     let Some(fit) = fit::fit(search.problem, &search.model.effects, &slow) else { return };
     let Some(plant) = fit.spec.plant(&search.model.effects) else { return };
+    let entry = unclaimable_entry(search.problem, &plant, &fit.spec, &fit.spec.states, 0, rivals::SLOW_HISTORY);
+    search.pool.borrow_mut().extend(entry);
+}
+
+/// The rivals' view of an explanation the model cannot hold: `spec` on `plant`, simulated over
+/// `problem` from `states`, named `label` beside its effects, with `extra` parameters on top of
+/// the spec's own. It carries no fit, so it is weighed and never claimed.
+fn unclaimable_entry(
+    problem: &Problem<'_>,
+    plant: &jetbench_model::Plant,
+    spec: &Spec,
+    states: &[problem::RunStart],
+    extra: usize,
+    label: &'static str,
+) -> Option<Entry> {
     let mut sim = Sim::new();
-    if search.problem.simulate(&plant, &fit.spec.states, false, &mut sim).is_err() {
-        return;
-    }
+    problem.simulate(plant, states, false, &mut sim).ok()?;
     let mut w = Vec::new();
-    search.problem.innovations(&sim, Part::Validation, &mut w);
-    let kinds: Vec<EffectKind> = fit.spec.effects.iter().map(|(k, _)| *k).collect();
+    problem.innovations(&sim, Part::Validation, &mut w);
+    let kinds: Vec<EffectKind> = spec.effects.iter().map(|(k, _)| *k).collect();
     let mut entry = rivals::entry(
         &kinds,
-        fit.spec.refit,
+        spec.refit,
         &w,
-        fit.spec.free_count(),
-        fit.spec.prior_cost(),
-        search.problem.mae(&sim, Part::Validation),
+        spec.free_count() + extra,
+        spec.prior_cost(),
+        problem.mae(&sim, Part::Validation),
         false,
     );
-    entry.effects.push(rivals::SLOW_HISTORY);
+    entry.effects.push(label);
     entry.effects.sort_unstable();
-    if entry.score.is_finite() {
-        search.pool.borrow_mut().push(entry);
-    }
+    entry.score.is_finite().then_some(entry)
 }
 
 /// A slow periodic force on the stand (or a sensor's thermal cycle) as a rival: a sine fitted
