@@ -424,7 +424,14 @@ fn tells_apart(a: (&[&'static str], bool), b: (&[&'static str], bool)) -> String
     if parts.is_empty() {
         return String::new();
     }
-    format!("{}; `jetbench excite --discriminate` designs the campaign that separates them", parts.join("; "))
+    // The designer simulates catalogue effects and the discrepancy; a rival outside the model
+    // (throttle play, a periodic force, a slow soak) it cannot.
+    let designable = |effects: &[&str]| effects.iter().all(|e| e.parse::<EffectKind>().is_ok());
+    if designable(a.0) && designable(b.0) {
+        format!("{}; `jetbench excite --discriminate` designs the campaign that separates them", parts.join("; "))
+    } else {
+        parts.join("; ")
+    }
 }
 
 /// The rivals of `chosen` among `pool` (every explanation the search fitted).
@@ -614,8 +621,12 @@ mod tests {
         assert_eq!(side_of(SLOW_HISTORY), "engine");
         assert!(meaning_of(SLOW_HISTORY).contains("slow soak"));
         assert!(signature_of(SLOW_HISTORY).contains("idle hold"));
-        assert!(tells_apart((&["discrepancy", SLOW_HISTORY], false), (&["discrepancy", "gain_drift"], false))
-            .contains("keeps growing with run time"));
+        let apart = tells_apart((&["discrepancy", SLOW_HISTORY], false), (&["discrepancy", "gain_drift"], false));
+        assert!(apart.contains("keeps growing with run time"), "{apart}");
+        // The designer cannot simulate a rival outside the model, so it is not offered.
+        assert!(!apart.contains("--discriminate"), "{apart}");
+        let catalogue = tells_apart((&["input_delay"], false), (&["actuator_lag"], false));
+        assert!(catalogue.contains("--discriminate"), "{catalogue}");
     }
 
     #[test]
