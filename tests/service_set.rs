@@ -357,11 +357,15 @@ fn list_shows_a_running_set_over_either_transport() {
     for transport in ["iceoryx2", "uds"] {
         let mut up = jetbench();
         up.args(["up", "--sim", "--quiet", "--duration", "4", "--transport", transport]);
-        let (mut child, stdout, _stderr) = common::spawn_reading(up);
+        let (mut child, stdout, stderr) = common::spawn_reading(up);
         let ready = common::wait_for_line(&stdout, "services ready", Duration::from_secs(60));
         let listed = output_with_watchdog(jetbench().arg("list"), "jetbench list");
         let status = wait_with_watchdog(&mut child, Duration::from_secs(60), "jetbench up");
-        assert!(ready.is_ok() && status.success(), "{transport}: the set did not run: {ready:?}");
+        if !(ready.is_ok() && status.success()) {
+            // What `up` said on the way out (its lines still in flight, or all of them).
+            let errors: Vec<String> = std::iter::from_fn(|| stderr.recv_timeout(Duration::from_secs(2)).ok()).collect();
+            panic!("{transport}: the set did not run ({status}): {ready:?}\nstderr:\n{}", errors.join("\n"));
+        }
         // `bench/events` exists on the bus once a service publishes an event; the engine's
         // lifecycle and limits will, but no service does yet, so a quiet run has none.
         let published = jetbench_msgs::channel_names().into_iter().filter(|c| *c != channels::EVENTS.name);
