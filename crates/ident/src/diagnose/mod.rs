@@ -238,11 +238,7 @@ impl Refit {
     pub fn what(&self) -> String {
         match self.refitted.len() {
             10 => "a refit of the ten parameters".to_owned(),
-            n => {
-                const WORDS: [&str; 10] =
-                    ["no", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine"];
-                format!("a refit of {} (the other {} as given)", self.refitted.join(" and "), WORDS[10 - n.min(10)])
-            }
+            _ => format!("a refit of {}", report::sparse_refit(&self.refitted)),
         }
     }
 }

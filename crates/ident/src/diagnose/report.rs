@@ -64,8 +64,9 @@ pub(crate) fn found(
                 .into_iter()
                 .map(|(k, g)| (k, if g != 0.0 { 100.0 * (params[k] - g) / g.abs() } else { f64::NAN }))
                 .collect::<BTreeMap<_, _>>();
-            evidence.summary = explain_refit(&named(&given.model), &uncertainty, &params);
-            let refitted = uncertainty.iter().filter(|(_, e)| e.is_finite()).map(|(k, _)| *k).collect();
+            // A sparse refit leaves the parameters it did not move without a standard error.
+            let refitted: Vec<&str> = uncertainty.iter().filter(|(_, e)| e.is_finite()).map(|(k, _)| *k).collect();
+            evidence.summary = explain_refit(&named(&given.model), &uncertainty, &params, &refitted);
             refit = Some(Refit { params, refitted, uncertainty, change_pct, evidence });
             continue;
         }
@@ -183,10 +184,19 @@ fn explain(
     }
 }
 
+/// The parameters a sparse refit moved, and how many it left: "K_T and c (the other eight as
+/// given)".
+pub(crate) fn sparse_refit(refitted: &[&str]) -> String {
+    const WORDS: [&str; 11] = ["no", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten"];
+    let left = Params::NAMES.len().saturating_sub(refitted.len()).min(10);
+    format!("{} (the other {} as given)", refitted.join(" and "), WORDS[left])
+}
+
 fn explain_refit(
     given: &BTreeMap<&'static str, f64>,
     errors: &BTreeMap<&'static str, f64>,
     params: &BTreeMap<&'static str, f64>,
+    refitted: &[&str],
 ) -> String {
     // The changes the data is surest of, in standard errors; a relative change means
     // little for a coefficient near zero.
@@ -208,7 +218,6 @@ fn explain_refit(
             format!("{k} {g:.4} → {:.4}{relative}, {:.0} standard errors", g + d, z.abs())
         })
         .collect();
-    let refitted: Vec<&str> = errors.iter().filter(|(_, e)| e.is_finite()).map(|(k, _)| *k).collect();
     if refitted.len() < params.len() {
         // A sparse refit: every parameter it moved, the others as given.
         let moved: Vec<String> = refitted
@@ -220,10 +229,9 @@ fn explain_refit(
             .collect();
         let alone = if refitted.len() == 1 { "alone refitted" } else { "refitted together" };
         return format!(
-            "{} {alone} on the calibration part ({}; the other {} as given) explain{} the residual on held-out data.",
-            refitted.join(" and "),
+            "{} {alone} on the calibration part ({}) explain{} the residual on held-out data.",
+            sparse_refit(refitted),
             moved.join("; "),
-            params.len() - refitted.len(),
             if refitted.len() == 1 { "s" } else { "" }
         );
     }
@@ -1017,4 +1025,21 @@ struct BeforeAfter<'a> {
     after: (&'a [f64], &'a [f64]),
     hlines: Vec<(f64, &'a str)>,
     log_y: bool,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_sparse_refit_names_what_it_moved_and_what_it_left() {
+        assert_eq!(sparse_refit(&["K_T", "c"]), "K_T and c (the other eight as given)");
+        assert_eq!(sparse_refit(&["K_TD"]), "K_TD (the other nine as given)");
+        let given = BTreeMap::from([("K_T", 1.0), ("c", -2.0)]);
+        let params = BTreeMap::from([("K_T", 1.1), ("c", -2.0)]);
+        let errors = BTreeMap::from([("K_T", 0.01), ("c", f64::NAN)]);
+        let text = explain_refit(&given, &errors, &params, &["K_T"]);
+        assert!(text.starts_with("K_T (the other nine as given) alone refitted"), "{text}");
+        assert!(text.contains("10.0 standard errors"), "{text}");
+    }
 }
