@@ -55,7 +55,8 @@ def noise_var(suite, case):
 
 def record_drawn(suite, case):
     """A case simulated by scripts/diagnose_campaign.py's own engine (its noise kinds, spikes, lost
-    rows, jitter, a clipping sensor, play in the throttle path): the classes the randomised
+    rows, jitter, a clipping sensor, a slow periodic force on the stand, and its physics outside the
+    catalogue: play in the throttle path, spool-down slower than spool-up, ...): the classes the randomised
     campaign draws that `jetbench sim-record` and outside_catalogue.py do not make."""
     sys.path.insert(0, str(ROOT / "scripts"))
     import diagnose_campaign
@@ -73,6 +74,10 @@ def record_drawn(suite, case):
     if "clipping" in drawn:
         artefact = "clipping"
         effects["clipping"] = {"quantile": float(drawn["clipping"])}
+    if "periodic_force" in drawn:
+        # A slow periodic force on the stand, added to what the sensor reads: `key=value,...`.
+        artefact = "periodic_force"
+        effects["periodic_force"] = parse_spec("periodic_force:" + drawn["periodic_force"])[1]
     draw = {
         "index": 0, "plant": plant, "params": params, "given": params, "effects": effects, "params_off": False,
         "artefact": artefact, "duration_s": case.get("duration_s", suite["duration_s"]),
@@ -171,6 +176,10 @@ def judge(case, result):
     # say they could hide (tests/scenarios.rs alike).
     hidden = set(case.get("hidden", []))
     expected = (set(truth) - hidden) | ({"discrepancy"} if "outside" in case else set())
+    # Physics no effect of the library writes: what an `unexplained` verdict finds in its place
+    # (tests/scenarios.rs alike).
+    if "found" in case:
+        expected = set(case["found"])
     found = {e["name"]: e["params"] for e in result["effects"]}
     problems = []
     # Only a claim can be false: `ambiguous`, `unexplained` and `insufficient_data` name what the
@@ -180,8 +189,10 @@ def judge(case, result):
     if expected_cause(case) == "ambiguous" and expected:
         # Honestly ambiguous: the truth must be among the rivals, with its weight.
         rivals = [set(r["effects"]) for r in result.get("rivals", []) if r.get("weight") is not None]
-        if expected not in rivals and not (claimed and set(found) == expected):
-            problems.append(f"the truth {sorted(expected)} is not among the rivals {[sorted(r) for r in rivals]}")
+        # `rival`: the explanation that must be among them, where the library cannot write the truth.
+        wanted = set(case.get("rival", expected))
+        if wanted not in rivals and not (claimed and set(found) == expected):
+            problems.append(f"the truth {sorted(wanted)} is not among the rivals {[sorted(r) for r in rivals]}")
     elif set(found) != expected:
         problems.append(f"found {sorted(found) or 'nothing'}, expected {sorted(expected) or 'nothing'}")
     for name, params in truth.items():
@@ -195,6 +206,10 @@ def judge(case, result):
         hidden_probes = [p for p in result.get("detectability", []) if p.get("would_show") is False]
         if not disclosed(h, truth[h], hidden_probes):
             problems.append(f"{h} is in the truth but no probe says it could hide at its size")
+    if "periodic_s" in case:
+        period = (result.get("periodic") or {}).get("period_s")
+        if period is None or abs(period - case["periodic_s"]) > 0.1 * case["periodic_s"]:
+            problems.append(f"a periodic force of period {case['periodic_s']} s, reported: {result.get('periodic')}")
     cause = result.get("cause", "n/a")
     # Where nothing (or only the parameters) is off, `insufficient_data` naming a class of effect
     # this recording could not have shown is as honest as the claim (tests/scenarios.rs alike).

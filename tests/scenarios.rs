@@ -50,6 +50,13 @@ struct Case {
     /// Catalogue effects of the truth this recording cannot show beside the rest (`hidden`):
     /// not expected among the effects found, but the probes must say they could hide.
     hidden: Vec<String>,
+    /// For physics no effect of the library writes: the names an `unexplained` verdict finds
+    /// (`found`), or the explanation that must be among an `ambiguous` verdict's rivals
+    /// (`rival`), in place of the truth's.
+    found: Option<Vec<String>>,
+    rival: Option<Vec<String>>,
+    /// A slow periodic force: the period the verdict must report, s (within 10 %).
+    periodic_s: Option<f64>,
     file: String,
 }
 
@@ -98,7 +105,24 @@ fn cases() -> Vec<Case> {
                 .and_then(|h| h.as_array())
                 .map(|a| a.iter().filter_map(|v| v.as_str().map(str::to_owned)).collect())
                 .unwrap_or_default();
-            Case { name, model: c["model"].as_str().expect("model").to_owned(), truth, outside, cause, hidden, file }
+            let names = |key: &str| -> Option<Vec<String>> {
+                let mut v: Vec<String> =
+                    c.get(key)?.as_array()?.iter().filter_map(|v| v.as_str().map(str::to_owned)).collect();
+                v.sort();
+                Some(v)
+            };
+            Case {
+                name,
+                model: c["model"].as_str().expect("model").to_owned(),
+                truth,
+                outside,
+                cause,
+                hidden,
+                found: names("found"),
+                rival: names("rival"),
+                periodic_s: c.get("periodic_s").and_then(|v| v.as_float()),
+                file,
+            }
         })
         .collect()
 }
@@ -119,13 +143,19 @@ fn judge(case: &Case, d: &Value) -> (Vec<String>, bool) {
         expected.push("discrepancy".into());
         expected.sort();
     }
+    // Physics no effect of the library writes: what an `unexplained` verdict finds in its place.
+    if let Some(found) = &case.found {
+        expected.clone_from(found);
+    }
     let found_names: Vec<String> = found.keys().cloned().collect();
     // Only a claim can be false: `ambiguous`, `unexplained` and `insufficient_data` name
     // what the search found without claiming it.
     let claimed = matches!(d["cause"].as_str(), Some("none" | "parameters" | "missing_physics"));
     let false_claim = claimed && found_names.iter().any(|n| !expected.contains(n));
     if case.cause == "ambiguous" && !expected.is_empty() {
-        // Honestly ambiguous: the truth must be among the rivals, with its weight.
+        // Honestly ambiguous: the truth must be among the rivals, with its weight (`rival` in
+        // its place where the library cannot write it).
+        let wanted = case.rival.as_ref().unwrap_or(&expected);
         let rivals = d["rivals"].as_array().cloned().unwrap_or_default();
         let has_truth = rivals.iter().any(|r| {
             let mut names: Vec<String> = r["effects"]
@@ -133,7 +163,7 @@ fn judge(case: &Case, d: &Value) -> (Vec<String>, bool) {
                 .map(|a| a.iter().filter_map(|e| e.as_str().map(str::to_owned)).collect())
                 .unwrap_or_default();
             names.sort();
-            names == expected && r["weight"].as_f64().is_some()
+            names == *wanted && r["weight"].as_f64().is_some()
         });
         let right_claim = claimed && expected == found_names;
         if !(has_truth || right_claim) {
@@ -205,6 +235,12 @@ fn judge(case: &Case, d: &Value) -> (Vec<String>, bool) {
     }
     if !at_most(before, (1.0 + CONCEALED) * floor) {
         problems.push(format!("not concealed: MAE before {before:.3} N against floor {floor:.3} N"));
+    }
+    if let Some(period) = case.periodic_s {
+        let got = d["periodic"]["period_s"].as_f64().unwrap_or(f64::NAN);
+        if !at_most((got - period).abs(), 0.1 * period) {
+            problems.push(format!("a periodic force of period {period} s, reported: {}", d["periodic"]));
+        }
     }
     if d["verdict"].as_str().is_none_or(str::is_empty) {
         problems.push("no verdict".into());

@@ -99,6 +99,46 @@ fn a_model_that_explains_the_data_gets_nothing() {
     assert!(d.effects.is_empty(), "{}", d.verdict);
 }
 
+/// A force sensor whose noise grows with thrust (the frame shakes more): white noise of a
+/// changing scale is white, and the whiteness test must keep its level on the truth's own
+/// residual. On the raw innovations it does not: their autocorrelations spread wider than
+/// ±1.96/√N, and over these eight recordings the Ljung–Box Q averages 30 where a χ²(20) has
+/// 20 (two of the eight at p 0.0005 and 0.010). Scaled by the noise's own scale at each
+/// thrust, it averages 21.
+#[test]
+fn noise_that_grows_with_thrust_is_not_taken_for_a_residual_that_is_not_white() {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+    let params = Preset::P100Diesel.params();
+    let plant = Plant::new(params, Effects::none());
+    let quiet = synth::Bench { noise_var_n2: 0.0, ..synth::Bench::default() };
+    let options = Options { candidates: Vec::new(), refit: false, ..Options::default() };
+    let (mut rejected, mut q) = (Vec::new(), Vec::new());
+    for seed in 0..8u64 {
+        let mut data = synth::record_bench(&plant, &excite::campaign(300.0, seed).profile, &quiet, seed).unwrap();
+        let top = data.thrust_n.iter().copied().fold(1.0, f64::max);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(100 + seed);
+        let unit = Normal::new(0.0, 1.0).unwrap();
+        for y in &mut data.thrust_n {
+            // 0.75 N at rest to 3.75 N at full thrust.
+            *y += 0.75 * (1.0 + 4.0 * y.max(0.0) / top) * unit.sample(&mut rng);
+        }
+        let d = diagnose(&ModelFile::new(params), &[data], &options, &mut |_| {}).unwrap();
+        let w = &d.before.whiteness;
+        let factors: Vec<f64> = w.scale_by_thrust.iter().map(|b| b[2]).collect();
+        assert!(factors.len() > 1 && factors[factors.len() - 1] > 2.0 * factors[0], "{factors:?}");
+        if !w.white {
+            rejected.push((seed, w.p_value));
+        }
+        q.push(w.ljung_box_q);
+    }
+    // The mean of eight χ²(20) is 20 ± 2.2.
+    let mean = q.iter().sum::<f64>() / q.len() as f64;
+    assert!(mean < 26.0, "Ljung–Box Q averages {mean:.1} on the truth's residual: {q:?}");
+    // At the 1 % level, two of eight is already a 1-in-300 chance for a test that holds it.
+    assert!(rejected.len() <= 1, "the truth's residual called not white: {rejected:?}");
+}
+
 fn bench_recording(plant: &Plant, bench: &synth::Bench, seed: u64) -> jetbench_ident::series::Series {
     synth::record_bench(plant, &excite::campaign(200.0, seed).profile, bench, seed + 1).expect("recording")
 }

@@ -6,7 +6,11 @@
 //! not mistaken for physics:
 //!
 //! - whiteness is tested on the innovations (the residual prewhitened by the noise
-//!   model): their autocorrelation against ±1.96/√N and the Ljung–Box statistic;
+//!   model), each divided by the noise's own scale at its thrust: their autocorrelation
+//!   against ±1.96/√N and the Ljung–Box statistic. A force sensor's noise often grows
+//!   with thrust (the frame shakes more); white noise of a changing scale is still white,
+//!   but its autocorrelations spread wider than 1/√N, and the test would reject the truth
+//!   itself far more often than its level says ([`noise_scale`]);
 //! - a mean over `n` samples is significant against the noise's long-run variance
 //!   `σ_w²/(1 − Σφ)²/n`, the variance the mean of `n` samples of that noise has;
 //! - the spectrum is shown relative to the noise model's own spectrum.
@@ -29,6 +33,10 @@ use crate::noise::ArModel;
 pub const ACF_LAGS: usize = 50;
 /// Lags in the Ljung–Box statistic.
 pub const LJUNG_BOX_LAGS: usize = 20;
+/// Thrust bins of the noise's scale ([`noise_scale`]).
+const SCALE_BINS: usize = 8;
+/// Fewest second differences a bin of the noise's scale needs.
+const SCALE_BIN_MIN: usize = 200;
 /// Significance level of every "significant" in a report.
 pub const ALPHA: f64 = 0.01;
 /// A mean is called systematic beyond this many standard errors.
@@ -61,6 +69,10 @@ pub struct Whiteness {
     pub p_value: f64,
     /// `p_value ≥ ALPHA`.
     pub white: bool,
+    /// The noise's scale against the thrust, relative to its whole (`[from N, to N,
+    /// factor]` per bin of the model's thrust), by which each innovation was divided
+    /// before the test; empty when the recording is too short to tell (every factor 1).
+    pub scale_by_thrust: Vec<[f64; 3]>,
 }
 
 /// Correlation of the residual with earlier throttle changes.
@@ -285,7 +297,7 @@ pub(crate) fn analyse(problem: &Problem<'_>, sim: &Sim) -> Analysis {
         mean_n,
         rms_n,
         systematic_rms_n,
-        whiteness: whiteness(&runs),
+        whiteness: whiteness(&runs, &noise_scale(problem, &runs)),
         input_correlation: input_correlation(&runs, n),
         by_direction,
         by_thrust,
@@ -305,16 +317,75 @@ fn long_run_variance(ar: &ArModel) -> f64 {
     ar.innovation_var / (1.0 - sum).powi(2).max(1e-6)
 }
 
-fn whiteness(runs: &[RunView]) -> Whiteness {
-    let present = || runs.iter().flat_map(|v| v.w.iter().copied().filter(|x| x.is_finite()));
+/// The noise's scale against the thrust: the second differences of the measured thrust
+/// (the engine's own part of them is hundredths of a newton, see [`crate::noise`]) binned
+/// by the model's thrust at the same sample, each bin's root mean square over the whole's.
+/// Measured on the recording, not on the residual, so a misfit (smooth, with no second
+/// difference to speak of) is never taken for noise. Returns the bins and, per run, the
+/// factor of each innovation (1 where the model has no thrust); no bins and factors of 1
+/// when a bin would hold fewer than [`SCALE_BIN_MIN`] differences.
+fn noise_scale(problem: &Problem<'_>, runs: &[RunView]) -> (Vec<[f64; 3]>, Vec<Vec<f64>>) {
+    let ones = || runs.iter().map(|v| vec![1.0; v.w.len()]).collect();
+    let strided = |x: &[f64], stride: usize| -> Vec<f64> { x.iter().copied().step_by(stride).collect() };
+    let mut pairs: Vec<(f64, f64)> = Vec::new();
+    for (run, view) in problem.runs.iter().zip(runs) {
+        let (y, level) = (strided(&run.y, run.stride), strided(&view.yhat, run.stride));
+        for j in 1..y.len().saturating_sub(1) {
+            let d = y[j + 1] - 2.0 * y[j] + y[j - 1];
+            if d.is_finite() && level.get(j).is_some_and(|l| l.is_finite()) {
+                pairs.push((level[j], d * d));
+            }
+        }
+    }
+    if pairs.len() < SCALE_BINS * SCALE_BIN_MIN {
+        return (Vec::new(), ones());
+    }
+    pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let whole = pairs.iter().map(|p| p.1).sum::<f64>() / pairs.len() as f64;
+    if whole <= 0.0 {
+        return (Vec::new(), ones());
+    }
+    let bins: Vec<[f64; 3]> = (0..SCALE_BINS)
+        .map(|b| {
+            let part = &pairs[b * pairs.len() / SCALE_BINS..(b + 1) * pairs.len() / SCALE_BINS];
+            let mean = part.iter().map(|p| p.1).sum::<f64>() / part.len() as f64;
+            [part[0].0, part[part.len() - 1].0, (mean / whole).sqrt()]
+        })
+        .collect();
+    let factor = |level: f64| {
+        if !level.is_finite() {
+            return 1.0;
+        }
+        // The bin holding `level`; below the first or above the last, the nearest.
+        let b = bins.partition_point(|bin| bin[1] < level).min(SCALE_BINS - 1);
+        bins[b][2].max(1e-3)
+    };
+    let factors = problem
+        .runs
+        .iter()
+        .zip(runs)
+        .map(|(run, view)| {
+            (0..view.w.len()).map(|j| factor(view.yhat.get(j * run.stride).copied().unwrap_or(f64::NAN))).collect()
+        })
+        .collect();
+    (bins, factors)
+}
+
+/// Whiteness of the innovations of `runs`, each divided by its factor in `scale` (see
+/// [`noise_scale`]).
+fn whiteness(runs: &[RunView], scale: &(Vec<[f64; 3]>, Vec<Vec<f64>>)) -> Whiteness {
+    let (bins, factors) = scale;
+    let scaled: Vec<Vec<f64>> =
+        runs.iter().zip(factors).map(|(v, f)| v.w.iter().zip(f).map(|(w, f)| w / f).collect()).collect();
+    let present = || scaled.iter().flat_map(|w| w.iter().copied().filter(|x| x.is_finite()));
     let n = present().count();
     let mean = present().sum::<f64>() / n.max(1) as f64;
     let denom: f64 = present().map(|x| (x - mean).powi(2)).sum::<f64>().max(1e-300) / n.max(1) as f64;
     let acf: Vec<f64> = (1..=ACF_LAGS)
         .map(|lag| {
             let (mut sum, mut pairs) = (0.0, 0usize);
-            for v in runs {
-                for (a, b) in v.w.iter().zip(v.w.iter().skip(lag)) {
+            for w in &scaled {
+                for (a, b) in w.iter().zip(w.iter().skip(lag)) {
                     if a.is_finite() && b.is_finite() {
                         sum += (a - mean) * (b - mean);
                         pairs += 1;
@@ -337,6 +408,7 @@ fn whiteness(runs: &[RunView]) -> Whiteness {
         ljung_box_q: q,
         p_value,
         white: p_value >= ALPHA,
+        scale_by_thrust: bins.clone(),
     }
 }
 
@@ -545,21 +617,41 @@ fn windows(runs: &[RunView], long_run_var: f64) -> Vec<Window> {
     found
 }
 
+/// How the innovations were scaled for the whiteness test, when the noise's scale changes
+/// with thrust by more than a tenth ("" otherwise).
+fn scaled_by_thrust(w: &Whiteness) -> String {
+    let factors = || w.scale_by_thrust.iter().map(|b| b[2]);
+    let (lo, hi) = (factors().fold(f64::INFINITY, f64::min), factors().fold(0.0, f64::max));
+    if w.scale_by_thrust.is_empty() || hi < 1.1 * lo {
+        return String::new();
+    }
+    format!(" (each innovation scaled by the noise's own scale at its thrust: ×{lo:.2} to ×{hi:.2} of the whole)")
+}
+
 fn findings(a: &Analysis) -> Vec<String> {
     let mut out = Vec::new();
     let w = &a.whiteness;
     if w.white {
         out.push(format!(
             "residual is white under the noise model: Ljung–Box Q({LJUNG_BOX_LAGS}) = {:.1}, p = {:.2}; {} of \
-             {ACF_LAGS} autocorrelations outside ±{:.3}",
-            w.ljung_box_q, w.p_value, w.outside, w.bound
+             {ACF_LAGS} autocorrelations outside ±{:.3}{}",
+            w.ljung_box_q,
+            w.p_value,
+            w.outside,
+            w.bound,
+            scaled_by_thrust(w)
         ));
         return out;
     }
     out.push(format!(
         "residual is not white under the noise model: lag-1 autocorrelation of the innovations {:.3} (white: \
-         within ±{:.3}), Ljung–Box Q({LJUNG_BOX_LAGS}) = {:.0}, p = {:.1e}; systematic part {:.2} N RMS",
-        w.acf[0], w.bound, w.ljung_box_q, w.p_value, a.systematic_rms_n
+         within ±{:.3}), Ljung–Box Q({LJUNG_BOX_LAGS}) = {:.0}, p = {:.1e}; systematic part {:.2} N RMS{}",
+        w.acf[0],
+        w.bound,
+        w.ljung_box_q,
+        w.p_value,
+        a.systematic_rms_n,
+        scaled_by_thrust(w)
     ));
     let systematic = |classes: &[ClassMean]| -> Vec<String> {
         classes
