@@ -50,10 +50,9 @@ struct Case {
     /// Catalogue effects of the truth this recording cannot show beside the rest (`hidden`):
     /// not expected among the effects found, but the probes must say they could hide.
     hidden: Vec<String>,
-    /// For physics no effect of the library writes: the names an `unexplained` verdict finds
-    /// (`found`), or the explanation that must be among an `ambiguous` verdict's rivals
-    /// (`rival`), in place of the truth's.
-    found: Option<Vec<String>>,
+    /// For physics no term of the library writes: the explanation that must be among the
+    /// verdict's rivals (`rival`, with its weight), in place of the truth's; what an unclaimed
+    /// verdict finds beside it is then not checked.
     rival: Option<Vec<String>>,
     /// A slow periodic force: the period the verdict must report, s (within 10 %).
     periodic_s: Option<f64>,
@@ -118,7 +117,6 @@ fn cases() -> Vec<Case> {
                 outside,
                 cause,
                 hidden,
-                found: names("found"),
                 rival: names("rival"),
                 periodic_s: c.get("periodic_s").and_then(|v| v.as_float()),
                 file,
@@ -143,16 +141,12 @@ fn judge(case: &Case, d: &Value) -> (Vec<String>, bool) {
         expected.push("discrepancy".into());
         expected.sort();
     }
-    // Physics no effect of the library writes: what an `unexplained` verdict finds in its place.
-    if let Some(found) = &case.found {
-        expected.clone_from(found);
-    }
     let found_names: Vec<String> = found.keys().cloned().collect();
     // Only a claim can be false: `ambiguous`, `unexplained` and `insufficient_data` name
     // what the search found without claiming it.
     let claimed = matches!(d["cause"].as_str(), Some("none" | "parameters" | "missing_physics"));
     let false_claim = claimed && found_names.iter().any(|n| !expected.contains(n));
-    if case.cause == "ambiguous" && !expected.is_empty() {
+    if (case.cause == "ambiguous" && !expected.is_empty()) || case.rival.is_some() {
         // Honestly ambiguous: the truth must be among the rivals, with its weight (`rival` in
         // its place where the library cannot write it).
         let wanted = case.rival.as_ref().unwrap_or(&expected);
@@ -167,7 +161,7 @@ fn judge(case: &Case, d: &Value) -> (Vec<String>, bool) {
         });
         let right_claim = claimed && expected == found_names;
         if !(has_truth || right_claim) {
-            problems.push(format!("the truth {expected:?} is not among the rivals: {}", d["rivals"]));
+            problems.push(format!("the truth {wanted:?} is not among the rivals: {}", d["rivals"]));
         }
     } else if expected != found_names {
         problems.push(format!("found {found_names:?}, expected {expected:?}"));

@@ -155,7 +155,7 @@ struct Search<'p, 'a> {
 #[derive(Clone, Debug, PartialEq)]
 struct Candidate {
     params: [f64; 10],
-    disc: [f64; 9],
+    disc: [f64; DISCREPANCY_KEYS.len()],
     path: Option<(EffectKind, [f64; 2])>,
 }
 

@@ -8,12 +8,17 @@
 //!   + gain_history_per_n·g·v(u)·H                       input gain that follows thrust history
 //!   + (B_TT·T² + B_DD·Ṫ² + B_TD·T·Ṫ)·v(u)               input gain beyond B_U + B_T·T + B_D·Ṫ
 //! Ḣ = (T − H)/history_time_constant_s                    H starts at the initial thrust
+//! and while the thrust falls (Ṫ < 0) the whole acceleration is scaled:
+//! T̈ = (1 + spool_down)·(f + g·v(u) + δ)                  spool-down slower (< 0) or faster
 //! ```
 //!
 //! Each term is what a kind of physics the ten parameters cannot express does to the
 //! engine: `map_below = 1` is a dead band (below the knot the engine runs as if at
-//! it), `gain_history_per_n < 0` a gain that sags as the engine heat-soaks, and the
-//! three `B_..` terms are the input gain of the iRonCub group's later jet model.
+//! it), `gain_history_per_n < 0` a gain that sags as the engine heat-soaks, the
+//! three `B_..` terms are the input gain of the iRonCub group's later jet model, and
+//! `spool_down = −0.3` an engine that spools down 30 % more slowly than it spools up
+//! (the ten parameters hold one time scale for both directions; a turbine's run-down
+//! against its compressor is not its fuel-driven run-up). At rest nothing changes.
 //!
 //! In a model file only the terms present are written, each with the shape key it
 //! needs:
@@ -41,7 +46,7 @@ pub struct DiscrepancyTerm {
 }
 
 /// Keys of the discrepancy effect, in the order of its values.
-pub const DISCREPANCY_KEYS: [&str; 9] = [
+pub const DISCREPANCY_KEYS: [&str; 10] = [
     "map_below",
     "knot_below_pct",
     "map_above",
@@ -51,10 +56,11 @@ pub const DISCREPANCY_KEYS: [&str; 9] = [
     "B_TT",
     "B_DD",
     "B_TD",
+    "spool_down",
 ];
 
 /// Ranges of the discrepancy's values, in the order of [`DISCREPANCY_KEYS`].
-pub(crate) const DISCREPANCY_BOUNDS: [(f64, f64); 9] = [
+pub(crate) const DISCREPANCY_BOUNDS: [(f64, f64); 10] = [
     (-5.0, 5.0),
     (0.0, 150.0),
     (-5.0, 5.0),
@@ -64,13 +70,14 @@ pub(crate) const DISCREPANCY_BOUNDS: [(f64, f64); 9] = [
     (-0.01, 0.01),
     (-0.01, 0.01),
     (-0.01, 0.01),
+    (-0.9, 3.0),
 ];
 
 /// Values of a discrepancy with no term (an absent term's shape key is never used).
-pub const DISCREPANCY_DEFAULTS: [f64; 9] = [0.0, 50.0, 0.0, 90.0, 0.0, 30.0, 0.0, 0.0, 0.0];
+pub const DISCREPANCY_DEFAULTS: [f64; 10] = [0.0, 50.0, 0.0, 90.0, 0.0, 30.0, 0.0, 0.0, 0.0, 0.0];
 
 /// The terms, in the order of their coefficients.
-pub const DISCREPANCY_TERMS: [DiscrepancyTerm; 6] = [
+pub const DISCREPANCY_TERMS: [DiscrepancyTerm; 7] = [
     DiscrepancyTerm {
         coefficient: 0,
         shape: Some(1),
@@ -107,6 +114,13 @@ pub const DISCREPANCY_TERMS: [DiscrepancyTerm; 6] = [
     DiscrepancyTerm {
         coefficient: 8, shape: None, unit: "N/s² per N²/s", meaning: "T·Ṫ·v(u): input gain with T·Ṫ"
     },
+    DiscrepancyTerm {
+        coefficient: 9,
+        shape: None,
+        unit: "1",
+        meaning: "while the thrust falls, the acceleration times 1 + spool_down: spool-down slower (< 0) or faster \
+                  than spool-up",
+    },
 ];
 
 /// True when value `index` of a discrepancy matters: a non-zero coefficient, or the
@@ -127,6 +141,7 @@ pub(crate) struct DiscrepancyLaw {
     pub b_tt: f64,
     pub b_dd: f64,
     pub b_td: f64,
+    pub spool_down: f64,
 }
 
 impl DiscrepancyLaw {
@@ -141,6 +156,7 @@ impl DiscrepancyLaw {
             b_tt: values[6],
             b_dd: values[7],
             b_td: values[8],
+            spool_down: values[9],
         }
     }
 
@@ -162,5 +178,19 @@ impl DiscrepancyLaw {
     pub fn accel(&self, t: f64, d: f64, g: f64, v: f64, below: f64, above: f64, history_n: f64) -> f64 {
         g * (self.map_below * below + self.map_above * above + self.gain_history_per_n * v * history_n)
             + (self.b_tt * t * t + self.b_dd * d * d + self.b_td * t * d) * v
+    }
+
+    /// The engine's acceleration with the discrepancy, N/s²: `base = f + g·v` (the ten
+    /// parameters' own), the extra [`DiscrepancyLaw::accel`], and the whole scaled by
+    /// `1 + spool_down` while the thrust falls.
+    #[inline]
+    #[allow(clippy::too_many_arguments)]
+    pub fn total(&self, base: f64, t: f64, d: f64, g: f64, v: f64, below: f64, above: f64, history_n: f64) -> f64 {
+        let a = base + self.accel(t, d, g, v, below, above, history_n);
+        if d < 0.0 {
+            a * (1.0 + self.spool_down)
+        } else {
+            a
+        }
     }
 }

@@ -166,6 +166,8 @@ impl EffectKind {
                 (-0.01, 0.01),
                 (-0.01, 0.01),
                 (-0.01, 0.01),
+                // A run-down from a tenth to three times the run-up's pace.
+                (-0.9, 2.0),
             ],
         }
     }
@@ -184,7 +186,7 @@ impl EffectKind {
             EffectKind::StandResonance => "frame and sensor form a lightly damped mass-spring: the reading rings",
             EffectKind::Discrepancy => {
                 "physics outside the catalogue as extra thrust acceleration from named terms (throttle-map hinges, \
-                 gain following thrust history, input gain in T², Ṫ², T·Ṫ)"
+                 gain following thrust history, input gain in T², Ṫ², T·Ṫ, spool-down slower or faster than spool-up)"
             }
         }
     }

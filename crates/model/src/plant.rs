@@ -870,7 +870,7 @@ impl PlantEngine {
                     let history_n = self.history_n;
                     rk4_step(t, d, h, |t, d| {
                         let g = p.g(t, d);
-                        p.f(t, d) + g * drive.v + disc.law.accel(t, d, g, drive.v, drive.below, drive.above, history_n)
+                        disc.law.total(p.f(t, d) + g * drive.v, t, d, g, drive.v, drive.below, drive.above, history_n)
                     })
                 }
             };
@@ -939,9 +939,8 @@ impl PlantEngine {
                     None => p.f(t, d) + p.g(t, d) * drive.v,
                     Some(disc) => {
                         let g = p.g(t, d);
-                        p.f(t, d)
-                            + g * drive.v
-                            + disc.law.accel(t, d, g, drive.v, drive.below, drive.above, engines[l].history_n)
+                        let history_n = engines[l].history_n;
+                        disc.law.total(p.f(t, d) + g * drive.v, t, d, g, drive.v, drive.below, drive.above, history_n)
                     }
                 }
             });
@@ -1107,6 +1106,46 @@ mod tests {
 
     fn run(plant: &Plant, u: &[f64]) -> Vec<f64> {
         run_with(plant, u, SUBSTEPS)
+    }
+
+    #[test]
+    fn a_slower_spool_down_leaves_the_run_up_and_the_rest_alone() {
+        // 30 % → 90 % → 40 %: the run-up as the plain engine's until the thrust first falls (its
+        // overshoot settles slower), the run-down slower, the same thrust at rest after each.
+        let p = Preset::P100Diesel.params();
+        let u: Vec<f64> = (0..3000)
+            .map(|k| {
+                if k < 100 {
+                    30.0
+                } else if k < 800 {
+                    90.0
+                } else {
+                    40.0
+                }
+            })
+            .collect();
+        let plain = run(&Plant::new(p, Effects::none()), &u);
+        let slow = run(&Plant::new(p, with(&["discrepancy:spool_down=-0.4"])), &u);
+        let first_fall = (100..800).find(|&k| plain[k + 1] < plain[k]).unwrap_or(800);
+        assert!(first_fall > 200, "the run-up lasts: {first_fall}");
+        for k in 0..first_fall {
+            assert!((slow[k] - plain[k]).abs() < 1e-9, "row {k}: the run-up differs, {} vs {}", slow[k], plain[k]);
+        }
+        let (top, bottom) = (plain[799], plain[2999]);
+        assert!(
+            (slow[799] - top).abs() < 0.05 && (slow[2999] - bottom).abs() < 0.01,
+            "{top} {bottom}: {} {}",
+            slow[799],
+            slow[2999]
+        );
+        // Half-way down: the plain engine gets there first.
+        let half = 0.5 * (top + bottom);
+        let reach = |y: &[f64]| (800..3000).find(|&k| y[k] <= half).unwrap();
+        let (fast, late) = (reach(&plain), reach(&slow));
+        assert!(late > fast + 5, "half-way down at row {late}, the plain engine at {fast}");
+        // Faster: the other way.
+        let quick = run(&Plant::new(p, with(&["discrepancy:spool_down=0.5"])), &u);
+        assert!(reach(&quick) < fast, "{} vs {fast}", reach(&quick));
     }
 
     #[test]

@@ -4,7 +4,8 @@
 //! The terms act inside the engine (extra thrust acceleration), so what they do to
 //! the measured thrust is found by simulation: each term of the library, at each of a
 //! few shapes (the knots of [`knots`] within the recorded range, thrust-history
-//! time constants from 5 s to 3 min), is added with a small coefficient and the
+//! time constants from 5 s to 3 min; the spool-down factor and the input-gain terms have
+//! none), is added with a small coefficient and the
 //! change of the simulated output, per unit coefficient, is its sensitivity column.
 //! Linearised around the current model, the residual is then a sparse combination
 //! of columns. Forward selection picks, term by term, the column that lowers the
@@ -97,7 +98,7 @@ pub(crate) fn knots(problem: &Problem<'_>) -> Vec<f64> {
 /// `coefficient`: small, so the simulated output moves by a fraction of a newton.
 pub(crate) fn probe(coefficient: usize) -> f64 {
     match coefficient {
-        0 | 2 => 0.02,
+        0 | 2 | 9 => 0.02,
         4 => 2e-5,
         7 => 1e-7,
         _ => 1e-8,

@@ -1168,25 +1168,37 @@ fn sparse_refit_rivals(search: &Search<'_, '_>, before: &Scored, current: &Score
 /// the play. It acts before the engine's dynamics, where bearing friction (its sensor-side
 /// look-alike) acts on the reading, so it is weighed as a rival of whatever the search
 /// found: the model found, with the play and without its sensor-side effects, at a few
-/// widths (whichever fits best stands for it). It is never claimed, only kept as a rival.
+/// widths (whichever fits best stands for it). The discrepancy's terms imitate play in part
+/// (a map that shifts after a reversal, a spool-down that differs from the spool-up), fitted
+/// beside the friction in its place; the play is not refitted with them, so where the model
+/// found holds a discrepancy the play is also tried in place of both. It is never claimed,
+/// only kept as a rival.
 fn throttle_play_rivals(search: &Search<'_, '_>, current: &Scored) {
-    let mut spec = current.fit.spec.clone();
-    spec.effects.retain(|(k, _)| rivals::side_of(k.name()) != "sensor");
-    let Some(plant) = spec.plant(&search.model.effects) else { return };
+    let mut engine_side = current.fit.spec.clone();
+    engine_side.effects.retain(|(k, _)| rivals::side_of(k.name()) != "sensor");
+    let mut bases = vec![engine_side.clone()];
+    if engine_side.has(EffectKind::Discrepancy) {
+        bases.push(engine_side.without(EffectKind::Discrepancy));
+    }
     let mut best: Option<Entry> = None;
-    for width in [0.5, 1.0, 1.5, 2.0, 3.0] {
-        let mut problem = search.problem.clone();
-        for run in &mut problem.runs {
-            let mut held = run.u.first().copied().unwrap_or(0.0);
-            for u in &mut run.u {
-                held = held.clamp(*u - width, *u + width);
-                *u = held;
+    for spec in &bases {
+        let Some(plant) = spec.plant(&search.model.effects) else { continue };
+        for width in [0.5, 1.0, 1.5, 2.0, 3.0] {
+            let mut problem = search.problem.clone();
+            for run in &mut problem.runs {
+                let mut held = run.u.first().copied().unwrap_or(0.0);
+                for u in &mut run.u {
+                    held = held.clamp(*u - width, *u + width);
+                    *u = held;
+                }
             }
-        }
-        let states = problem.restarted(&plant, &spec.states);
-        let Some(entry) = unclaimable_entry(&problem, &plant, &spec, &states, 1, "throttle_play") else { continue };
-        if best.as_ref().is_none_or(|b| entry.score < b.score) {
-            best = Some(entry);
+            let states = problem.restarted(&plant, &spec.states);
+            let Some(entry) = unclaimable_entry(&problem, &plant, spec, &states, 1, rivals::THROTTLE_PLAY) else {
+                continue;
+            };
+            if best.as_ref().is_none_or(|b| entry.score < b.score) {
+                best = Some(entry);
+            }
         }
     }
     search.pool.borrow_mut().extend(best);

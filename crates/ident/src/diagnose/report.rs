@@ -288,7 +288,7 @@ fn explain_discrepancy(
             if history < 0.0 { ", a gain that sags as the engine heat-soaks" } else { "" }
         ));
     }
-    let gains: Vec<String> = DISCREPANCY_KEYS[6..]
+    let gains: Vec<String> = DISCREPANCY_KEYS[6..9]
         .iter()
         .filter(|k| get(k) != 0.0)
         .map(|k| format!("{k} = {}", pm(get(k), errors.get(k).copied().unwrap_or(f64::NAN))))
@@ -298,6 +298,16 @@ fn explain_discrepancy(
             "the input gain depends on thrust and its rate beyond B_U + B_T·T + B_D·Ṫ ({}, as in the later \
              iRonCub jet model)",
             gains.join(", ")
+        ));
+    }
+    let down = get(DISCREPANCY_KEYS[9]);
+    if down != 0.0 {
+        parts.push(format!(
+            "the engine spools down {:.1} ± {:.1} % {} than it spools up (the ten parameters hold one time scale for \
+             both directions)",
+            100.0 * down.abs(),
+            100.0 * errors.get(DISCREPANCY_KEYS[9]).copied().unwrap_or(f64::NAN),
+            if down < 0.0 { "more slowly" } else { "faster" }
         ));
     }
     // How large: the thrust at rest with and without it, over the throttle range.
@@ -327,6 +337,9 @@ pub(crate) fn cause(d: &Diagnosis) -> Cause {
     } else if periodic_in_play(d) {
         // Something that repeats at its own period is no engine physics: a term of the
         // model is claimed only when it explains the held-out data better than a sine.
+        Cause::Unexplained
+    } else if unmodelled_lead(d).is_some() {
+        // The recording does tell, and what it tells is outside what jetbench models.
         Cause::Unexplained
     } else if !d.dominant {
         Cause::Ambiguous
@@ -384,6 +397,17 @@ pub(crate) fn incomplete(d: &Diagnosis) -> bool {
 /// dominated by the search's explanation on the held-out data.
 pub(crate) fn periodic_in_play(d: &Diagnosis) -> bool {
     d.rivals.iter().any(|r| r.effects.contains(&rivals::PERIODIC) && !r.dominated)
+}
+
+/// The rival that leads, when it is one jetbench weighs but cannot model (play in the throttle
+/// path, a slow soak, a periodic force: [`rivals::UNMODELLED`]), it wins at least 95 % of the
+/// resamples, and no explanation jetbench can model comes within [`rivals::DISTINCT`] of it on
+/// held-out fit. The recording then does tell the explanations apart, and what it tells is
+/// outside the model: the answer is `unexplained`, with the leader named (not `ambiguous`).
+pub(crate) fn unmodelled_lead(d: &Diagnosis) -> Option<&rivals::Rival> {
+    let unmodelled = |r: &rivals::Rival| r.effects.iter().any(|e| rivals::UNMODELLED.contains(e));
+    let lead = d.rivals.first().filter(|r| unmodelled(r) && r.weight >= 0.95)?;
+    d.rivals.iter().skip(1).filter(|r| !unmodelled(r)).all(|r| r.fit_behind > rivals::DISTINCT).then_some(lead)
 }
 
 /// What was done to the data, in one sentence (empty when nothing was).
@@ -504,6 +528,29 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
                         figure(d.mae_after_n, 2, " N"),
                         d.after.whiteness.p_value,
                         d.mae_after_n / d.noise_floor_n
+                    ),
+                );
+            }
+            if let Some(lead) = unmodelled_lead(d) {
+                let modelled = d
+                    .rivals
+                    .iter()
+                    .filter(|r| !r.effects.iter().any(|e| rivals::UNMODELLED.contains(e)))
+                    .map(|r| r.fit_behind)
+                    .fold(f64::INFINITY, f64::min);
+                what.insert(
+                    0,
+                    format!(
+                        "the best explanation is {} (weight {:.0} %{}), which jetbench does not model: {}; it is \
+                         named, not claimed",
+                        label(&lead.effects, lead.refit),
+                        100.0 * lead.weight,
+                        if modelled.is_finite() {
+                            format!(", {modelled:.0} units of held-out fit ahead of the best it does model")
+                        } else {
+                            String::new()
+                        },
+                        lead.meaning
                     ),
                 );
             }

@@ -45,6 +45,10 @@ pub const PERIODIC: &str = "periodic";
 /// The name of the slow-history rival: the discrepancy's thrust history with a time constant
 /// beyond what the recording lets settle, in place of a gain drift beside it.
 pub const SLOW_HISTORY: &str = "slow_history";
+/// The name of the throttle-play rival: play (backlash) in the throttle path.
+pub const THROTTLE_PLAY: &str = "throttle_play";
+/// Rivals jetbench weighs but cannot model, so never claims.
+pub const UNMODELLED: [&str; 3] = [PERIODIC, SLOW_HISTORY, THROTTLE_PLAY];
 
 /// One explanation the search fitted: its parts and its held-out innovations.
 #[derive(Clone, Debug)]
@@ -342,7 +346,7 @@ pub fn meaning_of(kind: &str) -> &'static str {
         "bearing_friction" => "the stand's bearings hold the load cell back by a friction band (sensor side)",
         "stand_resonance" => "the stand and sensor ring after fast thrust changes (sensor side)",
         "discrepancy" => "engine physics outside the catalogue (see its terms)",
-        "throttle_play" => "play (backlash) in the throttle path, outside the catalogue: the engine side",
+        THROTTLE_PLAY => "play (backlash) in the throttle path, outside the catalogue: the engine side",
         SLOW_HISTORY => {
             "the engine's gain follows its history more slowly than this recording settles (a slow soak), not a \
              drift with run time"
@@ -373,7 +377,7 @@ pub fn signature_of(kind: &str) -> &'static str {
             "physics outside the catalogue acts through the engine's dynamics (its throttle map or thrust \
              history), not on the reading"
         }
-        "throttle_play" => {
+        THROTTLE_PLAY => {
             "play in the throttle path shifts the steady thrust after a reversal by the same throttle \
              (its thrust effect grows with the map's slope), where friction shifts the reading by the same force"
         }
