@@ -405,9 +405,8 @@ pub(crate) fn periodic_in_play(d: &Diagnosis) -> bool {
 /// held-out fit. The recording then does tell the explanations apart, and what it tells is
 /// outside the model: the answer is `unexplained`, with the leader named (not `ambiguous`).
 pub(crate) fn unmodelled_lead(d: &Diagnosis) -> Option<&rivals::Rival> {
-    let unmodelled = |r: &rivals::Rival| r.effects.iter().any(|e| rivals::UNMODELLED.contains(e));
-    let lead = d.rivals.first().filter(|r| unmodelled(r) && r.weight >= 0.95)?;
-    d.rivals.iter().skip(1).filter(|r| !unmodelled(r)).all(|r| r.fit_behind > rivals::DISTINCT).then_some(lead)
+    let lead = d.rivals.first().filter(|r| r.unmodelled() && r.weight >= 0.95)?;
+    d.rivals.iter().skip(1).filter(|r| !r.unmodelled()).all(|r| r.fit_behind > rivals::DISTINCT).then_some(lead)
 }
 
 /// What was done to the data, in one sentence (empty when nothing was).
@@ -532,12 +531,8 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
                 );
             }
             if let Some(lead) = unmodelled_lead(d) {
-                let modelled = d
-                    .rivals
-                    .iter()
-                    .filter(|r| !r.effects.iter().any(|e| rivals::UNMODELLED.contains(e)))
-                    .map(|r| r.fit_behind)
-                    .fold(f64::INFINITY, f64::min);
+                let modelled =
+                    d.rivals.iter().filter(|r| !r.unmodelled()).map(|r| r.fit_behind).fold(f64::INFINITY, f64::min);
                 what.insert(
                     0,
                     format!(

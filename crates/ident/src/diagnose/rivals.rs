@@ -141,6 +141,13 @@ pub struct Rival {
     pub dominated: bool,
 }
 
+impl Rival {
+    /// True when it holds something jetbench weighs but cannot model ([`UNMODELLED`]).
+    pub fn unmodelled(&self) -> bool {
+        self.effects.iter().any(|e| UNMODELLED.contains(e))
+    }
+}
+
 /// The rivals, best first, and whether the search's explanation dominates them all.
 #[derive(Clone, Debug, Serialize)]
 pub struct Rivals {
