@@ -1084,7 +1084,12 @@ mod tests {
     }
 
     fn step_input() -> Vec<f64> {
-        (0..1600)
+        steps(1600)
+    }
+
+    /// 30 % for 1 s, 90 % until 8 s, then 40 % for the rest of `rows`.
+    fn steps(rows: usize) -> Vec<f64> {
+        (0..rows)
             .map(|k| {
                 if k < 100 {
                     30.0
@@ -1113,17 +1118,7 @@ mod tests {
         // 30 % → 90 % → 40 %: the run-up as the plain engine's until the thrust first falls (its
         // overshoot settles slower), the run-down slower, the same thrust at rest after each.
         let p = Preset::P100Diesel.params();
-        let u: Vec<f64> = (0..3000)
-            .map(|k| {
-                if k < 100 {
-                    30.0
-                } else if k < 800 {
-                    90.0
-                } else {
-                    40.0
-                }
-            })
-            .collect();
+        let u = steps(3000);
         let plain = run(&Plant::new(p, Effects::none()), &u);
         let slow = run(&Plant::new(p, with(&["discrepancy:spool_down=-0.4"])), &u);
         let first_fall = (100..800).find(|&k| plain[k + 1] < plain[k]).unwrap_or(800);
