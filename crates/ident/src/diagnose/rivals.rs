@@ -308,6 +308,12 @@ pub const LOOK_ALIKES: [(EffectKind, EffectKind); 4] = [
     (EffectKind::SensorDrift, EffectKind::Discrepancy),
 ];
 
+/// The effects a refit of the ten parameters may stand in for: a slow change of the reading's
+/// or the engine's gain that settles, or grows steadily, over the run reads as a gain the
+/// parameters can take (alike when the run's thrust history is short of long holds at low
+/// and high thrust).
+pub const REFIT_LOOK_ALIKES: [EffectKind; 2] = [EffectKind::SensorDrift, EffectKind::GainDrift];
+
 /// The effects that may stand in for `kind` on a recording ([`LOOK_ALIKES`]).
 pub fn look_alikes(kind: EffectKind) -> impl Iterator<Item = EffectKind> {
     LOOK_ALIKES.iter().filter_map(move |&(a, b)| {
