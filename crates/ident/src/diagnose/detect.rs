@@ -17,9 +17,9 @@
 //! scatters about `E` from recording to recording, so the effect **would show** when `E` is
 //! large enough to clear `T` in 95 % of them (`E ≥ T'`, [`needed`]); for the classes whose
 //! reading grows in proportion to their size (delay, lag, drift, friction, a periodic force,
-//! approximately), the smallest size that would show is `size·√(T'/E)`. And the residual **carries its shape** when the matched filter
-//! `z = Σ (A(q)·r)(A(q)·δ) / (s·√(Σ (A(q)·δ)²))` exceeds [`SHAPE_Z`]: under noise alone `z` is a
-//! standard normal draw.
+//! approximately), the smallest size that would show is `size·√(T'/E)`. And the residual
+//! **carries its shape** when the matched filter `z = Σ (A(q)·r)(A(q)·δ) / (s·√(Σ (A(q)·δ)²))`
+//! exceeds [`SHAPE_Z`]: under noise alone `z` is a standard normal draw.
 //!
 //! `none` stands only when every probe would show and none is in the residual; otherwise the
 //! answer is `insufficient_data`, with what could hide and the experiment that would tell.
@@ -837,6 +837,21 @@ mod tests {
         regions.iter().any(|r| {
             r.frequency_hz[0] <= f && f <= r.frequency_hz[1] && DAMPINGS[r.damping.0] <= z && z <= DAMPINGS[r.damping.1]
         })
+    }
+
+    #[test]
+    fn would_show_means_the_bar_is_cleared_in_95_percent_of_recordings() {
+        // With one value fitted, the gain of an effect of energy E is about (√E + Z)², Z a
+        // standard normal draw: it clears the bar T when Z ≥ √T − √E, in 95 % of recordings
+        // when √E − √T ≥ 1.645. The approximation of `needed` (a spread of 2√E) is on the
+        // safe side of that.
+        for bar in [20.0f64, 48.0, 100.0, 500.0] {
+            let e = needed(bar, 0, 0.0);
+            assert!(e.sqrt() - bar.sqrt() >= SHOW_Z, "bar {bar}: energy {e}");
+            assert!(e > 1.1 * bar, "bar {bar}: energy {e}");
+        }
+        // The search's bar on 100 s of held-out data for one value: 40 + ln N, N ≈ 3000.
+        assert!((needed(40.0, 1, 8.0) - 76.84).abs() < 0.01);
     }
 
     #[test]
