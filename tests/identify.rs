@@ -300,6 +300,11 @@ fn identify_writes_a_bounded_model_or_none_with_the_reason() {
                     assert!(why.is_none(), "a written model must be bounded: {why:?}\n{out}");
                 }
                 assert!(out.contains("model file: the "), "the report says which model the file gets\n{out}");
+                // And where to trust it: the held-out error by throttle band and by motion, in
+                // the report and in the file's comments.
+                assert!(out.contains("where to trust it (held-out free-run MAE over the noise floor"), "{out}");
+                let text = std::fs::read_to_string(&model).unwrap();
+                assert!(text.contains("\n# where to trust it: ") && text.contains("\n#   75–100 %: "), "{text}");
             } else {
                 refused += 1;
                 assert!(!model.exists(), "nothing is written when nothing is bounded");

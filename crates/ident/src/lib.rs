@@ -20,6 +20,7 @@ pub mod sindy;
 pub mod spd;
 pub mod structure;
 pub mod synth;
+pub mod trust;
 pub mod validate;
 
 /// Why an identification could not be done.

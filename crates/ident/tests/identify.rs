@@ -109,6 +109,20 @@ fn plant_outside_the_structure_is_called_a_poor_fit() {
     assert!(best > POOR_FIT_RATIO * report.noise.mae_n, "best {best} vs floor {}", report.noise.mae_n);
     assert!(report.verdict.contains("the fit is poor"), "{}", report.verdict);
     assert!(report.verdict.contains(&format!("{:.2} N", report.noise.mae_n)), "{}", report.verdict);
+    // A poor fit makes the refinement run without being asked, and its model competes with
+    // the others on held-out data: the best is never worse than the methods' own.
+    let why = report.repair.as_deref().unwrap_or_default();
+    assert!(
+        why.starts_with("the best bounded model's validation MAE is") || why.starts_with("no chosen method"),
+        "why the refinement ran: {why:?}"
+    );
+    let refined = report.results.iter().find(|r| r.method == Method::Oe).expect("the refinement ran");
+    println!("refinement: {why}; its validation MAE {:?}", refined.validation_score.map(|s| s.mae_n));
+    let others = report.results.iter().filter(|r| r.method != Method::Oe && r.is_bounded_params());
+    let written = report.best_params().map(|(r, _)| r.validation_score.unwrap().mae_n).unwrap();
+    for r in others {
+        assert!(written <= r.validation_score.unwrap().mae_n, "{} beats the written model", r.method.name());
+    }
 }
 
 /// Structure chosen by the data on the way in: a P100 engine that follows its throttle
