@@ -301,6 +301,11 @@ impl<'a> Problem<'a> {
         let stretches: Vec<Vec<f64>> = runs.iter().map(|r| r.y.iter().copied().step_by(r.stride).collect()).collect();
         let mut noise = noise::estimate(&stretches)
             .ok_or_else(|| IdentError::TooLittleData("too few samples to estimate the sensor noise".into()))?;
+        let mut notes = Vec::new();
+        if let Some((quiet, note)) = quiet_noise(&runs, &noise) {
+            noise = quiet;
+            notes.push(note);
+        }
         // The floor the held-out MAE is judged against is the noise's on the held-out part:
         // a noise that grows with thrust has its own scale there.
         let held_out_from: Vec<usize> = runs.iter().map(|r| r.cut.div_ceil(r.stride)).collect();
@@ -331,7 +336,7 @@ impl<'a> Problem<'a> {
             lost_rows,
             run_splits,
             runs: runs.len(),
-            notes: Vec::new(),
+            notes,
             from_residual: false,
             floor_from_data_n: noise.mae_n,
             clipped_rows: clipped.iter().map(|c| c.1).sum(),
@@ -773,6 +778,66 @@ fn powers_by_squaring(base: f64, count: usize, out: &mut Vec<f64>) {
     }
 }
 
+/// Throttle held this long before a sample makes it quiet, s: a fast engine's transients
+/// have died out.
+const QUIET_AFTER_S: f64 = 1.0;
+/// A throttle that moves less than this over [`QUIET_AFTER_S`] is held, points.
+const QUIET_BAND_PCT: f64 = 0.5;
+/// Quiet contrasts needed before their estimate is trusted over the whole data's.
+const MIN_QUIET_CONTRASTS: usize = 1500;
+/// The whole data's noise more coloured than the quiet part's by this factor: the signal
+/// leaked into it.
+const MAX_COLOUR_RATIO: f64 = 2.0;
+
+/// The noise estimated where the throttle has been held for [`QUIET_AFTER_S`], when the
+/// whole data's estimate has taken in the engine's signal.
+///
+/// Second differences remove the signal of a slow engine (its `T̈·Δt²` is hundredths of a
+/// newton at 100 Hz), not of one that answers a step within tens of milliseconds: there the
+/// transients after each throttle move pass into the contrasts as strongly coloured "noise",
+/// and a near-unit-root AR model multiplies the floor (a white 7 N² noise read as 19.5 N
+/// with AR(6)). Where the throttle has been held for a second every engine of this class
+/// has settled. When the whole data's noise is more than [`MAX_COLOUR_RATIO`] times as
+/// coloured as the quiet part's (its variance over its innovations' variance), the signal
+/// leaked: the quiet estimate is used and the note says so. The test is on the colour, not
+/// the scale, so a noise that grows with thrust, with holds at other thrusts than the
+/// moves, does not trip it. Otherwise (on slow engines, whose two estimates agree within
+/// their scatter, and on recordings without holds) nothing changes.
+fn quiet_noise(runs: &[Run], whole: &NoiseEstimate) -> Option<(NoiseEstimate, String)> {
+    let settle = (QUIET_AFTER_S / STEP_S).round() as usize;
+    let quiet: Vec<Vec<f64>> = runs
+        .iter()
+        .map(|r| {
+            let held = |k: usize| {
+                let window = &r.u[k.saturating_sub(settle)..=k];
+                k >= settle && {
+                    let (lo, hi) =
+                        window.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &u| (lo.min(u), hi.max(u)));
+                    hi - lo <= QUIET_BAND_PCT
+                }
+            };
+            (0..r.y.len()).map(|k| if held(k) { r.y[k] } else { f64::NAN }).step_by(r.stride).collect()
+        })
+        .collect();
+    let found = noise::estimate(&quiet).filter(|q| q.contrasts >= MIN_QUIET_CONTRASTS)?;
+    // The noise's colour, free of its scale: its variance over its innovations' (1 for white
+    // noise, 5.3 for AR(1) with φ = 0.9).
+    let colour = |m: &ArModel| m.marginal_var() / m.innovation_var.max(f64::MIN_POSITIVE);
+    if colour(&whole.model) <= MAX_COLOUR_RATIO * colour(&found.model) {
+        return None;
+    }
+    let note = format!(
+        "noise estimated where the throttle had been held for {QUIET_AFTER_S:.0} s ({} contrasts): over the whole \
+         data the engine's fast transients read as noise ({}, σ {:.2} N; held: {}, σ {:.2} N)",
+        found.contrasts,
+        whole.model.describe(),
+        whole.sigma_n,
+        found.model.describe(),
+        found.sigma_n
+    );
+    Some((found, note))
+}
+
 /// Marks samples far from their neighbours' median as missing; returns them.
 fn reject_outliers(runs: &mut [Run]) -> Vec<Outlier> {
     let mut deviations: Vec<Vec<f64>> = Vec::with_capacity(runs.len());
@@ -884,6 +949,32 @@ mod tests {
                 assert_eq!(p.to_bits(), decay.powi(k as i32).to_bits(), "τ = {time_constant_s} s, k = {k}");
             }
         }
+    }
+
+    /// A fast engine's transients are not taken for noise: on the turbojet (white noise of
+    /// 7 N²) the noise is estimated where the throttle was held, white or nearly, at its true
+    /// scale, and the data notes say so; on a slow engine with coloured noise the whole data's
+    /// estimate stands, colour and all.
+    #[test]
+    fn a_fast_engines_transients_are_not_taken_for_noise() {
+        use jetbench_model::turbojet::TurbojetParams;
+        let bench = synth::Bench { noise_var_n2: 7.0, ..synth::Bench::default() };
+        let fast = Plant::with_turbojet(TurbojetParams::p100(), Effects::none());
+        let data = [synth::record_bench(&fast, &excite::campaign(300.0, 12).profile, &bench, 512).expect("recording")];
+        let nominal = Plant::new(Preset::P100Diesel.params(), Effects::none());
+        let problem = Problem::new(&data, &nominal, 0.3).expect("problem");
+        let sigma = problem.noise.sigma_n;
+        assert!((sigma - 7f64.sqrt()).abs() < 0.15, "σ {sigma:.2} N against {:.2} N", 7f64.sqrt());
+        assert!(problem.ar().phi.iter().map(|p| p.abs()).sum::<f64>() < 0.2, "{:?}", problem.ar().phi);
+        assert!(problem.report.notes.iter().any(|n| n.contains("where the throttle had been held")), "{:?}", problem.report.notes);
+
+        let slow = Plant::new(Preset::P220Kerosene.params(), Effects::none());
+        let coloured = synth::Bench { noise_var_n2: 9.0, noise_ar: vec![0.6], ..synth::Bench::default() };
+        let data = [synth::record_bench(&slow, &excite::campaign(300.0, 12).profile, &coloured, 7).expect("recording")];
+        let problem = Problem::new(&data, &slow, 0.3).expect("problem");
+        assert!(problem.report.notes.is_empty(), "{:?}", problem.report.notes);
+        assert!((problem.ar().phi[0] - 0.6).abs() < 0.05, "{:?}", problem.ar().phi);
+        assert!((problem.noise.sigma_n - 3.0).abs() < 0.2, "σ {:.2} N", problem.noise.sigma_n);
     }
 
     /// The in-place innovations are the residuals whitened run by run, value for value, on a
