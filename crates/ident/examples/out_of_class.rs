@@ -20,6 +20,21 @@
 //! blames, what it names and how close to the floor its improved model comes on held-out
 //! data.
 //!
+//! With `effects` (the turbojet only) each seed's written model is then given to `diagnose`
+//! with three runs of another campaign (seed + 2000) of the same engine: one with a concealed
+//! input delay of 80 ms, one with 2 N of bearing friction and one with nothing added. A third
+//! table says per run what the diagnosis blames and names, the value it found for the effect
+//! that is there, and how the verdict grades: `right` (the effect claimed, within 25 %, no
+//! other catalogue effect), `honest` (nothing claimed: `unexplained`, `ambiguous`, `insufficient
+//! data`, or a claim of the discrepancy alone on the run without an effect, where physics the
+//! ten parameters leave out is there indeed) or `false claim` (a catalogue effect that is not
+//! there, a claim without the effect that is, "nothing is left out" or "only the parameters
+//! are off" while the model stays above 1.05× the floor); `no diagnosis` when `diagnose`
+//! refuses the run (the written model diverges on its input).
+//!
+//! The "less trustworthy" column names the regions of the held-out data where that model's
+//! free run is above 1.10× the floor, as `identify` reports them (`jetbench_ident::trust`).
+//!
 //! The model judged is the one `identify --out` writes: the best bounded ten-parameter model,
 //! extended by the discrepancy terms the data paid for (`jetbench_ident::structure`); the
 //! "terms" column names them.
@@ -42,7 +57,7 @@ use jetbench_ident::synth::{self, Bench};
 use jetbench_ident::validate;
 use jetbench_model::ironcub::IronCubJet;
 use jetbench_model::turbojet::TurbojetParams;
-use jetbench_model::{Effects, ModelFile, Plant, STEP_S};
+use jetbench_model::{Effect, EffectKind, Effects, ModelFile, Plant, STEP_S};
 
 const NOISE_VAR_N2: f64 = 7.0;
 const IRONCUB_NOISE_VAR_N2: f64 = 9.0;
@@ -67,6 +82,7 @@ fn main() -> anyhow::Result<()> {
     let (n, first, duration_s) = (arg(0, 20.0) as u64, arg(1, 1.0) as u64, arg(2, 300.0));
     let always_oe = args.get(3).is_some_and(|a| a == "oe");
     let ironcub = args.get(3).is_some_and(|a| a == "ironcub");
+    let effects = args.get(3).is_some_and(|a| a == "effects");
     let mut options = Options::default();
     if always_oe {
         options.methods.push(Method::Oe);
@@ -98,12 +114,13 @@ fn main() -> anyhow::Result<()> {
         }
     );
     println!(
-        "| seed | bounded model written | method | repaired | terms | held-out MAE / floor | second run MAE / floor | \
-         second run, full steps / rest | ten parameters alone, second run / floor | s |"
+        "| seed | bounded model written | method | refinement run | terms | held-out MAE / floor | second run MAE / floor | \
+         second run, full steps / rest | ten parameters alone, second run / floor | less trustworthy (held-out MAE / floor) | s |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
     let (mut bounded, mut within) = (0, 0);
     let mut diagnosed = Vec::new();
+    let mut concealed = Vec::new();
     for seed in first..first + n {
         let started = Instant::now();
         let run = synth::record_bench(&plant, &signal(seed), &bench, seed)?;
@@ -144,16 +161,49 @@ fn main() -> anyhow::Result<()> {
                     );
                     diagnosed.push((seed, d.map(|d| (d, started.elapsed().as_secs_f64()))));
                 }
+                if effects {
+                    let file = report.model_file_text().map(|text| ModelFile::from_toml_str(&text));
+                    match file {
+                        Some(Ok(given)) => {
+                            for case in CONCEALED {
+                                concealed.push(diagnose_concealed(
+                                    &given,
+                                    case,
+                                    seed,
+                                    &signal(seed + 2000),
+                                    &bench,
+                                    floor,
+                                )?);
+                            }
+                        }
+                        other => {
+                            concealed.push(format!("| {seed} | the written model does not read back: {other:?} |"))
+                        }
+                    }
+                }
+                let weak = report.trust.as_ref().map_or("-".into(), |t| {
+                    let weak: Vec<String> =
+                        t.weak().map(|r| format!("{} {:.2}", r.label, r.over_floor.unwrap_or(f64::NAN))).collect();
+                    if weak.is_empty() {
+                        "none".into()
+                    } else {
+                        weak.join(", ")
+                    }
+                });
                 format!(
-                    "yes | {} | {} | {terms} | {} | {} | {split} | {}",
+                    "yes | {} | {} | {terms} | {} | {} | {split} | {} | {weak}",
                     result.method.name(),
-                    if report.repair.is_some() { "yes" } else { "no" },
+                    report.repair.as_ref().map_or("no", |why| if why.starts_with("the best bounded") {
+                        "poor fit"
+                    } else {
+                        "to repair"
+                    }),
                     held_out.map_or("-".into(), |m| format!("{:.3}", m / floor)),
                     second_mae.map_or("diverged".into(), |m| format!("{:.3}", m / floor)),
                     ten_mae.map_or("diverged".into(), |m| format!("{:.3}", m / floor))
                 )
             }
-            None => format!("no ({}) | - | - | - | - | - | - | -", report.written_text()),
+            None => format!("no ({}) | - | - | - | - | - | - | - | -", report.written_text()),
         };
         println!("| {seed} | {row} | {:.0} |", started.elapsed().as_secs_f64());
     }
@@ -177,7 +227,95 @@ fn main() -> anyhow::Result<()> {
             }
         }
     }
+    if effects {
+        println!(
+            "\n`diagnose` given the written model and a run of another campaign with an effect concealed \
+             (floor {floor:.3} N):\n"
+        );
+        println!("| seed | concealed | given MAE / floor | cause | named | the effect found | grade | s |");
+        println!("|---|---|---|---|---|---|---|---|");
+        for row in &concealed {
+            println!("{row}");
+        }
+        let count = |grade: &str| concealed.iter().filter(|row| row.contains(&format!("| {grade} |"))).count();
+        println!(
+            "\nright {}, honest {}, false claims {}, no diagnosis {} of {}",
+            count("right"),
+            count("honest"),
+            count("false claim"),
+            count("no diagnosis"),
+            concealed.len()
+        );
+    }
     Ok(())
+}
+
+/// The effects concealed in `effects` mode: a label, the effect (None: nothing added), its
+/// key and value.
+const CONCEALED: [(&str, Option<(EffectKind, &str, f64)>); 3] = [
+    ("input delay 80 ms", Some((EffectKind::InputDelay, "delay_s", 0.08))),
+    ("bearing friction 2 N", Some((EffectKind::BearingFriction, "force_n", 2.0))),
+    ("nothing", None),
+];
+
+/// One row of the concealed-effect table: the turbojet with `case` concealed, run on
+/// `signal`, diagnosed with `given`, graded as the module docs say.
+fn diagnose_concealed(
+    given: &ModelFile,
+    (label, case): (&str, Option<(EffectKind, &str, f64)>),
+    seed: u64,
+    signal: &Series,
+    bench: &Bench,
+    floor: f64,
+) -> anyhow::Result<String> {
+    let effects = match case {
+        Some((kind, _, value)) => Effects::new([Effect::new(kind, &[value])?])?,
+        None => Effects::none(),
+    };
+    let plant = Plant::with_turbojet(TurbojetParams::p100(), effects);
+    let run = synth::record_bench(&plant, signal, bench, seed + 2000)?;
+    let started = Instant::now();
+    let d = match diagnose::diagnose(given, std::slice::from_ref(&run), &diagnose::Options::default(), &mut |_| {}) {
+        Ok(d) => d,
+        Err(e) => return Ok(format!("| {seed} | {label} | - | refused: {e} | - | - | no diagnosis | - |")),
+    };
+    let seconds = started.elapsed().as_secs_f64();
+    let truth = case.map(|(kind, key, value)| (kind.name(), key, value));
+    let found = truth.and_then(|(name, key, value)| {
+        let effect = d.effects.iter().find(|e| e.name == name)?;
+        Some((effect.params.get(key).copied()?, value))
+    });
+    let others = d.effects.iter().any(|e| e.name != "discrepancy" && truth.is_none_or(|(name, _, _)| e.name != name));
+    use diagnose::Cause;
+    let grade = match d.cause {
+        Cause::Unexplained | Cause::Ambiguous | Cause::InsufficientData => "honest",
+        Cause::None | Cause::Parameters if d.mae_after_n > 1.05 * floor || truth.is_some() => "false claim",
+        Cause::None | Cause::Parameters => "right",
+        Cause::MissingPhysics if others => "false claim",
+        Cause::MissingPhysics => match (truth, found) {
+            (None, _) => "honest",
+            (Some(_), Some((got, want))) if (got / want - 1.0).abs() <= 0.25 => "right",
+            (Some(_), Some(_)) => "false claim",
+            (Some(_), None) => "false claim",
+        },
+    };
+    let ambiguous_truth = match (d.cause, truth) {
+        (Cause::Ambiguous, Some((name, _, _))) => {
+            if d.rivals.iter().any(|r| r.effects.contains(&name)) {
+                " (the effect among the rivals)"
+            } else {
+                " (the effect not among the rivals)"
+            }
+        }
+        _ => "",
+    };
+    Ok(format!(
+        "| {seed} | {label} | {:.3} | {:?}{ambiguous_truth} | {} | {} | {grade} | {seconds:.0} |",
+        d.mae_before_n / floor,
+        d.cause,
+        named(&d),
+        found.map_or("-".into(), |(got, want)| format!("{got:.4} ({:+.0} %)", 100.0 * (got / want - 1.0)))
+    ))
 }
 
 /// What a diagnosis names: each effect with its fitted values, and the refit.
