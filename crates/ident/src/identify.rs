@@ -564,8 +564,14 @@ pub fn fit_sindy(data: &[Series], options: &SindyOptions) -> Result<JetSindy, Id
     Ok(JetSindy { model, scale, standardise })
 }
 
-/// Equilibria, a full step each way, and the rise time (docs/model/README.md: one stable
-/// equilibrium per throttle, no fall far below idle, 10–90 % in roughly 0.5–2 s).
+/// Frequencies of the sines a bounded model must ride out, Hz ...
+const SINE_CHECK_HZ: [f64; 6] = [0.2, 0.4, 0.7, 1.0, 1.5, 2.0];
+/// ... for this long each, s.
+const SINE_CHECK_S: f64 = 10.0;
+
+/// Equilibria, a full step each way, sines over the range and its middle, and the rise time
+/// (docs/model/README.md: one stable equilibrium per throttle, no fall far below idle,
+/// 10–90 % in roughly 0.5–2 s).
 pub fn plausibility(p: &Params) -> Plausibility {
     let mut out = Plausibility::default();
     // One stable equilibrium at every throttle in range, checked every 2.5 %; each broken
@@ -624,6 +630,26 @@ pub fn plausibility(p: &Params) -> Plausibility {
                 }
             }
         }
+    }
+    // Sines over the whole range and over its middle, slow to fast: a model that settles
+    // every step may still run away when the throttle turns before it settles (a
+    // positive Ṫ² term, a damping that changes sign with the thrust), as one written for the
+    // turbojet did under a campaign's sine of 0.7 Hz over 33–73 %.
+    let mut runaway = Vec::new();
+    for (lo, hi) in [(THROTTLE_MIN_PCT, THROTTLE_MAX_PCT), (35.0, 75.0)] {
+        let (mid, amplitude) = ((lo + hi) / 2.0, (hi - lo) / 2.0);
+        for hz in SINE_CHECK_HZ {
+            let mut engine = Engine::at_equilibrium(*p, mid);
+            let turns = (0..(SINE_CHECK_S / STEP_S) as usize)
+                .map(|k| mid + amplitude * (std::f64::consts::TAU * hz * k as f64 * STEP_S).sin());
+            if turns.map(|u| engine.step(u)).any(|s| s.is_err()) {
+                runaway.push(format!("{lo:.0}–{hi:.0} % at {hz} Hz"));
+            }
+        }
+    }
+    if !runaway.is_empty() {
+        out.broken_rules += 1;
+        out.warnings.push(format!("only locally valid: a sine diverges ({})", runaway.join(", ")));
     }
     match settling_time_s(p, THROTTLE_MIN_PCT, THROTTLE_MAX_PCT, 30.0) {
         Ok(Some(rise)) => {
@@ -937,5 +963,37 @@ mod tests {
         let good = plausibility(&Preset::P100Diesel.params());
         assert!(good.warnings.is_empty(), "{good:?}");
         assert!((good.equilibria_n[3].1.unwrap() - 86.177).abs() < 0.01);
+    }
+
+    /// Every preset bounded on steps rides out the sines; a model written for the turbojet that passed every
+    /// step rule and ran away on a campaign's sine of 0.7 Hz over 33–73 % (a positive `K_DD`,
+    /// a `K_TD` that turns the damping negative above 2.4 N) is only locally valid.
+    #[test]
+    fn a_model_that_runs_away_on_a_sine_is_only_locally_valid() {
+        let mut checked = 0;
+        for preset in Preset::ALL {
+            let check = plausibility(&preset.params());
+            if check.warnings.iter().any(|w| w.contains("a step")) {
+                continue; // the study's locally valid sets: the step rules flag them already
+            }
+            assert!(!check.warnings.iter().any(|w| w.contains("sine")), "{preset:?}: {check:?}");
+            checked += 1;
+        }
+        assert!(checked >= 3, "{checked} presets are bounded on steps");
+        let turbojet = Params::from_array([
+            -53.892138115833355,
+            -0.3857272712776185,
+            -2.55108182462624,
+            0.18933182965509357,
+            1.068260801000404,
+            -330.3413267621553,
+            0.323766826388033,
+            0.0018361995970077412,
+            -0.006600016957534042,
+            1.823110569080419,
+        ]);
+        let check = plausibility(&turbojet);
+        assert!(check.warnings.iter().any(|w| w.contains("a sine diverges")), "{check:?}");
+        assert!(!check.is_bounded());
     }
 }

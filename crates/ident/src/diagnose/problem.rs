@@ -966,7 +966,11 @@ mod tests {
         let sigma = problem.noise.sigma_n;
         assert!((sigma - 7f64.sqrt()).abs() < 0.15, "σ {sigma:.2} N against {:.2} N", 7f64.sqrt());
         assert!(problem.ar().phi.iter().map(|p| p.abs()).sum::<f64>() < 0.2, "{:?}", problem.ar().phi);
-        assert!(problem.report.notes.iter().any(|n| n.contains("where the throttle had been held")), "{:?}", problem.report.notes);
+        assert!(
+            problem.report.notes.iter().any(|n| n.contains("where the throttle had been held")),
+            "{:?}",
+            problem.report.notes
+        );
 
         let slow = Plant::new(Preset::P220Kerosene.params(), Effects::none());
         let coloured = synth::Bench { noise_var_n2: 9.0, noise_ar: vec![0.6], ..synth::Bench::default() };
