@@ -214,15 +214,22 @@ fn main() -> anyhow::Result<()> {
         println!("|---|---|---|---|---|---|");
         for (seed, d) in diagnosed {
             match d {
-                Ok((d, seconds)) => println!(
-                    "| {seed} | {:?} | {} | {:.3} / {:.3} / {:.3} | {:.3} | {seconds:.0} |",
-                    d.cause,
-                    named(&d),
-                    d.mae_before_n,
-                    d.mae_after_n,
-                    d.noise_floor_n,
-                    d.mae_after_n / d.noise_floor_n
-                ),
+                Ok((d, seconds)) => {
+                    println!(
+                        "| {seed} | {:?} | {} | {:.3} / {:.3} / {:.3} | {:.3} | {seconds:.0} |",
+                        d.cause,
+                        named(&d),
+                        d.mae_before_n,
+                        d.mae_after_n,
+                        d.noise_floor_n,
+                        d.mae_after_n / d.noise_floor_n
+                    );
+                    // Why a verdict claims nothing, under its row.
+                    if !matches!(d.cause, diagnose::Cause::MissingPhysics | diagnose::Cause::None) {
+                        let why: String = d.verdict.chars().take(600).collect();
+                        println!("|  | {why} |  |  |  |  |");
+                    }
+                }
                 Err(e) => println!("| {seed} | failed: {e} | - | - | - | - |"),
             }
         }

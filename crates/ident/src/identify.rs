@@ -569,6 +569,24 @@ const SINE_CHECK_HZ: [f64; 6] = [0.2, 0.4, 0.7, 1.0, 1.5, 2.0];
 /// ... for this long each, s.
 const SINE_CHECK_S: f64 = 10.0;
 
+/// The sines a bounded model must ride out over `lo..=hi` %: over the whole range and over
+/// the part of it where the turbojet's model ran away (35–75 % of 25–100 %), at each of [`SINE_CHECK_HZ`] for [`SINE_CHECK_S`], each
+/// labelled (`"35–75 % at 0.7 Hz"`) and starting at its mean.
+pub fn sine_checks(lo: f64, hi: f64) -> Vec<(String, Vec<f64>)> {
+    let width = hi - lo;
+    let mut out = Vec::new();
+    for (lo, hi) in [(lo, hi), (lo + width * 2.0 / 15.0, lo + width * 2.0 / 3.0)] {
+        let (mid, amplitude) = ((lo + hi) / 2.0, (hi - lo) / 2.0);
+        for hz in SINE_CHECK_HZ {
+            let throttle = (0..(SINE_CHECK_S / STEP_S) as usize)
+                .map(|k| mid + amplitude * (std::f64::consts::TAU * hz * k as f64 * STEP_S).sin())
+                .collect();
+            out.push((format!("{lo:.0}–{hi:.0} % at {hz} Hz"), throttle));
+        }
+    }
+    out
+}
+
 /// Equilibria, a full step each way, sines over the range and its middle, and the rise time
 /// (docs/model/README.md: one stable equilibrium per throttle, no fall far below idle,
 /// 10–90 % in roughly 0.5–2 s).
@@ -636,15 +654,10 @@ pub fn plausibility(p: &Params) -> Plausibility {
     // positive Ṫ² term, a damping that changes sign with the thrust), as one written for the
     // turbojet did under a campaign's sine of 0.7 Hz over 33–73 %.
     let mut runaway = Vec::new();
-    for (lo, hi) in [(THROTTLE_MIN_PCT, THROTTLE_MAX_PCT), (35.0, 75.0)] {
-        let (mid, amplitude) = ((lo + hi) / 2.0, (hi - lo) / 2.0);
-        for hz in SINE_CHECK_HZ {
-            let mut engine = Engine::at_equilibrium(*p, mid);
-            let turns = (0..(SINE_CHECK_S / STEP_S) as usize)
-                .map(|k| mid + amplitude * (std::f64::consts::TAU * hz * k as f64 * STEP_S).sin());
-            if turns.map(|u| engine.step(u)).any(|s| s.is_err()) {
-                runaway.push(format!("{lo:.0}–{hi:.0} % at {hz} Hz"));
-            }
+    for (label, throttle) in sine_checks(THROTTLE_MIN_PCT, THROTTLE_MAX_PCT) {
+        let mut engine = Engine::at_equilibrium(*p, throttle[0]);
+        if throttle.iter().map(|&u| engine.step(u)).any(|s| s.is_err()) {
+            runaway.push(label);
         }
     }
     if !runaway.is_empty() {

@@ -326,7 +326,8 @@ fn solve(cols: &[Vec<f64>], r: &[f64], active: &[usize]) -> Option<DVector<f64>>
 
 /// Why the model of `plant` is not bounded over `lo..=hi` % (None: it is): the
 /// staircase up and down a 2.5 % grid (3 s per level) and full steps both ways (20 s
-/// each) from rest at `lo` must stay finite and end each level near its rest point.
+/// each) from rest at `lo` must stay finite and end each level near its rest point, and the
+/// sines of [`crate::identify::sine_checks`] must stay within the engine's range.
 pub fn unbounded_over(plant: &Plant, lo: f64, hi: f64) -> Option<String> {
     let mut levels = Vec::new();
     let mut u = lo;
@@ -357,6 +358,15 @@ pub fn unbounded_over(plant: &Plant, lo: f64, hi: f64) -> Option<String> {
         let rest = plant.rest_thrust_n(u);
         if steps >= 2000 && (thrust_n - rest).abs() > 0.01 * top.abs() + 0.5 {
             return Some(format!("at {u} % it settles at {thrust_n:.1} N, not at its rest point {rest:.1} N"));
+        }
+    }
+    for (label, throttle) in crate::identify::sine_checks(lo, hi) {
+        let mut engine = plant.at_equilibrium(throttle[0]);
+        for &u in &throttle {
+            match engine.step(u).map(|s| s.state.thrust_n) {
+                Ok(thrust_n) if thrust_n.is_finite() && thrust_n.abs() < 2.0 * top.abs() + 10.0 => {}
+                _ => return Some(format!("it runs away on a sine of {label}")),
+            }
         }
     }
     None
