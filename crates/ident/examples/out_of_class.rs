@@ -257,9 +257,11 @@ fn main() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The effects concealed in `effects` mode: a label, the effect (None: nothing added), its
-/// key and value.
-const CONCEALED: [(&str, Option<(EffectKind, &str, f64)>); 3] = [
+/// An effect concealed in `effects` mode: its kind, the key of its one parameter, and its value.
+type Concealed = (EffectKind, &'static str, f64);
+
+/// The effects concealed in `effects` mode: a label and the effect (None: nothing added).
+const CONCEALED: [(&str, Option<Concealed>); 3] = [
     ("input delay 80 ms", Some((EffectKind::InputDelay, "delay_s", 0.08))),
     ("bearing friction 2 N", Some((EffectKind::BearingFriction, "force_n", 2.0))),
     ("nothing", None),
@@ -269,7 +271,7 @@ const CONCEALED: [(&str, Option<(EffectKind, &str, f64)>); 3] = [
 /// `signal`, diagnosed with `given`, graded as the module docs say.
 fn diagnose_concealed(
     given: &ModelFile,
-    (label, case): (&str, Option<(EffectKind, &str, f64)>),
+    (label, case): (&str, Option<Concealed>),
     seed: u64,
     signal: &Series,
     bench: &Bench,

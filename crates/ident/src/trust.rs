@@ -121,8 +121,7 @@ fn transients(run: &Series) -> Vec<bool> {
     let n = run.u_pct.len().min(run.t_s.len());
     let mut out = vec![false; run.u_pct.len()];
     let (mut from, mut last_fast) = (0, f64::NEG_INFINITY);
-    for k in 0..n {
-        let t = run.t_s[k];
+    for (k, (&t, flag)) in run.t_s.iter().zip(&mut out).enumerate().take(n) {
         while run.t_s[from] < t - FAST_WINDOW_S {
             from += 1;
         }
@@ -131,7 +130,7 @@ fn transients(run: &Series) -> Vec<bool> {
         if hi - lo >= FAST_MOVE_PCT {
             last_fast = t;
         }
-        out[k] = t - last_fast <= TRANSIENT_S;
+        *flag = t - last_fast <= TRANSIENT_S;
     }
     out
 }
