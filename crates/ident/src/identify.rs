@@ -570,8 +570,9 @@ const SINE_CHECK_HZ: [f64; 6] = [0.2, 0.4, 0.7, 1.0, 1.5, 2.0];
 const SINE_CHECK_S: f64 = 10.0;
 
 /// The sines a bounded model must ride out over `lo..=hi` %: over the whole range and over
-/// the part of it where the turbojet's model ran away (35–75 % of 25–100 %), at each of [`SINE_CHECK_HZ`] for [`SINE_CHECK_S`], each
-/// labelled (`"35–75 % at 0.7 Hz"`) and starting at its mean.
+/// the part of it where the turbojet's model ran away (35–75 % of 25–100 %), at each of
+/// [`SINE_CHECK_HZ`] for [`SINE_CHECK_S`], each labelled (`"35–75 % at 0.7 Hz"`) and
+/// starting at its mean.
 pub fn sine_checks(lo: f64, hi: f64) -> Vec<(String, Vec<f64>)> {
     let width = hi - lo;
     let mut out = Vec::new();

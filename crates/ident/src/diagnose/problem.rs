@@ -804,6 +804,12 @@ const MAX_COLOUR_RATIO: f64 = 2.0;
 /// moves, does not trip it. Otherwise (on slow engines, whose two estimates agree within
 /// their scatter, and on recordings without holds) nothing changes.
 fn quiet_noise(runs: &[Run], whole: &NoiseEstimate) -> Option<(NoiseEstimate, String)> {
+    // The noise's colour, free of its scale: its variance over its innovations' (1 for white
+    // noise, 5.3 for AR(1) with φ = 0.9, never below 1).
+    let colour = |m: &ArModel| m.marginal_var() / m.innovation_var.max(f64::MIN_POSITIVE);
+    if colour(&whole.model) <= MAX_COLOUR_RATIO {
+        return None; // no quiet estimate can be half as coloured: spare its fit
+    }
     let settle = (QUIET_AFTER_S / STEP_S).round() as usize;
     let quiet: Vec<Vec<f64>> = runs
         .iter()
@@ -820,9 +826,6 @@ fn quiet_noise(runs: &[Run], whole: &NoiseEstimate) -> Option<(NoiseEstimate, St
         })
         .collect();
     let found = noise::estimate(&quiet).filter(|q| q.contrasts >= MIN_QUIET_CONTRASTS)?;
-    // The noise's colour, free of its scale: its variance over its innovations' (1 for white
-    // noise, 5.3 for AR(1) with φ = 0.9).
-    let colour = |m: &ArModel| m.marginal_var() / m.innovation_var.max(f64::MIN_POSITIVE);
     if colour(&whole.model) <= MAX_COLOUR_RATIO * colour(&found.model) {
         return None;
     }
