@@ -61,7 +61,7 @@ pub struct Region {
     pub samples: usize,
     /// The model's free-run MAE there, N (None: no sample).
     pub mae_n: Option<f64>,
-    /// That MAE over the noise floor.
+    /// That MAE over the noise floor (None: no sample, or a floor of zero).
     pub over_floor: Option<f64>,
 }
 
@@ -110,7 +110,9 @@ pub fn assess(held_out: &[Series], sim: &[Vec<f64>], floor_n: f64) -> Trust {
         .zip(sums)
         .map(|(label, (sum, samples))| {
             let mae_n = (samples > 0).then(|| sum / samples as f64);
-            Region { label: label.into(), samples, mae_n, over_floor: mae_n.map(|m| m / floor_n) }
+            // A noiseless recording has no floor to judge against: the MAE alone is given.
+            let over_floor = mae_n.filter(|_| floor_n > 0.0).map(|m| m / floor_n);
+            Region { label: label.into(), samples, mae_n, over_floor }
         })
         .collect();
     Trust { floor_n, regions }
@@ -148,8 +150,9 @@ impl Trust {
             format!("# where to trust it: held-out free-run MAE over the noise floor of {:.2} N\n", self.floor_n);
         for r in &self.regions {
             let figure = match r.over_floor {
-                Some(ratio) if !r.untested() => format!("{ratio:.2}×"),
-                _ => format!("untested ({} samples)", r.samples),
+                _ if r.untested() => format!("untested ({} samples)", r.samples),
+                Some(ratio) => format!("{ratio:.2}×"),
+                None => format!("{:.3} N", r.mae_n.unwrap_or(f64::NAN)),
             };
             let weak = if r.less_trustworthy() { "  (less trustworthy)" } else { "" };
             let _ = writeln!(out, "#   {}: {figure}{weak}", r.label);
@@ -161,8 +164,9 @@ impl Trust {
     /// less trustworthy and which untested.
     pub fn text(&self) -> String {
         let figure = |r: &Region| match r.over_floor {
-            Some(ratio) if !r.untested() => format!("{} {ratio:.2}×", r.label),
-            _ => format!("{} untested ({} samples)", r.label, r.samples),
+            _ if r.untested() => format!("{} untested ({} samples)", r.label, r.samples),
+            Some(ratio) => format!("{} {ratio:.2}×", r.label),
+            None => format!("{} {:.3} N", r.label, r.mae_n.unwrap_or(f64::NAN)),
         };
         let mut out = format!(
             "where to trust it (held-out free-run MAE over the noise floor of {:.2} N): {}",
@@ -239,5 +243,14 @@ mod tests {
             t.text()
         );
         assert!(t.text().contains("untested: 75–100 %, fast transients"), "{}", t.text());
+    }
+
+    #[test]
+    fn a_noiseless_recording_gives_the_error_without_a_ratio() {
+        let u: Vec<f64> = vec![40.0; 1000];
+        let sim: Vec<f64> = u.iter().map(|u| u + 0.5).collect();
+        let t = assess(&[run(u)], &[sim], 0.0);
+        assert!(t.weak().next().is_none(), "nothing judged against a zero floor");
+        assert!(t.text().contains("25–50 % 0.500 N"), "{}", t.text());
     }
 }
