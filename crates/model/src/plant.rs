@@ -59,22 +59,27 @@ pub struct Plant {
 /// enough independent chains of operations to fill a core's floating-point units.
 pub const LOCKSTEP_LANES: usize = 4;
 
-/// Where the slow first-order states of a [`Plant`] start, relative to the default start
-/// ([`SlowStart::SETTLED`]): the sensor drift's bias and the discrepancy's thrust history.
+/// Where the slow states of a [`Plant`] start, relative to the default start
+/// ([`SlowStart::SETTLED`]): the sensor drift's bias, the discrepancy's thrust history, and
+/// where the stand's frame sits in the bearings' play band.
 ///
 /// A recording starts some time after the sensor was tared and after the engine was
-/// started, so neither state is in general where [`Plant::engine`] puts it (the bias at 0,
-/// the history at the initial thrust). Both are linear first-order states, so a start
-/// away from the default decays with the state's own time constant:
+/// started, so none of these is in general where [`Plant::engine`] puts it (the bias at 0,
+/// the history at the initial thrust, the frame on the thrust). The bias and the history
+/// are linear first-order states, so a start away from the default decays with the state's
+/// own time constant; the frame stays where it is until the thrust pushes it to an edge of
+/// the band (an engine that rose to its first throttle left it at the bottom):
 ///
 /// ```text
 /// b(0) = bias_n                      ḃ = (gain·T − b)/time_constant_s       (sensor_drift)
 /// H(0) = T(0) + history_offset_n     Ḣ = (T − H)/history_time_constant_s    (discrepancy)
+/// F(0) = T(0) + play_position·force_n   F = clamp(F, T − force_n, T + force_n)  (bearing_friction)
 /// ```
 ///
-/// A state the plant does not have (no sensor drift, no thrust-history term) ignores its
-/// start. The other states of the model are fast (the throttle path, the stand) or not
-/// states at all (a gain drift is a function of the time since the recording's start).
+/// A state the plant does not have (no sensor drift, no thrust-history term, no play)
+/// ignores its start. The other states of the model are fast (the throttle path, the
+/// stand) or not states at all (a gain drift is a function of the time since the
+/// recording's start).
 ///
 /// ```
 /// use jetbench_model::{Effects, Plant, Preset, SlowStart};
@@ -93,11 +98,16 @@ pub struct SlowStart {
     /// The thrust history's distance from the initial thrust at the start, N (0: settled
     /// at the initial thrust; negative: the engine has run lower, or was cold).
     pub history_offset_n: f64,
+    /// Where the stand's frame sits in the bearings' play band at the start, as a fraction
+    /// of the band: −1 at its bottom (the frame trails a rise), 0 on the thrust, +1 at its
+    /// top (it trails a fall). Held to [−1, 1].
+    pub play_position: f64,
 }
 
 impl SlowStart {
-    /// The default start: the bias zero as just after a tare, the history settled.
-    pub const SETTLED: Self = Self { bias_n: 0.0, history_offset_n: 0.0 };
+    /// The default start: the bias zero as just after a tare, the history settled, the
+    /// frame on the thrust.
+    pub const SETTLED: Self = Self { bias_n: 0.0, history_offset_n: 0.0, play_position: 0.0 };
 }
 
 /// One 10 ms step of a [`PlantEngine`].
@@ -710,6 +720,9 @@ impl PlantEngine {
         path.start_at(u0_pct);
         let p = plant.params;
         let drift = values(EffectKind::SensorDrift).map(|v| (v[0], FirstOrder::new(v[1], h)));
+        let play_n = values(EffectKind::BearingFriction).map(|v| v[0]);
+        // The stand at rest on the frame, wherever the play left it.
+        let frame_n = initial.thrust_n + play_n.map_or(0.0, |play| play * slow.play_position.clamp(-1.0, 1.0));
         let discrepancy = values(EffectKind::Discrepancy).filter(|_| plant.turbojet.is_none()).map(|v| {
             let law = DiscrepancyLaw::new(v);
             Discrepancy {
@@ -730,12 +743,12 @@ impl PlantEngine {
             path,
             gain_per_s: values(EffectKind::GainDrift).map_or(0.0, |v| v[0] / 60.0),
             discrepancy,
-            play_n: values(EffectKind::BearingFriction).map(|v| v[0]),
+            play_n,
             stand: values(EffectKind::StandResonance).map(|v| Stand::new(v[0], v[1], h)),
             drift,
             turbojet: plant.turbojet.map(|params| Turbojet::at_thrust(params, initial.thrust_n, u0_pct)),
-            frame_n: initial.thrust_n,
-            sensor_n: initial.thrust_n,
+            frame_n,
+            sensor_n: frame_n,
             sensor_rate_n_per_s: 0.0,
             // A state the plant does not have stays at its default, so that the reading
             // of a plant without a drift never carries a bias.
@@ -748,7 +761,11 @@ impl PlantEngine {
     /// an engine started from this, the state and the throttle it follows carries on as
     /// this one does.
     pub fn slow_states(&self) -> SlowStart {
-        SlowStart { bias_n: self.bias_n, history_offset_n: self.history_n - self.state.thrust_n }
+        let play_position = match self.play_n {
+            Some(play) if play > 0.0 => ((self.frame_n - self.state.thrust_n) / play).clamp(-1.0, 1.0),
+            _ => 0.0,
+        };
+        SlowStart { bias_n: self.bias_n, history_offset_n: self.history_n - self.state.thrust_n, play_position }
     }
 
     /// The engine's state.
@@ -1114,6 +1131,39 @@ mod tests {
     }
 
     #[test]
+    fn a_frame_started_in_the_play_band_stays_there_until_the_thrust_moves_it() {
+        // 30 % held, then 90 %: a frame started at the bottom of a 2 N band reads 2 N low
+        // through the hold, and from the first rise on it trails by the band as from the
+        // middle; a place outside the band is held to its edge.
+        let p = Preset::P100Diesel.params();
+        let plant = Plant::new(p, with(&["bearing_friction:force_n=2"]));
+        let u: Vec<f64> = (0..600).map(|k| if k < 300 { 30.0 } else { 90.0 }).collect();
+        let initial = State { thrust_n: plant.rest_thrust_n(30.0), thrust_rate_n_per_s: 0.0 };
+        let read = |place: f64| {
+            let mut out = Vec::new();
+            let slow = SlowStart { play_position: place, ..SlowStart::SETTLED };
+            assert!(plant.free_run_from(SUBSTEPS, 0.0, initial, slow, &u, &mut out).is_none());
+            out
+        };
+        let (centred, bottom, beyond) = (read(0.0), read(-1.0), read(-3.0));
+        for k in 0..300 {
+            assert!((centred[k] - initial.thrust_n).abs() < 1e-9, "row {k}: on the thrust");
+            assert!((bottom[k] - initial.thrust_n + 2.0).abs() < 1e-9, "row {k}: the band below it");
+        }
+        assert_eq!(bottom, beyond, "held to the band");
+        for k in 400..600 {
+            assert!((bottom[k] - centred[k]).abs() < 1e-9, "row {k}: the rise pushed both to the band's bottom");
+        }
+        // Where the engine is now in the band: what a run that carries on would start from.
+        let mut engine = plant.engine_from(initial, SlowStart { play_position: -1.0, ..SlowStart::SETTLED }, 30.0, 0.0);
+        assert!((engine.slow_states().play_position + 1.0).abs() < 1e-12);
+        for _ in 0..100 {
+            assert!(engine.step(90.0).is_ok());
+        }
+        assert!((engine.slow_states().play_position + 1.0).abs() < 1e-9, "trailing the rise");
+    }
+
+    #[test]
     fn a_slower_spool_down_leaves_the_run_up_and_the_rest_alone() {
         // 30 % → 90 % → 40 %: the run-up as the plain engine's until the thrust first falls (its
         // overshoot settles slower), the run-down slower, the same thrust at rest after each.
@@ -1297,7 +1347,7 @@ mod tests {
         assert!(gaps[5999] < 0.05 * widest, "it fades: {} after {widest}", gaps[5999]);
         // A plant without the state ignores its start.
         let plain = Plant::new(p, Effects::none());
-        let odd = SlowStart { bias_n: 5.0, history_offset_n: -40.0 };
+        let odd = SlowStart { bias_n: 5.0, history_offset_n: -40.0, ..SlowStart::SETTLED };
         assert_eq!(from(&plain, SlowStart::SETTLED, 1), from(&plain, odd, 1));
         // An engine started from another's state and slow states carries on as it does.
         let plant = Plant::new(
@@ -1535,7 +1585,7 @@ mod tests {
         }
         let u = step_input();
         let initial = State { thrust_n: keeper.rest_thrust_n(u[0]), thrust_rate_n_per_s: 0.0 };
-        let slow = SlowStart { bias_n: 0.0, history_offset_n: -2.0 };
+        let slow = SlowStart { bias_n: 0.0, history_offset_n: -2.0, ..SlowStart::SETTLED };
         for substeps in [1, SUBSTEPS] {
             let (mut track, mut out, mut expected) = (DriveTrack::default(), Vec::new(), Vec::new());
             assert!(keeper
@@ -1599,7 +1649,7 @@ mod tests {
         assert_eq!(recorded.engine_side(), replayed.engine_side());
         let u = step_input();
         let initial = State { thrust_n: recorded.rest_thrust_n(u[0]), thrust_rate_n_per_s: 0.0 };
-        let slow = SlowStart { bias_n: 0.4, history_offset_n: -3.0 };
+        let slow = SlowStart { bias_n: 0.4, history_offset_n: -3.0, ..SlowStart::SETTLED };
         let (mut out, mut path, mut expected, mut got) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         assert!(recorded.free_run_recorded(1, 2.0, initial, slow, &u, &mut out, &mut path).is_none());
         for len in [u.len(), 700] {
@@ -1664,7 +1714,7 @@ mod tests {
                 let starts: Vec<(State, SlowStart)> = (0..plants.len())
                     .map(|i| {
                         let state = State { thrust_n: rest_n + i as f64, thrust_rate_n_per_s: 0.0 };
-                        (state, SlowStart { bias_n: 0.3, history_offset_n: -2.0 })
+                        (state, SlowStart { bias_n: 0.3, history_offset_n: -2.0, ..SlowStart::SETTLED })
                     })
                     .collect();
                 let mut track = DriveTrack::default();

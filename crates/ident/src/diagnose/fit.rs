@@ -3,11 +3,12 @@
 //! innovations of the noise model (the prediction-error criterion of coloured noise;
 //! for white noise, plain least squares on the output error).
 //!
-//! A hypothesis with a slow first-order state fits where that state starts in each run
-//! (see [`super::problem::RunStart`]): the thrust history's offset as one more free
-//! value per run, the sensor bias's start in closed form inside every evaluation (it is
-//! linear in the reading, [`Problem::fit_bias_starts`]). Both are charged as parameters
-//! ([`Spec::free_count`]), so a free start cannot buy a claim.
+//! A hypothesis with a slow state fits where that state starts in each run (see
+//! [`super::problem::RunStart`]): the thrust history's offset and the frame's place in a
+//! bearing's play band as more free values per run, the sensor bias's start in closed
+//! form inside every evaluation (it is linear in the reading, [`Problem::fit_bias_starts`]).
+//! All are charged as parameters ([`Spec::free_count`]), so a free start cannot buy a
+//! claim.
 
 use jetbench_model::{Effect, EffectKind, Effects, Params, Plant, State};
 use nalgebra::{DMatrix, DVector};
@@ -88,6 +89,13 @@ impl Spec {
         self.values(EffectKind::Discrepancy).is_some_and(|v| v[4] != 0.0)
     }
 
+    /// True when each run's place in the bearings' play band is fitted (the hypothesis has
+    /// bearing friction): a recording starts with the frame wherever the engine's run-up
+    /// left it in the band, and it stays there until the thrust moves by the band.
+    pub fn fits_play_start(&self) -> bool {
+        self.has(EffectKind::BearingFriction)
+    }
+
     /// The effect values of `kind`, if fitted.
     pub fn values(&self, kind: EffectKind) -> Option<&[f64]> {
         self.effects.iter().find(|(k, _)| *k == kind).map(|(_, v)| v.as_slice())
@@ -104,6 +112,7 @@ impl Spec {
             Some(slot) => slot.1 = values,
             None => next.effects.push((kind, values)),
         }
+        next.hold_start_readings(self);
         next
     }
 
@@ -114,7 +123,28 @@ impl Spec {
         if kind == EffectKind::Discrepancy {
             next.discrepancy_free.clear();
         }
+        next.hold_start_readings(self);
         next
+    }
+
+    /// The band of the bearings' play, N (0 without bearing friction).
+    fn play_n(&self) -> f64 {
+        self.values(EffectKind::BearingFriction).map_or(0.0, |v| v[0])
+    }
+
+    /// Each run's engine thrust at the start moved so that the reading there stays `base`'s
+    /// when the play band changes (bearing friction added, dropped or resized): the frame
+    /// starts `play_position` of the band from the thrust, and the start was fitted to the
+    /// first samples' reading. Without play, the frame is on the thrust.
+    fn hold_start_readings(&mut self, base: &Spec) {
+        let (was, now) = (base.play_n(), self.play_n());
+        for (start, before) in self.states.iter_mut().zip(&base.states) {
+            if now == 0.0 {
+                start.slow.play_position = 0.0;
+            }
+            let reading = before.state.thrust_n + before.slow.play_position.clamp(-1.0, 1.0) * was;
+            start.state.thrust_n = reading - start.slow.play_position.clamp(-1.0, 1.0) * now;
+        }
     }
 
     /// The effects of this hypothesis on top of `fixed` (those of the model file).
@@ -145,6 +175,9 @@ impl Spec {
         }
         if self.fits_history_start() {
             out.extend((0..self.states.len()).map(Slot::History));
+        }
+        if self.fits_play_start() {
+            out.extend((0..self.states.len()).map(Slot::Play));
         }
         out
     }
@@ -216,6 +249,7 @@ impl Spec {
                 }
             }
             Slot::History(_) => HISTORY_OFFSET_SCALE_N,
+            Slot::Play(_) => 1.0,
         }
     }
 
@@ -230,6 +264,7 @@ impl Spec {
                 let t0 = self.states[run].state.thrust_n;
                 (-t0.max(0.0), (reading_max_n - t0).max(0.0))
             }
+            Slot::Play(_) => (-1.0, 1.0),
         }
     }
 
@@ -248,6 +283,7 @@ impl Spec {
             Slot::Param(i) => self.params.to_array()[i],
             Slot::Value(e, i) => self.effects[e].1[i],
             Slot::History(run) => self.states[run].slow.history_offset_n,
+            Slot::Play(run) => self.states[run].slow.play_position,
         }
     }
 
@@ -260,17 +296,19 @@ impl Spec {
             }
             Slot::Value(e, i) => self.effects[e].1[i] = value,
             Slot::History(run) => self.states[run].slow.history_offset_n = value,
+            Slot::Play(run) => self.states[run].slow.play_position = value,
         }
     }
 }
 
-/// One free parameter: one of the ten, value `i` of effect `e`, or where a run's thrust
-/// history starts.
+/// One free parameter: one of the ten, value `i` of effect `e`, where a run's thrust
+/// history starts, or where its frame starts in the play band.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Slot {
     Param(usize),
     Value(usize, usize),
     History(usize),
+    Play(usize),
 }
 
 /// Typical size of an effect parameter: the unit a fit works in, and the scale of its
@@ -389,6 +427,15 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
         for (j, &slot) in layout.iter().enumerate() {
             s.set(slot, (x[j] * scales[j]).clamp(bounds[j].0, bounds[j].1));
         }
+        // The engine's start fitted anew to the first samples under the play band and the
+        // frame's place in it: in a first hold, where the frame sits and the thrust it sits
+        // on trade one for the other, and only their sum is read. Held, the start would keep
+        // the frame off the reading it was fitted to.
+        if s.fits_play_start() {
+            if let Some(plant) = s.plant(fixed) {
+                s.states = problem.restarted(&plant, &s.states);
+            }
+        }
         s
     };
     let clamp = |x: &mut [f64]| {
@@ -440,7 +487,11 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
     let mut column_sims: Vec<Sim> = Vec::new();
     // The sensor-side values' columns first, while the engine path kept is that of `x`
     // (see [`SimCache`]); each column is the same in any order.
-    let sensor_side = |j: &usize| matches!(layout[*j], Slot::Value(e, _) if spec.effects[e].0.is_sensor_side());
+    // With play, every evaluation fits the engine's start anew (see `build`), so no column
+    // keeps the engine path.
+    let sensor_side = |j: &usize| {
+        !spec.fits_play_start() && matches!(layout[*j], Slot::Value(e, _) if spec.effects[e].0.is_sensor_side())
+    };
     let columns: Vec<usize> = (0..k).filter(sensor_side).chain((0..k).filter(|j| !sensor_side(j))).collect();
     for _ in 0..MAX_ITERATIONS {
         // Forward differences, stepping inward at an upper bound.
@@ -542,7 +593,7 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
         match *slot {
             Slot::Param(i) => param_stderr[i] = error(j),
             Slot::Value(e, i) => stderr[e].1[i] = error(j),
-            Slot::History(_) => {}
+            Slot::History(_) | Slot::Play(_) => {}
         }
     }
     Some(Fit { spec: with_bias_starts(problem, fixed, build(&x), &mut cache), param_stderr, stderr })
@@ -667,20 +718,78 @@ mod tests {
         assert!(idle_effects(&fit).is_empty());
     }
 
+    /// `preset` with `effect` on a bench recording of `profile` whose slow states start as
+    /// `start` says from the engine's rest thrust at the first throttle, diagnosed from the
+    /// preset as given; with that rest thrust.
+    fn diagnosed_from(
+        preset: Preset,
+        effect: &str,
+        profile: jetbench_record::series::Series,
+        start: impl FnOnce(f64) -> SlowStart,
+        seed: u64,
+    ) -> (crate::diagnose::Diagnosis, f64) {
+        let params = preset.params();
+        let plant = Plant::new(params, Effects::new([effect.parse::<Effect>().unwrap()]).unwrap());
+        let t0 = plant.rest_thrust_n(profile.u_pct[0]);
+        let data = [synth::record_bench_from(&plant, start(t0), &profile, &synth::Bench::default(), seed).unwrap()];
+        (diagnose(&ModelFile::new(params), &data, &Options::default(), &mut |_| {}).unwrap(), t0)
+    }
+
+    /// A recording that starts two minutes after the tare, with the engine at its first
+    /// throttle all that time: the sensor drift's bias is well on its way, so the first
+    /// samples read the thrust plus that bias. The drift is claimed at its time constant and
+    /// what it leaves is noise. With the engine's start held where the given model put it
+    /// (the whole first reading on the engine), the time constant bends to make up for it.
+    #[test]
+    fn a_bias_built_up_before_the_recording_is_not_taken_for_the_engine() {
+        let warm = |t0: f64| SlowStart { bias_n: 0.06 * t0 * (1.0 - (-120.0f64 / 80.0).exp()), ..SlowStart::SETTLED };
+        let profile = excite::campaign(300.0, 43).profile;
+        let (d, _) =
+            diagnosed_from(Preset::P220Kerosene, "sensor_drift:gain=0.06,time_constant_s=80", profile, warm, 43);
+        let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
+        assert_eq!(d.cause, Cause::MissingPhysics, "{}", d.verdict);
+        assert_eq!(names, ["sensor_drift"], "{}", d.verdict);
+        let (gain, tau) = (d.effects[0].params["gain"], d.effects[0].params["time_constant_s"]);
+        assert!((tau - 80.0).abs() < 8.0 && (gain - 0.06).abs() < 0.003, "gain {gain}, τ {tau} against 0.06, 80 s");
+        assert!(d.after.whiteness.white, "{}", d.verdict);
+    }
+
+    /// A recording that starts with the stand's frame at the bottom of the bearings' play
+    /// band, where the engine's run-up to its first throttle left it (the reading a band
+    /// below the thrust until the thrust first moves by the band): with each run's place in
+    /// the band fitted, the friction is named at its size and what it leaves is noise.
+    /// With the frame held on the thrust at the start, the first hold's offset is left in
+    /// the residual, which is then not white, and the friction found is named, not claimed.
+    #[test]
+    fn a_frame_that_starts_at_the_bottom_of_the_play_band_is_no_unexplained_residual() {
+        let mut profile = excite::campaign(300.0, 41).profile;
+        // A first hold of 30 s, as a run begins at its first throttle.
+        let first = profile.u_pct[0];
+        profile.u_pct.splice(0..0, std::iter::repeat_n(first, 3000));
+        profile.u_pct.truncate(30_000);
+        profile.t_s = (0..profile.u_pct.len()).map(|k| k as f64 * jetbench_model::STEP_S).collect();
+        let bottom = |_| SlowStart { play_position: -1.0, ..SlowStart::SETTLED };
+        let (d, _) = diagnosed_from(Preset::P100Diesel, "bearing_friction:force_n=2.5", profile, bottom, 41);
+        let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
+        assert_eq!(d.cause, Cause::MissingPhysics, "{}", d.verdict);
+        assert_eq!(names, ["bearing_friction"], "{}", d.verdict);
+        let band = d.effects[0].params["force_n"];
+        assert!((band - 2.5).abs() < 0.25, "band {band} against 2.5");
+        assert!(d.after.whiteness.white, "{}", d.verdict);
+        // Where the frame started: reported, within the band.
+        let place = d.starts.first().and_then(|s| s.play_position);
+        assert!(place.is_some_and(|p| (-1.0..=1.0).contains(&p)), "{:?}", d.starts);
+    }
+
     /// A recording that begins before the engine has soaked (its thrust history starts far
     /// below the thrust, as on a bench where the recording starts soon after the engine
     /// did): with the history's start fitted, the diagnosis names the soak (a discrepancy)
     /// and no gain drift takes up the unsettled start.
     #[test]
     fn an_unsettled_soak_at_the_start_is_named_without_a_gain_drift() {
-        let params = Preset::P100Diesel.params();
-        let soak: Effect = "discrepancy:gain_history_per_n=-0.0005,history_time_constant_s=60".parse().unwrap();
-        let plant = Plant::new(params, Effects::new([soak]).unwrap());
-        let profile = excite::campaign(300.0, 29).profile;
-        let t0 = plant.rest_thrust_n(profile.u_pct[0]);
-        let cold = SlowStart { history_offset_n: -0.8 * t0, ..SlowStart::SETTLED };
-        let data = [synth::record_bench_from(&plant, cold, &profile, &synth::Bench::default(), 30).unwrap()];
-        let d = diagnose(&ModelFile::new(params), &data, &Options::default(), &mut |_| {}).unwrap();
+        let soak = "discrepancy:gain_history_per_n=-0.0005,history_time_constant_s=60";
+        let cold = |t0: f64| SlowStart { history_offset_n: -0.8 * t0, ..SlowStart::SETTLED };
+        let (d, t0) = diagnosed_from(Preset::P100Diesel, soak, excite::campaign(300.0, 29).profile, cold, 30);
         let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
         assert_eq!(d.cause, Cause::MissingPhysics, "{}", d.verdict);
         assert_eq!(names, ["discrepancy"], "{}", d.verdict);
