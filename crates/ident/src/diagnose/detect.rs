@@ -163,13 +163,23 @@ fn probes(full_thrust_n: f64) -> Vec<(EffectKind, Vec<f64>, bool)> {
         (EffectKind::InputDelay, vec![0.02], true),
         (EffectKind::ActuatorLag, vec![0.05], true),
         (EffectKind::RateLimit, vec![100.0, 100.0], false),
-        (EffectKind::SensorDrift, vec![0.02, 60.0], true),
+        (EffectKind::SensorDrift, vec![0.02, PROBE_DRIFT_TAU_S], true),
         (EffectKind::GainDrift, vec![0.005], true),
         (EffectKind::BearingFriction, vec![0.5], true),
     ];
     out.push((EffectKind::Discrepancy, soak, true));
     out
 }
+
+/// The sensor drift probe's time constant, s (see [`probes`]).
+const PROBE_DRIFT_TAU_S: f64 = 60.0;
+/// The ratio between neighbouring time constants at which a sensor drift that hides at the
+/// probe's is measured again, beside physics found. A time constant is not ordered the way
+/// a size is (a slower drift is smaller at first and larger later), so the region that
+/// could hide reaches as far as neighbours measured hidden, no further: a drift of 1 % at
+/// τ 72 s beside a lag was left out of a claim and not disclosed, because the disclosure
+/// was pinned to the probe's 60 s.
+const DRIFT_TAU_STEP: f64 = std::f64::consts::SQRT_2;
 
 /// The stand-resonance probes' frequencies, Hz (see [`probes`]), all at [`PROBE_DAMPING`].
 const RESONANCE_HZ: [f64; 6] = [0.5, 1.0, 2.0, 3.0, 5.0, 8.0];
@@ -502,6 +512,10 @@ pub(crate) fn probe_all(
     // Beside physics found, what hides is measured beyond the probes: that is what a claim
     // discloses. `none` and `parameters` ask only for the probes at the size that matters.
     let beside_physics = !spec.effects.is_empty();
+    // The largest drift gain measured to hide at the probe's time constant, beside physics
+    // found: measured again at other time constants below.
+    let mut drift_time_constants = None;
+    let threshold_drift = needed(strong_evidence, EffectKind::SensorDrift.keys().len(), ln_n);
     for (kind, values, proportional) in probes(full_thrust) {
         if spec.has(kind) || fixed.get(kind).is_some() {
             continue;
@@ -540,9 +554,14 @@ pub(crate) fn probe_all(
             }
             if let Some(first) = shown {
                 let between = hidden.signum() * (hidden * first).abs().sqrt();
-                if probe(kind, &at(between)).is_some_and(|(e, _)| e >= threshold) {
-                    shown = Some(between);
+                match probe(kind, &at(between)) {
+                    Some((e, _)) if e >= threshold => shown = Some(between),
+                    Some(_) => hidden = between,
+                    None => {}
                 }
+            }
+            if kind == EffectKind::SensorDrift {
+                drift_time_constants = Some(hidden);
             }
             let upper = shown.unwrap_or(edge);
             if upper.abs() > values[index].abs() {
@@ -573,6 +592,52 @@ pub(crate) fn probe_all(
             hidden_up_to,
             disclosure_only: false,
         });
+    }
+    if let Some(gain) = drift_time_constants {
+        let (probe_tau, range) = (PROBE_DRIFT_TAU_S, EffectKind::SensorDrift.physical()[1]);
+        // The most a drift of that gain adds at any time constant measured hidden.
+        let mut energy = 0.0f64;
+        let mut hides = |tau: f64| match probe(EffectKind::SensorDrift, &[gain, tau]) {
+            Some((e, _)) if e < threshold_drift => {
+                energy = energy.max(e);
+                true
+            }
+            _ => false,
+        };
+        let (mut low, mut high) = (probe_tau, probe_tau);
+        if hides(probe_tau) {
+            while low / DRIFT_TAU_STEP >= range.0 && hides(low / DRIFT_TAU_STEP) {
+                low /= DRIFT_TAU_STEP;
+            }
+            while high * DRIFT_TAU_STEP <= range.1 && hides(high * DRIFT_TAU_STEP) {
+                high *= DRIFT_TAU_STEP;
+            }
+        }
+        if low < probe_tau || high > probe_tau {
+            let values = [gain, probe_tau];
+            out.push(Detectability {
+                effect: EffectKind::SensorDrift.name(),
+                probe: BTreeMap::from([("gain", gain), ("time_constant_s", probe_tau)]),
+                size: describe(EffectKind::SensorDrift, &values, full_thrust),
+                energy,
+                threshold: threshold_drift,
+                would_show: false,
+                shape_z: f64::NAN,
+                smallest: None,
+                experiment: experiment_for(EffectKind::SensorDrift.name()),
+                could_hide: Some(BTreeMap::from([
+                    ("gain", [Some(0.0), Some(gain)]),
+                    ("time_constant_s", [Some(low), Some(high)]),
+                ])),
+                hidden_up_to: Some(format!(
+                    "a sensor drift of up to {:.1} % of thrust at any time constant from {low:.0} s to {high:.0} s, \
+                     each measured hidden beside the model found (every {:.0} % apart)",
+                    100.0 * gain,
+                    100.0 * (DRIFT_TAU_STEP - 1.0)
+                )),
+                disclosure_only: true,
+            });
+        }
     }
     let resonance = EffectKind::StandResonance;
     if !spec.has(resonance) && fixed.get(resonance).is_none() {

@@ -680,14 +680,24 @@ fn hidden_beside(d: &Diagnosis) -> String {
     if hidden.is_empty() {
         return String::new();
     }
-    let mut experiments: Vec<&str> = hidden.iter().map(|p| p.experiment).collect();
-    experiments.dedup();
+    let experiments = each_once(hidden.iter().map(|p| p.experiment));
     format!(
         " Beside it, this recording could not have shown {} (nor any smaller: a shorter delay or lag, a smaller \
          drift, band or force, a faster rate limit): the claim does not exclude them ({}).",
         hidden_sizes(&hidden).join(", "),
         experiments.join("; ")
     )
+}
+
+/// Each of `items` once, in the order of their first appearance.
+fn each_once<'a>(items: impl Iterator<Item = &'a str>) -> Vec<&'a str> {
+    let mut out: Vec<&str> = Vec::new();
+    for item in items {
+        if !out.contains(&item) {
+            out.push(item);
+        }
+    }
+    out
 }
 
 /// Each hidden probe in words with the share of the evidence a claim needs that it gives; the
@@ -706,6 +716,8 @@ fn hidden_sizes(hidden: &[&detect::Detectability]) -> Vec<String> {
             None => format!("{} ({:.0} % of the evidence a claim needs)", p.size, share(p)),
         })
         .collect();
+    // A sensor drift measured at other time constants than its probe's: the region in words.
+    sizes.extend(hidden.iter().filter(|p| p.disclosure_only && !resonance(p)).filter_map(|p| p.hidden_up_to.clone()));
     let regions: Vec<&&detect::Detectability> = hidden.iter().filter(resonance).filter(|p| p.disclosure_only).collect();
     let words: Vec<String> = regions
         .iter()
@@ -741,13 +753,9 @@ fn undetectable(d: &Diagnosis) -> String {
         .filter(|p| !p.disclosure_only && p.shape_z >= detect::SHAPE_Z)
         .map(|p| format!("{} (matched filter {:.1} standard deviations)", p.size, p.shape_z))
         .collect();
-    let mut experiments: Vec<&str> = d
-        .detectability
-        .iter()
-        .filter(|p| !p.would_show || p.shape_z >= detect::SHAPE_Z)
-        .map(|p| p.experiment)
-        .collect();
-    experiments.dedup();
+    let experiments = each_once(
+        d.detectability.iter().filter(|p| !p.would_show || p.shape_z >= detect::SHAPE_Z).map(|p| p.experiment),
+    );
     let mut parts = Vec::new();
     if !hidden.is_empty() {
         parts.push(format!("this recording could not have shown {}", hidden.join(", ")));
@@ -902,7 +910,7 @@ pub fn text(d: &Diagnosis, model: &str) -> String {
             let _ = writeln!(
                 out,
                 "  {:<17} score {:>9}  MAE {}  {}{}{}",
-                c.name,
+                c.with.map_or_else(|| c.name.to_owned(), |with| format!("{with} + {}", c.name)),
                 c.score_gain.map_or("-".to_owned(), |g| format!("{g:+.1}")),
                 figure(c.mae_val_n, 3, " N"),
                 params.join(" "),
