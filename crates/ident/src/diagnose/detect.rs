@@ -173,13 +173,23 @@ fn probes(full_thrust_n: f64) -> Vec<(EffectKind, Vec<f64>, bool)> {
 
 /// The sensor drift probe's time constant, s (see [`probes`]).
 const PROBE_DRIFT_TAU_S: f64 = 60.0;
-/// The ratio between neighbouring time constants at which a sensor drift that hides at the
-/// probe's is measured again, beside physics found. A time constant is not ordered the way
-/// a size is (a slower drift is smaller at first and larger later), so the region that
-/// could hide reaches as far as neighbours measured hidden, no further: a drift of 1 % at
-/// τ 72 s beside a lag was left out of a claim and not disclosed, because the disclosure
-/// was pinned to the probe's 60 s.
-const DRIFT_TAU_STEP: f64 = std::f64::consts::SQRT_2;
+/// The ratio between neighbouring time constants at which a slow class (a sensor drift, a
+/// soak) that hides at the probe's is measured again, beside physics found. A time constant
+/// is not ordered the way a size is (a slower drift is smaller at first and larger later),
+/// so the region that could hide reaches as far as neighbours measured hidden, no further:
+/// a drift of 1 % at τ 72 s beside a lag was left out of a claim and not disclosed, because
+/// the disclosure was pinned to the probe's 60 s.
+const TAU_STEP: f64 = std::f64::consts::SQRT_2;
+
+/// The indices of the size and the time constant among a slow class's values (the sensor
+/// drift's gain, the thrust-history gain of a soak), `None` for a class without one.
+fn time_constant_of(kind: EffectKind) -> Option<(usize, usize)> {
+    match kind {
+        EffectKind::SensorDrift => Some((0, 1)),
+        EffectKind::Discrepancy => Some((4, 5)),
+        _ => None,
+    }
+}
 
 /// The stand-resonance probes' frequencies, Hz (see [`probes`]), all at [`PROBE_DAMPING`].
 const RESONANCE_HZ: [f64; 6] = [0.5, 1.0, 2.0, 3.0, 5.0, 8.0];
@@ -512,10 +522,10 @@ pub(crate) fn probe_all(
     // Beside physics found, what hides is measured beyond the probes: that is what a claim
     // discloses. `none` and `parameters` ask only for the probes at the size that matters.
     let beside_physics = !spec.effects.is_empty();
-    // The largest drift gain measured to hide at the probe's time constant, beside physics
-    // found: measured again at other time constants below.
-    let mut drift_time_constants = None;
-    let threshold_drift = needed(strong_evidence, EffectKind::SensorDrift.keys().len(), ln_n);
+    // The slow classes (a sensor drift, a soak) that hide beside physics found, at the largest
+    // size measured to hide at the probe's time constant: measured again at other time
+    // constants below.
+    let mut slow: Vec<(EffectKind, Vec<f64>, f64)> = Vec::new();
     for (kind, values, proportional) in probes(full_thrust) {
         if spec.has(kind) || fixed.get(kind).is_some() {
             continue;
@@ -560,8 +570,8 @@ pub(crate) fn probe_all(
                     None => {}
                 }
             }
-            if kind == EffectKind::SensorDrift {
-                drift_time_constants = Some(hidden);
+            if time_constant_of(kind).is_some() {
+                slow.push((kind, at(hidden), threshold));
             }
             let upper = shown.unwrap_or(edge);
             if upper.abs() > values[index].abs() {
@@ -593,51 +603,69 @@ pub(crate) fn probe_all(
             disclosure_only: false,
         });
     }
-    if let Some(gain) = drift_time_constants {
-        let (probe_tau, range) = (PROBE_DRIFT_TAU_S, EffectKind::SensorDrift.physical()[1]);
-        // The most a drift of that gain adds at any time constant measured hidden.
+    for (kind, values, threshold) in slow {
+        let Some((size, tau)) = time_constant_of(kind) else { continue };
+        let (probe_tau, range) = (values[tau], kind.physical()[tau]);
+        // The most the probe's size adds at any time constant measured hidden.
         let mut energy = 0.0f64;
-        let mut hides = |tau: f64| match probe(EffectKind::SensorDrift, &[gain, tau]) {
-            Some((e, _)) if e < threshold_drift => {
-                energy = energy.max(e);
-                true
+        let mut hides = |t: f64| {
+            let mut v = values.clone();
+            v[tau] = t;
+            match probe(kind, &v) {
+                Some((e, _)) if e < threshold => {
+                    energy = energy.max(e);
+                    true
+                }
+                _ => false,
             }
-            _ => false,
         };
         let (mut low, mut high) = (probe_tau, probe_tau);
         if hides(probe_tau) {
-            while low / DRIFT_TAU_STEP >= range.0 && hides(low / DRIFT_TAU_STEP) {
-                low /= DRIFT_TAU_STEP;
+            while low / TAU_STEP >= range.0 && hides(low / TAU_STEP) {
+                low /= TAU_STEP;
             }
-            while high * DRIFT_TAU_STEP <= range.1 && hides(high * DRIFT_TAU_STEP) {
-                high *= DRIFT_TAU_STEP;
+            while high * TAU_STEP <= range.1 && hides(high * TAU_STEP) {
+                high *= TAU_STEP;
             }
         }
-        if low < probe_tau || high > probe_tau {
-            let values = [gain, probe_tau];
-            out.push(Detectability {
-                effect: EffectKind::SensorDrift.name(),
-                probe: BTreeMap::from([("gain", gain), ("time_constant_s", probe_tau)]),
-                size: describe(EffectKind::SensorDrift, &values, full_thrust),
-                energy,
-                threshold: threshold_drift,
-                would_show: false,
-                shape_z: f64::NAN,
-                smallest: None,
-                experiment: experiment_for(EffectKind::SensorDrift.name()),
-                could_hide: Some(BTreeMap::from([
-                    ("gain", [Some(0.0), Some(gain)]),
-                    ("time_constant_s", [Some(low), Some(high)]),
-                ])),
-                hidden_up_to: Some(format!(
-                    "a sensor drift of up to {:.1} % of thrust at any time constant from {low:.0} s to {high:.0} s, \
-                     each measured hidden beside the model found (every {:.0} % apart)",
-                    100.0 * gain,
-                    100.0 * (DRIFT_TAU_STEP - 1.0)
-                )),
-                disclosure_only: true,
-            });
+        if low == probe_tau && high == probe_tau {
+            continue;
         }
+        let keys = if kind == EffectKind::Discrepancy {
+            ["gain_history_per_n", "history_time_constant_s"]
+        } else {
+            [kind.keys()[size], kind.keys()[tau]]
+        };
+        let x = values[size];
+        let words = if kind == EffectKind::Discrepancy {
+            format!(
+                "an engine gain following the thrust history of up to {:.1} % at {full_thrust:.0} N (a heat soak)",
+                -100.0 * x * full_thrust
+            )
+        } else {
+            format!("a sensor drift of up to {:.1} % of thrust", 100.0 * x)
+        };
+        out.push(Detectability {
+            effect: if kind == EffectKind::Discrepancy { GAIN_HISTORY } else { kind.name() },
+            probe: BTreeMap::from([(keys[0], x), (keys[1], probe_tau)]),
+            size: describe(kind, &values, full_thrust),
+            energy,
+            threshold,
+            would_show: false,
+            shape_z: f64::NAN,
+            smallest: None,
+            experiment: experiment_for(if kind == EffectKind::Discrepancy { GAIN_HISTORY } else { kind.name() }),
+            could_hide: Some(BTreeMap::from([
+                (keys[0], if x < 0.0 { [Some(x), Some(0.0)] } else { [Some(0.0), Some(x)] }),
+                (keys[1], [Some(low), Some(high)]),
+            ])),
+            hidden_up_to: Some(format!(
+                "{words} at any time constant from {low:.0} s to {high:.0} s, each measured hidden beside the model \
+                 found (every {:.0} % apart)",
+                100.0 * (TAU_STEP - 1.0)
+            )),
+            disclosure_only: true,
+        });
     }
     let resonance = EffectKind::StandResonance;
     if !spec.has(resonance) && fixed.get(resonance).is_none() {

@@ -791,7 +791,8 @@ mod tests {
     /// A small sensor drift beside a lag, on 150 s: the lag is found, and the drift, too
     /// small to show beside it, is disclosed as able to hide at its own time constant, not
     /// only at the probe's (the disclosure was once pinned to the probe's 60 s, and a claim
-    /// of a lag that left out a drift of τ 72 s read as excluding it).
+    /// of a lag that left out a drift of τ 72 s read as excluding it). A soak that hides
+    /// is measured at other time constants the same way.
     #[test]
     fn a_sensor_drift_that_hides_beside_a_lag_is_disclosed_at_its_own_time_constant() {
         let warm = |t0: f64| SlowStart { bias_n: 0.01 * t0 * (1.0 - (-120.0f64 / 72.0).exp()), ..SlowStart::SETTLED };
@@ -806,6 +807,12 @@ mod tests {
             p.could_hide.as_ref().is_some_and(|r| holds(r.get("gain"), 0.01) && holds(r.get("time_constant_s"), 72.0))
         });
         assert!(disclosed, "{:?}", d.detectability.iter().filter(|p| p.effect == "sensor_drift").collect::<Vec<_>>());
+        // A soak (the thrust-history gain) has a time constant too, and is measured the same way.
+        let soak = |p: &&crate::diagnose::detect::Detectability| p.effect == "gain_history" && !p.would_show;
+        let swept = d.detectability.iter().filter(soak).any(|p| {
+            p.could_hide.as_ref().and_then(|r| r.get("history_time_constant_s")).is_some_and(|[lo, hi]| lo != hi)
+        });
+        assert!(swept, "{:?}", d.detectability.iter().filter(soak).collect::<Vec<_>>());
     }
 
     /// A recording that starts with the stand's frame at the bottom of the bearings' play
