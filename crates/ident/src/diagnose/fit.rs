@@ -815,6 +815,27 @@ mod tests {
         assert!(swept, "{:?}", d.detectability.iter().filter(soak).collect::<Vec<_>>());
     }
 
+    /// A delay of 80 ms on 150 s: on the held-out part alone a lag fits nearly as well (the
+    /// delay wins about nine resamples in ten, short of a claim), but the calibration part
+    /// holds twice as many steps. Each explanation fitted on either part and judged on the
+    /// other, the delay wins, and leads the lag in each part: it is claimed, and the verdict
+    /// says it was weighed both ways round.
+    #[test]
+    fn a_delay_the_held_out_part_alone_cannot_tell_from_a_lag_is_claimed_weighed_both_ways() {
+        let profile = excite::campaign(150.0, 65).profile;
+        let (d, _) =
+            diagnosed_from(Preset::P100Diesel, &["input_delay:delay_s=0.08"], profile, |_| SlowStart::SETTLED, 65);
+        let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
+        assert_eq!(d.cause, Cause::MissingPhysics, "{}", d.verdict);
+        assert_eq!(names, ["input_delay"], "{}", d.verdict);
+        let once = d.weighed_both_ways.unwrap_or(f64::NAN);
+        assert!((0.5..0.95).contains(&once), "held-out weight alone {once}: {}", d.verdict);
+        assert!(d.rivals[0].weight >= 0.95 && d.rivals.iter().skip(1).all(|r| r.dominated), "{:?}", d.rivals);
+        let delay = d.effects[0].params["delay_s"];
+        assert!((delay - 0.08).abs() < 0.02, "delay {delay}");
+        assert!(d.verdict.contains("both ways round"), "{}", d.verdict);
+    }
+
     /// A recording that starts with the stand's frame at the bottom of the bearings' play
     /// band, where the engine's run-up to its first throttle left it (the reading a band
     /// below the thrust until the thrust first moves by the band): with each run's place in

@@ -89,13 +89,23 @@ pub(crate) struct Run {
     pub stride: usize,
     pub t0_s: f64,
     pub initial: State,
+    /// The parts the other way round ([`Problem::reversed`]): fitted after the split,
+    /// judged before it.
+    pub reversed: bool,
 }
 
 impl Run {
     pub(crate) fn in_part(&self, k: usize, part: Part) -> bool {
-        match part {
-            Part::Calibration => k < self.cut,
-            Part::Validation => k >= self.cut,
+        (k < self.cut) == ((part == Part::Calibration) != self.reversed)
+    }
+
+    /// Grid samples a simulation covers: up to the split when only the calibration part is
+    /// asked for and it comes first, the whole run otherwise.
+    fn end(&self, calibration_only: bool) -> usize {
+        if calibration_only && !self.reversed {
+            self.cut.min(self.u.len())
+        } else {
+            self.u.len()
         }
     }
 }
@@ -370,7 +380,18 @@ impl<'a> Problem<'a> {
         let mut gaps: Vec<usize> = grid.windows(2).map(|w| w[1] - w[0]).collect();
         gaps.sort_unstable();
         let stride = gaps.get(gaps.len() / 2).copied().unwrap_or(1).max(1);
-        Run { series, t0_s: s.t_s[rows.start], rows, grid, u, y, cut, stride, initial: State::default() }
+        Run {
+            series,
+            t0_s: s.t_s[rows.start],
+            rows,
+            grid,
+            u,
+            y,
+            cut,
+            stride,
+            initial: State::default(),
+            reversed: false,
+        }
     }
 
     /// Each run's initial state fitted to its first two seconds under `plant`.
@@ -389,6 +410,19 @@ impl<'a> Problem<'a> {
                 slow: start.slow,
             })
             .collect()
+    }
+
+    /// This problem with its parts the other way round: fitted on the held-out part of each
+    /// recording, judged on its calibration part. A second, disjoint view of how well each
+    /// explanation predicts data it was not fitted on (two-fold cross-validation); the noise
+    /// model, the floor and the runs' starts are the same.
+    pub fn reversed(&self) -> Self {
+        let mut other = self.clone();
+        for run in &mut other.runs {
+            run.reversed = !run.reversed;
+        }
+        std::mem::swap(&mut other.n_cal, &mut other.n_val);
+        other
     }
 
     /// The highest reading of the recordings, N: no thrust history and no sensor bias
@@ -502,7 +536,7 @@ impl<'a> Problem<'a> {
         let mut drives = self.drives.borrow_mut();
         let mut tracks = plant.drive_key(SUBSTEPS).map(|key| drives.tracks(key, self.runs.len()));
         for (i, ((run, sim), &start)) in self.runs.iter().zip(out.iter_mut()).zip(starts).enumerate() {
-            let end = if calibration_only { run.cut.min(run.u.len()) } else { run.u.len() };
+            let end = run.end(calibration_only);
             if end == 0 {
                 sim.clear();
                 continue;
@@ -532,11 +566,12 @@ impl<'a> Problem<'a> {
         }
         let engine = plant.engine_side();
         let engine_starts: Vec<(State, f64)> = starts.iter().map(|s| (s.state, s.slow.history_offset_n)).collect();
-        let end = |run: &Run| if calibration_only { run.cut.min(run.u.len()) } else { run.u.len() };
+        let end = |run: &Run| run.end(calibration_only);
+        let whole = self.runs.iter().all(|run| end(run) == run.u.len());
         out.resize_with(self.runs.len(), Vec::new);
         let mut failure = None;
         let reusable = cache.key.as_ref().is_some_and(|key| {
-            (key.whole || calibration_only)
+            (key.whole || !whole)
                 && key.plant == engine
                 && key.starts == engine_starts
                 && cache.runs.len() == self.runs.len()
@@ -575,7 +610,7 @@ impl<'a> Problem<'a> {
                 failure.get_or_insert((run.series, run.t0_s + at));
             }
         }
-        cache.key = Some(EngineKey { plant: engine, starts: engine_starts, whole: !calibration_only });
+        cache.key = Some(EngineKey { plant: engine, starts: engine_starts, whole });
         failure.map_or(Ok(()), Err)
     }
 
@@ -603,7 +638,7 @@ impl<'a> Problem<'a> {
         let mut tracks = shared.map(|key| drives.tracks(key, self.runs.len()));
         let (mut sims, mut diverged_s) = (vec![Vec::new(); count], vec![None; count]);
         for (i, run) in self.runs.iter().enumerate() {
-            let end = if calibration_only { run.cut.min(run.u.len()) } else { run.u.len() };
+            let end = run.end(calibration_only);
             if end == 0 {
                 outs.iter_mut().for_each(|out| out[i].clear());
                 continue;
@@ -694,10 +729,7 @@ impl<'a> Problem<'a> {
         let r = |j: usize| x(j * stride);
         let n = run.y.len().div_ceil(stride);
         let split = run.cut.min(run.y.len()).div_ceil(stride);
-        let (lo, hi) = match part {
-            Part::Calibration => (0, split),
-            Part::Validation => (split, n),
-        };
+        let (lo, hi) = if (part == Part::Calibration) != run.reversed { (0, split) } else { (split, n) };
         'samples: for j in lo.max(phi.len())..hi {
             let mut w = r(j);
             if !w.is_finite() {

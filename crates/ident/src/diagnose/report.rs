@@ -507,6 +507,15 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
             if let Some(open) = &d.parameters_open {
                 text.push(format!("The parameters are not cleared: {open}."));
             }
+            if let Some(weight) = d.weighed_both_ways {
+                text.push(format!(
+                    "On the held-out part alone this explanation won {:.0} % of the resamples, short of a claim; \
+                     fitted both ways round (on each part, judged on the other) it wins {:.0} % and leads every \
+                     rival in each part.",
+                    100.0 * weight,
+                    100.0 * d.rivals.first().map_or(0.0, |r| r.weight)
+                ));
+            }
             format!("{} {mae}; {whiteness}.{}{}", text.join(" "), remains(), hidden_beside(d))
         }
         Cause::Ambiguous => format!("{} {mae} with the leading explanation.", ambiguous(d)),

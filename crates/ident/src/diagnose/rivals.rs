@@ -160,6 +160,12 @@ pub struct Rivals {
     pub held_out_s: f64,
     /// Held-out data a claim needs, s ([`MIN_BLOCKS`] blocks of [`BLOCK_S`]).
     pub needed_s: f64,
+    /// When the weights come from both ways round (see [`both_ways`]: each explanation
+    /// fitted on the calibration part and judged on the held-out part, and fitted on the
+    /// held-out part and judged on the calibration part), the claim's weight on the held-out
+    /// part alone. Rivals that part alone already ruled out are listed with their weights
+    /// there.
+    pub both_ways: Option<f64>,
     /// When the search's explanation does not dominate: the one rival that does dominate
     /// every other explanation (see [`leader`]), by its effects and refit.
     #[serde(skip)]
@@ -227,7 +233,7 @@ fn margin(a: &Entry, b: &Entry) -> f64 {
 
 /// How far `a` is ahead of `b` over all the held-out data, on what the two are compared on
 /// ([`on_score`]): positive when `a` does better.
-fn compared(a: &Entry, b: &Entry) -> f64 {
+pub(crate) fn compared(a: &Entry, b: &Entry) -> f64 {
     if on_score(a, b) {
         b.score - a.score
     } else {
@@ -578,7 +584,29 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         // The search's explanation is always listed, even when it weighs little.
         rivals.push((ci, rival(ci, entries[ci])));
     }
-    Rivals { rivals: rivals.into_iter().map(|(_, r)| r).collect(), dominant, held_out_s, needed_s, leader }
+    Rivals {
+        rivals: rivals.into_iter().map(|(_, r)| r).collect(),
+        dominant,
+        held_out_s,
+        needed_s,
+        both_ways: None,
+        leader,
+    }
+}
+
+/// An explanation judged both ways round: `once` (fitted on the calibration part, its
+/// innovations on the held-out part) with `back`, the same explanation fitted on the
+/// held-out part, its innovations on the calibration part. Every sample of the recordings
+/// then judges a fit it played no part in: two-fold cross-validation. The prior is the mean
+/// of the two fits' (it charges one explanation, once). Physical as `once` is: the fit that
+/// is claimed is `once`'s.
+pub(crate) fn both_ways(once: &Entry, back: &Entry) -> Entry {
+    let mut e = once.clone();
+    e.w2.extend_from_slice(&back.w2);
+    e.prior = 0.5 * (once.prior + back.prior);
+    let n = e.w2.len() as f64;
+    e.score = n * (e.w2.iter().sum::<f64>() / n).ln() + e.free as f64 * n.ln() + e.prior;
+    e
 }
 
 /// The entry of an explanation: its parts, innovations and score.
