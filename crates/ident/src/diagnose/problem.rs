@@ -1047,4 +1047,35 @@ mod tests {
             }
         }
     }
+
+    /// The problem the other way round fits on the held-out part and judges on the
+    /// calibration part: its parts are the original's swapped, sample for sample, its
+    /// calibration-only simulation runs through the whole run (the held-out part comes
+    /// last), and its counts are swapped too.
+    #[test]
+    fn the_problem_the_other_way_round_swaps_its_parts() {
+        let plant = Plant::new(Preset::P100Diesel.params(), Effects::none());
+        let bench = synth::Bench { drop_fraction: 0.02, ..synth::Bench::default() };
+        let data = [synth::record_bench(&plant, &excite::campaign(120.0, 7).profile, &bench, 8).expect("recording")];
+        let problem = Problem::new(&data, &plant, 0.3).expect("problem");
+        let reversed = problem.reversed();
+        assert_eq!((reversed.n_cal, reversed.n_val), (problem.n_val, problem.n_cal));
+        let mut other = Preset::P100Diesel.params().to_array();
+        other[0] *= 1.05;
+        let other = Plant::new(jetbench_model::Params::from_array(other), Effects::none());
+        let mut sim = Sim::new();
+        problem.simulate(&other, &problem.given_states(), false, &mut sim).expect("simulates");
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        for (part, swapped) in [(Part::Calibration, Part::Validation), (Part::Validation, Part::Calibration)] {
+            problem.innovations(&sim, part, &mut a);
+            reversed.innovations(&sim, swapped, &mut b);
+            assert!(!a.is_empty() && a == b, "{part:?}");
+            assert_eq!(problem.sse(&sim, part), reversed.sse(&sim, swapped), "{part:?}");
+        }
+        let mut short = Sim::new();
+        reversed.simulate(&other, &problem.given_states(), true, &mut short).expect("simulates");
+        assert_eq!(short, sim, "fitting the held-out part needs the whole run");
+        problem.simulate(&other, &problem.given_states(), true, &mut short).expect("simulates");
+        assert!(short[0].len() < sim[0].len(), "the calibration part first stops at the split");
+    }
 }
