@@ -426,7 +426,20 @@ struct Search<'p, 'a> {
 /// refitted.
 type Label = (Vec<&'static str>, bool);
 
-impl Search<'_, '_> {
+impl<'p, 'a> Search<'p, 'a> {
+    /// A search over `problem`, nothing fitted yet; the floor is the problem's noise floor.
+    fn new(problem: &'p Problem<'a>, model: &'p ModelFile, options: &'p Options) -> Self {
+        Self {
+            problem,
+            model,
+            options,
+            floor_n: problem.noise.mae_n,
+            pool: RefCell::new(Vec::new()),
+            cache: RefCell::new(SimCache::default()),
+            back: RefCell::default(),
+        }
+    }
+
     fn evaluate(&self, fit: Fit) -> Option<Scored> {
         let plant = fit.spec.plant(&self.model.effects)?;
         let mut sim = Sim::new();
@@ -621,15 +634,7 @@ pub fn diagnose(
     progress("simulating the model over the recording");
     let mut given = Spec::new(model.model, problem.given_states());
     given.history_max_s = problem.longest_run_s() / 3.0;
-    let search = Search {
-        problem: &problem,
-        model,
-        options,
-        floor_n,
-        pool: RefCell::new(Vec::new()),
-        cache: RefCell::new(SimCache::default()),
-        back: RefCell::default(),
-    };
+    let search = Search::new(&problem, model, options);
     let before = search.fit(&given).ok_or_else(|| diverged(&problem, &nominal, data))?;
     progress("analysing the residual");
     let analysis_before = residual::analyse(&problem, &before.sim);
@@ -858,15 +863,7 @@ fn weigh_rivals(search: &Search<'_, '_>, current: &Scored, progress: &mut dyn Fn
     }
     progress("fitting each explanation in play the other way round: on the held-out part, judged on the rest");
     let reversed = search.problem.reversed();
-    let back = Search {
-        problem: &reversed,
-        model: search.model,
-        options: search.options,
-        floor_n: search.floor_n,
-        pool: RefCell::new(Vec::new()),
-        cache: RefCell::new(SimCache::default()),
-        back: RefCell::default(),
-    };
+    let back = Search::new(&reversed, search.model, search.options);
     let mut crossed = Vec::with_capacity(in_play.len());
     let mut backs = Vec::with_capacity(in_play.len());
     for (entry, spec) in &in_play {
