@@ -8,7 +8,8 @@ use jetbench_control::{
     TrackingSample,
 };
 use jetbench_estim::{ObserverConfig, ThrustObserver};
-use jetbench_model::{Effects, Params, Plant, Preset, State, STEP_S, THROTTLE_MIN_PCT};
+use jetbench_model::turbojet::TurbojetParams;
+use jetbench_model::{Effects, ModelFile, Params, Plant, Preset, State, STEP_S, THROTTLE_MIN_PCT};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
@@ -95,9 +96,14 @@ fn mpc_tracks_saturating_steps_much_better_than_fbl() {
 
 /// One closed-loop run as on the simulated bench: the force sensor's noise (7 N²), the
 /// bench's EKF observer (`[estimator]` of config/sim.toml) between sensor and law, the
-/// throttle applied reaching the observer a cycle later; scored on the true thrust.
+/// throttle applied reaching the observer a cycle later; scored on the true thrust. The
+/// MPC's correction has no integral, as in config/sim.toml: the engine is the model.
 fn noisy_run(kind: Controller, plant: &Plant, profile: &Profile, seed: u64) -> TrackingMetrics {
-    let mut law = Law::new(kind, plant, &LawSettings::default()).expect("a feedback law");
+    let settings = LawSettings {
+        mpc: MpcSettings { integral_rad_per_s: 0.0, ..MpcSettings::default() },
+        ..LawSettings::default()
+    };
+    let mut law = Law::new(kind, plant, &settings).expect("a feedback law");
     let config = ObserverConfig { measurement_var_n2: 7.0, accel_noise_n_per_s2: 150.0, ..ObserverConfig::default() };
     let mut observer = ThrustObserver::new(plant.params, config);
     let mut engine = plant.at_equilibrium(25.0);
@@ -280,4 +286,115 @@ fn the_shaper_passes_a_feasible_reference_and_limits_an_infeasible_one() {
         let full = params.accel(shaped.thrust_n, shaped.thrust_rate_n_per_s, 100.0);
         assert!(shaped.thrust_accel_n_per_s2 <= full.max(0.0) + 1e-9);
     }
+}
+
+/// A law on `model` driving `truth` through the built-in steps (scaled to the model's
+/// range, as on the bench), the bench's calm observer between the noisy sensor and the law
+/// (`[estimator]` of config/sim.toml, its disturbance handed to the law as on the bench),
+/// the MPC's integral at `integral_rad_per_s`: each hold's steady-state error, %.
+fn holds_off_model(truth: &Plant, model: &Plant, kind: Controller, integral_rad_per_s: f64) -> Vec<f64> {
+    let params = model.params;
+    let profile = steps_profile(&params);
+    let settings =
+        LawSettings { mpc: MpcSettings { integral_rad_per_s, ..MpcSettings::default() }, ..LawSettings::default() };
+    let mut law = Law::new(kind, model, &settings).unwrap();
+    let config = ObserverConfig {
+        measurement_var_n2: 7.0,
+        accel_noise_n_per_s2: 10.0,
+        disturbance_drift_n_per_s2: 1.5,
+        ..ObserverConfig::default()
+    };
+    let mut observer = ThrustObserver::new(params, config);
+    let mut engine = truth.at_equilibrium(25.0);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let noise = Normal::new(0.0, 7.0_f64.sqrt()).unwrap();
+    let mut applied_pct = THROTTLE_MIN_PCT;
+    let mut samples = Vec::with_capacity(5600);
+    for k in 0..5600 {
+        let truth_state = engine.state();
+        let estimate = observer.step(engine.measured_n() + noise.sample(&mut rng), applied_pct).unwrap();
+        let time_s = k as f64 * STEP_S;
+        let state = State::new(estimate.thrust_n, estimate.thrust_rate_n_per_s);
+        let out = law.step_with_disturbance(state, estimate.disturbance_n_per_s2, time_s, &profile).unwrap();
+        applied_pct = out.command.throttle_pct;
+        engine.step(applied_pct).unwrap();
+        samples.push(TrackingSample {
+            time_s,
+            reference_n: out.reference.thrust_n,
+            reference_rate_n_per_s: out.reference.thrust_rate_n_per_s,
+            thrust_n: truth_state.thrust_n,
+            throttle_pct: applied_pct,
+            saturated: None,
+            fallback: out.fallback,
+            solve_us: 0,
+        });
+    }
+    let metrics = tracking_metrics(&samples, &MetricsOptions { skip_s: 1.0, ..MetricsOptions::default() }).unwrap();
+    metrics.holds[1..].iter().map(|h| h.steady_state_error_pct).collect()
+}
+
+/// A model that is off leaves the MPC without its integral an offset on every hold (about
+/// `Δa/ω²`); the integral (the default) learns the acceleration the model lacks and takes
+/// the offset out, as the observer's disturbance does for FBL. A gain error's acceleration
+/// changes with the throttle, so after a full step both relearn it over a second or two:
+/// on the 21.5 N hold after 81.9 N both are 2.3 % off in this draw, so the worst hold is
+/// held to FBL's.
+#[test]
+fn the_mpcs_integral_holds_a_model_that_is_off_on_the_reference() {
+    let mean = |e: &[f64]| e.iter().map(|x| x.abs()).sum::<f64>() / e.len() as f64;
+    let worst = |e: &[f64]| e.iter().fold(0.0_f64, |m, x| m.max(x.abs()));
+    let truth = p100();
+    let mut params = truth.params;
+    params.b_u *= 0.9;
+    let model = Plant::new(params, Effects::none());
+    let holds = |kind, integral| holds_off_model(&truth, &model, kind, integral);
+    let (without, with) =
+        (holds(Controller::Mpc, 0.0), holds(Controller::Mpc, MpcSettings::default().integral_rad_per_s));
+    let fbl = holds(Controller::Fbl, 0.0);
+    assert_eq!((without.len(), with.len(), fbl.len()), (10, 10, 10));
+    assert!(without.iter().all(|e| *e < -2.0), "a low gain leaves the thrust low: {without:.2?} %");
+    assert!(mean(&with) < 1.0, "with the integral: hold errors {with:.2?} %");
+    assert!(worst(&with) < worst(&fbl) + 0.25, "worst hold: MPC {with:.2?} %, FBL {fbl:.2?} %");
+}
+
+/// A ten-parameter model `jetbench identify` wrote from a 300 s campaign of the turbojet
+/// plant (`sim-record --plant turbojet-p100 --seed 7`, scripts/turbojet-closed-loop.sh):
+/// bounded, 1.2× the noise floor on held-out data, and stiff (`∂T̈/∂T` about −165/s² at
+/// 20 N, against the correction's ω² = 10).
+const TURBOJET_IDENTIFIED: &str = "
+[model]
+K_T = -81.21432187476843
+K_TT = -5.375524875703246
+K_D = 6.2893715593542545
+K_DD = 0.09613806326258148
+K_TD = 1.3961712704506108
+c = -149.74813576254255
+B_U = 1.2265077605185746
+B_T = 0.20274026304671314
+B_D = -0.05993556175491519
+B_UU = 0.27916478014457485
+
+[effects.rate_limit]
+up_pct_per_s = 250.0
+down_pct_per_s = 250.0
+
+[effects.discrepancy]
+B_DD = -3.294357708611699e-6
+";
+
+/// The turbojet under the MPC with the model identified from it. Without the integral the
+/// correction, which sets the model-to-engine error to `(s + ω)²` whatever the model's own
+/// stiffness, cancels most of this model's stiffness, and the corrected model settles in a
+/// state of its own: 3.6 N above the estimate and rising at 7 N/s, held there by the
+/// correction, the plan content with it. The MPC then holds 21.5 N 15 % low. With the
+/// integral no state but the estimate's can hold (its input, the innovation, must vanish).
+#[test]
+fn on_the_turbojet_with_its_identified_model_the_mpcs_integral_holds_every_step() {
+    let truth = Plant::with_turbojet(TurbojetParams::p100(), Effects::none());
+    let model = ModelFile::from_toml_str(TURBOJET_IDENTIFIED).unwrap().plant();
+    let worst = |e: &[f64]| e.iter().fold(0.0_f64, |m, x| m.max(x.abs()));
+    let without = holds_off_model(&truth, &model, Controller::Mpc, 0.0);
+    let with = holds_off_model(&truth, &model, Controller::Mpc, MpcSettings::default().integral_rad_per_s);
+    assert!(worst(&without) > 10.0, "without the integral: hold errors {without:.2?} %");
+    assert!(worst(&with) < 2.0, "with the integral: hold errors {with:.2?} %");
 }

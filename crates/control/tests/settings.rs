@@ -13,7 +13,7 @@ fn the_default_settings_are_valid() {
 
 #[test]
 fn each_bad_setting_is_named_by_its_table_and_key() {
-    let cases: [Case; 8] = [
+    let cases: [Case; 10] = [
         ("fbl", "kp", |s| s.fbl.kp = 0.0),
         ("fbl", "kd", |s| s.fbl.kd = f64::NAN),
         ("fbl", "ki", |s| s.fbl.ki = -0.1),
@@ -22,6 +22,8 @@ fn each_bad_setting_is_named_by_its_table_and_key() {
         ("smc", "beta", |s| s.smc.beta = f64::NAN),
         ("shaping", "authority", |s| s.shaping.authority = 0.0),
         ("shaping", "bandwidth_rad_per_s", |s| s.shaping.bandwidth_rad_per_s = 0.0),
+        ("mpc", "integral_rad_per_s", |s| s.mpc.integral_rad_per_s = -0.1),
+        ("mpc", "integral_rad_per_s", |s| s.mpc.integral_rad_per_s = s.mpc.correction_rad_per_s + 0.1),
     ];
     for (table, key, spoil) in cases {
         let mut settings = LawSettings::default();
@@ -34,9 +36,10 @@ fn each_bad_setting_is_named_by_its_table_and_key() {
         }
         assert!(e.to_string().starts_with(&format!("[control.{table}] controller setting {key} = ")), "{e}");
     }
-    // Zero integral gain and zero switching amplitude are legitimate laws.
+    // Zero integral gains and zero switching amplitude are legitimate laws.
     let mut settings = LawSettings::default();
     settings.fbl.ki = 0.0;
     settings.smc.beta = 0.0;
+    settings.mpc.integral_rad_per_s = 0.0;
     assert_eq!(settings.validate(), Ok(()));
 }

@@ -115,7 +115,7 @@ pub fn synthetic_recording(config: &BenchConfig, cycles: usize) -> Result<Record
 
 #[cfg(test)]
 mod tests {
-    use jetbench_control::{Controller, Law, LawSettings};
+    use jetbench_control::{Controller, Law};
     use jetbench_model::{Effects, Plant, Preset};
 
     use crate::actuation::ActuationStep;
@@ -140,7 +140,7 @@ mod tests {
         let mut sim = SimBenchStep::new(&plant, SimForceSensor::new(7.0, [0.0; 6], 3).unwrap(), 25.0);
         let mut sensing = SensingStep::new(&config.sensor).unwrap();
         let mut estimation = EstimationStep::new(params, config.estimator.observer_config(0.0));
-        let law = Law::new(kind, &plant, &LawSettings::default()).unwrap();
+        let law = Law::new(kind, &plant, &config.control.law_settings()).unwrap();
         let mut control = ControlStep::new(law, config.reference.clone());
         let mut actuator = ActuationStep::new(3);
         let mut throttle = None;

@@ -2,7 +2,7 @@
 //! `bench/reference` and `bench/events` out.
 
 use jetbench_bus::{Publisher, Subscriber, Wake};
-use jetbench_control::Profile;
+use jetbench_control::{Controller, Profile};
 use jetbench_msgs::{
     channels, command_flags, Command, EcuTelemetry, Event, OperatorCommand, Reference, ServiceId, StateEstimate,
 };
@@ -40,7 +40,20 @@ impl Service for ControlService {
         let state = Input::new(bus.subscriber(channels::STATE, 16)?, INPUT_DEADLINE);
         let law = config.control_law()?;
         match &law {
-            ControlLaw::Closed(law) => tracing::info!("controller {} on model {}", law.kind(), config.model.model),
+            ControlLaw::Closed(law) => {
+                tracing::info!("controller {} on model {}", law.kind(), config.model.model);
+                if law.kind() == Controller::Mpc && config.control.mpc.integral_rad_per_s == 0.0 {
+                    let off_model = config.bench.devices == crate::config::Devices::Bench
+                        || config.plant.model != config.model.model;
+                    if off_model {
+                        tracing::warn!(
+                            "the engine is not the model {} and [control.mpc] integral_rad_per_s is 0: whatever \
+                             the model has wrong stays on every hold as an offset; set it to 2.0",
+                            config.model.model
+                        );
+                    }
+                }
+            }
             ControlLaw::OpenLoop { throttle_pct, .. } => tracing::info!(
                 "playing a {:.1} s throttle profile open loop",
                 throttle_pct.len() as f64 * jetbench_model::STEP_S
