@@ -94,28 +94,31 @@ fn mpc_tracks_saturating_steps_much_better_than_fbl() {
     assert!(mpc < 0.7 * fbl, "MPC MAE {mpc:.2} N vs FBL {fbl:.2} N");
 }
 
-/// One closed-loop run as on the simulated bench: the force sensor's noise (7 N²), the
-/// bench's EKF observer (`[estimator]` of config/sim.toml) between sensor and law, the
-/// throttle applied reaching the observer a cycle later; scored on the true thrust. The
-/// MPC's correction has no integral, as in config/sim.toml: the engine is the model.
-fn noisy_run(kind: Controller, plant: &Plant, profile: &Profile, seed: u64) -> TrackingMetrics {
-    let settings = LawSettings {
-        mpc: MpcSettings { integral_rad_per_s: 0.0, ..MpcSettings::default() },
-        ..LawSettings::default()
-    };
-    let mut law = Law::new(kind, plant, &settings).expect("a feedback law");
-    let config = ObserverConfig { measurement_var_n2: 7.0, accel_noise_n_per_s2: 150.0, ..ObserverConfig::default() };
-    let mut observer = ThrustObserver::new(plant.params, config);
-    let mut engine = plant.at_equilibrium(25.0);
+/// One closed-loop run as on the simulated bench, 56 s: `law` on `model` driving `truth`, the
+/// force sensor's noise (7 N², drawn from `seed`), an EKF observer of `config` between sensor
+/// and law (its disturbance handed to the law, as the control service does), the throttle
+/// applied reaching the observer a cycle later; scored on the true thrust.
+fn observed_run(
+    truth: &Plant,
+    model: &Plant,
+    law: (Controller, &LawSettings),
+    config: ObserverConfig,
+    profile: &Profile,
+    seed: u64,
+) -> TrackingMetrics {
+    let mut law = Law::new(law.0, model, law.1).expect("a feedback law");
+    let mut observer = ThrustObserver::new(model.params, config);
+    let mut engine = truth.at_equilibrium(25.0);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let noise = Normal::new(0.0, 7.0_f64.sqrt()).unwrap();
     let mut applied_pct = THROTTLE_MIN_PCT;
     let mut samples = Vec::with_capacity(5600);
     for k in 0..5600 {
-        let truth = engine.state();
+        let truth_state = engine.state();
         let estimate = observer.step(engine.measured_n() + noise.sample(&mut rng), applied_pct).unwrap();
         let time_s = k as f64 * STEP_S;
-        let out = law.step(State::new(estimate.thrust_n, estimate.thrust_rate_n_per_s), time_s, profile).unwrap();
+        let state = State::new(estimate.thrust_n, estimate.thrust_rate_n_per_s);
+        let out = law.step_with_disturbance(state, estimate.disturbance_n_per_s2, time_s, profile).unwrap();
         applied_pct = out.command.throttle_pct;
         engine.step(applied_pct).unwrap();
         let limit = if out.command.unclamped_pct < THROTTLE_MIN_PCT { ThrottleLimit::Low } else { ThrottleLimit::High };
@@ -123,7 +126,7 @@ fn noisy_run(kind: Controller, plant: &Plant, profile: &Profile, seed: u64) -> T
             time_s,
             reference_n: out.reference.thrust_n,
             reference_rate_n_per_s: out.reference.thrust_rate_n_per_s,
-            thrust_n: truth.thrust_n,
+            thrust_n: truth_state.thrust_n,
             throttle_pct: applied_pct,
             saturated: out.command.saturated.then_some(limit),
             fallback: out.fallback,
@@ -131,6 +134,18 @@ fn noisy_run(kind: Controller, plant: &Plant, profile: &Profile, seed: u64) -> T
         });
     }
     tracking_metrics(&samples, &MetricsOptions { skip_s: 1.0, ..MetricsOptions::default() }).unwrap()
+}
+
+/// [`observed_run`] on the model itself with the observer tuning the control issue was
+/// accepted on (150 N/s² of unmodelled acceleration, no disturbance state). The MPC's
+/// correction has no integral, as in config/sim.toml: the engine is the model.
+fn noisy_run(kind: Controller, plant: &Plant, profile: &Profile, seed: u64) -> TrackingMetrics {
+    let settings = LawSettings {
+        mpc: MpcSettings { integral_rad_per_s: 0.0, ..MpcSettings::default() },
+        ..LawSettings::default()
+    };
+    let config = ObserverConfig { measurement_var_n2: 7.0, accel_noise_n_per_s2: 150.0, ..ObserverConfig::default() };
+    observed_run(plant, plant, (kind, &settings), config, profile, seed)
 }
 
 /// The control issue's acceptance on the steps with sensor noise: the MPC's MAE at least
@@ -289,47 +304,19 @@ fn the_shaper_passes_a_feasible_reference_and_limits_an_infeasible_one() {
 }
 
 /// A law on `model` driving `truth` through the built-in steps (scaled to the model's
-/// range, as on the bench), the bench's calm observer between the noisy sensor and the law
-/// (`[estimator]` of config/sim.toml, its disturbance handed to the law as on the bench),
-/// the MPC's integral at `integral_rad_per_s`: each hold's steady-state error, %.
+/// range, as on the bench), the bench's calm observer (`[estimator]` of config/sim.toml), the
+/// MPC's integral at `integral_rad_per_s`: each hold's steady-state error, %.
 fn holds_off_model(truth: &Plant, model: &Plant, kind: Controller, integral_rad_per_s: f64) -> Vec<f64> {
-    let params = model.params;
-    let profile = steps_profile(&params);
+    let profile = steps_profile(&model.params);
     let settings =
         LawSettings { mpc: MpcSettings { integral_rad_per_s, ..MpcSettings::default() }, ..LawSettings::default() };
-    let mut law = Law::new(kind, model, &settings).unwrap();
     let config = ObserverConfig {
         measurement_var_n2: 7.0,
         accel_noise_n_per_s2: 10.0,
         disturbance_drift_n_per_s2: 1.5,
         ..ObserverConfig::default()
     };
-    let mut observer = ThrustObserver::new(params, config);
-    let mut engine = truth.at_equilibrium(25.0);
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-    let noise = Normal::new(0.0, 7.0_f64.sqrt()).unwrap();
-    let mut applied_pct = THROTTLE_MIN_PCT;
-    let mut samples = Vec::with_capacity(5600);
-    for k in 0..5600 {
-        let truth_state = engine.state();
-        let estimate = observer.step(engine.measured_n() + noise.sample(&mut rng), applied_pct).unwrap();
-        let time_s = k as f64 * STEP_S;
-        let state = State::new(estimate.thrust_n, estimate.thrust_rate_n_per_s);
-        let out = law.step_with_disturbance(state, estimate.disturbance_n_per_s2, time_s, &profile).unwrap();
-        applied_pct = out.command.throttle_pct;
-        engine.step(applied_pct).unwrap();
-        samples.push(TrackingSample {
-            time_s,
-            reference_n: out.reference.thrust_n,
-            reference_rate_n_per_s: out.reference.thrust_rate_n_per_s,
-            thrust_n: truth_state.thrust_n,
-            throttle_pct: applied_pct,
-            saturated: None,
-            fallback: out.fallback,
-            solve_us: 0,
-        });
-    }
-    let metrics = tracking_metrics(&samples, &MetricsOptions { skip_s: 1.0, ..MetricsOptions::default() }).unwrap();
+    let metrics = observed_run(truth, model, (kind, &settings), config, &profile, 7);
     metrics.holds[1..].iter().map(|h| h.steady_state_error_pct).collect()
 }
 
