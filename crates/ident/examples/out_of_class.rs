@@ -5,11 +5,13 @@
 //! over the noise floor.
 //!
 //! ```sh
-//! scripts/out-of-class.sh [N=20] [FIRST_SEED=1] [DURATION_S=300] [oe]
+//! scripts/out-of-class.sh [N=20] [FIRST_SEED=1] [DURATION_S=300] [oe|ironcub|effects|schedule]
 //! ```
 //!
 //! With `oe` the simulation-error refinement runs on every campaign (`identify --method
-//! all,oe`), not only to repair when no other model is bounded.
+//! all,oe`), not only to repair when no other model is bounded. With `schedule` the
+//! structure search may pace the model with an acceleration schedule (`identify
+//! --schedule`).
 //!
 //! With `ironcub` the engine is the iRonCub group's 13-coefficient jet
 //! (`jetbench_model::ironcub`) driven by `excite::ironcub_signal` (544 s, 0–100 %; the
@@ -83,7 +85,8 @@ fn main() -> anyhow::Result<()> {
     let always_oe = args.get(3).is_some_and(|a| a == "oe");
     let ironcub = args.get(3).is_some_and(|a| a == "ironcub");
     let effects = args.get(3).is_some_and(|a| a == "effects");
-    let mut options = Options::default();
+    let schedule = args.get(3).is_some_and(|a| a == "schedule");
+    let mut options = Options { schedule, ..Options::default() };
     if always_oe {
         options.methods.push(Method::Oe);
     }
@@ -107,10 +110,11 @@ fn main() -> anyhow::Result<()> {
     );
     println!(
         "methods: {}\n",
-        if always_oe {
-            "ls, ekf, sindy and the refinement (oe) on every campaign"
-        } else {
-            "ls, ekf, sindy; oe to repair"
+        match (always_oe, schedule) {
+            (true, _) => "ls, ekf, sindy and the refinement (oe) on every campaign",
+            (false, true) =>
+                "ls, ekf, sindy; oe to repair; the structure search may pace the model (identify --schedule)",
+            (false, false) => "ls, ekf, sindy; oe to repair",
         }
     );
     println!(

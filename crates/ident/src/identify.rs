@@ -89,6 +89,10 @@ pub struct Options {
     /// Extend the best bounded ten-parameter model by the terms of the discrepancy library
     /// that held-out data pays for ([`crate::structure`]).
     pub structure: bool,
+    /// Let the structure search pace the model with an acceleration schedule too (off by
+    /// default: a paced model's ten parameters alone are not a model of the engine, and the
+    /// estimator and FBL use them alone, so the bench refuses such a model).
+    pub schedule: bool,
 }
 
 impl Default for Options {
@@ -101,6 +105,7 @@ impl Default for Options {
             refine: crate::refine::RefineOptions::default(),
             repair: true,
             structure: true,
+            schedule: false,
         }
     }
 }
@@ -442,7 +447,7 @@ pub fn identify(
     if options.structure {
         if let Some((method, params)) = report.best_params().map(|(r, p)| (r.method, p)) {
             progress(method, "choosing structure");
-            report.structure = Some(crate::structure::choose(calibration, validation, params));
+            report.structure = Some(crate::structure::choose(calibration, validation, params, options.schedule));
         }
     }
     // The free run of the model the file gets, on the held-out data: the extended model's,

@@ -1,6 +1,6 @@
 //! Structure chosen by the data: the ten parameters extended by the terms of the
 //! discrepancy library ([`jetbench_model::discrepancy`]) and the throttle-path effect of
-//! the catalogue that held-out data pays for.
+//! the catalogue or the acceleration schedule that held-out data pays for.
 //!
 //! The terms are the ones a diagnosis knows: input gain in `T²`, `Ṫ²` and `T·Ṫ`
 //! (`B_TT`, `B_DD`, `B_TD`, the iRonCub group's later jet model) and hinges in the
@@ -26,11 +26,13 @@
 //! alone are then fitted by Gauss–Newton on the simulation (output) error and judged by
 //! real simulations.
 //!
-//! Then the throttle path: an input delay, an actuator lag (first order) and a rate limit
-//! (the catalogue's effects on the way in, which the model's throttle path runs) are each
-//! fitted, with the ten parameters and the terms kept, on the simulation error from the
-//! best of a few starting values, and the one that pays most against what was kept, by the
-//! same score and bar, is added (at most one). Every part must then still earn its place.
+//! Then the way in and the pace: an input delay, an actuator lag (first order) and a rate
+//! limit (the catalogue's effects on the way in, which the model's throttle path runs),
+//! and an acceleration schedule (the thrust rate bounded by a power of the thrust, the
+//! ECU's fuel schedule pacing the spool) are each fitted, with the ten parameters and the
+//! terms kept, on the simulation error from the best of a few starting values, and the one
+//! that pays most against what was kept, by the same score and bar, is added (at most
+//! one). Every part must then still earn its place.
 //!
 //! The extended model is written only when it stays bounded over the
 //! throttle range: a rest point at every throttle of a 2.5 % grid that a staircase and
@@ -52,6 +54,9 @@ use crate::spd::SpdSolver;
 pub const MAX_TERMS: usize = 4;
 /// Gauss–Newton iterations of each fit on the simulation error.
 const ITERATIONS: usize = 3;
+/// Gauss–Newton iterations of a fit that moves an acceleration schedule's four values,
+/// whose starting grid is coarse.
+const SCHEDULE_ITERATIONS: usize = 8;
 
 /// One column of the library: a term at one knot.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -148,27 +153,32 @@ struct Search<'p, 'a> {
     problem: &'p Problem<'a>,
     states: Vec<State>,
     n_val: f64,
+    /// The recorded throttle's range, %.
+    range: (f64, f64),
 }
 
-/// A candidate model: the ten parameters, the discrepancy's values and a throttle-path
-/// effect of the catalogue with its values (a rate limit has two, the others one).
+/// Most values of an effect tried as structure (an acceleration schedule's four).
+const PATH_VALUES: usize = 4;
+
+/// A candidate model: the ten parameters, the discrepancy's values and one effect tried
+/// as structure with its values (a schedule has four, a rate limit two, the others one).
 #[derive(Clone, Debug, PartialEq)]
 struct Candidate {
     params: [f64; 10],
     disc: [f64; DISCREPANCY_KEYS.len()],
-    path: Option<(EffectKind, [f64; 2])>,
+    path: Option<(EffectKind, [f64; PATH_VALUES])>,
 }
 
 impl Candidate {
     /// Adds `delta` to value `index`: the ten parameters (0–9), the discrepancy (10–18),
-    /// the throttle path (19, 20; kept within what a fit may explore).
+    /// the effect tried as structure (19–22; kept within what a fit may explore).
     fn add(&mut self, index: usize, delta: f64) {
         match index {
             0..10 => self.params[index] += delta,
             10..19 => self.disc[index - 10] += delta,
             _ => {
                 if let Some((kind, values)) = &mut self.path {
-                    let (lo, hi) = path_range(*kind);
+                    let (lo, hi) = path_range(*kind, index - 19);
                     values[index - 19] = (values[index - 19] + delta).clamp(lo, hi);
                 }
             }
@@ -227,7 +237,7 @@ impl Search<'_, '_> {
     }
 
     /// Sensitivity of the output to a change `delta` of value `index` of the candidate's
-    /// parameters (0–9), discrepancy (10–18) or throttle path (19, 20), whitened over
+    /// parameters (0–9), discrepancy (10–18) or effect tried as structure (19–22), whitened over
     /// calibration and validation.
     fn column(&self, c: &Candidate, sim: &Sim, index: usize, delta: f64) -> Option<(Vec<f64>, Vec<f64>)> {
         let mut probe = c.clone();
@@ -258,44 +268,65 @@ impl Search<'_, '_> {
     }
 
     /// Gauss–Newton on the calibration simulation error over the ten parameters and
-    /// the values `free` (0–8: the discrepancy's; 9, 10: the throttle path's), from
-    /// `start`; the best candidate seen by calibration error, with its simulation.
+    /// the values `free` (0–8: the discrepancy's; 9–12: the effect tried as structure),
+    /// from `start`; the best candidate seen by calibration error, with its simulation.
     fn fit(&self, start: &Candidate, free: &[usize]) -> Option<(Candidate, Sim)> {
         let mut current = start.clone();
         let mut sim = self.simulate(&current)?;
         let cal_sse = |sim: &Sim| self.problem.sse(sim, Part::Calibration).0;
         let mut best_sse = cal_sse(&sim);
-        for _ in 0..ITERATIONS {
+        let schedule = matches!(start.path, Some((EffectKind::AccelSchedule, _))) && free.iter().any(|&j| j >= 9);
+        'iterations: for _ in 0..if schedule { SCHEDULE_ITERATIONS } else { ITERATIONS } {
             let (r_cal, _) = self.residuals(&sim);
             let mut cols = Vec::new();
             let mut index = Vec::new();
+            let mut probes = Vec::new();
             for i in 0..10 {
-                let d = Self::param_delta(&current.params, i);
-                let (cal, _) = self.column(&current, &sim, i, d)?;
-                cols.push(cal);
-                index.push(i);
+                probes.push((i, Self::param_delta(&current.params, i)));
             }
             for &j in free {
                 let d = match (j, current.path) {
                     (0..9, _) => discrepancy::probe(j),
-                    (_, Some((kind, values))) => path_delta(kind, values[j - 9]),
+                    (_, Some((kind, values))) => path_delta(kind, j - 9, values[j - 9]),
                     (_, None) => return None,
                 };
-                let (cal, _) = self.column(&current, &sim, 10 + j, d)?;
-                cols.push(cal);
-                index.push(10 + j);
+                probes.push((10 + j, d));
+            }
+            for (i, d) in probes {
+                // A model sped up for a schedule is stiff: a probe that diverges is tried the
+                // other way, and if that diverges too the fit keeps the best it has.
+                let column = match self.column(&current, &sim, i, d) {
+                    None if schedule => self.column(&current, &sim, i, -d),
+                    column => column,
+                };
+                match column {
+                    Some((cal, _)) => cols.push(cal),
+                    None if schedule => break 'iterations,
+                    None => return None,
+                }
+                index.push(i);
             }
             if cols.iter().any(|c| c.len() != r_cal.len()) {
                 return None;
             }
-            let theta = solve(&cols, &r_cal, &(0..cols.len()).collect::<Vec<_>>())?;
-            // Halve the step until the calibration error falls.
-            let mut step = 1.0;
+            let all: Vec<usize> = (0..cols.len()).collect();
+            let theta = solve(&cols, &r_cal, &all, 0.0)?;
+            // Halve the step until the calibration error falls; a schedule's fit then damps
+            // the step instead (Levenberg–Marquardt): where the schedule binds, the error is
+            // not smooth in its values and the plain step can point nowhere useful.
+            let damped: &[f64] = if schedule { &[0.01, 0.1, 1.0, 10.0] } else { &[] };
+            let tries = (0..6)
+                .map(|h| (theta.clone(), 0.5f64.powi(h)))
+                .chain(damped.iter().filter_map(|&lambda| Some((solve(&cols, &r_cal, &all, lambda)?, 1.0))));
             let mut improved = false;
-            for _ in 0..6 {
+            for (theta, step) in tries {
                 let mut next = current.clone();
                 for (&i, t) in index.iter().zip(theta.iter()) {
                     next.add(i, step * t);
+                }
+                // A schedule's fit stays where the ten parameters rest stably (see [`rests_stably`]).
+                if schedule && !rests_stably(&next.params, self.range.0, self.range.1) {
+                    continue;
                 }
                 if let Some(s) = self.simulate(&next) {
                     let e = cal_sse(&s);
@@ -304,7 +335,6 @@ impl Search<'_, '_> {
                         break;
                     }
                 }
-                step *= 0.5;
             }
             if !improved {
                 break;
@@ -314,11 +344,19 @@ impl Search<'_, '_> {
     }
 }
 
-/// Least squares of `r` on the columns `active` (Gram matrix scaled to a unit diagonal).
-fn solve(cols: &[Vec<f64>], r: &[f64], active: &[usize]) -> Option<DVector<f64>> {
+/// Least squares of `r` on the columns `active` (Gram matrix scaled to a unit diagonal),
+/// damped by `lambda` times the Gram matrix's diagonal (Marquardt's; 0: none).
+fn solve(cols: &[Vec<f64>], r: &[f64], active: &[usize], lambda: f64) -> Option<DVector<f64>> {
     let m = active.len();
     let dot = |x: &[f64], y: &[f64]| -> f64 { x.iter().zip(y).map(|(a, b)| a * b).sum() };
-    let gram = DMatrix::from_fn(m, m, |i, j| dot(&cols[active[i]], &cols[active[j]]));
+    let gram = DMatrix::from_fn(m, m, |i, j| {
+        let g = dot(&cols[active[i]], &cols[active[j]]);
+        if i == j {
+            g * (1.0 + lambda)
+        } else {
+            g
+        }
+    });
     let rhs = DVector::from_fn(m, |i, _| dot(&cols[active[i]], r));
     let theta = SpdSolver::new(gram)?.solve(&rhs);
     theta.iter().all(|t| t.is_finite()).then_some(theta)
@@ -377,7 +415,13 @@ pub fn unbounded_over(plant: &Plant, lo: f64, hi: f64) -> Option<String> {
 ///
 /// `Err` says why no search could be made (held-out files that are not the recordings'
 /// tails, too little data, the base model diverging on the data).
-pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Result<Structure, String> {
+/// `schedule` lets the search try an acceleration schedule beside the throttle-path effects.
+pub fn choose(
+    calibration: &[Series],
+    validation: &[Series],
+    base: Params,
+    schedule: bool,
+) -> Result<Structure, String> {
     let (data, holdout) = rejoin(calibration, validation).ok_or_else(|| {
         "the held-out data is not the tail of the calibration recordings (separate validation files)".to_owned()
     })?;
@@ -385,7 +429,10 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
     let problem = Problem::new(&data, &base_plant, holdout).map_err(|e| e.to_string())?;
     let settings = crate::diagnose::Options::default();
     let floor_n = problem.noise.mae_n;
-    let search = Search { states: problem.given_states(), problem: &problem, n_val: 0.0 };
+    let recorded = problem.runs.iter().flat_map(|r| r.u.iter().copied()).filter(|u| u.is_finite());
+    let (range_lo, range_hi) =
+        recorded.fold((THROTTLE_MIN_PCT, THROTTLE_MAX_PCT), |(lo, hi), u| (lo.min(u), hi.max(u)));
+    let search = Search { states: problem.given_states(), problem: &problem, n_val: 0.0, range: (range_lo, range_hi) };
     let start = Candidate { params: base.to_array(), disc: DISCREPANCY_DEFAULTS, path: None };
     let sim0 = search.simulate(&start).ok_or("the ten-parameter model diverges on the data")?;
     let (r_cal, r_val) = search.residuals(&sim0);
@@ -417,8 +464,11 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
     // Sensitivities: the ten parameters first, then the library.
     let (mut cal, mut val, mut usable) = (Vec::new(), Vec::new(), Vec::new());
     for i in 0..10 {
+        // A probe that leaves a stiff model's stable range is tried the other way.
+        let d = Search::param_delta(&start.params, i);
         let (c, v) = search
-            .column(&start, &sim0, i, Search::param_delta(&start.params, i))
+            .column(&start, &sim0, i, d)
+            .or_else(|| search.column(&start, &sim0, i, -d))
             .ok_or("a parameter's sensitivity could not be simulated")?;
         cal.push(c);
         val.push(v);
@@ -447,7 +497,7 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
             .sum()
     };
     let params: Vec<usize> = (0..10).collect();
-    let refit_theta = solve(&cal, &r_cal, &params).ok_or("the parameters' sensitivities are singular")?;
+    let refit_theta = solve(&cal, &r_cal, &params, 0.0).ok_or("the parameters' sensitivities are singular")?;
     let linear_refit = search.score(predicted_sse(&params, &refit_theta), 0);
 
     // Greedy forward selection on the calibration fit, each prefix scored on held-out data.
@@ -461,7 +511,7 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
             .filter_map(|a| {
                 let mut cols = params.clone();
                 cols.extend(active.iter().chain([&a]).map(|&b| 10 + b));
-                let theta = solve(&cal, &r_cal, &cols)?;
+                let theta = solve(&cal, &r_cal, &cols, 0.0)?;
                 let explained: f64 = cols.iter().zip(theta.iter()).map(|(&c, t)| dot(&cal[c], &r_cal) * t).sum();
                 Some((explained, a))
             })
@@ -470,7 +520,7 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
         active.push(a);
         let mut cols = params.clone();
         cols.extend(active.iter().map(|&b| 10 + b));
-        let Some(theta) = solve(&cal, &r_cal, &cols) else { break };
+        let Some(theta) = solve(&cal, &r_cal, &cols, 0.0) else { break };
         let k: usize = active.iter().map(|&b| library[usable[b]].cost()).sum();
         let s = search.score(predicted_sse(&cols, &theta), k);
         if best.as_ref().is_none_or(|(b, _)| s < *b) {
@@ -513,7 +563,7 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
             }
             let mut cols = params.clone();
             cols.extend(chosen.iter().map(|&b| 10 + b));
-            if let Some(theta) = solve(&cal, &r_cal, &cols) {
+            if let Some(theta) = solve(&cal, &r_cal, &cols, 0.0) {
                 let mut linear = start_ext.clone();
                 for (&c, t) in cols.iter().zip(theta.iter()) {
                     if c < 10 {
@@ -553,8 +603,8 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
         )),
     }
 
-    // 2. The throttle path: each effect of the catalogue on the way in, fitted with what was
-    // kept, kept when it pays against that.
+    // 2. The way in and the pace: each effect of the catalogue on the way in, and an
+    // acceleration schedule, fitted with what was kept, kept when it pays against that.
     let base = kept.clone().unwrap_or_else(|| Fitted {
         terms: Vec::new(),
         model: refit.clone(),
@@ -564,12 +614,31 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
     let base_score = base.score(&search);
     let mut tried = Vec::new();
     let mut best_path: Option<Fitted> = None;
-    for kind in PATH_EFFECTS {
-        let Some(start) = search.path_start(&base.model, kind) else { continue };
+    for kind in PATH_EFFECTS.into_iter().filter(|&k| schedule || k != EffectKind::AccelSchedule) {
         let mut terms = base.terms.clone();
         terms.push(Term::Path(kind));
-        let Some(fitted) = search.fit_judged(&start, terms) else {
-            tried.push(format!("{} diverges", kind.name()));
+        // A schedule is fitted from its three best starts, and only a bounded fit counts: a
+        // sped-up model can leave its rest points behind.
+        let (fits, bounded_only) = if kind == EffectKind::AccelSchedule { (3, true) } else { (1, false) };
+        let fitted = search
+            .path_starts_ranked(&base.model, kind)
+            .iter()
+            .take(fits)
+            .filter_map(|start| search.fit_judged(start, terms.clone()))
+            .filter(|f| {
+                !bounded_only
+                    || (rests_stably(&f.model.params, range_lo, range_hi)
+                        && f.model
+                            .model_file()
+                            .is_some_and(|m| unbounded_over(&m.plant(), range_lo, range_hi).is_none()))
+            })
+            .min_by(|a, b| a.score(&search).total_cmp(&b.score(&search)));
+        let Some(fitted) = fitted else {
+            tried.push(format!(
+                "{} {}",
+                kind.name(),
+                if bounded_only { "diverges or is not bounded" } else { "diverges" }
+            ));
             continue;
         };
         let gain = base_score - fitted.score(&search);
@@ -580,7 +649,8 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
             best_path = Some(fitted);
         }
     }
-    let path_note = format!("no throttle-path effect pays against it ({})", tried.join(", "));
+    let what = if schedule { "no throttle-path effect or acceleration schedule" } else { "no throttle-path effect" };
+    let path_note = format!("{what} pays against it ({})", tried.join(", "));
     // Every part must still earn its place beside the path effect; without a path effect
     // that keeps its place, the library's terms stand alone, if any were kept.
     let with_path = best_path
@@ -609,9 +679,14 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
         structure.verdict = format!("{labels}: the fitted values leave the effects' bounds");
         return Ok(structure);
     };
-    let recorded = problem.runs.iter().flat_map(|r| r.u.iter().copied()).filter(|u| u.is_finite());
-    let (range_lo, range_hi) =
-        recorded.fold((THROTTLE_MIN_PCT, THROTTLE_MAX_PCT), |(lo, hi), u| (lo.min(u), hi.max(u)));
+    let paced = matches!(fitted.model.path, Some((EffectKind::AccelSchedule, _)));
+    if paced && !rests_stably(&fitted.model.params, range_lo, range_hi) {
+        structure.verdict = format!(
+            "{labels} pays on held-out data ({gain:+.1} score units) but, paced by the schedule, the ten parameters \
+             lose a stable rest point within {range_lo:.0}–{range_hi:.0} %; the ten-parameter model is kept"
+        );
+        return Ok(structure);
+    }
     if let Some(why) = unbounded_over(&file.plant(), range_lo, range_hi) {
         structure.verdict = format!(
             "{labels} pays on held-out data ({gain:+.1} score units) but the extended model is not bounded over \
@@ -638,44 +713,167 @@ pub fn choose(calibration: &[Series], validation: &[Series], base: Params) -> Re
     Ok(structure)
 }
 
-/// The throttle-path effects of the catalogue tried as structure: what happens to the
-/// throttle before the engine follows it (the model's [`jetbench_model::ThrottlePath`]).
-const PATH_EFFECTS: [EffectKind; 3] = [EffectKind::InputDelay, EffectKind::ActuatorLag, EffectKind::RateLimit];
+/// The effects tried as structure: what happens to the throttle before the engine
+/// follows it (the catalogue's delay, lag and rate limit: the model's
+/// [`jetbench_model::ThrottlePath`]), and how fast the engine may move (an acceleration
+/// schedule).
+const PATH_EFFECTS: [EffectKind; 4] =
+    [EffectKind::InputDelay, EffectKind::ActuatorLag, EffectKind::RateLimit, EffectKind::AccelSchedule];
 
-/// Where a fit of a throttle-path effect may start (a rate limit the same both ways).
-fn path_starts(kind: EffectKind) -> &'static [f64] {
+/// Where a fit of an effect tried as structure may start: a delay or a lag at four
+/// sizes; a rate limit the same both ways at four rates; a schedule the same both ways at
+/// three rates at 100 N, growing with the thrust to the power 1, 1.5 or 2, from a 5 N offset.
+fn path_starts(kind: EffectKind) -> Vec<[f64; PATH_VALUES]> {
+    let one = |values: &[f64]| values.iter().map(|&v| [v, v, 0.0, 0.0]).collect();
     match kind {
-        EffectKind::InputDelay => &[0.02, 0.05, 0.1, 0.2],
-        EffectKind::ActuatorLag => &[0.03, 0.08, 0.2, 0.5],
-        _ => &[30.0, 60.0, 120.0, 250.0],
+        EffectKind::InputDelay => one(&[0.02, 0.05, 0.1, 0.2]),
+        EffectKind::ActuatorLag => one(&[0.03, 0.08, 0.2, 0.5]),
+        EffectKind::AccelSchedule => [150.0, 500.0, 1500.0]
+            .into_iter()
+            .flat_map(|rate| [1.0, 1.5, 2.0].map(|exponent| [rate, rate, exponent, 5.0]))
+            .collect(),
+        _ => one(&[30.0, 60.0, 120.0, 250.0]),
     }
 }
 
-/// The range a fit of a throttle-path effect's values may explore (the diagnosis's).
-fn path_range(kind: EffectKind) -> (f64, f64) {
+/// The range a fit of value `index` of an effect tried as structure may explore (the
+/// diagnosis's for the catalogue; a schedule's physical range).
+fn path_range(kind: EffectKind, index: usize) -> (f64, f64) {
     match kind {
         EffectKind::InputDelay => (0.0, 1.0),
         EffectKind::ActuatorLag => (0.002, 3.0),
+        EffectKind::AccelSchedule => kind.physical()[index.min(PATH_VALUES - 1)],
         _ => (1.0, 2000.0),
     }
 }
 
-/// The probe of a throttle-path value `v`: 2 ms of delay or lag, 2 % of a rate limit,
-/// pointing away from the edge of its range.
-fn path_delta(kind: EffectKind, v: f64) -> f64 {
-    let d = match kind {
-        EffectKind::InputDelay | EffectKind::ActuatorLag => 0.002,
+/// The probe of value `index`, `v`, of an effect tried as structure: 2 ms of delay or
+/// lag, 2 % of a rate, 0.02 of a schedule's exponent, 0.5 N of its offset, pointing away
+/// from the edge of its range.
+fn path_delta(kind: EffectKind, index: usize, v: f64) -> f64 {
+    let d = match (kind, index) {
+        (EffectKind::InputDelay | EffectKind::ActuatorLag, _) => 0.002,
+        (EffectKind::AccelSchedule, 2) => 0.02,
+        (EffectKind::AccelSchedule, 3) => 0.5,
         _ => (0.02 * v).max(0.5),
     };
-    if v + d > path_range(kind).1 {
+    if v + d > path_range(kind, index).1 {
         -d
     } else {
         d
     }
 }
 
-/// A part of the structure: a term of the discrepancy library at its knot, or a
-/// throttle-path effect.
+/// Half the window of the local slopes [`envelope_schedule`] reads, samples (0.1 s).
+const ENVELOPE_HALF: usize = 10;
+/// Thrust bands of [`envelope_schedule`].
+const ENVELOPE_BANDS: usize = 8;
+/// Offsets [`envelope_schedule`] tries, N.
+const ENVELOPE_OFFSETS_N: [f64; 7] = [0.0, 2.0, 5.0, 10.0, 20.0, 40.0, 80.0];
+
+/// A schedule read off the calibration data: in each of [`ENVELOPE_BANDS`] bands of
+/// thrust (equal counts), the fastest the measured thrust rose and fell (the 98th
+/// percentile of its slope over 0.2 s), and a power law of `T + offset_n` through both,
+/// the exponent and offset shared, fitted in logarithms. `None` when the data never moves
+/// both ways in every band. A start for the fit, not a fit: where the data never met the
+/// schedule, the envelope is the campaign's pace, not the engine's.
+fn envelope_schedule(problem: &Problem<'_>) -> Option<[f64; PATH_VALUES]> {
+    let mut slopes: Vec<(f64, f64)> = Vec::new();
+    for run in &problem.runs {
+        let y = &run.y;
+        for k in ENVELOPE_HALF..y.len().saturating_sub(ENVELOPE_HALF) {
+            if !run.in_part(k, Part::Calibration) {
+                continue;
+            }
+            let (mut n, mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+            for (j, &v) in y.iter().enumerate().take(k + ENVELOPE_HALF + 1).skip(k - ENVELOPE_HALF) {
+                if v.is_finite() {
+                    let x = (j as f64 - k as f64) * jetbench_model::STEP_S;
+                    (n, sx, sy, sxx, sxy) = (n + 1.0, sx + x, sy + v, sxx + x * x, sxy + x * v);
+                }
+            }
+            let det = n * sxx - sx * sx;
+            if n >= (ENVELOPE_HALF + 1) as f64 && det > 0.0 {
+                slopes.push((sy / n, (n * sxy - sx * sy) / det));
+            }
+        }
+    }
+    if slopes.len() < 100 * ENVELOPE_BANDS {
+        return None;
+    }
+    slopes.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let quantile = |mut v: Vec<f64>| -> f64 {
+        v.sort_by(f64::total_cmp);
+        v[((v.len() - 1) as f64 * 0.98) as usize]
+    };
+    let per_band = slopes.len() / ENVELOPE_BANDS;
+    let mut bands = Vec::new();
+    for band in slopes.chunks(per_band).take(ENVELOPE_BANDS) {
+        let thrust = band.iter().map(|s| s.0).sum::<f64>() / band.len() as f64;
+        let up = quantile(band.iter().map(|s| s.1).collect());
+        let down = quantile(band.iter().map(|s| -s.1).collect());
+        if !(up > 0.0 && down > 0.0) {
+            return None;
+        }
+        bands.push((thrust, up.ln(), down.ln()));
+    }
+    // ln rate = a + p·ln((T + offset)/100 N), a per direction; least squares per offset.
+    let mut best: Option<(f64, [f64; PATH_VALUES])> = None;
+    for offset in ENVELOPE_OFFSETS_N {
+        if bands.iter().any(|b| b.0 + offset <= 1.0) {
+            continue;
+        }
+        let x: Vec<f64> = bands.iter().map(|b| ((b.0 + offset) / jetbench_model::SCHEDULE_REFERENCE_N).ln()).collect();
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+        let up: Vec<f64> = bands.iter().map(|b| b.1).collect();
+        let down: Vec<f64> = bands.iter().map(|b| b.2).collect();
+        let (mx, mu, md) = (mean(&x), mean(&up), mean(&down));
+        let sxx: f64 = x.iter().map(|v| (v - mx).powi(2)).sum();
+        if sxx <= 0.0 {
+            continue;
+        }
+        let sxy: f64 = x.iter().zip(up.iter().zip(&down)).map(|(v, (a, b))| (v - mx) * (a - mu + b - md)).sum();
+        let (lo, hi) = path_range(EffectKind::AccelSchedule, 2);
+        let p = (sxy / (2.0 * sxx)).clamp(lo, hi);
+        let (a_up, a_down) = (mu - p * mx, md - p * mx);
+        let sse: f64 = x
+            .iter()
+            .zip(up.iter().zip(&down))
+            .map(|(v, (a, b))| (a - a_up - p * v).powi(2) + (b - a_down - p * v).powi(2))
+            .sum();
+        let (rate_lo, rate_hi) = path_range(EffectKind::AccelSchedule, 0);
+        let values = [a_up.exp().clamp(rate_lo, rate_hi), a_down.exp().clamp(rate_lo, rate_hi), p, offset];
+        if best.is_none_or(|(b, _)| sse < b) {
+            best = Some((sse, values));
+        }
+    }
+    best.map(|(_, v)| v)
+}
+
+/// True when the ten parameters have a stable rest point at every throttle of a 2.5 % grid
+/// over `lo..=hi` %. A schedule bounds the thrust rate, so a model paced by one stays
+/// bounded in simulation even where its own rest point is gone or unstable: the rest
+/// points are checked on their own.
+fn rests_stably(params: &[f64; 10], lo: f64, hi: f64) -> bool {
+    let p = Params::from_array(*params);
+    let steps = ((hi - lo) / 2.5).ceil().max(1.0) as usize;
+    (0..=steps).all(|i| p.stable_equilibrium((lo + 2.5 * i as f64).min(hi)).is_some())
+}
+
+/// How many times faster than the model without it a fit with a schedule may start.
+const SCHEDULE_SPEED_UPS: [f64; 3] = [1.0, 2.0, 4.0];
+
+/// The ten parameters of a model `speed` times faster, with the same rest points: time
+/// scaled by `1/speed`, `T̈ = speed²·(f + g·v)(T, Ṫ/speed)`. Terms in `Ṫ` scale with
+/// `speed`, in `Ṫ²` not at all, the rest with `speed²`; `B_UU` shapes the throttle map.
+fn sped_up(params: &[f64; 10], speed: f64) -> [f64; 10] {
+    let (s1, s2) = (speed, speed * speed);
+    let scale = [s2, s2, s1, 1.0, s1, s2, s2, s2, s1, 1.0];
+    std::array::from_fn(|i| params[i] * scale[i])
+}
+
+/// A part of the structure: a term of the discrepancy library at its knot, or an
+/// effect tried as structure.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Term {
     Library(Column),
@@ -785,20 +983,31 @@ impl Fitted {
 }
 
 impl Search<'_, '_> {
-    /// `model` with the throttle-path effect `kind` at the best of its starting values by
-    /// calibration error.
-    fn path_start(&self, model: &Candidate, kind: EffectKind) -> Option<Candidate> {
-        path_starts(kind)
-            .iter()
-            .filter_map(|&v| {
+    /// `model` with the effect `kind` tried as structure at each of its starting values,
+    /// the best by calibration error first. A schedule starts from `model` sped up too
+    /// ([`sped_up`]): a model fitted without one has learnt the schedule's pace as slow
+    /// dynamics, and a schedule on a model that slow never binds, so a fit from there
+    /// would not move it.
+    fn path_starts_ranked(&self, model: &Candidate, kind: EffectKind) -> Vec<Candidate> {
+        let speeds: &[f64] = if kind == EffectKind::AccelSchedule { &SCHEDULE_SPEED_UPS } else { &[1.0] };
+        let mut starts = path_starts(kind);
+        if kind == EffectKind::AccelSchedule {
+            starts.extend(envelope_schedule(self.problem));
+        }
+        let mut ranked: Vec<(f64, Candidate)> = starts
+            .into_iter()
+            .flat_map(|values| speeds.iter().map(move |&speed| (values, speed)))
+            .filter_map(|(values, speed)| {
                 let mut c = model.clone();
-                c.path = Some((kind, [v, v]));
+                c.params = sped_up(&c.params, speed);
+                c.path = Some((kind, values));
                 let sim = self.simulate(&c)?;
                 let e = self.problem.sse(&sim, Part::Calibration).0;
                 e.is_finite().then_some((e, c))
             })
-            .min_by(|a, b| a.0.total_cmp(&b.0))
-            .map(|(_, c)| c)
+            .collect();
+        ranked.sort_by(|a, b| a.0.total_cmp(&b.0));
+        ranked.into_iter().map(|(_, c)| c).collect()
     }
 
     /// `terms` fitted from `start` and judged (nothing earned yet).
@@ -867,5 +1076,45 @@ impl Structure {
             out.push_str(&format!("#   {} = {:e}: {}\n", t.label, t.value, t.earned_text()));
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use jetbench_model::Preset;
+
+    /// 10–90 % rise time of a step from 30 to 90 % of `params`, s.
+    fn rise_s(params: Params) -> f64 {
+        let plant = Plant::new(params, Effects::none());
+        let (lo, hi) = (plant.rest_thrust_n(30.0), plant.rest_thrust_n(90.0));
+        let mut out = Vec::new();
+        let initial = State { thrust_n: lo, thrust_rate_n_per_s: 0.0 };
+        assert!(plant.free_run(0.0, initial, &[90.0; 1000], &mut out).is_none());
+        let at = |f: f64| out.iter().position(|&t| t >= lo + f * (hi - lo)).expect("the step settles") as f64;
+        (at(0.9) - at(0.1)) * jetbench_model::STEP_S
+    }
+
+    #[test]
+    fn a_sped_up_model_keeps_its_rest_points_and_steps_faster() {
+        let p = Preset::P100Diesel.params();
+        let fast = Params::from_array(sped_up(&p.to_array(), 2.0));
+        for u in [25.0, 50.0, 75.0, 100.0] {
+            let (a, b) = (p.stable_equilibrium(u).unwrap(), fast.stable_equilibrium(u).unwrap());
+            assert!((a - b).abs() < 1e-6 * a.abs().max(1.0), "rest at {u} %: {a} vs {b}");
+        }
+        let (slow_s, fast_s) = (rise_s(p), rise_s(fast));
+        assert!((fast_s / slow_s - 0.5).abs() < 0.03, "rise {slow_s} s → {fast_s} s");
+    }
+
+    #[test]
+    fn a_model_without_a_stable_rest_point_in_the_range_does_not_rest_stably() {
+        let p = Preset::P100Diesel.params().to_array();
+        assert!(rests_stably(&p, 25.0, 100.0));
+        // K_T and K_D of the other sign: no stable rest point at any throttle.
+        let mut unstable = p;
+        unstable[0] = -p[0];
+        unstable[2] = -p[2];
+        assert!(!rests_stably(&unstable, 25.0, 100.0));
     }
 }

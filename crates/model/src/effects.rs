@@ -7,6 +7,7 @@
 //!
 //! ```text
 //! u ─ input_delay ─ rate_limit ─ actuator_lag ─ v(u)·(1 − gain_drift·t) (+ discrepancy) ─ engine T
+//!                                                         (Ṫ within accel_schedule's bounds)
 //! T ─ bearing_friction (play band) ─ stand_resonance ─ + sensor_drift bias ─ measured thrust
 //! ```
 //!
@@ -56,22 +57,28 @@ pub enum EffectKind {
     /// Extra acceleration from named terms (see [`crate::discrepancy`]): physics outside
     /// the catalogue.
     Discrepancy,
+    /// The thrust rate stays within bounds that grow with the thrust: the ECU's fuel
+    /// schedule pacing the spool, which a throttle rate limit does not describe. Model
+    /// structure that `identify` may choose; not one of the catalogue's hypotheses.
+    AccelSchedule,
 }
 
 impl EffectKind {
     /// Every kind, in the order of the signal path (and of model files).
-    pub const ALL: [EffectKind; 8] = [
+    pub const ALL: [EffectKind; 9] = [
         EffectKind::InputDelay,
         EffectKind::RateLimit,
         EffectKind::ActuatorLag,
         EffectKind::GainDrift,
         EffectKind::Discrepancy,
+        EffectKind::AccelSchedule,
         EffectKind::BearingFriction,
         EffectKind::StandResonance,
         EffectKind::SensorDrift,
     ];
 
-    /// The named physics (every kind but the generic [`EffectKind::Discrepancy`]).
+    /// The named physics a diagnosis weighs: every kind but the generic
+    /// [`EffectKind::Discrepancy`] and the structure [`EffectKind::AccelSchedule`].
     pub const CATALOGUE: [EffectKind; 7] = [
         EffectKind::InputDelay,
         EffectKind::RateLimit,
@@ -100,6 +107,7 @@ impl EffectKind {
             EffectKind::BearingFriction => "bearing_friction",
             EffectKind::StandResonance => "stand_resonance",
             EffectKind::Discrepancy => "discrepancy",
+            EffectKind::AccelSchedule => "accel_schedule",
         }
     }
 
@@ -114,6 +122,7 @@ impl EffectKind {
             EffectKind::BearingFriction => &["force_n"],
             EffectKind::StandResonance => &["frequency_hz", "damping_ratio"],
             EffectKind::Discrepancy => &DISCREPANCY_KEYS,
+            EffectKind::AccelSchedule => &["up_n_per_s", "down_n_per_s", "exponent", "offset_n"],
         }
     }
 
@@ -129,6 +138,7 @@ impl EffectKind {
             EffectKind::BearingFriction => &[(0.0, 50.0)],
             EffectKind::StandResonance => &[(0.05, 200.0), (0.001, 10.0)],
             EffectKind::Discrepancy => &DISCREPANCY_BOUNDS,
+            EffectKind::AccelSchedule => &[(0.1, 100_000.0), (0.1, 100_000.0), (0.0, 4.0), (0.0, 200.0)],
         }
     }
 
@@ -147,6 +157,9 @@ impl EffectKind {
     ///   (lightly damped: it rings; a heavily damped one is a lag, not a resonance).
     /// - `discrepancy`: knots within the throttle range 25–100 %, history 2–1800 s,
     ///   coefficients as in files.
+    /// - `accel_schedule`: 5–20 000 N/s each way at 100 N (a full step of a model jet
+    ///   takes tenths of a second to seconds), exponent 0–3 (a spool's acceleration margin
+    ///   grows with its speed), offset 0–100 N.
     pub fn physical(self) -> &'static [(f64, f64)] {
         match self {
             EffectKind::InputDelay => &[(0.005, 0.5)],
@@ -169,6 +182,7 @@ impl EffectKind {
                 // A run-down from a tenth to three times the run-up's pace.
                 (-0.9, 2.0),
             ],
+            EffectKind::AccelSchedule => &[(5.0, 20_000.0), (5.0, 20_000.0), (0.0, 3.0), (0.0, 100.0)],
         }
     }
 
@@ -188,6 +202,10 @@ impl EffectKind {
                 "physics outside the catalogue as extra thrust acceleration from named terms (throttle-map hinges, \
                  gain following thrust history, input gain in T², Ṫ², T·Ṫ, spool-down slower or faster than spool-up)"
             }
+            EffectKind::AccelSchedule => {
+                "the ECU's fuel schedule paces the spool: the thrust may rise or fall only so fast, more slowly at \
+                 low thrust"
+            }
         }
     }
 
@@ -202,6 +220,9 @@ impl EffectKind {
             EffectKind::BearingFriction => "the measured force follows T only beyond a play band of ±force_n",
             EffectKind::StandResonance => "the sensor reads the frame through ẍ = ω²(F − x) − 2ζω·ẋ",
             EffectKind::Discrepancy => "extra thrust acceleration from named terms",
+            EffectKind::AccelSchedule => {
+                "Ṫ kept within ±up/down_n_per_s·s^exponent, s = max((T + offset_n)/100 N, 0.05)"
+            }
         }
     }
 

@@ -195,7 +195,7 @@ pub fn resolve_plant(spec: &str) -> Result<Plant, ModelError> {
     }
     let plant = Plant::with_turbojet(params, Effects::from_tables(&effects)?);
     match plant.turbojet_conflict() {
-        Some(message) => Err(ModelError::EffectParam { effect: "discrepancy", message }),
+        Some((kind, message)) => Err(ModelError::EffectParam { effect: kind.name(), message }),
         None => Ok(plant),
     }
 }

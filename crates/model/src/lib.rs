@@ -43,7 +43,10 @@ pub use engine::{
 pub use error::ModelError;
 pub use file::{names_a_plant, resolve_model, resolve_params, resolve_plant, ModelFile, TURBOJET_PLANTS};
 pub use params::{AccelPartials, Equilibrium, Params};
-pub use plant::{DriveKey, DriveTrack, Plant, PlantEngine, PlantSample, SlowStart, LOCKSTEP_LANES};
+pub use plant::{
+    DriveKey, DriveTrack, Plant, PlantEngine, PlantSample, SlowStart, LOCKSTEP_LANES, SCHEDULE_FLOOR,
+    SCHEDULE_REFERENCE_N,
+};
 pub use preset::Preset;
 pub use throttle_path::{DelaySplit, ThrottlePath, Window, MAX_INPUT_DELAY_S, TICK_S};
 

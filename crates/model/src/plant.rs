@@ -43,8 +43,8 @@ use crate::{
 /// ([`crate::turbojet`]) that is not the model: the simulated bench's engine out of
 /// the model's class. Either way the throttle path, the gain drift and the sensor-side
 /// effects apply to it alike; a discrepancy (extra terms of the ten-parameter model)
-/// has nothing to act on in a turbojet and is ignored there
-/// ([`Plant::turbojet_conflict`] says so before a run).
+/// and an acceleration schedule (a bound on its thrust rate) have nothing to act on in a
+/// turbojet and are ignored there ([`Plant::turbojet_conflict`] says so before a run).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Plant {
     /// The ten coefficients (not used to step a turbojet plant).
@@ -134,13 +134,27 @@ impl Plant {
         Self { params: Params::from_array([0.0; 10]), effects, turbojet: Some(params) }
     }
 
-    /// Why these effects cannot run on this plant's engine, if they cannot: a
-    /// discrepancy names terms of the ten-parameter model, which a turbojet does not have.
-    pub fn turbojet_conflict(&self) -> Option<String> {
-        (self.turbojet.is_some() && self.effects.get(EffectKind::Discrepancy).is_some()).then(|| {
-            "the discrepancy effect adds terms to the ten-parameter model; a turbojet plant has no such \
-             terms (use the catalogue's other effects)"
-                .to_owned()
+    /// Which effect cannot run on this plant's engine and why, if one cannot: a
+    /// discrepancy names terms of the ten-parameter model, which a turbojet does not have;
+    /// an acceleration schedule bounds the ten-parameter model's thrust rate, and a
+    /// turbojet has its own fuel schedule.
+    pub fn turbojet_conflict(&self) -> Option<(EffectKind, String)> {
+        self.turbojet?;
+        if self.effects.get(EffectKind::Discrepancy).is_some() {
+            return Some((
+                EffectKind::Discrepancy,
+                "the discrepancy effect adds terms to the ten-parameter model; a turbojet plant has no such \
+                 terms (use the catalogue's other effects)"
+                    .to_owned(),
+            ));
+        }
+        self.effects.get(EffectKind::AccelSchedule).map(|_| {
+            (
+                EffectKind::AccelSchedule,
+                "accel_schedule bounds the ten-parameter model's thrust rate; a turbojet plant paces its spool \
+                 with its own fuel schedule ([turbojet] accel_margin, decel_margin)"
+                    .to_owned(),
+            )
         })
     }
 
@@ -538,6 +552,37 @@ fn drive_of(params: &Params, discrepancy: Option<&Discrepancy>, u_pct: f64) -> D
     }
 }
 
+/// The thrust at which an `accel_schedule`'s rates hold, N.
+pub const SCHEDULE_REFERENCE_N: f64 = 100.0;
+/// The least `(T + offset_n)/SCHEDULE_REFERENCE_N` an `accel_schedule` uses: an engine
+/// below its offset still moves.
+pub const SCHEDULE_FLOOR: f64 = 0.05;
+
+/// The thrust-rate bounds of an `accel_schedule` effect:
+/// `−down·s^exponent ≤ Ṫ ≤ up·s^exponent`, `s = max((T + offset)/100 N, 0.05)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Schedule {
+    up_n_per_s: f64,
+    down_n_per_s: f64,
+    exponent: f64,
+    offset_n: f64,
+}
+
+impl Schedule {
+    fn new(values: &[f64]) -> Self {
+        Self { up_n_per_s: values[0], down_n_per_s: values[1], exponent: values[2], offset_n: values[3] }
+    }
+
+    /// `rate_n_per_s` held within the bounds at `thrust_n` (a rate that is not a number
+    /// stays one, for the divergence check).
+    #[inline(always)]
+    fn bound(&self, thrust_n: f64, rate_n_per_s: f64) -> f64 {
+        let s = ((thrust_n + self.offset_n) / SCHEDULE_REFERENCE_N).max(SCHEDULE_FLOOR);
+        let scale = s.powf(self.exponent);
+        rate_n_per_s.clamp(-self.down_n_per_s * scale, self.up_n_per_s * scale)
+    }
+}
+
 /// A linear first-order state `ẋ = (u − x)/τ` advanced over `h` with `u` moving
 /// linearly from `u0` to `u1` (exact first-order hold).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -628,6 +673,7 @@ pub struct PlantEngine {
     // Effect parameters, flattened for the inner loop (None: effect absent).
     gain_per_s: f64,
     discrepancy: Option<Discrepancy>,
+    schedule: Option<Schedule>,
     play_n: Option<f64>,
     stand: Option<Stand>,
     drift: Option<(f64, FirstOrder)>,
@@ -743,6 +789,7 @@ impl PlantEngine {
             path,
             gain_per_s: values(EffectKind::GainDrift).map_or(0.0, |v| v[0] / 60.0),
             discrepancy,
+            schedule: values(EffectKind::AccelSchedule).filter(|_| plant.turbojet.is_none()).map(Schedule::new),
             play_n,
             stand: values(EffectKind::StandResonance).map(|v| Stand::new(v[0], v[1], h)),
             drift,
@@ -891,6 +938,9 @@ impl PlantEngine {
                     })
                 }
             };
+            if let Some(schedule) = self.schedule {
+                d = schedule.bound(t, d);
+            }
             if !(t.is_finite() && d.is_finite() && t.abs() <= DIVERGENCE_THRUST_N && d.abs() <= DIVERGENCE_RATE_N_PER_S)
             {
                 self.failed = true;
@@ -964,6 +1014,9 @@ impl PlantEngine {
             for l in 0..N {
                 if !stepped[l] {
                     continue;
+                }
+                if let Some(schedule) = lanes[l].schedule {
+                    d[l] = schedule.bound(t[l], d[l]);
                 }
                 let (t, d) = (t[l], d[l]);
                 if !(t.is_finite()
@@ -1296,6 +1349,49 @@ mod tests {
     }
 
     #[test]
+    fn an_acceleration_schedule_paces_the_steps_within_its_bounds_and_leaves_the_rest_alone() {
+        let p = Preset::P100Diesel.params();
+        let u = step_input();
+        let nominal = run(&Plant::new(p, Effects::none()), &u);
+        let (up, down, exponent, offset) = (150.0, 80.0, 1.5, 5.0);
+        let spec = format!("accel_schedule:up_n_per_s={up},down_n_per_s={down},exponent={exponent},offset_n={offset}");
+        let plant = Plant::new(p, with(&[spec.as_str()]));
+        let mut engine =
+            plant.engine(State { thrust_n: plant.rest_thrust_n(u[0]), thrust_rate_n_per_s: 0.0 }, u[0], 0.0);
+        let (mut at_bound, mut states) = (0, Vec::new());
+        for &throttle in &u {
+            let state = engine.step(throttle).expect("a paced engine stays bounded").state;
+            let scale = ((state.thrust_n + offset) / SCHEDULE_REFERENCE_N).max(SCHEDULE_FLOOR).powf(exponent);
+            let d = state.thrust_rate_n_per_s;
+            assert!(
+                d <= up * scale + 1e-9 && d >= -down * scale - 1e-9,
+                "Ṫ {d} outside the bounds at {}",
+                state.thrust_n
+            );
+            at_bound += usize::from((d - up * scale).abs() < 1e-9 || (d + down * scale).abs() < 1e-9);
+            states.push(state);
+        }
+        assert!(at_bound > 20, "both steps run on the schedule for a while ({at_bound} cycles)");
+        // On the way up and on the way down it lags the engine alone.
+        let lag = |rows: std::ops::Range<usize>, sign: f64| {
+            rows.map(|k| sign * (nominal[k] - states[k].thrust_n)).fold(f64::NEG_INFINITY, f64::max)
+        };
+        assert!(lag(100..800, 1.0) > 5.0, "the step up lags by {} N at most", lag(100..800, 1.0));
+        assert!(lag(800..1600, -1.0) > 5.0, "the step down lags by {} N at most", lag(800..1600, -1.0));
+        // Rest points are the engine's: before the steps and 8 s after the step down.
+        for k in [99, 1599] {
+            assert!(
+                (states[k].thrust_n - nominal[k]).abs() < 0.05,
+                "rest at row {k}: {} vs {}",
+                states[k].thrust_n,
+                nominal[k]
+            );
+        }
+        let turbojet = Plant::with_turbojet(crate::turbojet::TurbojetParams::p100(), with(&[spec.as_str()]));
+        assert!(turbojet.turbojet_conflict().is_some_and(|(kind, _)| kind == EffectKind::AccelSchedule));
+    }
+
+    #[test]
     fn sensor_drift_settles_to_its_gain_and_gain_drift_sags() {
         let p = Preset::P100Diesel.params();
         let u = vec![90.0; 30_000];
@@ -1531,7 +1627,7 @@ mod tests {
         let warm = turbojet_run(&["sensor_drift:gain=0.05,time_constant_s=5"], &vec![90.0; 6000]);
         assert!((warm[5999] - 1.05 * TurbojetParams::p100().rest_thrust_n(90.0)).abs() < 0.05);
         let plant = Plant::with_turbojet(TurbojetParams::p100(), with(&["discrepancy:map_below=1,knot_below_pct=45"]));
-        assert!(plant.turbojet_conflict().is_some_and(|m| m.contains("turbojet")));
+        assert!(plant.turbojet_conflict().is_some_and(|(_, m)| m.contains("turbojet")));
     }
 
     #[test]
@@ -1685,6 +1781,7 @@ mod tests {
                 ]),
             ),
             Plant::new(p, over_path(&["sensor_drift:gain=0.05,time_constant_s=25", "bearing_friction:force_n=2"])),
+            Plant::new(p, over_path(&["accel_schedule:up_n_per_s=60,down_n_per_s=80,exponent=1.5,offset_n=5"])),
             // Unstable: it diverges within the run, beside plants that do not.
             Plant::new(params(0, -1.0), over_path(&[])),
         ];
@@ -1736,7 +1833,7 @@ mod tests {
                     assert_eq!(diverged_s[i], diverged, "plant {i}, {substeps} substeps");
                     assert_eq!(
                         diverged.is_some(),
-                        std::ptr::eq(plant, &alike[4]),
+                        std::ptr::eq(plant, &alike[5]),
                         "plant {i} diverges, only the unstable"
                     );
                 }

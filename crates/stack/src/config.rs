@@ -846,6 +846,15 @@ impl BenchConfig {
         self.plant().map_err(|e| invalid(format!("[plant] model: {e}")))?;
         let model =
             jetbench_model::resolve_model(&self.model.model).map_err(|e| invalid(format!("[model] model: {e}")))?;
+        if model.effects.get(jetbench_model::EffectKind::AccelSchedule).is_some() {
+            return Err(invalid(format!(
+                "[model] model {} is paced by an acceleration schedule (accel_schedule): its ten parameters alone \
+                 are not a model of the engine, and the estimator and every controller's observer use them alone; \
+                 identify without --schedule for the bench (a paced model is for simulate, sim-record and diagnose, \
+                 and as a [plant])",
+                self.model.model
+            )));
+        }
         if !model.effects.is_empty() && self.control.controller != Controller::Mpc {
             // Not an error: the same file can serve as [plant] and as [model].
             tracing::warn!(
@@ -1133,6 +1142,21 @@ mod tests {
         let c = BenchConfig::from_toml_str(&text, "t.toml", Some(&dir)).unwrap();
         assert_eq!(c.plant().unwrap(), file.plant());
         assert_eq!(c.model_params().unwrap(), file.model);
+        // A paced model may be the plant, never the model the bench runs on.
+        file.effects =
+            jetbench_model::Effects::new(["accel_schedule:up_n_per_s=300,down_n_per_s=300,exponent=1.5,offset_n=3"
+                .parse()
+                .unwrap()])
+            .unwrap();
+        file.save(&dir.join("paced.toml")).unwrap();
+        let (preset, paced) = ("model = \"p100-diesel\"", "model = \"paced.toml\"");
+        let as_plant = DEFAULT_SIM_CONFIG.replacen(preset, paced, 1);
+        let c = BenchConfig::from_toml_str(&as_plant, "t.toml", Some(&dir)).unwrap();
+        assert_eq!(c.plant().unwrap(), file.plant());
+        let at = DEFAULT_SIM_CONFIG.find("[model]").expect("a [model] table");
+        let as_model = format!("{}{}", &DEFAULT_SIM_CONFIG[..at], DEFAULT_SIM_CONFIG[at..].replacen(preset, paced, 1));
+        let err = BenchConfig::from_toml_str(&as_model, "t.toml", Some(&dir)).unwrap_err().to_string();
+        assert!(err.contains("accel_schedule") && err.contains("--schedule"), "{err}");
         let _ = std::fs::remove_dir_all(&dir);
     }
 

@@ -83,6 +83,12 @@ pub fn run(args: DiagnoseArgs) -> anyhow::Result<ExitCode> {
     }
     if !args.only.is_empty() {
         options.candidates = args.only.iter().map(|n| n.trim().parse::<EffectKind>()).collect::<Result<_, _>>()?;
+        if options.candidates.contains(&EffectKind::AccelSchedule) {
+            bail!(
+                "--only accel_schedule: an acceleration schedule is model structure that `jetbench identify` \
+                 chooses, not a hypothesis the diagnosis weighs; give a model file that holds one instead"
+            );
+        }
     }
     let bar = ProgressBar::new_spinner();
     bar.set_style(

@@ -89,6 +89,12 @@ pub struct IdentifyArgs {
     /// SINDy: STLSQ threshold on the scaled library (share of T'' a term must explain).
     #[arg(long, default_value_t = 0.1)]
     sindy_threshold: f64,
+    /// Let the structure search also pace the model with an acceleration schedule (an engine
+    /// whose fuel schedule holds its steps to a thrust rate). For simulation and diagnosis
+    /// only: the bench refuses a paced model, whose ten parameters alone run far too fast
+    /// for the estimator and FBL.
+    #[arg(long)]
+    schedule: bool,
 }
 
 pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
@@ -116,6 +122,7 @@ pub fn run(args: IdentifyArgs) -> anyhow::Result<ExitCode> {
             MethodArg::Oe => vec![Method::Ls, Method::Ekf, Method::Oe],
             MethodArg::All => Method::ALL.to_vec(),
         },
+        schedule: args.schedule,
         ..identify::Options::default()
     };
     options.ls.window = args.ls_window;

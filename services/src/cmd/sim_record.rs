@@ -89,8 +89,8 @@ pub fn run(args: SimRecordArgs) -> anyhow::Result<ExitCode> {
     for effect in &args.effects {
         plant.effects = plant.effects.with(*effect);
     }
-    if let Some(conflict) = plant.turbojet_conflict() {
-        bail!("--effect discrepancy: {conflict}");
+    if let Some((kind, conflict)) = plant.turbojet_conflict() {
+        bail!("--effect {kind}: {conflict}");
     }
     let profile = match (&args.profile, args.signal.as_deref()) {
         (Some(p), _) => Series::load(p, false)?,

@@ -138,6 +138,8 @@ fn could_hide(kind: EffectKind, v: &[f64]) -> BTreeMap<&'static str, [Option<f64
         EffectKind::Discrepancy => {
             BTreeMap::from([("gain_history_per_n", [Some(v[4]), Some(0.0)]), ("history_time_constant_s", at(v[5]))])
         }
+        // Model structure, not a hypothesis the diagnosis probes for.
+        EffectKind::AccelSchedule => BTreeMap::new(),
     }
 }
 
@@ -244,6 +246,9 @@ fn describe(kind: EffectKind, v: &[f64], full_thrust_n: f64) -> String {
             full_thrust_n,
             v[5]
         ),
+        EffectKind::AccelSchedule => {
+            format!("an acceleration schedule of {:.0} N/s up and {:.0} N/s down at 100 N", v[0], v[1])
+        }
     }
 }
 

@@ -329,6 +329,9 @@ fn effect_scale(kind: EffectKind, index: usize) -> f64 {
         (EffectKind::StandResonance, 0) => 1.0,
         (EffectKind::StandResonance, _) => 0.05,
         (EffectKind::Discrepancy, _) => 1.0,
+        (EffectKind::AccelSchedule, 2) => 0.3,
+        (EffectKind::AccelSchedule, 3) => 10.0,
+        (EffectKind::AccelSchedule, _) => 200.0,
     }
 }
 
@@ -369,7 +372,8 @@ pub(crate) fn start_grid(kind: EffectKind, peak_hz: Option<f64>) -> Vec<Vec<f64>
             f.extend(peak_hz.filter(|p| (0.3..48.0).contains(p)));
             two(&f, &[0.03, 0.1])
         }
-        EffectKind::Discrepancy => Vec::new(),
+        // Fitted term by term, or (a schedule) as model structure by `identify`.
+        EffectKind::Discrepancy | EffectKind::AccelSchedule => Vec::new(),
     }
 }
 
@@ -384,7 +388,9 @@ fn size_index(kind: EffectKind) -> Option<usize> {
         | EffectKind::SensorDrift
         | EffectKind::GainDrift
         | EffectKind::BearingFriction => Some(0),
-        EffectKind::RateLimit | EffectKind::StandResonance | EffectKind::Discrepancy => None,
+        EffectKind::RateLimit | EffectKind::StandResonance | EffectKind::Discrepancy | EffectKind::AccelSchedule => {
+            None
+        }
     }
 }
 

@@ -110,7 +110,8 @@ impl Default for Options {
             max_effects: 3,
             min_gain: 0.01,
             strong_evidence: 40.0,
-            candidates: EffectKind::ALL.to_vec(),
+            // An acceleration schedule is structure `identify` chooses, not a hypothesis.
+            candidates: EffectKind::ALL.into_iter().filter(|k| *k != EffectKind::AccelSchedule).collect(),
             refit: true,
             ambiguity: 10.0,
             significance_z: 2.0,

@@ -180,7 +180,9 @@ fn explain(
                 pm(z, ze)
             )
         }
-        EffectKind::Discrepancy => String::new(),
+        // Neither is a hypothesis of the catalogue: the discrepancy is explained term by term,
+        // a schedule is model structure.
+        EffectKind::Discrepancy | EffectKind::AccelSchedule => String::new(),
     }
 }
 
