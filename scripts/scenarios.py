@@ -29,6 +29,9 @@ from outside_catalogue import parse_spec
 ROOT = Path(__file__).resolve().parent.parent
 SUITE = ROOT / "recordings" / "scenarios"
 PARAM_TOLERANCE = 0.20
+# A parameter the fit gives a standard error under this share of its value passes within two
+# standard errors of the truth too: the data resolve it no finer than that.
+RESOLVED = 0.25
 FLOOR_TOLERANCE = 0.10
 # Channels a closed-loop case keeps: what a diagnosis reads.
 CLOSED_LOOP_TOPICS = {"/bench/thrust", "/bench/actuation"}
@@ -177,6 +180,7 @@ def judge(case, result):
     hidden = set(case.get("hidden", []))
     expected = (set(truth) - hidden) | ({"discrepancy"} if "outside" in case else set())
     found = {e["name"]: e["params"] for e in result["effects"]}
+    uncertainty = {e["name"]: e.get("uncertainty", {}) for e in result["effects"]}
     problems = []
     # Only a claim can be false: `ambiguous`, `unexplained` and `insufficient_data` name what the
     # search found without claiming it.
@@ -194,7 +198,9 @@ def judge(case, result):
     for name, params in truth.items():
         for key, value in params.items():
             got = found.get(name, {}).get(key)
-            if got is not None and abs(got - value) > PARAM_TOLERANCE * abs(value):
+            error = uncertainty.get(name, {}).get(key)
+            error = error if error is not None and error <= RESOLVED * abs(got or 0.0) else 0.0
+            if got is not None and abs(got - value) > max(PARAM_TOLERANCE * abs(value), 2.0 * error):
                 problems.append(f"{name}.{key} = {got:.4g}, truth {value:.4g}")
     for h in sorted(hidden):
         # A probe of that class that would not show must say the truth's values could hide too
@@ -310,7 +316,8 @@ Time is the wall time of one `jetbench diagnose` run in release mode on this mac
 ({os.cpu_count()} cores, {jobs}).
 
 Pass: the effect names are the truth (none where there is none, only `discrepancy` outside the
-catalogue), every parameter within {PARAM_TOLERANCE:.0%} of the truth, the cause right, and
+catalogue), every parameter within {PARAM_TOLERANCE:.0%} of the truth (or two of its standard errors,
+when the fit resolves it to {RESOLVED:.0%} or better), the cause right, and
 validation MAE after within {FLOOR_TOLERANCE:.0%} of the noise floor.
 
 | case | model | truth | found (± 1 standard error) | cause | MAE before, N | MAE after, N | floor, N | whiteness p | noise model | time, s | pass |

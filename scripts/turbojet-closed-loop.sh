@@ -5,13 +5,15 @@
 # steady-state error on the holds (`jetbench metrics`, the simulated engine's true thrust,
 # the first second left out). About 3 minutes: the campaign is simulated faster than real
 # time, the two closed-loop runs are real time.
-#   scripts/turbojet-closed-loop.sh [SEED=7] [DURATION_S=56]
+#   scripts/turbojet-closed-loop.sh [SEED=7] [DURATION_S=56] [IDENTIFY_OPTION ...]
+# (for example `7 56 --schedule`: the model may be paced by an acceleration schedule)
 # JETBENCH_NO_BUILD=1 uses the binaries already built.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
 seed=${1:-7}
 duration=${2:-56}
+shift $(( $# < 2 ? $# : 2 ))
 [[ -n "${JETBENCH_NO_BUILD:-}" ]] || cargo build --release --quiet --workspace --bins
 jb="$root/target/release/jetbench"
 work="$root/target/turbojet-closed-loop"
@@ -20,7 +22,7 @@ export JETBENCH_BUS="tjloop$$"  # a bus namespace of its own (crates/bus/README.
 
 # The identification campaign (300 s, the P100 bench's sensor noise) and its model.
 "$jb" sim-record --plant turbojet-p100 --seed "$seed" --duration 300 --out "$work/campaign.csv" >&2
-"$jb" identify "$work/campaign.csv" --out "$work/identified.toml" > "$work/identify.txt"
+"$jb" identify "$work/campaign.csv" --out "$work/identified.toml" "$@" > "$work/identify.txt"
 grep -E "^model file|fit|verdict" "$work/identify.txt" | head -5 >&2
 
 # sim.toml with limits for this engine (the plant is given on the command line). The P100

@@ -2,8 +2,9 @@
 //! every recording, given only the ten-parameter model a bench engineer would have, and
 //! must name exactly the effects the plant had (none where there were none, only
 //! `discrepancy` for physics outside the catalogue), fit every catalogue parameter within
-//! 20 %, give the right cause (none, parameters, missing physics) and bring the validation
-//! MAE within 10 % of the noise floor (where nothing is missing, `insufficient_data` naming a
+//! 20 % (or two of its standard errors, when the fit resolves it to 25 % or better), give
+//! the right cause (none, parameters, missing physics) and bring the validation MAE within
+//! 10 % of the noise floor (where nothing is missing, `insufficient_data` naming a
 //! class of effect the recording could not have shown is the honest answer too; `none` must
 //! show every class excluded). Over every case without missing physics (clean,
 //! coloured noise, spikes and lost rows, parameter errors) it must claim no physics at all.
@@ -32,6 +33,9 @@ use common::{jetbench, repo_root, run, scratch};
 use serde_json::Value;
 
 const PARAM_TOLERANCE: f64 = 0.20;
+/// A parameter the fit gives a standard error under this share of its value passes within
+/// two standard errors of the truth too: the data resolve it no finer than that.
+const RESOLVED: f64 = 0.25;
 const FLOOR_TOLERANCE: f64 = 0.10;
 /// Concealed: the given model is at most this much worse than the floor.
 const CONCEALED: f64 = 0.45;
@@ -170,7 +174,8 @@ fn judge(case: &Case, d: &Value) -> (Vec<String>, bool) {
         let Some(effect) = found.get(name) else { continue };
         for (key, truth) in params {
             let got = effect["params"][key].as_f64().unwrap_or(f64::NAN);
-            if !at_most((got - truth).abs(), PARAM_TOLERANCE * truth.abs()) {
+            let error = effect["uncertainty"][key].as_f64().filter(|e| *e <= RESOLVED * got.abs()).unwrap_or(0.0);
+            if !at_most((got - truth).abs(), (PARAM_TOLERANCE * truth.abs()).max(2.0 * error)) {
                 problems.push(format!("{name}.{key} = {got}, truth {truth}"));
             }
         }

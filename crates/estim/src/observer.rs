@@ -4,7 +4,7 @@ use jetbench_model::{Params, DIVERGENCE_RATE_N_PER_S, DIVERGENCE_THRUST_N, STEP_
 use nalgebra::{Matrix3, Vector3};
 
 use crate::gate::{Gate, GateConfig, Verdict};
-use jetbench_model::{ThrottlePath, MAX_INPUT_DELAY_S};
+use jetbench_model::{RateSchedule, ThrottlePath, MAX_INPUT_DELAY_S};
 
 type Mat3 = Matrix3<f64>;
 type Vec3 = Vector3<f64>;
@@ -60,6 +60,12 @@ pub struct ObserverConfig {
     /// At most [`MAX_INPUT_DELAY_S`]. At 0 the filter predicts with the throttle just
     /// applied, bit for bit as before delays were modelled.
     pub input_delay_s: f64,
+    /// The model's acceleration schedule (its `accel_schedule` effect; `None`: the model
+    /// is not paced): the predicted thrust rate is held within the schedule's bounds, as
+    /// the engine holds its own. A paced model's ten parameters alone run faster than the
+    /// engine wherever the schedule binds, so without it the prediction runs away on every
+    /// large step.
+    pub rate_schedule: Option<RateSchedule>,
     /// Thrust variance right after the first measurement, N².
     pub initial_thrust_var_n2: f64,
     /// Thrust-rate variance right after the first measurement, (N/s)².
@@ -82,6 +88,7 @@ impl Default for ObserverConfig {
             accel_noise_n_per_s2: 200.0,
             disturbance_drift_n_per_s2: 0.0,
             input_delay_s: 0.0,
+            rate_schedule: None,
             initial_thrust_var_n2: 7.0,
             initial_rate_var: 1.0e4,
             gate: GateConfig::default(),
@@ -131,7 +138,8 @@ pub struct Estimate {
     /// Estimated acceleration: the model's `f + g·v` at the estimate and the last
     /// throttle applied, plus the disturbance, N/s² (with an input delay the engine
     /// still follows an earlier throttle: this is the acceleration once it follows
-    /// the last one).
+    /// the last one). Where a paced model's rate runs on its schedule
+    /// ([`ObserverConfig::rate_schedule`]), the rate at which that bound moves.
     pub thrust_accel_n_per_s2: f64,
     /// The disturbance: acceleration the model does not explain, estimated, N/s² (0 with
     /// [`ObserverConfig::disturbance_drift_n_per_s2`] = 0).
@@ -334,7 +342,7 @@ impl ThrustObserver {
         let dt = STEP_S;
         let (t, rate, disturbance) = (x[0], x[1], x[2]);
         let a = self.params.accel(t, rate, throttle_pct) + disturbance;
-        let x_pred = Vec3::new(t + rate * dt + 0.5 * a * dt * dt, rate + a * dt, disturbance);
+        let free = Vec3::new(t + rate * dt + 0.5 * a * dt * dt, rate + a * dt, disturbance);
         let partials = self.params.accel_partials(t, rate, throttle_pct);
         let (a_t, a_d) = (partials.d_thrust_per_s2, partials.d_rate_per_s);
         #[rustfmt::skip]
@@ -343,6 +351,23 @@ impl ThrustObserver {
             a_t * dt,                  1.0 + a_d * dt,           dt,
             0.0,                       0.0,                      1.0,
         );
+        let (x_pred, f) = match self.config.rate_schedule {
+            Some(schedule) if schedule.bound(free[0], free[1]) != free[1] => {
+                // The rate runs on the schedule: it is the bound at the thrust reached,
+                // which moves with the thrust alone (the throttle and the disturbance do
+                // not move it), and the thrust integrates it.
+                let held = schedule.bound(free[0], free[1]);
+                let slope = schedule.bound_slope(free[0], free[1]);
+                #[rustfmt::skip]
+                let f = Mat3::new(
+                    1.0 + 0.5 * slope * dt, 0.5 * dt,               0.0,
+                    slope,                  0.5 * slope * dt,       0.0,
+                    0.0,                    0.0,                    1.0,
+                );
+                (Vec3::new(t + 0.5 * (rate + held) * dt, held, disturbance), f)
+            }
+            _ => (free, f),
+        };
         let usable = x_pred.iter().chain(f.iter()).all(|v| v.is_finite())
             && x_pred[0].abs() <= DIVERGENCE_THRUST_N
             && x_pred[1].abs() <= DIVERGENCE_RATE_N_PER_S;
@@ -359,7 +384,14 @@ impl ThrustObserver {
         innovation_n: f64,
         verdict: Verdict,
     ) -> Estimate {
-        let accel = self.params.accel(x[0], x[1], applied_pct) + x[2];
+        let mut accel = self.params.accel(x[0], x[1], applied_pct) + x[2];
+        if let Some(schedule) = self.config.rate_schedule {
+            // On the schedule the rate follows its bound, which moves with the thrust.
+            let free = x[1] + accel * STEP_S;
+            if schedule.bound(x[0], free) != free {
+                accel = schedule.bound_slope(x[0], free) * x[1];
+            }
+        }
         Estimate {
             thrust_n: x[0],
             thrust_rate_n_per_s: x[1],

@@ -296,3 +296,38 @@ fn an_input_delay_out_of_range_is_a_config_error() {
         }
     }
 }
+
+#[test]
+fn an_observer_that_knows_the_acceleration_schedule_tracks_a_paced_engine_and_one_that_does_not_runs_ahead() {
+    let params = Preset::P100Diesel.params();
+    let effects =
+        Effects::new(["accel_schedule:up_n_per_s=60,down_n_per_s=80,exponent=1.5,offset_n=5".parse().unwrap()])
+            .unwrap();
+    let plant = Plant::new(params, effects.clone());
+    let run = simulate_plant_run(&plant, 60.0, 31);
+    // The schedule binds on the run's large steps, or this test shows nothing.
+    let schedule = effects.rate_schedule().unwrap();
+    let paced = run
+        .truth
+        .iter()
+        .filter(|s| schedule.bound(s.thrust_n, s.thrust_rate_n_per_s * 1.05) != s.thrust_rate_n_per_s * 1.05)
+        .count();
+    assert!(paced > 300, "the rate is on the schedule for {paced} cycles");
+    let calm =
+        ObserverConfig { accel_noise_n_per_s2: 10.0, disturbance_drift_n_per_s2: 1.5, ..ObserverConfig::default() };
+    let (knows, knows_fallbacks) = observe(&run, params, ObserverConfig { rate_schedule: Some(schedule), ..calm });
+    let (ignores, _) = observe(&run, params, calm);
+    let (knows_rms, knows_rate, fd_rms) = errors(&run, &knows);
+    let (ignores_rms, ignores_rate, _) = errors(&run, &ignores);
+    println!("thrust rms: knows the schedule {knows_rms:.2} N, ignores it {ignores_rms:.2} N; rate {knows_rate:.1} / {ignores_rate:.1} N/s");
+    assert_eq!(knows_fallbacks, 0);
+    assert!(knows_rms < 1.0, "thrust rms {knows_rms} N with the schedule modelled");
+    assert!(knows_rate < fd_rms / 3.0, "rate rms {knows_rate} N/s");
+    assert!(knows_rms < 0.6 * ignores_rms, "{knows_rms} N against {ignores_rms} N without the schedule");
+    assert!(knows_rate < 0.6 * ignores_rate, "{knows_rate} N/s against {ignores_rate} N/s without the schedule");
+    // Off the schedule (no effect), the prediction is the ten parameters' bit for bit.
+    let unpaced = simulate_run(params, 20.0, 37);
+    let (with, _) = observe(&unpaced, params, ObserverConfig { rate_schedule: None, ..calm });
+    let (plain, _) = observe(&unpaced, params, calm);
+    assert_eq!(with, plain);
+}

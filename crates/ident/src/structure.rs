@@ -192,7 +192,9 @@ impl Candidate {
         if let Some((kind, values)) = &self.path {
             effects.push(Effect::new(*kind, &values[..kind.keys().len()]).ok()?);
         }
-        if self.disc.iter().zip(DISCREPANCY_DEFAULTS).any(|(a, b)| *a != b) {
+        // A knot or a time constant moved from its default with no term using it is no
+        // discrepancy: a model file would hold an empty `[effects.discrepancy]` table.
+        if DISCREPANCY_TERMS.iter().any(|term| self.disc[term.coefficient] != 0.0) {
             effects.push(Effect::new(EffectKind::Discrepancy, &self.disc).ok()?);
         }
         Some(Plant::new(p, Effects::new(effects).ok()?))
@@ -1105,6 +1107,18 @@ mod tests {
         }
         let (slow_s, fast_s) = (rise_s(p), rise_s(fast));
         assert!((fast_s / slow_s - 0.5).abs() < 0.03, "rise {slow_s} s → {fast_s} s");
+    }
+
+    #[test]
+    fn a_knot_moved_with_no_term_on_it_writes_no_discrepancy() {
+        let mut c =
+            Candidate { params: Preset::P100Diesel.params().to_array(), disc: DISCREPANCY_DEFAULTS, path: None };
+        c.disc[1] = 70.0; // knot_below_pct, its term's coefficient still 0
+        let plant = c.plant().expect("a valid model");
+        assert!(plant.effects.get(EffectKind::Discrepancy).is_none(), "{:?}", plant.effects);
+        c.disc[0] = 0.1; // map_below: the term now acts
+        let plant = c.plant().expect("a valid model");
+        assert!(plant.effects.get(EffectKind::Discrepancy).is_some());
     }
 
     #[test]

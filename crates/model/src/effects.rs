@@ -491,6 +491,11 @@ impl Effects {
         self.get(EffectKind::InputDelay).map_or(0.0, |e| e.values()[0])
     }
 
+    /// The bounds an `accel_schedule` puts on the thrust rate (`None`: the model is not paced).
+    pub fn rate_schedule(&self) -> Option<crate::RateSchedule> {
+        self.get(EffectKind::AccelSchedule).map(|e| crate::RateSchedule::new(e.values()))
+    }
+
     /// Effects in signal-path order.
     pub fn iter(&self) -> impl Iterator<Item = &Effect> {
         self.list.iter()

@@ -44,7 +44,7 @@ pub use error::ModelError;
 pub use file::{names_a_plant, resolve_model, resolve_params, resolve_plant, ModelFile, TURBOJET_PLANTS};
 pub use params::{AccelPartials, Equilibrium, Params};
 pub use plant::{
-    DriveKey, DriveTrack, Plant, PlantEngine, PlantSample, SlowStart, LOCKSTEP_LANES, SCHEDULE_FLOOR,
+    DriveKey, DriveTrack, Plant, PlantEngine, PlantSample, RateSchedule, SlowStart, LOCKSTEP_LANES, SCHEDULE_FLOOR,
     SCHEDULE_REFERENCE_N,
 };
 pub use preset::Preset;

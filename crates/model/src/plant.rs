@@ -560,26 +560,67 @@ pub const SCHEDULE_FLOOR: f64 = 0.05;
 
 /// The thrust-rate bounds of an `accel_schedule` effect:
 /// `−down·s^exponent ≤ Ṫ ≤ up·s^exponent`, `s = max((T + offset)/100 N, 0.05)`.
+///
+/// The plant holds its thrust rate within them after every integration step; an observer
+/// that predicts with the model's ten parameters holds its predicted rate within them too
+/// (`Effects::rate_schedule`).
+///
+/// ```
+/// use jetbench_model::{Effects, RateSchedule};
+///
+/// let effects = Effects::new(["accel_schedule:up_n_per_s=200,down_n_per_s=300,exponent=1,offset_n=0".parse()?])?;
+/// let schedule: RateSchedule = effects.rate_schedule().expect("the model is paced");
+/// assert_eq!(schedule.bound(50.0, 500.0), 100.0); // up to 200 N/s · (50 N / 100 N)
+/// assert_eq!(schedule.bound(50.0, -20.0), -20.0); // within the bounds: as it was
+/// assert_eq!(schedule.bound_slope(50.0, 500.0), 2.0); // the upper bound grows 2 N/s per N
+/// # Ok::<(), jetbench_model::ModelError>(())
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
-struct Schedule {
+pub struct RateSchedule {
     up_n_per_s: f64,
     down_n_per_s: f64,
     exponent: f64,
     offset_n: f64,
 }
 
-impl Schedule {
-    fn new(values: &[f64]) -> Self {
+impl RateSchedule {
+    /// From an `accel_schedule`'s values, in the order of its keys.
+    pub(crate) fn new(values: &[f64]) -> Self {
         Self { up_n_per_s: values[0], down_n_per_s: values[1], exponent: values[2], offset_n: values[3] }
+    }
+
+    /// `s^exponent` at `thrust_n`, and `s` itself.
+    #[inline(always)]
+    fn scale(&self, thrust_n: f64) -> (f64, f64) {
+        let s = ((thrust_n + self.offset_n) / SCHEDULE_REFERENCE_N).max(SCHEDULE_FLOOR);
+        (s.powf(self.exponent), s)
     }
 
     /// `rate_n_per_s` held within the bounds at `thrust_n` (a rate that is not a number
     /// stays one, for the divergence check).
     #[inline(always)]
-    fn bound(&self, thrust_n: f64, rate_n_per_s: f64) -> f64 {
-        let s = ((thrust_n + self.offset_n) / SCHEDULE_REFERENCE_N).max(SCHEDULE_FLOOR);
-        let scale = s.powf(self.exponent);
+    pub fn bound(&self, thrust_n: f64, rate_n_per_s: f64) -> f64 {
+        let (scale, _) = self.scale(thrust_n);
         rate_n_per_s.clamp(-self.down_n_per_s * scale, self.up_n_per_s * scale)
+    }
+
+    /// How [`RateSchedule::bound`] of `rate_n_per_s` moves with the thrust, (N/s)/N: the
+    /// slope of the bound it is held at, 0 within the bounds (or below the floor, where the
+    /// bounds do not move).
+    pub fn bound_slope(&self, thrust_n: f64, rate_n_per_s: f64) -> f64 {
+        let (scale, s) = self.scale(thrust_n);
+        let (lo, hi) = (-self.down_n_per_s * scale, self.up_n_per_s * scale);
+        let at = if rate_n_per_s > hi {
+            hi
+        } else if rate_n_per_s < lo {
+            lo
+        } else {
+            return 0.0;
+        };
+        if s <= SCHEDULE_FLOOR {
+            return 0.0;
+        }
+        at * self.exponent / (s * SCHEDULE_REFERENCE_N)
     }
 }
 
@@ -673,7 +714,7 @@ pub struct PlantEngine {
     // Effect parameters, flattened for the inner loop (None: effect absent).
     gain_per_s: f64,
     discrepancy: Option<Discrepancy>,
-    schedule: Option<Schedule>,
+    schedule: Option<RateSchedule>,
     play_n: Option<f64>,
     stand: Option<Stand>,
     drift: Option<(f64, FirstOrder)>,
@@ -789,7 +830,7 @@ impl PlantEngine {
             path,
             gain_per_s: values(EffectKind::GainDrift).map_or(0.0, |v| v[0] / 60.0),
             discrepancy,
-            schedule: values(EffectKind::AccelSchedule).filter(|_| plant.turbojet.is_none()).map(Schedule::new),
+            schedule: values(EffectKind::AccelSchedule).filter(|_| plant.turbojet.is_none()).map(RateSchedule::new),
             play_n,
             stand: values(EffectKind::StandResonance).map(|v| Stand::new(v[0], v[1], h)),
             drift,

@@ -848,8 +848,9 @@ impl BenchConfig {
             jetbench_model::resolve_model(&self.model.model).map_err(|e| invalid(format!("[model] model: {e}")))?;
         if model.effects.get(jetbench_model::EffectKind::AccelSchedule).is_some() {
             return Err(invalid(format!(
-                "[model] model {} is paced by an acceleration schedule (accel_schedule): its ten parameters alone \
-                 are not a model of the engine, and the estimator and every controller's observer use them alone; \
+                "[model] model {} is paced by an acceleration schedule (accel_schedule): its ten parameters are \
+                 fitted to run faster than the engine wherever the schedule holds it back, and FBL and SMC cancel \
+                 them alone (on the turbojet, FBL ran 100 times the error of an unpaced model, the MPC 9 times); \
                  identify without --schedule for the bench (a paced model is for simulate, sim-record and diagnose, \
                  and as a [plant])",
                 self.model.model

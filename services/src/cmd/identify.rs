@@ -92,7 +92,7 @@ pub struct IdentifyArgs {
     /// Let the structure search also pace the model with an acceleration schedule (an engine
     /// whose fuel schedule holds its steps to a thrust rate). For simulation and diagnosis
     /// only: the bench refuses a paced model, whose ten parameters alone run far too fast
-    /// for the estimator and FBL.
+    /// for FBL and SMC, which cancel them (docs/identify/OUT-OF-CLASS.md).
     #[arg(long)]
     schedule: bool,
 }

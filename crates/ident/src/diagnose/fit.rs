@@ -666,7 +666,7 @@ fn lockstep_groups(plants: &[Option<Plant>]) -> Vec<Vec<usize>> {
 
 /// `spec` with its sensor-bias starts fitted on the calibration part (see
 /// [`simulate_calibration`]); as it is without a drift or when it diverges.
-fn with_bias_starts(problem: &Problem<'_>, fixed: &Effects, mut spec: Spec, cache: &mut SimCache) -> Spec {
+pub(crate) fn with_bias_starts(problem: &Problem<'_>, fixed: &Effects, mut spec: Spec, cache: &mut SimCache) -> Spec {
     if !spec.fits_bias_start() {
         return spec;
     }

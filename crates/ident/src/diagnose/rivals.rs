@@ -43,7 +43,7 @@ pub const WINDOW: f64 = 40.0;
 /// The name of the periodic rival: a sine at its own period added to what is read.
 pub const PERIODIC: &str = "periodic";
 /// The name of the slow-history rival: the discrepancy's thrust history with a time constant
-/// beyond what the recording lets settle, in place of a gain drift beside it.
+/// beyond what the recording lets settle, in place of a gain drift or another effect beside it.
 pub const SLOW_HISTORY: &str = "slow_history";
 /// The name of the throttle-play rival: play (backlash) in the throttle path.
 pub const THROTTLE_PLAY: &str = "throttle_play";
@@ -368,7 +368,7 @@ pub fn meaning_of(kind: &str) -> &'static str {
         THROTTLE_PLAY => "play (backlash) in the throttle path, outside the catalogue: the engine side",
         SLOW_HISTORY => {
             "the engine's gain follows its history more slowly than this recording settles (a slow soak), not a \
-             drift with run time"
+             drift with run time nor an effect beside a faster history"
         }
         PERIODIC => "something on the stand or the sensor repeats at its own period (a force, a thermal cycle): not engine physics",
         _ => "",
