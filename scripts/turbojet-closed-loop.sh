@@ -6,7 +6,8 @@
 # the first second left out). About 3 minutes: the campaign is simulated faster than real
 # time, the two closed-loop runs are real time.
 #   scripts/turbojet-closed-loop.sh [SEED=7] [DURATION_S=56] [IDENTIFY_OPTION ...]
-# (for example `7 56 --schedule`: the model may be paced by an acceleration schedule)
+# (IDENTIFY_OPTION: passed on to `jetbench identify`; a model paced with `--schedule` is refused
+# by the bench, docs/identify/OUT-OF-CLASS.md says why)
 # JETBENCH_NO_BUILD=1 uses the binaries already built.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
