@@ -501,15 +501,18 @@ fn a_small_random_campaign_makes_no_false_claim() {
     assert!(claims >= 1, "the CI draw claims nothing, so it measures no precision:\n{stderr}");
 }
 
-/// Two false claims of fresh campaigns, rerun on their own draws (the campaign's simulator,
-/// `--case`): they are not concealed (the given model 2.0× and 3.8× the floor), so they are not
-/// in the suite above. Seed 9277's case 173, a sensor drift of 3 % and τ 20 s whose bias had
-/// settled before the recording, was claimed as a discrepancy on the engine: it is now a true
-/// claim of the drift. Seed 6703's case 26, a heat soak of τ 47 s on 100 s, was claimed as
-/// bearing friction beside a discrepancy (the friction only held the history off its edge):
-/// it is now `ambiguous`, the history freed of the edge among the rivals.
+/// Three false claims of fresh campaigns, rerun on their own draws (the campaign's simulator,
+/// `--case`). Seed 9277's case 173, a sensor drift of 3 % and τ 20 s whose bias had settled
+/// before the recording, was claimed as a discrepancy on the engine: it is now a true claim of
+/// the drift. Seed 6703's case 26, a heat soak of τ 47 s on 100 s, was claimed as bearing
+/// friction beside a discrepancy (the friction only held the history off its edge): it is now
+/// `ambiguous`, the history freed of the edge among the rivals. Seed 7103's case 210, a fuel
+/// soak of τ 74 s on 100 s, was claimed as a gain drift while the discrepancy had no history
+/// that follows the throttle: it is now `ambiguous`, the drift against the soak. The first two
+/// are not concealed (the given model 2.0× and 3.8× the floor), so they are not in the suite
+/// above; the third is (1.17×), and its class is there too (`fuel-soak-or-gain-drift-100s-p220`).
 #[test]
-fn two_fresh_campaign_false_claims_stay_answered_right() {
+fn fresh_campaign_false_claims_stay_answered_right() {
     let root = repo_root();
     let exe = env!("CARGO_BIN_EXE_jetbench");
     let draw = |seed: &str, case: &str| -> Value {
@@ -541,4 +544,16 @@ fn two_fresh_campaign_false_claims_stay_answered_right() {
         .flatten()
         .any(|r| r[0].as_array().is_some_and(|names| names.iter().any(|n| n == "slow_history")));
     assert!(slow, "the history freed of its edge is not among the rivals: {result}");
+    let fuel = draw("7103", "210");
+    let result = &fuel["results"][0];
+    assert_eq!(result["cause"], "ambiguous", "{result}");
+    let names: Vec<&str> = result["rivals"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(|r| r[0].as_array())
+        .flatten()
+        .filter_map(Value::as_str)
+        .collect();
+    assert!(names.contains(&"gain_drift") && names.contains(&"slow_history"), "{result}");
 }

@@ -6,15 +6,20 @@
 //! δ = map_below·g·max(0, v(knot_below_pct) − v(u))      the throttle map flattens below a knot
 //!   + map_above·g·max(0, v(u) − v(knot_above_pct))      ... or changes slope above one
 //!   + gain_history_per_n·g·v(u)·H                       input gain that follows thrust history
+//!   + gain_throttle_history·g·v(u)·V                    ... or the throttle's history
 //!   + (B_TT·T² + B_DD·Ṫ² + B_TD·T·Ṫ)·v(u)               input gain beyond B_U + B_T·T + B_D·Ṫ
 //! Ḣ = (T − H)/history_time_constant_s                    H starts at the initial thrust
+//! V̇ = (v(u) − V)/throttle_history_time_constant_s        V starts at the initial v(u)
 //! and while the thrust falls (Ṫ < 0) the whole acceleration is scaled:
 //! T̈ = (1 + spool_down)·(f + g·v(u) + δ)                  spool-down slower (< 0) or faster
 //! ```
 //!
 //! Each term is what a kind of physics the ten parameters cannot express does to the
 //! engine: `map_below = 1` is a dead band (below the knot the engine runs as if at
-//! it), `gain_history_per_n < 0` a gain that sags as the engine heat-soaks, the
+//! it), `gain_history_per_n < 0` a gain that sags as the engine heat-soaks,
+//! `gain_throttle_history < 0` one that sags with the fuel that has flowed (fuel
+//! warming in the lines with the pump's work: it follows what the throttle asked for,
+//! not the thrust the engine made, whose map is far from straight), the
 //! three `B_..` terms are the input gain of the iRonCub group's later jet model, and
 //! `spool_down = −0.3` an engine that spools down 30 % more slowly than it spools up
 //! (the ten parameters hold one time scale for both directions; a turbine's run-down
@@ -46,7 +51,7 @@ pub struct DiscrepancyTerm {
 }
 
 /// Keys of the discrepancy effect, in the order of its values.
-pub const DISCREPANCY_KEYS: [&str; 10] = [
+pub const DISCREPANCY_KEYS: [&str; 12] = [
     "map_below",
     "knot_below_pct",
     "map_above",
@@ -57,10 +62,12 @@ pub const DISCREPANCY_KEYS: [&str; 10] = [
     "B_DD",
     "B_TD",
     "spool_down",
+    "gain_throttle_history",
+    "throttle_history_time_constant_s",
 ];
 
 /// Ranges of the discrepancy's values, in the order of [`DISCREPANCY_KEYS`].
-pub(crate) const DISCREPANCY_BOUNDS: [(f64, f64); 10] = [
+pub(crate) const DISCREPANCY_BOUNDS: [(f64, f64); 12] = [
     (-5.0, 5.0),
     (0.0, 150.0),
     (-5.0, 5.0),
@@ -71,13 +78,15 @@ pub(crate) const DISCREPANCY_BOUNDS: [(f64, f64); 10] = [
     (-0.01, 0.01),
     (-0.01, 0.01),
     (-0.9, 3.0),
+    (-0.1, 0.1),
+    (0.5, 3600.0),
 ];
 
 /// Values of a discrepancy with no term (an absent term's shape key is never used).
-pub const DISCREPANCY_DEFAULTS: [f64; 10] = [0.0, 50.0, 0.0, 90.0, 0.0, 30.0, 0.0, 0.0, 0.0, 0.0];
+pub const DISCREPANCY_DEFAULTS: [f64; 12] = [0.0, 50.0, 0.0, 90.0, 0.0, 30.0, 0.0, 0.0, 0.0, 0.0, 0.0, 30.0];
 
 /// The terms, in the order of their coefficients.
-pub const DISCREPANCY_TERMS: [DiscrepancyTerm; 7] = [
+pub const DISCREPANCY_TERMS: [DiscrepancyTerm; 8] = [
     DiscrepancyTerm {
         coefficient: 0,
         shape: Some(1),
@@ -121,6 +130,13 @@ pub const DISCREPANCY_TERMS: [DiscrepancyTerm; 7] = [
         meaning: "while the thrust falls, the acceleration times 1 + spool_down: spool-down slower (< 0) or faster \
                   than spool-up",
     },
+    DiscrepancyTerm {
+        coefficient: 10,
+        shape: Some(11),
+        unit: "1/%",
+        meaning: "g·v(u)·V, V the throttle map's history (first order, throttle_history_time_constant_s): gain that \
+                  follows the throttle history (< 0: a fuel soak)",
+    },
 ];
 
 /// True when value `index` of a discrepancy matters: a non-zero coefficient, or the
@@ -142,6 +158,8 @@ pub(crate) struct DiscrepancyLaw {
     pub b_dd: f64,
     pub b_td: f64,
     pub spool_down: f64,
+    pub gain_throttle_history: f64,
+    pub throttle_history_time_constant_s: f64,
 }
 
 impl DiscrepancyLaw {
@@ -157,6 +175,8 @@ impl DiscrepancyLaw {
             b_dd: values[7],
             b_td: values[8],
             spool_down: values[9],
+            gain_throttle_history: values[10],
+            throttle_history_time_constant_s: values[11],
         }
     }
 
@@ -172,11 +192,13 @@ impl DiscrepancyLaw {
     }
 
     /// Extra acceleration δ, N/s², at thrust `t`, rate `d`, input gain `g`, throttle map
-    /// `v`, its hinges (averaged over the step) and thrust history `history_n`.
+    /// `v`, its hinges (averaged over the step) and the histories.
     #[inline]
     #[allow(clippy::too_many_arguments)]
-    pub fn accel(&self, t: f64, d: f64, g: f64, v: f64, below: f64, above: f64, history_n: f64) -> f64 {
-        g * (self.map_below * below + self.map_above * above + self.gain_history_per_n * v * history_n)
+    pub fn accel(&self, t: f64, d: f64, g: f64, v: f64, below: f64, above: f64, history: Histories) -> f64 {
+        g * (self.map_below * below
+            + self.map_above * above
+            + (self.gain_history_per_n * history.thrust_n + self.gain_throttle_history * history.throttle) * v)
             + (self.b_tt * t * t + self.b_dd * d * d + self.b_td * t * d) * v
     }
 
@@ -185,12 +207,20 @@ impl DiscrepancyLaw {
     /// `1 + spool_down` while the thrust falls.
     #[inline]
     #[allow(clippy::too_many_arguments)]
-    pub fn total(&self, base: f64, t: f64, d: f64, g: f64, v: f64, below: f64, above: f64, history_n: f64) -> f64 {
-        let a = base + self.accel(t, d, g, v, below, above, history_n);
+    pub fn total(&self, base: f64, t: f64, d: f64, g: f64, v: f64, below: f64, above: f64, history: Histories) -> f64 {
+        let a = base + self.accel(t, d, g, v, below, above, history);
         if d < 0.0 {
             a * (1.0 + self.spool_down)
         } else {
             a
         }
     }
+}
+
+/// The discrepancy's slow states at a step: the thrust history `H`, N, and the
+/// throttle map's history `V`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(crate) struct Histories {
+    pub thrust_n: f64,
+    pub throttle: f64,
 }

@@ -181,6 +181,8 @@ impl EffectKind {
                 (-0.01, 0.01),
                 // A run-down from a tenth to three times the run-up's pace.
                 (-0.9, 2.0),
+                (-0.1, 0.1),
+                (2.0, 1800.0),
             ],
             EffectKind::AccelSchedule => &[(5.0, 20_000.0), (5.0, 20_000.0), (0.0, 3.0), (0.0, 100.0)],
         }

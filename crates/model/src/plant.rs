@@ -27,7 +27,7 @@
 //! (play band, resonance, drift bias) and the thrust history follow the engine thrust
 //! at the end of every substep, the linear states by exact first-order-hold updates.
 
-use crate::discrepancy::DiscrepancyLaw;
+use crate::discrepancy::{DiscrepancyLaw, Histories};
 use crate::engine::rk4_step_lanes;
 use crate::throttle_path::{ThrottlePath, Window};
 use crate::turbojet::{Turbojet, TurbojetParams, TurbojetSample};
@@ -195,7 +195,7 @@ impl Plant {
         let accel = |t: f64| {
             let (g, v) = (p.g(t, 0.0), p.v(u0_pct));
             let (below, above) = DiscrepancyLaw::hinges(v, p.v(law.knot_below_pct), p.v(law.knot_above_pct));
-            p.f(t, 0.0) + g * v + law.accel(t, 0.0, g, v, below, above, t)
+            p.f(t, 0.0) + g * v + law.accel(t, 0.0, g, v, below, above, Histories { thrust_n: t, throttle: v })
         };
         let mut t = thrust_n;
         for _ in 0..30 {
@@ -694,6 +694,7 @@ struct Discrepancy {
     v_below: f64,
     v_above: f64,
     history: FirstOrder,
+    throttle_history: FirstOrder,
 }
 
 /// The plant stepped 10 ms at a time (see the module docs; with [`SUBSTEPS`] it
@@ -726,6 +727,8 @@ pub struct PlantEngine {
     sensor_rate_n_per_s: f64,
     bias_n: f64,
     history_n: f64,
+    /// The discrepancy's throttle-map history (settled at the start: `v(u0)`).
+    throttle_history: f64,
 }
 
 /// The throttle map over one substep: `v(u)` and the discrepancy's hinges, averaged.
@@ -817,6 +820,7 @@ impl PlantEngine {
                 v_below: p.v(law.knot_below_pct),
                 v_above: p.v(law.knot_above_pct),
                 history: FirstOrder::new(law.history_time_constant_s, h),
+                throttle_history: FirstOrder::new(law.throttle_history_time_constant_s, h),
             }
         });
         Self {
@@ -842,6 +846,7 @@ impl PlantEngine {
             // of a plant without a drift never carries a bias.
             bias_n: if drift.is_some() { slow.bias_n } else { 0.0 },
             history_n: initial.thrust_n + if discrepancy.is_some() { slow.history_offset_n } else { 0.0 },
+            throttle_history: if discrepancy.is_some() { p.v(u0_pct) } else { 0.0 },
         }
     }
 
@@ -972,11 +977,13 @@ impl PlantEngine {
             (t, d) = match self.discrepancy {
                 None => rk4_step(t, d, h, |t, d| p.f(t, d) + p.g(t, d) * drive.v),
                 Some(disc) => {
-                    let history_n = self.history_n;
-                    rk4_step(t, d, h, |t, d| {
+                    let history = Histories { thrust_n: self.history_n, throttle: self.throttle_history };
+                    let step = rk4_step(t, d, h, |t, d| {
                         let g = p.g(t, d);
-                        disc.law.total(p.f(t, d) + g * drive.v, t, d, g, drive.v, drive.below, drive.above, history_n)
-                    })
+                        disc.law.total(p.f(t, d) + g * drive.v, t, d, g, drive.v, drive.below, drive.above, history)
+                    });
+                    self.throttle_history = disc.throttle_history.advance(self.throttle_history, drive.v, drive.v);
+                    step
                 }
             };
             if let Some(schedule) = self.schedule {
@@ -1047,8 +1054,9 @@ impl PlantEngine {
                     None => p.f(t, d) + p.g(t, d) * drive.v,
                     Some(disc) => {
                         let g = p.g(t, d);
-                        let history_n = engines[l].history_n;
-                        disc.law.total(p.f(t, d) + g * drive.v, t, d, g, drive.v, drive.below, drive.above, history_n)
+                        let history =
+                            Histories { thrust_n: engines[l].history_n, throttle: engines[l].throttle_history };
+                        disc.law.total(p.f(t, d) + g * drive.v, t, d, g, drive.v, drive.below, drive.above, history)
                     }
                 }
             });
@@ -1068,6 +1076,10 @@ impl PlantEngine {
                     lanes[l].failed = true;
                     stepped[l] = false;
                     continue;
+                }
+                if let Some(disc) = lanes[l].discrepancy {
+                    let v = drives[l].v;
+                    lanes[l].throttle_history = disc.throttle_history.advance(lanes[l].throttle_history, v, v);
                 }
                 lanes[l].sense(t_start[l], t);
             }
@@ -1577,6 +1589,30 @@ mod tests {
         assert!((engine.measured_n() - rest).abs() < 1e-6, "at rest: {} vs {rest}", engine.measured_n());
     }
 
+    #[test]
+    fn a_fuel_soak_follows_the_throttle_not_the_thrust() {
+        let p = Preset::P100Diesel.params();
+        let fuel = "discrepancy:gain_throttle_history=-0.0005,throttle_history_time_constant_s=15";
+        // The history starts settled at v(30 %): the engine holds its rest with that loss of
+        // gain, below the model without it. The gain sags further while the throttle is held
+        // high, so the thrust falls there.
+        let u: Vec<f64> = (0..12_000).map(|k| if k < 1000 { 30.0 } else { 90.0 }).collect();
+        let plant = Plant::new(p, with(&[fuel]));
+        let (soak, nominal) = (run(&plant, &u), run(&Plant::new(p, Effects::none()), &u));
+        let rest_30 = plant.rest_thrust_n(30.0);
+        assert!((soak[990] - rest_30).abs() < 1e-6, "settled at the start: {} vs {rest_30}", soak[990]);
+        assert!(soak[990] < nominal[990] - 0.1, "the settled loss: {} vs {}", soak[990], nominal[990]);
+        assert!(soak[11_999] < soak[1500] - 1.0, "{} after {}", soak[11_999], soak[1500]);
+        // Settled again, the history is v(90 %): the engine's gain g(T, Ṫ) times
+        // 1 − 0.0005·v(90 %), at rest.
+        let mut q = p.to_array();
+        for b in &mut q[6..9] {
+            *b *= 1.0 - 0.0005 * p.v(90.0); // B_U, B_T, B_D
+        }
+        let rest = Params::from_array(q).stable_equilibrium(90.0).unwrap();
+        assert!((soak[11_999] - rest).abs() < 0.02, "{} vs {rest}", soak[11_999]);
+    }
+
     fn turbojet_run(effects: &[&str], u: &[f64]) -> Vec<f64> {
         run(&Plant::with_turbojet(TurbojetParams::p100(), with(effects)), u)
     }
@@ -1837,6 +1873,7 @@ mod tests {
                     "discrepancy:map_below=0.5,knot_below_pct=45,gain_history_per_n=-0.0004,history_time_constant_s=20",
                 ]),
             ),
+            Plant::new(p, with(&["discrepancy:gain_throttle_history=-0.001,throttle_history_time_constant_s=15"])),
             Plant::new(p, with(&["stand_resonance:frequency_hz=3,damping_ratio=0.05"])),
             Plant::with_turbojet(TurbojetParams::p100(), with(&[path[0]])),
         ];

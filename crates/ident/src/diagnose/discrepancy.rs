@@ -3,7 +3,7 @@
 //!
 //! The terms act inside the engine (extra thrust acceleration), so what they do to
 //! the measured thrust is found by simulation: each term of the library, at each of a
-//! few shapes (the knots of [`knots`] within the recorded range, thrust-history
+//! few shapes (the knots of [`knots`] within the recorded range, thrust- and throttle-history
 //! time constants from 5 s to 3 min; the spool-down factor and the input-gain terms have
 //! none), is added with a small coefficient and the
 //! change of the simulated output, per unit coefficient, is its sensitivity column.
@@ -100,8 +100,22 @@ pub(crate) fn probe(coefficient: usize) -> f64 {
     match coefficient {
         0 | 2 | 9 => 0.02,
         4 => 2e-5,
+        10 => 5e-5,
         7 => 1e-7,
         _ => 1e-8,
+    }
+}
+
+/// A term's family in the selection, which takes one column per family: the two history
+/// gains (the thrust's and the throttle's) are one family, since the thrust follows the
+/// throttle and the two columns are near collinear over a run. Picked together, they
+/// cancel each other in the joint fit: on a heat soak of τ 47 s on 100 s (fresh seed 6703,
+/// case 26) a thrust history of 30 s and a throttle history of 5 s started the fit, which
+/// ended with neither.
+fn family(term: DiscrepancyTerm) -> usize {
+    match term.coefficient {
+        10 => 4,
+        c => c,
     }
 }
 
@@ -111,7 +125,7 @@ fn library(problem: &Problem<'_>, history_max_s: f64) -> Vec<Column> {
     for term in DISCREPANCY_TERMS {
         match term.coefficient {
             0 | 2 => out.extend(knots.iter().map(|&k| Column { term, shape: Some(k), probe: probe(term.coefficient) })),
-            4 => out.extend(HISTORY_S.iter().filter(|&&t| t <= history_max_s).map(|&t| Column {
+            4 | 10 => out.extend(HISTORY_S.iter().filter(|&&t| t <= history_max_s).map(|&t| Column {
                 term,
                 shape: Some(t),
                 probe: probe(term.coefficient),
@@ -261,7 +275,7 @@ pub(crate) fn select(problem: &Problem<'_>, fixed: &Effects, current: &Spec, sim
     let mut active: Vec<usize> = Vec::new();
     let mut best: Option<(f64, Vec<usize>)> = None;
     while active.len() < MAX_TERMS {
-        let family_used = |a: usize| active.iter().any(|&b| column(b).term == column(a).term);
+        let family_used = |a: usize| active.iter().any(|&b| family(column(b).term) == family(column(a).term));
         let step = (m..p)
             .filter(|&a| !family_used(a))
             .filter_map(|a| {
@@ -299,13 +313,82 @@ pub(crate) fn select(problem: &Problem<'_>, fixed: &Effects, current: &Spec, sim
         free.push(c.term.coefficient);
         if let (Some(i), Some(v)) = (c.term.shape, c.shape) {
             values[i] = v;
-            scale[i] = if i == 5 { 0.3 * v } else { KNOT_STEP_PCT };
+            scale[i] = if i == 5 || i == 11 { 0.3 * v } else { KNOT_STEP_PCT };
             free.push(i);
         }
         labels.push(c.label());
     }
     free.sort_unstable();
     Some(Selection { values, free, scale, columns: labels })
+}
+
+/// The discrepancy `values` with their history gain moved to the other history, the
+/// thrust's to the throttle's or back, at the same time constant and for about the same
+/// change of gain over the recording (the coefficient times the mean thrust over the mean
+/// throttle map, or the inverse): `(from, to, factor, values)`, the indexes of the two gains
+/// and the factor between them; `None` without a history term.
+pub(crate) fn history_swapped(
+    problem: &Problem<'_>,
+    params: &Params,
+    values: &[f64],
+) -> Option<(usize, usize, f64, Vec<f64>)> {
+    let (thrust, throttle): (Vec<f64>, Vec<f64>) = problem
+        .runs
+        .iter()
+        .flat_map(|r| r.y.iter().zip(&r.u))
+        .filter(|(y, u)| y.is_finite() && u.is_finite())
+        .map(|(&y, &u)| (y, params.v(u)))
+        .unzip();
+    let mean = |x: &[f64]| x.iter().sum::<f64>() / x.len().max(1) as f64;
+    let (thrust_n, v) = (mean(&thrust), mean(&throttle));
+    if !(thrust_n.abs() > 1e-9 && v.abs() > 1e-9) {
+        return None;
+    }
+    let (from, to, factor) = if values[4] != 0.0 {
+        (4, 10, thrust_n / v)
+    } else if values[10] != 0.0 {
+        (10, 4, v / thrust_n)
+    } else {
+        return None;
+    };
+    let mut swapped = values.to_vec();
+    swapped[to] = values[from] * factor;
+    swapped[to + 1] = values[from + 1];
+    swapped[from] = DISCREPANCY_DEFAULTS[from];
+    swapped[from + 1] = DISCREPANCY_DEFAULTS[from + 1];
+    Some((from, to, factor, swapped))
+}
+
+/// `free` and `scale` of a discrepancy fit moved with [`history_swapped`]'s `from` → `to`.
+pub(crate) fn history_free_swapped(from: usize, to: usize, factor: f64, free: &mut [usize], scale: &mut [f64]) {
+    for i in free.iter_mut() {
+        if *i == from || *i == from + 1 {
+            *i = *i - from + to;
+        }
+    }
+    free.sort_unstable();
+    if scale.len() > to.max(from) + 1 {
+        scale[to] = scale[from] * factor;
+        scale[to + 1] = scale[from + 1];
+    }
+}
+
+/// `selection` with its history gain moved to the other history ([`history_swapped`]);
+/// `None` when it has no history term. The two columns are near collinear, so which one the
+/// selection took can turn on the noise, and a history started at a time constant far from
+/// its own can end on the edge of its range, where it is dropped: the fit is run from both
+/// ([`crate::diagnose`]'s `try_discrepancy`).
+pub(crate) fn other_history(problem: &Problem<'_>, params: &Params, selection: &Selection) -> Option<Selection> {
+    let (from, to, factor, values) = history_swapped(problem, params, &selection.values)?;
+    let mut twin = Selection { values, ..selection.clone() };
+    history_free_swapped(from, to, factor, &mut twin.free, &mut twin.scale);
+    let (key, shape) = (DISCREPANCY_KEYS[from], DISCREPANCY_KEYS[from + 1]);
+    for label in &mut twin.columns {
+        if label.starts_with(key) {
+            *label = label.replacen(key, DISCREPANCY_KEYS[to], 1).replacen(shape, DISCREPANCY_KEYS[to + 1], 1);
+        }
+    }
+    Some(twin)
 }
 
 /// The term of a fitted discrepancy that does nothing: its shape on the edge of the range

@@ -277,7 +277,7 @@ impl Spec {
     pub fn value_bounds(&self, kind: EffectKind, index: usize) -> (f64, f64) {
         let (lo, hi) = fit_bounds(kind, index);
         match (kind, index) {
-            (EffectKind::Discrepancy, 5) => (lo, hi.min(self.history_max_s).max(lo)),
+            (EffectKind::Discrepancy, 5 | 11) => (lo, hi.min(self.history_max_s).max(lo)),
             _ => (lo, hi),
         }
     }
@@ -347,7 +347,7 @@ pub(crate) fn fit_bounds(kind: EffectKind, index: usize) -> (f64, f64) {
         (EffectKind::StandResonance, 0) => (lo.max(0.2), 49.0),
         (EffectKind::StandResonance, _) => (lo.max(0.002), hi.min(2.0)),
         (EffectKind::Discrepancy, 1 | 3) => (15.0, 110.0),
-        (EffectKind::Discrepancy, 5) => (1.0, 1000.0),
+        (EffectKind::Discrepancy, 5 | 11) => (1.0, 1000.0),
         _ => (lo, hi),
     }
 }

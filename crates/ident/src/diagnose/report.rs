@@ -287,7 +287,16 @@ fn explain_discrepancy(
         parts.push(format!(
             "the input gain follows the thrust history (time constant {tau:.0} s): {:+.2} % per 10 N held{}",
             1000.0 * history,
-            if history < 0.0 { ", a gain that sags as the engine heat-soaks" } else { "" }
+            if history < 0.0 { ", a gain that sags with the thrust held (a soak)" } else { "" }
+        ));
+    }
+    let (fuel, tau) = (get(DISCREPANCY_KEYS[10]), get(DISCREPANCY_KEYS[11]));
+    if fuel != 0.0 {
+        parts.push(format!(
+            "the input gain follows the throttle's history (time constant {tau:.0} s): {:+.2} % per 10 % of throttle \
+             held{}",
+            1000.0 * fuel,
+            if fuel < 0.0 { ", a gain that sags with the throttle held (a soak)" } else { "" }
         ));
     }
     let gains: Vec<String> = DISCREPANCY_KEYS[6..9]

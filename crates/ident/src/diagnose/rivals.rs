@@ -42,8 +42,9 @@ pub const DISTINCT: f64 = 10.0;
 pub const WINDOW: f64 = 40.0;
 /// The name of the periodic rival: a sine at its own period added to what is read.
 pub const PERIODIC: &str = "periodic";
-/// The name of the slow-history rival: the discrepancy's thrust history with a time constant
-/// beyond what the recording lets settle, in place of a gain drift or another effect beside it.
+/// The name of the slow-history rival: a history of the discrepancy (the thrust's or the
+/// throttle's) with a time constant beyond what the recording lets settle, in place of a gain
+/// drift or another effect beside it.
 pub const SLOW_HISTORY: &str = "slow_history";
 /// The name of the throttle-play rival: play (backlash) in the throttle path.
 pub const THROTTLE_PLAY: &str = "throttle_play";
@@ -393,8 +394,8 @@ pub fn signature_of(kind: &str) -> &'static str {
         }
         "stand_resonance" => "a resonance rings at its frequency after sharp steps",
         "discrepancy" => {
-            "physics outside the catalogue acts through the engine's dynamics (its throttle map or thrust \
-             history), not on the reading"
+            "physics outside the catalogue acts through the engine's dynamics (its throttle map, or a history \
+             of the thrust or the throttle), not on the reading"
         }
         THROTTLE_PLAY => {
             "play in the throttle path shifts the steady thrust after a reversal by the same throttle \
