@@ -6,7 +6,7 @@
 //! δ = map_below·g·max(0, v(knot_below_pct) − v(u))      the throttle map flattens below a knot
 //!   + map_above·g·max(0, v(u) − v(knot_above_pct))      ... or changes slope above one
 //!   + gain_history_per_n·g·v(u)·H                       input gain that follows thrust history
-//!   + gain_throttle_history·g·v(u)·V                    ... or the throttle's history
+//!   + gain_throttle_history_per_pct·g·v(u)·V            ... or the throttle's history
 //!   + (B_TT·T² + B_DD·Ṫ² + B_TD·T·Ṫ)·v(u)               input gain beyond B_U + B_T·T + B_D·Ṫ
 //! Ḣ = (T − H)/history_time_constant_s                    H starts at the initial thrust
 //! V̇ = (v(u) − V)/throttle_history_time_constant_s        V starts at the initial v(u)
@@ -17,7 +17,7 @@
 //! Each term is what a kind of physics the ten parameters cannot express does to the
 //! engine: `map_below = 1` is a dead band (below the knot the engine runs as if at
 //! it), `gain_history_per_n < 0` a gain that sags as the engine heat-soaks,
-//! `gain_throttle_history < 0` one that sags with the fuel that has flowed (fuel
+//! `gain_throttle_history_per_pct < 0` one that sags with the fuel that has flowed (fuel
 //! warming in the lines with the pump's work: it follows what the throttle asked for,
 //! not the thrust the engine made, whose map is far from straight), the
 //! three `B_..` terms are the input gain of the iRonCub group's later jet model, and
@@ -62,7 +62,7 @@ pub const DISCREPANCY_KEYS: [&str; 12] = [
     "B_DD",
     "B_TD",
     "spool_down",
-    "gain_throttle_history",
+    "gain_throttle_history_per_pct",
     "throttle_history_time_constant_s",
 ];
 
@@ -158,7 +158,7 @@ pub(crate) struct DiscrepancyLaw {
     pub b_dd: f64,
     pub b_td: f64,
     pub spool_down: f64,
-    pub gain_throttle_history: f64,
+    pub gain_throttle_history_per_pct: f64,
     pub throttle_history_time_constant_s: f64,
 }
 
@@ -175,7 +175,7 @@ impl DiscrepancyLaw {
             b_dd: values[7],
             b_td: values[8],
             spool_down: values[9],
-            gain_throttle_history: values[10],
+            gain_throttle_history_per_pct: values[10],
             throttle_history_time_constant_s: values[11],
         }
     }
@@ -198,7 +198,7 @@ impl DiscrepancyLaw {
     pub fn accel(&self, t: f64, d: f64, g: f64, v: f64, below: f64, above: f64, history: Histories) -> f64 {
         g * (self.map_below * below
             + self.map_above * above
-            + (self.gain_history_per_n * history.thrust_n + self.gain_throttle_history * history.throttle) * v)
+            + (self.gain_history_per_n * history.thrust_n + self.gain_throttle_history_per_pct * history.throttle) * v)
             + (self.b_tt * t * t + self.b_dd * d * d + self.b_td * t * d) * v
     }
 

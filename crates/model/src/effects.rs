@@ -234,7 +234,7 @@ impl EffectKind {
         let ranges = self.keys().iter().zip(self.physical());
         let shown: Vec<String> = match self {
             EffectKind::Discrepancy => ranges
-                .filter(|(key, _)| key.ends_with("_pct"))
+                .filter(|(key, _)| key.starts_with("knot_"))
                 .map(|(key, (lo, hi))| format!("{key} {lo}–{hi}"))
                 .collect(),
             _ => ranges.map(|(key, (lo, hi))| format!("{key} {lo}–{hi}")).collect(),

@@ -1592,7 +1592,7 @@ mod tests {
     #[test]
     fn a_fuel_soak_follows_the_throttle_not_the_thrust() {
         let p = Preset::P100Diesel.params();
-        let fuel = "discrepancy:gain_throttle_history=-0.0005,throttle_history_time_constant_s=15";
+        let fuel = "discrepancy:gain_throttle_history_per_pct=-0.0005,throttle_history_time_constant_s=15";
         // The history starts settled at v(30 %): the engine holds its rest with that loss of
         // gain, below the model without it. The gain sags further while the throttle is held
         // high, so the thrust falls there.
@@ -1873,7 +1873,10 @@ mod tests {
                     "discrepancy:map_below=0.5,knot_below_pct=45,gain_history_per_n=-0.0004,history_time_constant_s=20",
                 ]),
             ),
-            Plant::new(p, with(&["discrepancy:gain_throttle_history=-0.001,throttle_history_time_constant_s=15"])),
+            Plant::new(
+                p,
+                with(&["discrepancy:gain_throttle_history_per_pct=-0.001,throttle_history_time_constant_s=15"]),
+            ),
             Plant::new(p, with(&["stand_resonance:frequency_hz=3,damping_ratio=0.05"])),
             Plant::with_turbojet(TurbojetParams::p100(), with(&[path[0]])),
         ];

@@ -376,8 +376,8 @@ pub(crate) fn history_free_swapped(from: usize, to: usize, factor: f64, free: &m
 /// `selection` with its history gain moved to the other history ([`history_swapped`]);
 /// `None` when it has no history term. The two columns are near collinear, so which one the
 /// selection took can turn on the noise, and a history started at a time constant far from
-/// its own can end on the edge of its range, where it is dropped: the fit is run from both
-/// ([`crate::diagnose`]'s `try_discrepancy`).
+/// its own can end on the edge of its range, where it is dropped: when the first fit loses
+/// its history, the fit runs again from this one ([`crate::diagnose`]'s `try_discrepancy`).
 pub(crate) fn other_history(problem: &Problem<'_>, params: &Params, selection: &Selection) -> Option<Selection> {
     let (from, to, factor, values) = history_swapped(problem, params, &selection.values)?;
     let mut twin = Selection { values, ..selection.clone() };

@@ -1678,11 +1678,12 @@ fn slow_history_rivals(search: &Search<'_, '_>, spec: &Spec, rounds: &[Round]) {
     freed_history_rival(search, slow);
 }
 
-/// `slow`, its discrepancy's thrust history freed of the longest time constant a fit explores
+/// `slow`, its discrepancy's history freed of the longest time constant a fit explores
 /// (started twice as slow), fitted and put in the pool as the unclaimable `slow_history` rival.
 fn freed_history_rival(search: &Search<'_, '_>, mut slow: Spec) {
     let Some(mut values) = slow.values(EffectKind::Discrepancy).map(<[f64]>::to_vec) else { return };
-    for (i, _) in history_taus(&values.clone()) {
+    let taus: Vec<usize> = history_taus(&values).map(|(i, _)| i).collect();
+    for i in taus {
         values[i] *= 2.0; // start slower
     }
     slow = slow.with(EffectKind::Discrepancy, values);
@@ -1765,7 +1766,7 @@ fn history_at_its_edge(values: &[f64], spec: &Spec) -> bool {
 }
 
 /// The best-scored discrepancy of the pool fitted on `base` (its effects and its refit) with a
-/// thrust history stopped at the longest time constant a fit explores.
+/// history (the thrust's or the throttle's) stopped at the longest time constant a fit explores.
 fn history_at_edge(search: &Search<'_, '_>, base: &Spec) -> Option<Spec> {
     let kinds = |s: &Spec| -> Vec<EffectKind> { s.effects.iter().map(|(k, _)| *k).collect() };
     let pool = search.pool.borrow();
@@ -1917,7 +1918,7 @@ fn history_twin(search: &Search<'_, '_>, current: &Scored) -> Option<String> {
 const LEADERS_TRIED: usize = 3;
 
 /// The indexes of the discrepancy's history gains among its values: the thrust history's
-/// (`gain_history_per_n`) and the throttle history's (`gain_throttle_history`).
+/// (`gain_history_per_n`) and the throttle history's (`gain_throttle_history_per_pct`).
 const HISTORY_GAINS: [usize; 2] = [4, 10];
 
 /// Runners-up of each catalogue effect kept, fitted in its place with the rest of the
