@@ -25,7 +25,10 @@ whose values cannot be compared with the probe's (a time constant other than the
 effect outside the catalogue) makes the claim false. An artefact (clipping, a periodic force) is
 never engine physics: every claim on such a case is false. `ambiguous`, `unexplained` and
 `insufficient_data` are not claims. Recall counts the effects named; effects a true claim
-left out and disclosed are counted apart.
+left out and disclosed are counted apart. Beside it, the report counts recall against what each
+effect put into its recording (`evidence`: the log-likelihood ratio of the noise-free reading
+with the effect against without it, for an observer who knows everything else), which no
+diagnosis can exceed.
 
     python3 scripts/diagnose_campaign.py --self-test    # the grader on made-up results
 """
@@ -367,6 +370,96 @@ def simulate(case, path, throttle=None, seed=None):
     return truth_mae
 
 
+def evidence(case):
+    """What each effect of the truth puts into the recording, for an observer who knows everything
+    else exactly (the plant, the other effects, the throttle, the noise's law): the log-likelihood
+    ratio in nats, over the whole recording, of its noise-free reading with the effect against the
+    same without it, under the case's noise model. No diagnosis can draw more from the recording
+    about the effect; one that must also fit the effect's values and the other effects' draws
+    less. Returns {effect: nats}, for every effect of the truth (artefacts too; None for a clip)."""
+    rng = random.Random(case["seed"])
+    u = profile(rng, case["duration_s"])
+    times = [k * STEP_S for k in range(len(u))]
+    true, read = Engine(case["params"], case["effects"]).run(times, u)
+    var = case["noise_var"]
+    top = max(1.0, max(true))
+    out = {}
+    for name in case["effects"]:
+        rest = {k: v for k, v in case["effects"].items() if k != name}
+        _, other = Engine(case["params"], rest).run(times, u)
+        d = [a - b for a, b in zip(read, other)]
+        if case["noise"] == "coloured":
+            # AR(1): the difference whitened, against the innovations' variance.
+            a = case["ar"]
+            e = [d[0] * math.sqrt(1 - a * a)] + [d[k] - a * d[k - 1] for k in range(1, len(d))]
+            nats = sum(x * x for x in e) / (2 * var * (1 - a * a))
+        elif case["noise"] == "heteroscedastic":
+            nats = sum(x * x / (2 * var * (0.6 + 0.8 * max(0.0, t) / top) ** 2) for x, t in zip(d, true))
+        else:
+            nats = sum(x * x for x in d) / (2 * var)
+        # The clip acts on the noisy reading, which this measure does not hold: no figure (null).
+        out[name] = None if name == "clipping" else nats
+    return out
+
+
+# Bins of `evidence` (nats) the report counts recall in.
+EVIDENCE_BINS = [0.0, 10.0, 100.0, 1000.0, 10000.0]
+
+
+def evidence_bins(results):
+    """Per bin of `EVIDENCE_BINS`: [effects, named] over the catalogue effects of the recall
+    column, and the effects missed as (nats, result, effect)."""
+    rows = [[0, 0] for _ in EVIDENCE_BINS]
+    missed = []
+    for r in results:
+        ev = r.get("evidence")
+        want = expected(r["case"])
+        if ev is None or not want or "error" in r or r["mae_before"] < 1.15 * r["floor"]:
+            continue
+        for name in r["case"]["effects"]:
+            if name in OUTSIDE or ev.get(name) is None:
+                continue
+            b = max(i for i, lo in enumerate(EVIDENCE_BINS) if ev[name] >= lo)
+            hit = r.get("cause") == "missing_physics" and name in r["found"]
+            rows[b][0] += 1
+            rows[b][1] += hit
+            if not hit:
+                missed.append((ev[name], r, name))
+    return rows, missed
+
+
+def bin_label(i):
+    lo = EVIDENCE_BINS[i]
+    hi = EVIDENCE_BINS[i + 1] if i + 1 < len(EVIDENCE_BINS) else None
+    return f"{lo:g}–{hi:g}" if hi is not None else f"≥ {lo:g}"
+
+
+def evidence_section(results):
+    """Recall of catalogue effects against what the recording holds of each (`evidence`), and the
+    effects missed that an observer knowing the rest would have seen best."""
+    rows, missed = evidence_bins(results)
+    if not any(n for n, _ in rows):
+        return []
+    lines = ["", "## Recall against what the recording holds", "",
+             "Each catalogue effect of the recall column (the given model ≥ 1.15× the floor), by how much it puts "
+             "into the recording: the log-likelihood ratio (nats) of the noise-free reading with it against "
+             "without it, for an observer who knows the plant, the other effect and the noise exactly "
+             "(`evidence` in scripts/diagnose_campaign.py). No diagnosis can draw more from the recording; one "
+             "that must fit the effect and the rest draws less.", "",
+             "| evidence (nats) | effects | named | recall |", "|---|---|---|---|"]
+    for i, (n, hit) in enumerate(rows):
+        lines.append(f"| {bin_label(i)} | {n} | {hit} | {f'{100 * hit / n:.0f} %' if n else '-'} |")
+    missed.sort(key=lambda m: -m[0])
+    if missed:
+        lines += ["", "The effects missed, most evidence first:", ""]
+        for nats, r, name in missed[:25]:
+            case = r["case"]
+            lines.append(f"- case {case['index']}: {name} ({nats:.0f} nats) beside "
+                         f"{[n for n in case['effects'] if n != name] or 'nothing'}; {case['plant']}, "
+                         f"{case['noise']} noise, {case['duration_s']} s; said {r.get('cause')} {r.get('found')}")
+    return lines
+
+
 def prepare(case, workdir):
     """The case's recording (CSV) and given model (TOML) in `workdir`, and the truth model's
     held-out MAE; a recording kept there from an earlier run of the same draw is reused."""
@@ -416,6 +509,7 @@ def run_case(jetbench, case, workdir, keep=False, discriminate=False, truth_give
         result["second"] = designed(jetbench, case, workdir, csv, model, first)
     if truth_given:
         result["truth_white_p"] = truth_whiteness(jetbench, case, workdir, csv)
+    result["evidence"] = evidence(case)
     if not keep:
         for f in (csv, model, truth, first):
             f.unlink(missing_ok=True)
@@ -606,6 +700,7 @@ def summarise(results, n, seed, elapsed_s):
             lines.append(f"- case {case['index']} ({klass(case)}, {case['plant']}, {case['noise']} noise, "
                          f"{case['duration_s']} s): truth {case['effects'] or ('parameters off' if case['params_off'] else 'none')}; "
                          f"said {r['cause']} {r['found']}{' + refit' if r['refit'] else ''}")
+    lines += evidence_section(results)
     lines += designed_section(results)
     lines += truth_section(results)
     lines += ["", "## Time per case", ""]
@@ -726,6 +821,36 @@ def plot_svg(results, path):
     Path(path).write_text("\n".join(out) + "\n")
 
 
+def plot_evidence_svg(results, path):
+    """Recall against what the recording holds (`evidence_bins`) as bars per bin: effects named
+    and missed (SVG, no dependencies)."""
+    rows, _ = evidence_bins(results)
+    width, bar, left, top = 760, 26, 190, 40
+    height = top + len(rows) * (bar + 10) + 60
+    most = max([n for n, _ in rows] + [1])
+    scale = (width - left - 80) / most
+    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" font-family="sans-serif" '
+           'font-size="12">', f'<text x="{left}" y="20" font-size="14">Catalogue effects named, by the evidence '
+           'the recording holds of each (nats)</text>']
+    for i, (n, hit) in enumerate(rows):
+        y = top + i * (bar + 10)
+        out.append(f'<text x="{left - 8}" y="{y + bar * 0.65}" text-anchor="end">{bin_label(i)}</text>')
+        for x0, count, colour, kind in ((left, hit, "#2a9d43", "named"), (left + hit * scale, n - hit, "#8c8c8c",
+                                                                        "missed")):
+            if count:
+                out.append(f'<rect x="{x0:.1f}" y="{y}" width="{count * scale:.1f}" height="{bar}" fill="{colour}">'
+                           f'<title>{kind}: {count}</title></rect>')
+        if n:
+            out.append(f'<text x="{left + n * scale + 6:.1f}" y="{y + bar * 0.65}">{hit}/{n} ({100 * hit / n:.0f} %)'
+                       '</text>')
+    y = top + len(rows) * (bar + 10) + 20
+    for j, (kind, colour) in enumerate((("named", "#2a9d43"), ("missed", "#8c8c8c"))):
+        out.append(f'<rect x="{20 + j * 122}" y="{y}" width="12" height="12" fill="{colour}"/>'
+                   f'<text x="{36 + j * 122}" y="{y + 10}">{kind}</text>')
+    out.append("</svg>")
+    Path(path).write_text("\n".join(out) + "\n")
+
+
 def self_test():
     """The grader on made-up results: a claim naming the whole truth, one leaving out an effect
     its verdict disclosed as able to hide at the truth's size, and claims leaving out one that
@@ -784,7 +909,8 @@ def main():
     parser.add_argument("--jetbench", default=str(ROOT / "target/release/jetbench"))
     parser.add_argument("--out", help="Markdown report (default: stdout)")
     parser.add_argument("--json", help="every case's result, for plots and tests")
-    parser.add_argument("--plot", help="SVG of the outcome per class")
+    parser.add_argument("--plot", help="SVG of the outcome per class (and, beside it as NAME-evidence.svg, of "
+                        "the recall against the evidence each effect put into its recording)")
     parser.add_argument("--deadline-s", type=float, help="stop starting cases after this long; report those done")
     parser.add_argument("--case", type=int, action="append", default=[],
                         help="run only this case of the draw (repeatable): the same case as in the full campaign")
@@ -880,12 +1006,21 @@ def merged(paths):
 
 def finish(args, results, drawn, elapsed_s):
     """Report, plot and write the results."""
+    # Results of an earlier run without the evidence measure (--merge of older files) get it here.
+    lacking = [r for r in results if "evidence" not in r]
+    if lacking:
+        with concurrent.futures.ProcessPoolExecutor(max(args.jobs, 1)) as pool:
+            for r, ev in zip(lacking, pool.map(evidence, [r["case"] for r in lacking])):
+                r["evidence"] = ev
     report = summarise(results, len(results), args.seed, elapsed_s)
     if len(results) < drawn:
         report += f"\nStopped at the deadline: {len(results)} of the {drawn} cases drawn were diagnosed.\n"
     graded = [grade(r) for r in results]
     if args.plot:
         plot_svg(results, args.plot)
+        # Beside it, recall against the evidence each effect put into its recording.
+        if any(r.get("evidence") for r in results):
+            plot_evidence_svg(results, Path(args.plot).with_name(Path(args.plot).stem + "-evidence.svg"))
     if args.json:
         Path(args.json).write_text(json.dumps({
             "cases": len(results),
