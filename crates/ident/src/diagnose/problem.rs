@@ -329,9 +329,30 @@ impl<'a> Problem<'a> {
         };
         let (n_cal, n_val) = (count(Part::Calibration), count(Part::Validation));
         if n_cal < 1000 || n_val < 500 {
+            // Rows left out are part of why so little is left: say how many, and why.
+            let clipped_rows: usize = clipped.iter().map(|c| c.1).sum();
+            let mut left_out = Vec::new();
+            if clipped_rows > 0 {
+                let limits: Vec<String> = clipped.iter().map(|c| format!("{:.1} N", c.0)).collect();
+                left_out.push(format!(
+                    "{clipped_rows} rows were left out where the force sensor read at or near its limit ({}), \
+                     no measurement of the thrust; keep the thrust within the sensor's range",
+                    limits.join(", ")
+                ));
+            }
+            if !outliers.is_empty() {
+                left_out.push(format!("{} spikes were left out", outliers.len()));
+            }
+            let why = if left_out.is_empty() {
+                String::new()
+            } else {
+                format!(" Of the rows recorded, {}.", left_out.join("; "))
+            };
             return Err(IdentError::TooLittleData(format!(
                 "{n_cal} calibration and {n_val} validation samples; a diagnosis needs at least 1000 and 500 \
-                 (a few minutes of data; typical recordings are 300 s)"
+                 (a few minutes of data; typical recordings are 300 s; the last {:.0} % of each recording is held \
+                 out).{why}",
+                100.0 * holdout
             )));
         }
         let report = DataReport {
