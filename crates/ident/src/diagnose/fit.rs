@@ -842,6 +842,25 @@ mod tests {
         assert!(d.verdict.contains("both ways round"), "{}", d.verdict);
     }
 
+    /// `--only input_delay` on a recording of a lag: the search tries the delay alone, and the
+    /// lag, the delay's look-alike, is never fitted in its place, nor claimed (rivals the model
+    /// cannot hold, such as play in the throttle path, are still weighed). (The look-alikes
+    /// were once fitted whatever the candidates said, and a leader among them claimed.)
+    #[test]
+    fn only_the_effects_the_user_allows_are_tried_or_claimed() {
+        let params = Preset::P100Diesel.params();
+        let plant = Plant::new(params, Effects::new(["actuator_lag:time_constant_s=0.25".parse().unwrap()]).unwrap());
+        let profile = excite::campaign(150.0, 66).profile;
+        let data = [synth::record_bench(&plant, &profile, &synth::Bench::default(), 66).unwrap()];
+        let options = Options { candidates: vec![jetbench_model::EffectKind::InputDelay], ..Options::default() };
+        let d = diagnose(&ModelFile::new(params), &data, &options, &mut |_| {}).unwrap();
+        let named: Vec<&str> =
+            d.effects.iter().map(|e| e.name).chain(d.rivals.iter().flat_map(|r| r.effects.clone())).collect();
+        // Rivals outside the model (throttle play, a periodic force) are weighed and never claimed.
+        let unmodelled = crate::diagnose::rivals::UNMODELLED;
+        assert!(named.iter().all(|n| *n == "input_delay" || unmodelled.contains(n)), "{named:?}: {}", d.verdict);
+    }
+
     /// A recording that starts with the stand's frame at the bottom of the bearings' play
     /// band, where the engine's run-up to its first throttle left it (the reading a band
     /// below the thrust until the thrust first moves by the band): with each run's place in

@@ -552,6 +552,11 @@ impl<'p, 'a> Search<'p, 'a> {
     /// case) met a start falling at 35 N/s, bent to 196 ms (ten standard errors off) to make
     /// up for it, and left a residual only a discrepancy beside it could take.
     fn try_effect(&self, current: &Spec, kind: EffectKind, peak_hz: Option<f64>) -> Option<Scored> {
+        // Only the effects the user lets the search try (`--only`), wherever it tries them:
+        // a look-alike fitted in a kept effect's place is tried too, and may be claimed.
+        if !self.options.candidates.contains(&kind) {
+            return None;
+        }
         // A sensor-side effect's grid runs on one engine path (see [`SimCache`]).
         let mut cache = SimCache::default();
         let joins = kind == EffectKind::SensorDrift && !current.has(kind);
@@ -661,6 +666,9 @@ impl<'p, 'a> Search<'p, 'a> {
     /// history ([`discrepancy::other_history`]), and the better scored of the two is kept
     /// (with the ten parameters as given).
     fn try_discrepancy(&self, current: &Scored) -> Option<(Scored, Vec<String>)> {
+        if !self.options.candidates.contains(&EffectKind::Discrepancy) {
+            return None;
+        }
         let selection = discrepancy::select(self.problem, &self.model.effects, &current.fit.spec, &current.sim)?;
         let twin = discrepancy::other_history(self.problem, &current.fit.spec.params, &selection);
         let fit = |selection: discrepancy::Selection| -> Option<(Scored, Vec<String>)> {
