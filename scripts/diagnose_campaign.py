@@ -328,6 +328,12 @@ def expected(case):
     return sorted({"discrepancy" if n in OUTSIDE else n for n in case["effects"]})
 
 
+def hetero_scale(t, top):
+    """The heteroscedastic noise's σ at thrust `t`, as a share of the case's σ: growing with the
+    thrust, from 0.6 at rest to 1.4 at `top`, the recording's highest true thrust (at least 1 N)."""
+    return 0.6 + 0.8 * max(0.0, t) / top
+
+
 def simulate(case, path, throttle=None, seed=None):
     """The case's recording into `path` (CSV); its throttle is the case's random profile, or
     `throttle` (one value per 10 ms) for a second recording of the same engine, whose noise is
@@ -337,12 +343,13 @@ def simulate(case, path, throttle=None, seed=None):
     times = [k * STEP_S for k in range(len(u))]
     true, read = Engine(case["params"], case["effects"]).run(times, u)
     sigma = math.sqrt(case["noise_var"])
+    top = max(1.0, max(true))
     noise, e = [], 0.0
     for k, t in enumerate(true):
         if case["noise"] == "coloured":
             e = case["ar"] * e + rng.gauss(0, sigma * math.sqrt(1 - case["ar"] ** 2))
         elif case["noise"] == "heteroscedastic":
-            e = rng.gauss(0, sigma * (0.6 + 0.8 * max(0.0, t) / max(1.0, max(true))))
+            e = rng.gauss(0, sigma * hetero_scale(t, top))
         else:
             e = rng.gauss(0, sigma)
         noise.append(e)
@@ -394,7 +401,7 @@ def evidence(case):
             e = [d[0] * math.sqrt(1 - a * a)] + [d[k] - a * d[k - 1] for k in range(1, len(d))]
             nats = sum(x * x for x in e) / (2 * var * (1 - a * a))
         elif case["noise"] == "heteroscedastic":
-            nats = sum(x * x / (2 * var * (0.6 + 0.8 * max(0.0, t) / top) ** 2) for x, t in zip(d, true))
+            nats = sum(x * x / (2 * var * hetero_scale(t, top) ** 2) for x, t in zip(d, true))
         else:
             nats = sum(x * x for x in d) / (2 * var)
         # The clip acts on the noisy reading, which this measure does not hold: no figure (null).
