@@ -328,6 +328,12 @@ def expected(case):
     return sorted({"discrepancy" if n in OUTSIDE else n for n in case["effects"]})
 
 
+def in_recall_column(r):
+    """Whether a result counts in the recall column: an effect a true claim names, diagnosed
+    without error, the given model at least 1.15× the floor (the acceptance's recall)."""
+    return bool(expected(r["case"])) and "error" not in r and r["mae_before"] >= 1.15 * r["floor"]
+
+
 def hetero_scale(t, top):
     """The heteroscedastic noise's σ at thrust `t`, as a share of the case's σ: growing with the
     thrust, from 0.6 at rest to 1.4 at `top`, the recording's highest true thrust (at least 1 N)."""
@@ -377,6 +383,22 @@ def simulate(case, path, throttle=None, seed=None):
     return truth_mae
 
 
+def nats_of(case, d, true):
+    """The log-likelihood ratio (nats) that a difference `d` between two noise-free readings puts
+    into the recording under the case's noise model (`true`: the true thrust, for the
+    heteroscedastic noise's scale)."""
+    var = case["noise_var"]
+    if case["noise"] == "coloured":
+        # AR(1): the difference whitened, against the innovations' variance.
+        a = case["ar"]
+        e = [d[0] * math.sqrt(1 - a * a)] + [d[k] - a * d[k - 1] for k in range(1, len(d))]
+        return sum(x * x for x in e) / (2 * var * (1 - a * a))
+    if case["noise"] == "heteroscedastic":
+        top = max(1.0, max(true))
+        return sum(x * x / (2 * var * hetero_scale(t, top) ** 2) for x, t in zip(d, true))
+    return sum(x * x for x in d) / (2 * var)
+
+
 def evidence(case):
     """What each effect of the truth puts into the recording, for an observer who knows everything
     else exactly (the plant, the other effects, the throttle, the noise's law): the log-likelihood
@@ -388,24 +410,71 @@ def evidence(case):
     u = profile(rng, case["duration_s"])
     times = [k * STEP_S for k in range(len(u))]
     true, read = Engine(case["params"], case["effects"]).run(times, u)
-    var = case["noise_var"]
-    top = max(1.0, max(true))
     out = {}
     for name in case["effects"]:
         rest = {k: v for k, v in case["effects"].items() if k != name}
         _, other = Engine(case["params"], rest).run(times, u)
-        d = [a - b for a, b in zip(read, other)]
-        if case["noise"] == "coloured":
-            # AR(1): the difference whitened, against the innovations' variance.
-            a = case["ar"]
-            e = [d[0] * math.sqrt(1 - a * a)] + [d[k] - a * d[k - 1] for k in range(1, len(d))]
-            nats = sum(x * x for x in e) / (2 * var * (1 - a * a))
-        elif case["noise"] == "heteroscedastic":
-            nats = sum(x * x / (2 * var * hetero_scale(t, top) ** 2) for x, t in zip(d, true))
-        else:
-            nats = sum(x * x for x in d) / (2 * var)
         # The clip acts on the noisy reading, which this measure does not hold: no figure (null).
-        out[name] = None if name == "clipping" else nats
+        out[name] = None if name == "clipping" else nats_of(case, [a - b for a, b in zip(read, other)], true)
+    return out
+
+
+# The lead a claim needs over a rival of other parts: `DISTINCT` of
+# crates/ident/src/diagnose/rivals.rs, 10 score units (twice a log-likelihood), in nats.
+CLAIM_BAR_NATS = 5.0
+
+# Effects of the throttle path that a look-alike mimics: the look-alike, its one value, and that
+# value's unit in the effect's own (a delay of d and a lag of d both hold the answer back by d).
+LOOKALIKES = {
+    "input_delay": ("actuator_lag", "time_constant_s", "delay_s"),
+    "actuator_lag": ("input_delay", "delay_s", "time_constant_s"),
+}
+
+
+def lookalike_evidence(case):
+    """What separates each effect of the truth from its look-alike (`LOOKALIKES`), for the same
+    observer as `evidence`: the log-likelihood ratio (nats) of the noise-free reading against the
+    nearest reading with the effect replaced by its look-alike, the look-alike's one value fitted
+    (everything else exact; where the truth holds the look-alike too, the effect is left out and
+    the look-alike's value fitted to make up for it). Under `CLAIM_BAR_NATS`, even that observer could not claim the effect over its look-alike by the tool's bar; a diagnosis, which must fit
+    the rest too, can do no better. Returns {effect: nats} for the effects that have a look-alike."""
+    out = {}
+    wanted = [n for n in case["effects"] if n in LOOKALIKES]
+    if not wanted:
+        return out
+    rng = random.Random(case["seed"])
+    u = profile(rng, case["duration_s"])
+    times = [k * STEP_S for k in range(len(u))]
+    true, read = Engine(case["params"], case["effects"]).run(times, u)
+    for name in wanted:
+        other, key, own = LOOKALIKES[name]
+        size = case["effects"][name][own] + (case["effects"][other][key] if other in case["effects"] else 0.0)
+        rest = {k: v for k, v in case["effects"].items() if k != name}
+
+        def cost(value):
+            _, alike = Engine(case["params"], {**rest, other: {key: value}}).run(times, u)
+            return nats_of(case, [a - b for a, b in zip(read, alike)], true)
+
+        # A log grid from a quarter to four times the effect's size, then golden sections
+        # around the best point of the grid.
+        grid = [size * 4.0 ** (2.0 * i / 11 - 1.0) for i in range(12)]
+        costs = [cost(g) for g in grid]
+        i = min(range(len(grid)), key=costs.__getitem__)
+        lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+        best = costs[i]
+        ratio = (math.sqrt(5) - 1) / 2
+        a, b = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
+        fa, fb = cost(a), cost(b)
+        for _ in range(10):
+            if fa < fb:
+                hi, b, fb = b, a, fa
+                a = hi - ratio * (hi - lo)
+                fa = cost(a)
+            else:
+                lo, a, fa = a, b, fb
+                b = lo + ratio * (hi - lo)
+                fb = cost(b)
+        out[name] = min(best, fa, fb)
     return out
 
 
@@ -420,8 +489,7 @@ def evidence_bins(results):
     missed = []
     for r in results:
         ev = r.get("evidence")
-        want = expected(r["case"])
-        if ev is None or not want or "error" in r or r["mae_before"] < 1.15 * r["floor"]:
+        if ev is None or not in_recall_column(r):
             continue
         for name in r["case"]["effects"]:
             if name in OUTSIDE or ev.get(name) is None:
@@ -456,15 +524,64 @@ def evidence_section(results):
              "| evidence (nats) | effects | named | recall |", "|---|---|---|---|"]
     for i, (n, hit) in enumerate(rows):
         lines.append(f"| {bin_label(i)} | {n} | {hit} | {f'{100 * hit / n:.0f} %' if n else '-'} |")
-    missed.sort(key=lambda m: -m[0])
-    if missed:
-        lines += ["", "The effects missed, most evidence first:", ""]
-        for nats, r, name in missed[:25]:
-            case = r["case"]
-            lines.append(f"- case {case['index']}: {name} ({nats:.0f} nats) beside "
-                         f"{[n for n in case['effects'] if n != name] or 'nothing'}; {case['plant']}, "
-                         f"{case['noise']} noise, {case['duration_s']} s; said {r.get('cause')} {r.get('found')}")
+    lines += missed_lines(missed, "The effects missed, most evidence first:", "{:.0f} nats", 25)
+    return lines + lookalike_section(results)
+
+
+def missed_lines(missed, title, nats_format, most):
+    """The effects missed as (nats, result, effect), most nats first, at most `most` of them."""
+    if not missed:
+        return []
+    lines = ["", title, ""]
+    for nats, r, name in sorted(missed, key=lambda m: -m[0])[:most]:
+        case = r["case"]
+        lines.append(f"- case {case['index']}: {name} ({nats_format.format(nats)}) beside "
+                     f"{[n for n in case['effects'] if n != name] or 'nothing'}; {case['plant']}, "
+                     f"{case['noise']} noise, {case['duration_s']} s; said {r.get('cause')} {r.get('found')}")
     return lines
+
+
+def lookalike_section(results):
+    """Recall against what separates each effect from its look-alike (`lookalike_evidence`), and the
+    most recall any diagnosis can reach that claims only past the tool's bar."""
+    rows = {True: [0, 0], False: [0, 0]}
+    total = claimable = 0
+    missed = []
+    for r in results:
+        ev, alike = r.get("evidence"), r.get("lookalike")
+        if ev is None or alike is None or not in_recall_column(r):
+            continue
+        for name in r["case"]["effects"]:
+            if name in OUTSIDE or ev.get(name) is None:
+                continue
+            hit = r.get("cause") == "missing_physics" and name in r["found"]
+            total += 1
+            apart = ev[name] >= CLAIM_BAR_NATS and alike.get(name, math.inf) >= CLAIM_BAR_NATS
+            claimable += apart
+            if name in alike:
+                rows[alike[name] >= CLAIM_BAR_NATS][0] += 1
+                rows[alike[name] >= CLAIM_BAR_NATS][1] += hit
+                if not hit:
+                    missed.append((alike[name], r, name))
+    if not total:
+        return []
+    lines = ["", "## Recall against what separates an effect from its look-alike", "",
+             "A delay and a lag of about its size hold the engine's answer back alike. For each delay and lag of "
+             "the recall column: the log-likelihood ratio (nats) of the noise-free reading against the nearest "
+             "reading with the effect replaced by the other (its value fitted; everything else exact, for the "
+             f"same observer as above; `lookalike_evidence`). Under {CLAIM_BAR_NATS:g} nats (the tool's bar for a "
+             "claim over a rival of other parts), not even that observer could claim the effect over its "
+             "look-alike.", "",
+             "| delays and lags | effects | named | recall |", "|---|---|---|---|"]
+    for apart, label in ((True, f"separable (≥ {CLAIM_BAR_NATS:g} nats)"), (False, f"not separable (< {CLAIM_BAR_NATS:g})")):
+        n, hit = rows[apart]
+        lines.append(f"| {label} | {n} | {hit} | {f'{100 * hit / n:.0f} %' if n else '-'} |")
+    lines += ["", f"**The most recall a diagnosis that claims only past the tool's bar can reach here: {claimable} of "
+              f"{total} catalogue effects ({100 * claimable / total:.0f} %)**: the effects of the recall column less those "
+              f"that put under {CLAIM_BAR_NATS:g} nats into their recording or under {CLAIM_BAR_NATS:g} nats between "
+              "themselves and their look-alike, for an observer who knows all else."]
+    return lines + missed_lines(missed, "The delays and lags missed, most separable first:",
+                                "{:.1f} nats from its look-alike", 15)
 
 
 def prepare(case, workdir):
@@ -565,6 +682,10 @@ def outcome(case, d, elapsed, truth_mae):
         "found": sorted(e["name"] for e in d["effects"]),
         "refit": d.get("refit") is not None,
         "rivals": [(r["effects"], r["refit"], r["weight"]) for r in d.get("rivals", [])],
+        # How far behind each rival was, with and without its penalty per parameter, and whether
+        # the search's explanation dominated it: what a rule for claims can be weighed on later.
+        "rival_detail": [{k: r.get(k) for k in ("fit_behind", "score_behind", "dominated", "side", "mae_val_n")}
+                         for r in d.get("rivals", [])],
         # What the verdict disclosed as able to hide beside the model found.
         "hidden": [{k: p.get(k) for k in ("effect", "probe", "could_hide", "energy", "threshold")}
                    for p in d.get("detectability", []) if p.get("would_show") is False],
@@ -667,10 +788,9 @@ def summarise(results, n, seed, elapsed_s):
         # named as a discrepancy, is counted in the recall of every effect.
         catalogue = catalogue_named = 0
         for r in rs:
-            want = expected(r["case"])
-            if not want or "error" in r or r["mae_before"] < 1.15 * r["floor"]:
+            if not in_recall_column(r):
                 continue
-            for w in want:
+            for w in expected(r["case"]):
                 hit = r.get("cause") == "missing_physics" and w in r["found"]
                 present += 1
                 named += hit
@@ -1019,6 +1139,13 @@ def finish(args, results, drawn, elapsed_s):
         with concurrent.futures.ProcessPoolExecutor(max(args.jobs, 1)) as pool:
             for r, ev in zip(lacking, pool.map(evidence, [r["case"] for r in lacking])):
                 r["evidence"] = ev
+    # What separates a delay or a lag from its look-alike: for the recall column only, after the
+    # diagnoses (it runs the engine a few dozen times per effect and would slow them).
+    lacking = [r for r in results if "lookalike" not in r and "evidence" in r and in_recall_column(r)]
+    if lacking:
+        with concurrent.futures.ProcessPoolExecutor(max(args.jobs, 1)) as pool:
+            for r, alike in zip(lacking, pool.map(lookalike_evidence, [r["case"] for r in lacking])):
+                r["lookalike"] = alike
     report = summarise(results, len(results), args.seed, elapsed_s)
     if len(results) < drawn:
         report += f"\nStopped at the deadline: {len(results)} of the {drawn} cases drawn were diagnosed.\n"

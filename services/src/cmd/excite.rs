@@ -122,9 +122,17 @@ fn discriminate(args: &ExciteArgs, diagnosis: &Path) -> anyhow::Result<ExitCode>
         holdout: args.holdout,
         ..DesignOptions::default()
     };
-    let d = design::design(&rivals.models, &noise, &options)?;
+    let (d, left_out) = design::design_separable(&rivals.models, &noise, &options)?;
+    for note in &left_out {
+        eprintln!("note: {note}");
+    }
     super::export::write_csv(&d.profile, &args.out)?;
-    let names: Vec<String> = rivals.models.iter().map(|r| format!("{} (weight {:.2})", r.label, r.weight)).collect();
+    let names: Vec<String> = rivals
+        .models
+        .iter()
+        .filter(|r| d.pairs.iter().any(|p| p.a == r.label || p.b == r.label))
+        .map(|r| format!("{} (weight {:.2})", r.label, r.weight))
+        .collect();
     println!(
         "{}: {} samples ({:.0} s) within {:.0}–{:.0} % separating {}",
         args.out.display(),

@@ -16,8 +16,9 @@
 //!
 //! 1. **Rebuild.** Each rival the diagnosis kept (not dominated) becomes a plant: the
 //!    given model with the rival's effects added at the values the diagnosis fitted them
-//!    (the search's explanation from its findings, another rival from the last round that
-//!    fitted each of its effects), and with the ten refitted parameters when it refits.
+//!    with (each rival's own fit, as it was weighed; from a diagnosis that did not keep
+//!    those, the search's findings or the last round that fitted each effect), and with
+//!    the ten refitted parameters when it refits.
 //! 2. **Separate.** For two rivals `a`, `b` on a campaign, the expected difference of
 //!    their held-out scores (`N·ln(SSE/N)`, twice a log-likelihood) is
 //!    `S_ab = Σ_k w_k² / σ_e²`, with `w` the predicted thrust difference `ŷ_a − ŷ_b`
@@ -57,6 +58,17 @@ pub enum DesignError {
     /// The limits and duration cannot make the weakest pair decisive.
     #[error("{0}")]
     CannotSeparate(String),
+    /// The weakest pair predicts nearly the same thrust on every campaign within the limits,
+    /// however long: no experiment here separates it (its labels, and what was found).
+    #[error("{message}")]
+    Inseparable {
+        /// One rival of the pair, by its label.
+        a: String,
+        /// The other rival of the pair.
+        b: String,
+        /// What the design found, in words.
+        message: String,
+    },
 }
 
 /// One rival explanation, rebuilt as a plant.
@@ -257,13 +269,25 @@ pub fn rivals_from_json(model: &ModelFile, json: &Value) -> Result<Rivals, Desig
         }
         let mut plant_effects = model.effects.clone();
         let mut missing = Vec::new();
+        // Its own values when the diagnosis kept them (a diagnosis of an older jetbench did
+        // not): the explanation as it was weighed. Else each effect's values from the fits
+        // that held it.
+        let own = &r["fitted"];
         for e in &effects {
-            match e.parse::<EffectKind>().ok().and_then(|k| fitted_effect(json, k)) {
+            let kind = e.parse::<EffectKind>().ok();
+            let own_effect = own["effects"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .find(|o| o["name"].as_str() == Some(e.as_str()))
+                .and_then(|o| kind.and_then(|k| effect_from(k, &o["params"])));
+            match own_effect.or_else(|| kind.and_then(|k| fitted_effect(json, k))) {
                 Some(effect) => plant_effects = plant_effects.with(effect),
                 None => missing.push(e.as_str()),
             }
         }
-        let params = if refit { fitted_params(json) } else { Some(model.model) };
+        let params =
+            if refit { params_from(&own["params"]).or_else(|| fitted_params(json)) } else { Some(model.model) };
         match params {
             Some(params) if missing.is_empty() => {
                 models.push(RivalModel { label: name, weight, plant: Plant::new(params, plant_effects) })
@@ -519,11 +543,16 @@ pub fn design(rivals: &[RivalModel], noise: &Noise, options: &DesignOptions) -> 
                  them, or the rivals predict the same thrust on every campaign this bench can run)"
             ),
         };
-        return Err(DesignError::CannotSeparate(format!(
+        let message = format!(
             "in {:.0} s within {lo:.0} – {hi:.0} % the weakest pair ({a} vs {b}) reaches an expected held-out score \
              difference of {have:.1}, short of the {:.0} a decisive answer needs; {advice}",
             options.duration_s, options.decisive
-        )));
+        );
+        return Err(if decisive_s.is_none() {
+            DesignError::Inseparable { a, b, message }
+        } else {
+            DesignError::CannotSeparate(message)
+        });
     }
     u.truncate(wanted);
     let mut report: Vec<PairSeparation> = final_pairs
@@ -543,6 +572,58 @@ pub fn design(rivals: &[RivalModel], noise: &Noise, options: &DesignOptions) -> 
         pairs: report,
         decisive_after_s: decisive_s,
     })
+}
+
+/// The parts of a rival's label (`a+b+refit`; `nothing` has none).
+fn parts(label: &str) -> Vec<&str> {
+    if label == "nothing" {
+        Vec::new()
+    } else {
+        label.split('+').collect()
+    }
+}
+
+/// [`design`] for the rivals whose differences a campaign within the limits can show.
+///
+/// A rival that is another rival with a part more (a gain drift beside the same
+/// discrepancy, a refit beside the same lag) and predicts nearly the same thrust on every
+/// campaign within the limits, however long ([`DesignError::Inseparable`]), adds a part no
+/// experiment here can show: it is left out of the design, with a note (the returned
+/// lines), and the design separates the rest. The diagnosis of both recordings still weighs
+/// it, and a part that shows nothing does not pay its penalty there. Two rivals of other
+/// parts that no campaign separates are reported as before: that is an answer too.
+pub fn design_separable(
+    rivals: &[RivalModel],
+    noise: &Noise,
+    options: &DesignOptions,
+) -> Result<(Design, Vec<String>), DesignError> {
+    let mut kept: Vec<RivalModel> = rivals.to_vec();
+    let mut notes = Vec::new();
+    loop {
+        match design(&kept, noise, options) {
+            Ok(d) => return Ok((d, notes)),
+            Err(DesignError::Inseparable { a, b, message }) => {
+                let (pa, pb) = (parts(&a), parts(&b));
+                let within = |x: &[&str], y: &[&str]| x.len() < y.len() && x.iter().all(|p| y.contains(p));
+                let (smaller, bigger) = if within(&pa, &pb) {
+                    (a, b)
+                } else if within(&pb, &pa) {
+                    (b, a)
+                } else {
+                    return Err(DesignError::Inseparable { a, b, message });
+                };
+                notes.push(format!(
+                    "{bigger} predicts what {smaller} does on every campaign within the limits ({message}): the part it \
+                     adds cannot be shown here, so the design leaves it out"
+                ));
+                kept.retain(|r| r.label != bigger);
+                if kept.len() < 2 {
+                    return Err(DesignError::TooFewRivals(notes.join("; ")));
+                }
+            }
+            Err(e) => return Err(e),
+        }
+    }
 }
 
 #[cfg(test)]
@@ -631,6 +712,33 @@ mod tests {
     }
 
     #[test]
+    fn a_rival_whose_extra_part_no_campaign_shows_is_left_out_of_the_design() {
+        let m = resolve_model("p100-diesel").expect("preset");
+        let delay: Effect = "input_delay:delay_s=0.05".parse().expect("effect");
+        let lag: Effect = "actuator_lag:time_constant_s=0.055".parse().expect("effect");
+        // A gain drift of 1e-5 per minute beside the delay: nothing any campaign can show.
+        let drift: Effect = "gain_drift:per_minute=0.00001".parse().expect("effect");
+        let plant =
+            |effects: &[Effect]| Plant::new(m.model, effects.iter().fold(m.effects.clone(), |all, e| all.with(*e)));
+        let models = vec![
+            RivalModel { label: "input_delay".into(), weight: 0.5, plant: plant(&[delay]) },
+            RivalModel { label: "gain_drift+input_delay".into(), weight: 0.3, plant: plant(&[delay, drift]) },
+            RivalModel { label: "actuator_lag".into(), weight: 0.2, plant: plant(&[lag]) },
+        ];
+        let o = DesignOptions { duration_s: 120.0, ..DesignOptions::default() };
+        let noise = Noise::white(2.65);
+        assert!(matches!(design(&models, &noise, &o), Err(DesignError::Inseparable { .. })));
+        let (d, notes) = design_separable(&models, &noise, &o).expect("the delay and the lag are separated");
+        assert_eq!(notes.len(), 1, "{notes:?}");
+        assert!(notes[0].starts_with("gain_drift+input_delay predicts what input_delay does"), "{notes:?}");
+        assert_eq!(d.pairs.len(), 1);
+        assert!(d.pairs[0].held_out_score >= 40.0, "{:?}", d.pairs);
+        // Rivals of other parts that no campaign separates are still refused.
+        let same = vec![models[0].clone(), RivalModel { label: "actuator_lag".into(), ..models[0].clone() }];
+        assert!(matches!(design_separable(&same, &noise, &o), Err(DesignError::Inseparable { .. })));
+    }
+
+    #[test]
     fn identical_rivals_cannot_be_separated_and_bad_limits_are_refused() {
         let r = rivals("input_delay:delay_s=0.05", "input_delay:delay_s=0.05");
         let o = DesignOptions { duration_s: 20.0, ..DesignOptions::default() };
@@ -678,6 +786,33 @@ mod tests {
         assert!(r.notes.iter().any(|n| n.contains("throttle_play") && n.contains("cannot be simulated")), "{r:?}");
         assert!(r.notes.iter().any(|n| n.contains("rate_limit") && n.contains("dominated")), "{r:?}");
         assert_eq!(Noise::from_json(&json).expect("noise"), Noise::white(2.6));
+    }
+
+    #[test]
+    fn a_rival_is_rebuilt_with_its_own_fitted_values_where_the_diagnosis_kept_them() {
+        let m = resolve_model("p100-diesel").expect("preset");
+        let mut json = diagnosis_json();
+        // The lag fitted beside a gain drift in one rival, alone in the finding: each rival
+        // is rebuilt as it was weighed, the refitted parameters its own too.
+        json["rivals"][0] = serde_json::json!({
+            "effects": ["actuator_lag", "gain_drift"], "refit": true, "weight": 0.88, "dominated": false,
+            "fitted": {
+                "effects": [
+                    { "name": "actuator_lag", "params": { "time_constant_s": 0.071 } },
+                    { "name": "gain_drift", "params": { "per_minute": 0.004 } }
+                ],
+                "params": jetbench_model::Params::NAMES.iter()
+                    .map(|k| (k.to_string(), serde_json::json!(1.0))).collect::<serde_json::Map<_, _>>()
+            }
+        });
+        let r = rivals_from_json(&m, &json).expect("rivals");
+        let own = &r.models[0];
+        assert_eq!(own.label, "actuator_lag+gain_drift+refit");
+        assert_eq!(own.plant.effects.get(EffectKind::ActuatorLag).expect("lag").values(), [0.071]);
+        assert_eq!(own.plant.effects.get(EffectKind::GainDrift).expect("drift").values(), [0.004]);
+        assert_eq!(own.plant.params.to_array(), [1.0; 10]);
+        // A rival without its own values still gets the fits' (an older diagnosis).
+        assert_eq!(r.models[1].plant.effects.get(EffectKind::InputDelay).expect("delay").values(), [0.05]);
     }
 
     #[test]

@@ -11,7 +11,7 @@
 
 use std::collections::BTreeMap;
 
-use jetbench_model::{EffectKind, Params, STEP_S};
+use jetbench_model::{Effect, EffectKind, Params, STEP_S};
 use serde::Serialize;
 
 use super::fit::Fit;
@@ -140,6 +140,47 @@ pub struct Rival {
     /// True when the search's explanation beats it in at least 95 % of resamples and by
     /// more than a tie (always false for the search's explanation itself).
     pub dominated: bool,
+    /// The values it was fitted with, to rebuild it as it was weighed (absent for a rival
+    /// jetbench cannot model).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fitted: Option<RivalValues>,
+}
+
+/// The values a rival explanation was fitted with: what `jetbench excite --discriminate`
+/// rebuilds it from.
+#[derive(Clone, Debug, Serialize)]
+pub struct RivalValues {
+    /// Each effect it adds, with its values by key (as the diagnosis's `effects` list them).
+    pub effects: Vec<RivalEffect>,
+    /// The ten parameters, when it refits them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub params: Option<BTreeMap<&'static str, f64>>,
+}
+
+/// One effect of a rival and its fitted values.
+#[derive(Clone, Debug, Serialize)]
+pub struct RivalEffect {
+    /// Its catalogue name (`discrepancy` for the terms outside the catalogue).
+    pub name: &'static str,
+    /// Its values by key.
+    pub params: BTreeMap<&'static str, f64>,
+}
+
+impl RivalValues {
+    /// The values of `fit`, or `None` when one of its effects has values out of its range.
+    fn of(fit: &Fit) -> Option<Self> {
+        let effects = fit
+            .spec
+            .effects
+            .iter()
+            .map(|(kind, values)| {
+                let effect = Effect::new(*kind, values).ok()?;
+                Some(RivalEffect { name: kind.name(), params: effect.params().collect() })
+            })
+            .collect::<Option<Vec<_>>>()?;
+        let params = fit.spec.refit.then(|| super::named(&fit.spec.params));
+        Some(RivalValues { effects, params })
+    }
 }
 
 impl Rival {
@@ -552,6 +593,7 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
             tells_apart((&e.effects, e.refit), (&chosen.effects, chosen.refit))
         },
         dominated: j != ci && dominated(j),
+        fitted: e.fit.as_ref().and_then(RivalValues::of),
     };
     let mut rivals: Vec<(usize, Rival)> = entries
         .iter()
