@@ -383,10 +383,10 @@ def simulate(case, path, throttle=None, seed=None):
     return truth_mae
 
 
-def nats_of(case, d, true):
+def nats_of(case, d, true, top):
     """The log-likelihood ratio (nats) that a difference `d` between two noise-free readings puts
-    into the recording under the case's noise model (`true`: the true thrust, for the
-    heteroscedastic noise's scale)."""
+    into the recording under the case's noise model (`true`: the true thrust, and `top` its
+    highest, at least 1 N, for the heteroscedastic noise's scale)."""
     var = case["noise_var"]
     if case["noise"] == "coloured":
         # AR(1): the difference whitened, against the innovations' variance.
@@ -394,7 +394,6 @@ def nats_of(case, d, true):
         e = [d[0] * math.sqrt(1 - a * a)] + [d[k] - a * d[k - 1] for k in range(1, len(d))]
         return sum(x * x for x in e) / (2 * var * (1 - a * a))
     if case["noise"] == "heteroscedastic":
-        top = max(1.0, max(true))
         return sum(x * x / (2 * var * hetero_scale(t, top) ** 2) for x, t in zip(d, true))
     return sum(x * x for x in d) / (2 * var)
 
@@ -410,12 +409,13 @@ def evidence(case):
     u = profile(rng, case["duration_s"])
     times = [k * STEP_S for k in range(len(u))]
     true, read = Engine(case["params"], case["effects"]).run(times, u)
+    top = max(1.0, max(true))
     out = {}
     for name in case["effects"]:
         rest = {k: v for k, v in case["effects"].items() if k != name}
         _, other = Engine(case["params"], rest).run(times, u)
         # The clip acts on the noisy reading, which this measure does not hold: no figure (null).
-        out[name] = None if name == "clipping" else nats_of(case, [a - b for a, b in zip(read, other)], true)
+        out[name] = None if name == "clipping" else nats_of(case, [a - b for a, b in zip(read, other)], true, top)
     return out
 
 
@@ -446,6 +446,7 @@ def lookalike_evidence(case):
     u = profile(rng, case["duration_s"])
     times = [k * STEP_S for k in range(len(u))]
     true, read = Engine(case["params"], case["effects"]).run(times, u)
+    top = max(1.0, max(true))
     for name in wanted:
         other, key, own = LOOKALIKES[name]
         size = case["effects"][name][own] + (case["effects"][other][key] if other in case["effects"] else 0.0)
@@ -453,7 +454,7 @@ def lookalike_evidence(case):
 
         def cost(value):
             _, alike = Engine(case["params"], {**rest, other: {key: value}}).run(times, u)
-            return nats_of(case, [a - b for a, b in zip(read, alike)], true)
+            return nats_of(case, [a - b for a, b in zip(read, alike)], true, top)
 
         # A log grid from a quarter to four times the effect's size, then golden sections
         # around the best point of the grid.
