@@ -811,7 +811,11 @@ pub fn diagnose(
         }
     }
     progress("analysing the improved model");
-    let analysis_after = residual::analyse(&problem, &current.sim);
+    // What the explanation leaves is judged under the noise as its own second differences show
+    // it: the recording's took in a little of a fast engine's transients (see
+    // `Problem::with_colour_from`).
+    let recoloured = problem.with_colour_from(&current.sim);
+    let analysis_after = residual::analyse(recoloured.as_ref().unwrap_or(&problem), &current.sim);
     let improved = ModelFile {
         model: current.fit.spec.params,
         effects: current.fit.spec.effects_over(&model.effects).unwrap_or_else(|| model.effects.clone()),
@@ -830,6 +834,14 @@ pub fn diagnose(
     // left (tied to the throttle, the operating point, the direction of change, time).
     let (mut analysis_before, mut analysis_after, mut noise, mut floor_n) =
         (analysis_before, analysis_after, problem.report.clone(), floor_n);
+    if let Some(r) = &recoloured {
+        noise.notes.push(format!(
+            "the residual after is judged under the noise as its own second differences show it ({}; the \
+             recording's, {}, hold some of the engine's fast transients)",
+            r.ar().describe(),
+            problem.ar().describe()
+        ));
+    }
     if effects.is_empty() && refit.is_none() && !analysis_after.whiteness.white {
         if let Some(refined) = problem.with_noise_from(&current.sim) {
             let again = residual::analyse(&refined, &current.sim);
