@@ -24,7 +24,9 @@ class with `would_show` false whose `could_hide` ranges hold every value of the 
 whose values cannot be compared with the probe's (a time constant other than the probe's, an
 effect outside the catalogue) makes the claim false. An artefact (clipping, a periodic force) is
 never engine physics: every claim on such a case is false. `ambiguous`, `unexplained` and
-`insufficient_data` are not claims. Recall counts the effects named; effects a true claim
+`insufficient_data` are not claims. A claim of the part every explanation in play holds lists
+what they hold beside it as undecided (`undecided` in the diagnosis): an effect of the truth it
+lists there counts as disclosed. Recall counts the effects named; effects a true claim
 left out and disclosed are counted apart. Beside it, the report counts recall against what each
 effect put into its recording (`evidence`: the log-likelihood ratio of the noise-free reading
 with the effect against without it, for an observer who knows everything else), which no
@@ -682,6 +684,9 @@ def outcome(case, d, elapsed, truth_mae):
         "cause": d["cause"],
         "found": sorted(e["name"] for e in d["effects"]),
         "refit": d.get("refit") is not None,
+        # A claim of the part every explanation in play holds: what they hold beside it.
+        "undecided": sorted({e for o in d.get("undecided", []) for e in o["effects"]}),
+        "undecided_refit": any(o["refit"] for o in d.get("undecided", [])),
         "rivals": [(r["effects"], r["refit"], r["weight"]) for r in d.get("rivals", [])],
         # How far behind each rival was, with and without its penalty per parameter, and whether
         # the search's explanation dominated it: what a rule for claims can be weighed on later.
@@ -727,12 +732,17 @@ def disclosed(name, values, hidden):
 def left_out(r):
     """The truth's effects a physics claim did not name: (disclosed as able to hide, not)."""
     case, found = r["case"], set(r.get("found", []))
+    undecided = set(r.get("undecided", []))
     shown, undisclosed = [], []
     for name, values in case["effects"].items():
         label = "discrepancy" if name in OUTSIDE else name
         if label in found:
             continue
-        (shown if disclosed(name, values, r.get("hidden")) else undisclosed).append(name)
+        # A part the claim lists as undecided (an explanation in play holds it) is disclosed.
+        if label in undecided or disclosed(name, values, r.get("hidden")):
+            shown.append(name)
+        else:
+            undisclosed.append(name)
     return shown, undisclosed
 
 
@@ -819,7 +829,18 @@ def summarise(results, n, seed, elapsed_s):
             case = r["case"]
             lines.append(f"- case {case['index']} ({klass(case)}, {case['plant']}, {case['noise']} noise, "
                          f"{case['duration_s']} s): truth {case['effects']}; said {r['found']}; disclosed as able "
-                         f"to hide: {', '.join(left_out(r)[0])}")
+                         f"to hide or listed as undecided: {', '.join(left_out(r)[0])}")
+    partial = [r for r in results if r.get("cause") == "missing_physics" and r.get("undecided")]
+    lines += ["", "## Claims of the part every explanation in play holds", "",
+              f"The recording could not decide between the explanations in play, but every one of them held the "
+              f"physics claimed; what they held beside it is listed as undecided. {len(partial)} such claims, "
+              f"{sum(grade(r)[1] for r in partial)} true.", ""]
+    for r in partial:
+        case = r["case"]
+        lines.append(f"- case {case['index']} ({klass(case)}, {case['plant']}, {case['duration_s']} s): truth "
+                     f"{case['effects']}; claimed {r['found']}; undecided beside it: {', '.join(r['undecided'])}"
+                     f"{' (or the parameters off)' if r.get('undecided_refit') else ''}; "
+                     f"{'true' if grade(r)[1] else 'FALSE'}")
     lines += ["", "## False claims", ""]
     for r in results:
         c, t = grade(r)
@@ -981,8 +1002,9 @@ def plot_evidence_svg(results, path):
 
 def self_test():
     """The grader on made-up results: a claim naming the whole truth, one leaving out an effect
-    its verdict disclosed as able to hide at the truth's size, and claims leaving out one that
-    was not disclosed, disclosed at a smaller size, or not comparable. Returns the failures."""
+    its verdict disclosed as able to hide at the truth's size or listed as undecided, and claims
+    leaving out one that was not disclosed, disclosed at a smaller size, or not comparable.
+    Returns the failures."""
     lag = {"time_constant_s": 0.3}
     resonance = {"frequency_hz": 3.2, "damping_ratio": 0.09}
 
@@ -1019,6 +1041,14 @@ def self_test():
                                                            [band]), False),
         ("physics outside the catalogue left out", result({"heat_soak": {"loss_per_n": 4e-4, "time_constant_s": 60.0}},
                                                           ["gain_drift"], [band]), False),
+        ("a drift left undecided beside the lag claimed",
+         dict(result({"actuator_lag": lag, "sensor_drift": {"gain": 0.01, "time_constant_s": 40.0}}, ["actuator_lag"],
+                     []), undecided=["sensor_drift"]), True),
+        ("a drift left out, another effect left undecided",
+         dict(result({"actuator_lag": lag, "sensor_drift": {"gain": 0.01, "time_constant_s": 40.0}}, ["actuator_lag"],
+                     []), undecided=["gain_drift"]), False),
+        ("an effect claimed beside what is undecided, not in the truth",
+         dict(result({"actuator_lag": lag}, ["input_delay"], []), undecided=["actuator_lag"]), False),
     ]
     failures = []
     for what, r, want in checks:

@@ -322,6 +322,16 @@ pub struct Diagnosis {
     /// True when the search's explanation beats every rival of another kind in at least
     /// 95 % of resamples and by more than a tie.
     pub dominant: bool,
+    /// When the search's explanation does not dominate but every explanation in play holds
+    /// the effects claimed (`effects`): what each explanation in play holds beside them, with
+    /// its weight. The claim is of those effects; whether any of these parts is there too,
+    /// the recording cannot tell (see [`report::cause`]). Empty otherwise.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub undecided: Vec<rivals::OpenPart>,
+    /// The effects every explanation in play holds, and what each holds beside them (see
+    /// [`rivals::Rivals::settled`]).
+    #[serde(skip)]
+    pub(crate) in_play: (Vec<&'static str>, Vec<rivals::OpenPart>),
     /// When the held-out part alone left the claim short of one and the rivals were weighed
     /// both ways round (each fitted on either part and judged on the other): the claim's
     /// weight on the held-out part alone.
@@ -874,6 +884,8 @@ pub fn diagnose(
         held_out_s: weighed.held_out_s,
         needed_s: weighed.needed_s,
         dominant: weighed.dominant,
+        undecided: Vec::new(),
+        in_play: (weighed.settled, weighed.open),
         weighed_both_ways: weighed.both_ways,
         // "Nothing is missing" and "only the parameters are off" are claims alike: both need
         // every class of effect to have been detectable (beside the refit, for the latter).
@@ -915,6 +927,15 @@ pub fn diagnose(
         cut: problem.cut.clone(),
     };
     d.cause = report::cause(&d);
+    if d.cause == Cause::MissingPhysics && !d.dominant {
+        // A claim of what every explanation in play holds; the rest stays open.
+        let (settled, open) = std::mem::take(&mut d.in_play);
+        d.effects.retain(|e| settled.contains(&e.name));
+        if open.iter().any(|o| !o.refit) {
+            d.refit = None;
+        }
+        d.undecided = open;
+    }
     d.verdict = report::verdict(&d);
     Ok(d)
 }

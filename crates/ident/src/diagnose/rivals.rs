@@ -212,6 +212,26 @@ pub struct Rivals {
     /// every other explanation (see [`leader`]), by its effects and refit.
     #[serde(skip)]
     pub(crate) leader: Option<(Vec<&'static str>, bool)>,
+    /// The effects every explanation in play holds: the search's own and every rival it
+    /// does not dominate, listed or not. The recording settles them even when it cannot
+    /// decide between the explanations: every one that lacks them is dominated.
+    pub settled: Vec<&'static str>,
+    /// Each explanation in play (listed or not), by what it holds beside [`Rivals::settled`]:
+    /// what the recording leaves undecided.
+    pub open: Vec<OpenPart>,
+}
+
+/// What one explanation in play holds beside the effects every one of them holds.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct OpenPart {
+    /// Its effects beside the settled ones (empty: nothing more).
+    pub effects: Vec<&'static str>,
+    /// True when it refits the ten parameters.
+    pub refit: bool,
+    /// Its weight (the share of resamples it wins).
+    pub weight: f64,
+    /// True for an explanation jetbench weighs but cannot model ([`UNMODELLED`]).
+    pub unmodelled: bool,
 }
 
 /// The rival that may be claimed in place of the search's explanation: the one, if any,
@@ -608,6 +628,19 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         .map(|(j, e)| (j, rival(j, e)))
         .collect();
     let dominant = n >= MIN_BLOCKS * block && rivals.iter().all(|(j, r)| *j == ci || r.dominated);
+    // What every explanation in play holds, before the list is cut to six.
+    let in_play: Vec<&Rival> = rivals.iter().filter(|(j, r)| *j == ci || !r.dominated).map(|(_, r)| r).collect();
+    let settled: Vec<&'static str> =
+        chosen.effects.iter().copied().filter(|x| in_play.iter().all(|r| r.effects.contains(x))).collect();
+    let open = in_play
+        .iter()
+        .map(|r| OpenPart {
+            effects: r.effects.iter().copied().filter(|x| !settled.contains(x)).collect(),
+            refit: r.refit,
+            weight: r.weight,
+            unmodelled: r.unmodelled(),
+        })
+        .collect();
     let leader = (n >= MIN_BLOCKS * block && !dominant)
         .then(|| {
             leader(
@@ -634,6 +667,8 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         needed_s,
         both_ways: None,
         leader,
+        settled,
+        open,
     }
 }
 
@@ -764,6 +799,35 @@ mod tests {
         let mut other = explanation(&[EffectKind::InputDelay, EffectKind::GainDrift], false, &noise);
         other.idle = vec!["gain_drift"];
         assert!(!weigh(&[other], &chosen).dominant);
+    }
+
+    /// Explanations in play that all hold a lag settle it, whatever else they disagree on; a
+    /// rival in play without it settles nothing; one it dominates does not count.
+    #[test]
+    fn what_every_explanation_in_play_holds_is_settled() {
+        let n = 6000;
+        let noise = innovations(4, n, 1.0);
+        let other: Vec<f64> = noise.iter().rev().copied().collect();
+        let chosen = explanation(&[EffectKind::ActuatorLag], false, &noise);
+        let with_drift = explanation(&[EffectKind::ActuatorLag, EffectKind::GainDrift], false, &other);
+        let w = weigh(std::slice::from_ref(&with_drift), &chosen);
+        assert!(!w.dominant, "{:?}", w.rivals);
+        assert_eq!(w.settled, ["actuator_lag"]);
+        let open: Vec<(Vec<&str>, bool)> = w.open.iter().map(|o| (o.effects.clone(), o.refit)).collect();
+        assert_eq!(open.len(), 2, "{open:?}");
+        assert!(open.contains(&(vec![], false)) && open.contains(&(vec!["gain_drift"], false)), "{open:?}");
+        assert!((w.open.iter().map(|o| o.weight).sum::<f64>() - 1.0).abs() < 1e-9);
+
+        let delay = explanation(&[EffectKind::InputDelay], false, &other);
+        let w = weigh(&[with_drift.clone(), delay], &chosen);
+        assert!(w.settled.is_empty(), "a delay in play settles no lag: {:?}", w.settled);
+
+        // A delay far behind (dominated) leaves the lag settled.
+        let far: Vec<f64> = noise.iter().map(|x| x * 1.05).collect();
+        let delay = explanation(&[EffectKind::InputDelay], false, &far);
+        let w = weigh(&[with_drift, delay], &chosen);
+        assert_eq!(w.settled, ["actuator_lag"], "{:?}", w.rivals);
+        assert_eq!(w.open.len(), 2, "the dominated delay is not in play: {:?}", w.open);
     }
 
     #[test]
