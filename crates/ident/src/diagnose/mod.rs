@@ -846,8 +846,8 @@ pub fn diagnose(
         (analysis_before, analysis_after, problem.report.clone(), floor_n);
     if let Some(r) = &recoloured {
         noise.notes.push(format!(
-            "the residual after is judged under the noise as its own second differences show it ({}; the \
-             recording's, {}, hold some of the engine's fast transients)",
+            "the residual after is judged under the noise as its own second differences show it ({}); the \
+             recording's second differences, which carry the engine's fast transients too, gave {}",
             r.ar().describe(),
             problem.ar().describe()
         ));

@@ -539,8 +539,9 @@ impl<'a> Problem<'a> {
 
     /// This problem with the noise model's colour estimated again, as [`Problem::new`]
     /// estimated it (second differences, [`noise::estimate`]), on the residual of `sim`
-    /// instead of the recording; the noise's scale and floor stay the data's. `None` when
-    /// the residual gives no estimate or the same model.
+    /// instead of the recording, when that gives a model of lower order; the noise's scale
+    /// and floor stay the data's. `None` when the residual gives no estimate, or one of the
+    /// same order or higher.
     ///
     /// The recording's second differences carry the engine's signal too. A slow engine's is
     /// hundredths of a newton, but after throttle steps taken in one cycle a fast one's
@@ -550,14 +551,19 @@ impl<'a> Problem<'a> {
     /// 1, which a Ljung–Box test on thirty thousand samples rejects (p 4e-5, a delay with
     /// nothing else beside it, on the live bench). What an explanation leaves holds no
     /// more of the engine's signal than the recording does, and a misfit that is slow
-    /// shows in second differences no more than the signal does, so what the residual's
-    /// second differences say is the noise, as near as the recording can tell it.
+    /// shows in second differences no more than the signal does.
+    ///
+    /// Both estimates carry something besides the noise, the engine's fast transients in one,
+    /// the misfit's in the other, and either can only add structure the noise does not have.
+    /// So the residual's is used only when it is of lower order, a model with less structure:
+    /// never to whiten a fast misfit away (a resonance left out makes the residual's estimate
+    /// the more coloured one), and not for the scatter of two estimates of the same order.
     pub fn with_colour_from(&self, sim: &Sim) -> Option<Self> {
         let residuals: Vec<Vec<f64>> = (0..self.runs.len())
             .map(|i| self.residual(i, sim).into_iter().step_by(self.runs[i].stride).collect())
             .collect();
         let found = noise::estimate(&residuals)?;
-        if found.model.phi == self.noise.model.phi {
+        if found.model.order() >= self.noise.model.order() {
             return None;
         }
         let mut refined = self.clone();
@@ -1071,7 +1077,8 @@ mod tests {
     /// Throttle steps taken in one cycle, every few tenths of a second, leave a fast engine's
     /// transients in the recording's second differences: the noise, white, is estimated as
     /// an AR model, and the right model's residual (the noise alone) fails Ljung–Box under
-    /// it. Estimated again on that residual, the noise is white, and the residual passes.
+    /// it. Estimated again on that residual, the noise is white, and the residual passes. On
+    /// coloured noise of a slow engine both estimates are AR(1), and the recording's stands.
     #[test]
     fn the_noise_under_which_a_residual_is_judged_is_estimated_again_on_it() {
         let plant = Plant::new(Preset::P100Diesel.params(), Effects::none());
@@ -1101,6 +1108,16 @@ mod tests {
         assert_eq!(again.noise.sigma_n, problem.noise.sigma_n, "the scale stays the data's");
         let judged = residual::analyse(&again, &sim);
         assert!(judged.whiteness.white, "p {}", judged.whiteness.p_value);
+
+        // Coloured noise on a slow engine: the residual's estimate is of the same order, and the
+        // recording's model stands.
+        let slow = Plant::new(Preset::P220Kerosene.params(), Effects::none());
+        let coloured = synth::Bench { noise_var_n2: 9.0, noise_ar: vec![0.6], ..synth::Bench::default() };
+        let data = [synth::record_bench(&slow, &excite::campaign(300.0, 12).profile, &coloured, 7).expect("recording")];
+        let problem = Problem::new(&data, &slow, 0.3).expect("problem");
+        problem.simulate(&slow, &problem.given_states(), false, &mut sim).expect("simulates");
+        assert_eq!(problem.ar().order(), 1, "{:?}", problem.ar());
+        assert!(problem.with_colour_from(&sim).is_none());
     }
 
     /// The in-place innovations are the residuals whitened run by run, value for value, on a
