@@ -565,7 +565,9 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
         Cause::Unexplained => {
             let why = d.rounds.last().map_or(String::new(), |r| format!(" ({})", r.reason));
             let mut what: Vec<String> = d.before.findings.clone();
-            if let (true, Some(refit)) = (d.effects.is_empty(), &d.refit) {
+            // A refit whose residual is noise is unexplained only beside a rival it cannot
+            // rule out (a sine, or something jetbench does not model), which is said below.
+            if let (true, Some(refit), false) = (d.effects.is_empty(), &d.refit, residual_is_noise(d)) {
                 what.insert(
                     0,
                     format!(
@@ -617,8 +619,11 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
                     ),
                 );
             }
-            if in_play && !d.effects.is_empty() {
-                let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
+            if in_play && (!d.effects.is_empty() || d.refit.is_some()) {
+                let mut names: Vec<String> = d.effects.iter().map(|e| e.name.to_owned()).collect();
+                if let Some(refit) = &d.refit {
+                    names.insert(0, refit.what());
+                }
                 what.insert(
                     0,
                     format!(
