@@ -586,9 +586,12 @@ fn a_fresh_campaign_delay_behind_a_ramp_from_the_first_row_is_claimed_at_its_siz
 /// weighed freed of it beside the refit too (`slow_history`), and the case is `ambiguous`.
 /// Seed 7591's case 222, a heat soak of τ 58 s on 300 s (3.9×), was claimed as a soak on the
 /// throttle's history with a gain drift beside it: the soak on the thrust's history without
-/// the drift is now weighed against it, 0.2 units behind. Every explanation in play holds the
-/// soak (a discrepancy), so the soak is claimed and the gain drift left undecided beside it, a
-/// true claim (docs/diagnose/README.md, "The part every explanation in play holds").
+/// the drift is now weighed against it, 0.2 units behind. Every explanation in play holds a
+/// soak, but not the same one: on the throttle's history in one, on the thrust's in the other.
+/// For a while the label alone settled it and the soak was claimed, the gain drift undecided;
+/// a discrepancy is settled only with the same terms in every explanation in play, and the
+/// case is `ambiguous` between the two (docs/diagnose/README.md, "The part every explanation
+/// in play holds").
 #[test]
 fn fresh_campaign_false_claims_stay_answered_right() {
     let drift = draw("9277", "173");
@@ -618,10 +621,13 @@ fn fresh_campaign_false_claims_stay_answered_right() {
     assert!(rival_names(result).contains(&"slow_history"), "{result}");
     let heat = draw("7591", "222");
     let result = &heat["results"][0];
-    assert_eq!(result["cause"], "missing_physics", "{result}");
-    assert_eq!(result["found"], serde_json::json!(["discrepancy"]), "{result}");
-    assert_eq!(result["undecided"], serde_json::json!(["gain_drift"]), "{result}");
-    assert_eq!((heat["claims"].as_u64(), heat["true_claims"].as_u64()), (Some(1), Some(1)), "{result}");
+    assert_eq!(result["cause"], "ambiguous", "{result}");
+    let with_drift = result["rivals"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .any(|r| r[0] == serde_json::json!(["discrepancy", "gain_drift"]));
+    assert!(with_drift, "the soak with the gain drift is not among the rivals: {result}");
     let without_drift =
         result["rivals"].as_array().into_iter().flatten().any(|r| r[0] == serde_json::json!(["discrepancy"]));
     assert!(without_drift, "the soak on the other history, without the drift, is not among the rivals: {result}");

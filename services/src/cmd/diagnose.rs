@@ -16,7 +16,8 @@ use jetbench_record::series::Series;
 #[command(after_long_help = "\
 Steps:
   1. prepare  put the recordings on the model's 10 ms grid (short gaps simulated through with the \
-throttle held, long ones split runs; a CSV at another rate resampled), leave out spikes (beyond 5.5 robust \
+throttle held, the second after one in which the throttle stepped left out, long ones split runs; a CSV at \
+another rate resampled), leave out spikes (beyond 5.5 robust \
 standard deviations of their neighbours), model the sensor noise (AR, from the data alone)
   2. locate   simulate the model from the recorded throttle and analyse the residual against the noise \
 model: whiteness, throttle correlation, rising/falling/steady phases, operating point, drift, spectrum, \

@@ -18,7 +18,8 @@
 //! ```
 //!
 //! 1. **Prepare.** The recordings go on the model's 10 ms grid: short gaps are
-//!    simulated through with the throttle held, spikes are rejected against a robust
+//!    simulated through with the throttle held (the second after one in which the
+//!    throttle stepped left out), spikes are rejected against a robust
 //!    scale and counted, and the sensor noise is modelled as an AR process from the
 //!    data alone ([`problem`], [`crate::noise`]).
 //! 2. **Locate.** The model is simulated from the recorded throttle and its residual
@@ -459,9 +460,7 @@ impl<'p, 'a> Search<'p, 'a> {
         let mae_val = self.problem.mae(&sim, Part::Validation);
         let scored =
             (sse_val.is_finite() && mae_val.is_finite()).then_some(Scored { fit, sim, sse_val, n_val, mae_val })?;
-        let mut entry = self.entry(&scored);
-        entry.fit = Some(scored.fit.clone());
-        self.pool.borrow_mut().push(entry);
+        self.pool.borrow_mut().push(self.entry(&scored));
         Some(scored)
     }
 
@@ -481,6 +480,9 @@ impl<'p, 'a> Search<'p, 'a> {
         );
         entry.idle = fit::idle_effects(&s.fit).into_iter().map(|(k, ..)| k.name()).collect();
         entry.refit_only = s.fit.spec.refit_only.clone();
+        // Its fitted values: what a rival is rebuilt from, and how a discrepancy's terms are
+        // compared between the explanations in play.
+        entry.fit = Some(s.fit.clone());
         entry
     }
 
@@ -1079,10 +1081,7 @@ fn fitted_back(search: &Search<'_, '_>, back: &Search<'_, '_>, label: &Label, sp
         return done.clone();
     }
     // With its fit: what it fits in sample (see [`weigh_rivals`]).
-    let entry = back
-        .fit(spec)
-        .map(|s| rivals::Entry { fit: Some(s.fit.clone()), ..back.entry(&s) })
-        .filter(|e| e.score.is_finite());
+    let entry = back.fit(spec).map(|s| back.entry(&s)).filter(|e| e.score.is_finite());
     search.back.borrow_mut().insert(label.clone(), entry.clone());
     entry
 }

@@ -4,7 +4,12 @@
 //! - **Gaps.** Rows are placed on the 10 ms grid by the time between them. A run
 //!   carries on through a gap of up to [`MAX_HELD_GAP_S`] with the last throttle held
 //!   (the convention of every recording: a row's throttle holds until the next row),
-//!   so a lost row costs one comparison, not a restart. Longer gaps split runs.
+//!   so a lost row costs one comparison, not a restart. Longer gaps split runs. Where
+//!   the throttle steps inside a gap (its rows on either side differ by more than the
+//!   throttle's slope before the gap carries it, by enough throttle-time to matter), when
+//!   the engine got the new command is not known: the [`UNKNOWN_STEP_S`] after the gap
+//!   are left out of every comparison (a bench whose actuation board acknowledges late
+//!   loses exactly those rows).
 //! - **Outliers.** A sample further than [`OUTLIER_Z`] robust standard deviations
 //!   from the median of its neighbours (a CAN spike, a garbled frame) is left out of
 //!   every comparison and counted; the simulation runs on through it.
@@ -40,6 +45,20 @@ use crate::IdentError;
 
 /// Longest gap a run is simulated through with the throttle held, s.
 pub const MAX_HELD_GAP_S: f64 = 1.0;
+
+/// How long after a gap in which the throttle stepped the samples are left out, s: the
+/// engine's answer to a step whose time is unknown within the gap (an engine settles in
+/// about a second; a lag or a delay it has adds to its answer, not to how far a step's
+/// timing carries).
+pub const UNKNOWN_STEP_S: f64 = 1.0;
+
+/// A throttle change across a gap further from where the slope before it leads than this,
+/// times the gap's length in rows, is a step inside the gap whose time matters, % · rows:
+/// the throttle held through a gap is off by at most that much throttle-time. A 10 % step
+/// in a lost row is one; a closed loop's throttle, which moves a per cent or two from row
+/// to row, is not (leaving out the second after every such gap had left out 41 % of a live
+/// closed-loop recording whose board acknowledged 8 % of its rows late).
+const STEP_IN_GAP_PCT_ROWS: f64 = 30.0;
 /// A sample this many robust standard deviations from its neighbours' median is an outlier.
 pub const OUTLIER_Z: f64 = 5.5;
 /// Neighbours on each side in the outlier test's median.
@@ -95,6 +114,40 @@ pub(crate) struct Run {
 }
 
 impl Run {
+    /// Leaves out the [`UNKNOWN_STEP_S`] after each gap in which the throttle stepped (see
+    /// the module docs): `u_pct` is the recording's throttle by row. Returns the gaps and the
+    /// samples left out.
+    fn mask_steps_in_gaps(&mut self, u_pct: &[f64]) -> (usize, usize) {
+        let window = (UNKNOWN_STEP_S / STEP_S).round() as usize;
+        let (mut stepped, mut masked) = (0, 0);
+        for j in 0..self.grid.len().saturating_sub(1) {
+            let gap = self.grid[j + 1] - self.grid[j];
+            if gap <= self.stride {
+                continue;
+            }
+            let k = self.rows.start + j;
+            // Where the throttle's slope before the gap (a ramp) carries it across.
+            let slope = match j.checked_sub(1) {
+                Some(i) if self.grid[j] - self.grid[i] == self.stride => u_pct[k] - u_pct[k - 1],
+                _ => 0.0,
+            };
+            let rows = (gap / self.stride) as f64;
+            let carried = u_pct[k] + slope * rows;
+            if (u_pct[k + 1] - carried).abs() * rows <= STEP_IN_GAP_PCT_ROWS {
+                continue;
+            }
+            stepped += 1;
+            let (from, len) = (self.grid[j + 1], self.y.len());
+            for y in &mut self.y[from..(from + window).min(len)] {
+                if y.is_finite() {
+                    *y = f64::NAN;
+                    masked += 1;
+                }
+            }
+        }
+        (stepped, masked)
+    }
+
     pub(crate) fn in_part(&self, k: usize, part: Part) -> bool {
         (k < self.cut) == ((part == Part::Calibration) != self.reversed)
     }
@@ -145,6 +198,10 @@ pub struct DataReport {
     pub lost_rows: usize,
     /// Gaps longer than [`MAX_HELD_GAP_S`], where a run ends and the next starts afresh.
     pub run_splits: usize,
+    /// Gaps in which the throttle stepped, the [`UNKNOWN_STEP_S`] after each left out.
+    pub steps_in_gaps: usize,
+    /// Samples left out after them.
+    pub after_steps_in_gaps: usize,
     /// Runs of consecutive rows the recordings make, each simulated from its own start.
     pub runs: usize,
     /// Notes from loading (another sampling rate, ...).
@@ -276,6 +333,7 @@ impl<'a> Problem<'a> {
         let mut runs = Vec::new();
         let mut cut = Vec::with_capacity(data.len());
         let (mut gaps, mut lost_rows, mut run_splits) = (0, 0, 0);
+        let (mut steps_in_gaps, mut after_steps_in_gaps) = (0, 0);
         for (i, s) in data.iter().enumerate() {
             let (first, last) = (s.t_s[0], s.t_s[s.len() - 1]);
             let split_s = first + (1.0 - holdout) * (last - first);
@@ -299,7 +357,10 @@ impl<'a> Problem<'a> {
                     run_splits += 1;
                 }
                 if k - start >= 3 {
-                    runs.push(Self::run(s, i, start..k, &steps, cut[i]));
+                    let mut run = Self::run(s, i, start..k, &steps, cut[i]);
+                    let (stepped, masked) = run.mask_steps_in_gaps(&s.u_pct);
+                    (steps_in_gaps, after_steps_in_gaps) = (steps_in_gaps + stepped, after_steps_in_gaps + masked);
+                    runs.push(run);
                 }
                 start = k;
             }
@@ -366,6 +427,8 @@ impl<'a> Problem<'a> {
             gaps,
             lost_rows,
             run_splits,
+            steps_in_gaps,
+            after_steps_in_gaps,
             runs: runs.len(),
             notes,
             from_residual: false,
@@ -1042,6 +1105,47 @@ mod tests {
                 assert_eq!(p.to_bits(), decay.powi(k as i32).to_bits(), "τ = {time_constant_s} s, k = {k}");
             }
         }
+    }
+
+    /// A gap in which the throttle stepped leaves the second after it out (when the engine
+    /// got the step is not known); a gap in a ramp, which the ramp's slope carries across, a
+    /// gap in a hold, and one across a step of 2 % (what a closed loop moves from row to row)
+    /// leave nothing out.
+    #[test]
+    fn the_second_after_a_step_inside_a_gap_is_left_out() {
+        let plant = Plant::new(Preset::P100Diesel.params(), Effects::none());
+        let mut profile = Series { name: "steps".into(), ..Series::default() };
+        for k in 0..30_000usize {
+            // Holds of 20 s at 40 % and 70 % (72 % from 30 s), a ramp of 2 %/s from 60 to 80 s.
+            let t = k as f64 * STEP_S;
+            let u = match t {
+                t if (60.0..80.0).contains(&t) => 40.0 + (t - 60.0) * 2.0,
+                t if (30.0..40.0).contains(&t) => 72.0,
+                t if ((t / 20.0) as usize).is_multiple_of(2) => 40.0,
+                _ => 70.0,
+            };
+            profile.t_s.push(t);
+            profile.u_pct.push(u);
+        }
+        let bench = synth::Bench { noise_var_n2: 4.0, ..synth::Bench::default() };
+        let full = synth::record_bench(&plant, &profile, &bench, 7).expect("recording");
+        // Rows lost: at the step at 20 s (the last old row and the first new ones), inside
+        // the ramp at 70 s, in the hold at 25 s, and at the small step at 30 s.
+        let lost = |k: usize| (1999..2003).contains(&k) || (7000..7002).contains(&k) || k == 2500 || k == 3000;
+        let keep: Vec<usize> = (0..full.len()).filter(|&k| !lost(k)).collect();
+        let pick = |v: &[f64]| keep.iter().map(|&k| v[k]).collect::<Vec<f64>>();
+        let data = [Series {
+            name: "gaps".into(),
+            t_s: pick(&full.t_s),
+            u_pct: pick(&full.u_pct),
+            thrust_n: pick(&full.thrust_n),
+        }];
+        let problem = Problem::new(&data, &plant, 0.3).expect("problem");
+        assert_eq!(problem.report.gaps, 4);
+        assert_eq!(problem.report.steps_in_gaps, 1, "{:?}", problem.report);
+        assert_eq!(problem.report.after_steps_in_gaps, 100);
+        let run = &problem.runs[0];
+        assert!(run.y[2003..2103].iter().all(|y| y.is_nan()) && run.y[2103].is_finite());
     }
 
     /// A fast engine's transients are not taken for noise: on the turbojet (white noise of

@@ -457,6 +457,15 @@ fn data_note(d: &Diagnosis) -> String {
     if n.gaps > 0 {
         parts.push(format!("{} gap(s) ({} rows lost) simulated through with the throttle held", n.gaps, n.lost_rows));
     }
+    if n.steps_in_gaps > 0 {
+        parts.push(format!(
+            "the throttle stepped inside {} of them, when is not known: the {} samples of the {:.0} s after each \
+             were left out",
+            n.steps_in_gaps,
+            n.after_steps_in_gaps,
+            super::problem::UNKNOWN_STEP_S
+        ));
+    }
     if n.clipped_rows > 0 {
         parts.push(format!(
             "the force reading sits at the end of its range ({} N) in {} row(s): the sensor clips there, an \
@@ -680,15 +689,17 @@ fn insufficient(d: &Diagnosis) -> String {
     };
     let campaign = if recording_s < IDENTIFICATION_S {
         format!(
-            " This recording is {recording_s:.0} s long; a model identified on the same {recording_s:.0} s cannot be \
-             checked on it, and an identification campaign needs {IDENTIFICATION_S:.0} s (jetbench excite \
-             --duration {IDENTIFICATION_S:.0}): record one, identify on it, and diagnose a second recording."
+            " This recording holds {recording_s:.0} s of usable data; a model identified on the same \
+             {recording_s:.0} s cannot be checked on it, and an identification campaign needs \
+             {IDENTIFICATION_S:.0} s (jetbench excite --duration {IDENTIFICATION_S:.0}): record one, identify on \
+             it, and diagnose a second recording."
         )
     } else {
         " Record a longer campaign (jetbench excite).".to_owned()
     };
     format!(
-        "Not enough data to claim anything: {:.0} s of recording, {:.1} s of it held out ({} validation samples, {} \
+        "Not enough data to claim anything: {:.0} s of recording (rows lost or left out not counted), {:.1} s of it \
+         held out ({} validation samples, {} \
          independent stretches of {:.0} s); telling rival explanations apart needs at least {:.0} s held out ({} \
          stretches), about {:.0} s of recording at this hold-out.{leading}{campaign}",
         recording_s,

@@ -630,8 +630,25 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
     let dominant = n >= MIN_BLOCKS * block && rivals.iter().all(|(j, r)| *j == ci || r.dominated);
     // What every explanation in play holds, before the list is cut to six.
     let in_play: Vec<&Rival> = rivals.iter().filter(|(j, r)| *j == ci || !r.dominated).map(|(_, r)| r).collect();
-    let settled: Vec<&'static str> =
-        chosen.effects.iter().copied().filter(|x| in_play.iter().all(|r| r.effects.contains(x))).collect();
+    // A discrepancy is settled only when every explanation in play holds the same terms: a
+    // soak on the throttle's history and one on the thrust's are different physics, though
+    // both are a discrepancy.
+    let terms = |r: &Rival| -> Option<Vec<&'static str>> {
+        let values = r.fitted.as_ref()?;
+        let discrepancy = values.effects.iter().find(|e| e.name == EffectKind::Discrepancy.name())?;
+        Some(discrepancy.params.keys().copied().collect())
+    };
+    let chosen_terms = rivals.iter().find(|(j, _)| *j == ci).and_then(|(_, r)| terms(r));
+    let settled: Vec<&'static str> = chosen
+        .effects
+        .iter()
+        .copied()
+        .filter(|x| in_play.iter().all(|r| r.effects.contains(x)))
+        .filter(|x| {
+            *x != EffectKind::Discrepancy.name()
+                || chosen_terms.as_ref().is_some_and(|t| in_play.iter().all(|r| terms(r).as_ref() == Some(t)))
+        })
+        .collect();
     let open = in_play
         .iter()
         .map(|r| OpenPart {
@@ -828,6 +845,44 @@ mod tests {
         let w = weigh(&[with_drift, delay], &chosen);
         assert_eq!(w.settled, ["actuator_lag"], "{:?}", w.rivals);
         assert_eq!(w.open.len(), 2, "the dominated delay is not in play: {:?}", w.open);
+    }
+
+    /// A discrepancy is settled only when every explanation in play holds the same terms:
+    /// a soak on the thrust's history beside one on the throttle's is no settled soak.
+    #[test]
+    fn a_discrepancy_is_settled_only_with_the_same_terms() {
+        use jetbench_model::discrepancy::{DISCREPANCY_DEFAULTS, DISCREPANCY_KEYS};
+        use jetbench_model::Preset;
+        let n = 6000;
+        let noise = innovations(6, n, 1.0);
+        let other: Vec<f64> = noise.iter().rev().copied().collect();
+        let with_terms = |effects: &[EffectKind], w: &[f64], terms: &[(&str, f64)]| {
+            let mut values = DISCREPANCY_DEFAULTS.to_vec();
+            for (key, value) in terms {
+                values[DISCREPANCY_KEYS.iter().position(|k| k == key).unwrap()] = *value;
+            }
+            let mut spec = super::super::fit::Spec::new(Preset::P100Diesel.params(), Vec::new());
+            for kind in effects {
+                spec = match kind {
+                    EffectKind::Discrepancy => spec.with(*kind, values.clone()),
+                    _ => spec.with(*kind, vec![0.001]),
+                };
+            }
+            let mut e = explanation(effects, false, w);
+            e.fit = Some(Fit { spec, param_stderr: [f64::NAN; 10], stderr: Vec::new() });
+            e
+        };
+        let thrust_soak = [("gain_history_per_n", -0.0004), ("history_time_constant_s", 40.0)];
+        let throttle_soak = [("gain_throttle_history_per_pct", -0.0003), ("throttle_history_time_constant_s", 40.0)];
+        let chosen = with_terms(&[EffectKind::Discrepancy], &noise, &thrust_soak);
+        let same = with_terms(&[EffectKind::Discrepancy, EffectKind::GainDrift], &other, &thrust_soak);
+        let w = weigh(std::slice::from_ref(&same), &chosen);
+        assert!(!w.dominant, "{:?}", w.rivals);
+        assert_eq!(w.settled, ["discrepancy"], "{:?}", w.rivals);
+        let differs = with_terms(&[EffectKind::Discrepancy, EffectKind::GainDrift], &other, &throttle_soak);
+        let w = weigh(std::slice::from_ref(&differs), &chosen);
+        assert!(!w.dominant, "{:?}", w.rivals);
+        assert!(w.settled.is_empty(), "terms that differ settle nothing: {:?}", w.settled);
     }
 
     #[test]
