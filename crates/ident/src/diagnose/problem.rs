@@ -53,11 +53,12 @@ pub const MAX_HELD_GAP_S: f64 = 1.0;
 pub const UNKNOWN_STEP_S: f64 = 1.0;
 
 /// A throttle change across a gap further from where the slope before it leads than this,
-/// times the gap's length in rows, is a step inside the gap whose time matters, % · rows:
-/// the throttle held through a gap is off by at most that much throttle-time. A 10 % step
-/// in a lost row is one; a closed loop's throttle, which moves a per cent or two from row
-/// to row, is not (leaving out the second after every such gap had left out 41 % of a live
-/// closed-loop recording whose board acknowledged 8 % of its rows late).
+/// times the grid steps the gap spans (its lost rows and one), is a step inside the gap whose
+/// time matters, % · steps: the throttle held through a gap is off by at most that much
+/// throttle-time. A 15 % step across one lost row is one, 7.5 % across three; a closed loop's
+/// throttle, which moves a per cent or two from row to row, is not (leaving out the second
+/// after every gap with any change had left out 41 % of a live closed-loop recording whose
+/// board acknowledged 8 % of its rows late).
 const STEP_IN_GAP_PCT_ROWS: f64 = 30.0;
 /// A sample this many robust standard deviations from its neighbours' median is an outlier.
 pub const OUTLIER_Z: f64 = 5.5;
