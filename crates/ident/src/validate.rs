@@ -226,9 +226,10 @@ pub fn fit_initial_state_at(model: &dyn Dynamics, t0_s: f64, y: &[f64], u: &[f64
     } else {
         0.0
     };
-    let read_rest = State { thrust_n: rest.thrust_n - read_over, ..rest };
+    // Only a model that reads something on top of its thrust has a third start to try.
+    let read_rest = (read_over != 0.0).then_some(State { thrust_n: rest.thrust_n - read_over, ..rest });
     let mut best: Option<(f64, State)> = None;
-    for start in [edge, rest, read_rest] {
+    for start in [edge, rest].into_iter().chain(read_rest) {
         if model.free_run_at(t0_s, start, &u[..n], &mut base).is_none() {
             let e = sse(&base);
             if best.is_none_or(|(b, _)| e < b) {

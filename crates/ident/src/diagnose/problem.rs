@@ -59,7 +59,7 @@ pub const UNKNOWN_STEP_S: f64 = 1.0;
 /// throttle, which moves a per cent or two from row to row, is not (leaving out the second
 /// after every gap with any change had left out 41 % of a live closed-loop recording whose
 /// board acknowledged 8 % of its rows late).
-const STEP_IN_GAP_PCT_ROWS: f64 = 30.0;
+const STEP_IN_GAP_PCT_STEPS: f64 = 30.0;
 /// A sample this many robust standard deviations from its neighbours' median is an outlier.
 pub const OUTLIER_Z: f64 = 5.5;
 /// Neighbours on each side in the outlier test's median.
@@ -132,9 +132,9 @@ impl Run {
                 Some(i) if self.grid[j] - self.grid[i] == self.stride => u_pct[k] - u_pct[k - 1],
                 _ => 0.0,
             };
-            let rows = (gap / self.stride) as f64;
-            let carried = u_pct[k] + slope * rows;
-            if (u_pct[k + 1] - carried).abs() * rows <= STEP_IN_GAP_PCT_ROWS {
+            let steps = (gap / self.stride) as f64;
+            let carried = u_pct[k] + slope * steps;
+            if (u_pct[k + 1] - carried).abs() * steps <= STEP_IN_GAP_PCT_STEPS {
                 continue;
             }
             stepped += 1;
