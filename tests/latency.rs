@@ -97,7 +97,7 @@ fn latency_under_cpu_load_with_rt_measures_every_cycle() {
     let expected = (seconds * 100.0) as u64;
     // A run's duration counts from the engine running: each of the two rounds also
     // judges the cycles while the set waited for the emulated ECU's first report of
-    // run (actuation polls it at 10 Hz): up to half a second each.
+    // run (actuation polls it at 15 Hz on the simulated bench): up to half a second each.
     let waited = 2 * 50;
     assert!(
         cycles + expected / 10 >= expected && cycles <= expected + expected / 10 + waited,

@@ -35,6 +35,8 @@ pub const MAX_SAMPLE_BYTES: usize = 512;
 const BATCH: usize = 32;
 /// How often an inbox looks for new publishers when nothing told it of one.
 const ACCEPT_EVERY: Duration = Duration::from_millis(100);
+/// How soon a publisher tries again a subscriber it could not connect to.
+const RETRY_CONNECT_AFTER: Duration = Duration::from_millis(20);
 /// Room a subscriber's queue gets per sample it asked to hold: a small
 /// message costs the kernel about this much (its buffer plus bookkeeping).
 const BYTES_PER_QUEUED: usize = 1024;
@@ -116,6 +118,12 @@ fn inbox_name(depth: usize, woken: bool) -> String {
     format!("{}-{n}-{depth}-{}.sock", std::process::id(), if woken { 'w' } else { 'p' })
 }
 
+/// The name a subscriber's socket has while it is being set up: publishers
+/// pass over it (it does not end in `.sock`).
+fn listening_name(name: &str) -> String {
+    format!(".{name}.binding")
+}
+
 /// What a publisher reads off a subscriber's socket file name.
 fn parse_inbox_name(name: &str) -> Option<(usize, bool)> {
     let stem = name.strip_suffix(".sock")?;
@@ -140,6 +148,9 @@ pub struct Outbox {
     dir: PathBuf,
     generation_seen: Option<u32>,
     outlets: Vec<Outlet>,
+    /// A subscriber could not be connected for a passing reason (its queue
+    /// of connections full): the folder is looked at again after this.
+    retry_at: Option<Instant>,
 }
 
 impl Outbox {
@@ -147,13 +158,14 @@ impl Outbox {
     /// it connects to the subscribers listening there when they come.
     pub fn open(dir: &Path) -> io::Result<Outbox> {
         std::fs::create_dir_all(dir)?;
-        Ok(Outbox { dir: dir.to_path_buf(), generation_seen: None, outlets: Vec::new() })
+        Ok(Outbox { dir: dir.to_path_buf(), generation_seen: None, outlets: Vec::new(), retry_at: None })
     }
 
     /// Sends `bytes` to every subscriber; rescans first if subscribers came or went.
     pub fn send(&mut self, bytes: &[u8], bell: &Doorbell) -> io::Result<()> {
         let generation = bell.generation();
-        if self.generation_seen != Some(generation) {
+        let retry = self.retry_at.is_some_and(|at| Instant::now() >= at);
+        if self.generation_seen != Some(generation) || retry {
             self.generation_seen = Some(generation);
             self.rescan();
         }
@@ -193,7 +205,11 @@ impl Outbox {
     /// Connects to every subscriber in the folder not yet connected, and lets
     /// go of those whose file is gone. Woken consumers come first.
     fn rescan(&mut self) {
-        let Ok(entries) = std::fs::read_dir(&self.dir) else { return };
+        self.retry_at = None;
+        let Ok(entries) = std::fs::read_dir(&self.dir) else {
+            self.retry_at = Some(Instant::now() + RETRY_CONNECT_AFTER);
+            return;
+        };
         let mut present = Vec::new();
         for entry in entries.flatten() {
             let name = entry.file_name();
@@ -209,7 +225,10 @@ impl Outbox {
                 Err(e) if e.raw_os_error() == Some(libc::ECONNREFUSED) => {
                     let _ = std::fs::remove_file(&path);
                 }
-                Err(e) => tracing::debug!("cannot connect to subscriber {}: {e}", path.display()),
+                Err(e) => {
+                    tracing::debug!("cannot connect to subscriber {} yet: {e}", path.display());
+                    self.retry_at = Some(Instant::now() + RETRY_CONNECT_AFTER);
+                }
             }
         }
         self.outlets.retain(|o| present.contains(&o.path));
@@ -278,16 +297,29 @@ pub struct Inbox {
 
 impl Inbox {
     /// Listens in `dir` for publishers; `depth` samples may queue per publisher.
+    ///
+    /// The socket is bound and listening under a name publishers pass over
+    /// ([`listening_name`]) before it is renamed to the one they connect to:
+    /// a publisher that looked between the bind and the listen would be
+    /// refused, take the file for a killed subscriber's and remove it, and
+    /// this subscriber would never hear from it.
     pub fn open(dir: &Path, depth: usize, woken: bool, bell: &Doorbell) -> io::Result<Inbox> {
         std::fs::create_dir_all(dir)?;
-        let path = dir.join(inbox_name(depth, woken));
+        let name = inbox_name(depth, woken);
+        let path = dir.join(&name);
+        let staging = dir.join(listening_name(&name));
         let _ = std::fs::remove_file(&path);
+        let _ = std::fs::remove_file(&staging);
         let listener = seqpacket()?;
-        let (addr, len) = sockaddr(&path)?;
+        let (addr, len) = sockaddr(&staging)?;
         // SAFETY: a valid sockaddr_un of `len` bytes.
         check(unsafe { libc::bind(listener.as_raw_fd(), (&addr as *const libc::sockaddr_un).cast(), len) })?;
         // SAFETY: plain listen on a bound socket.
-        check(unsafe { libc::listen(listener.as_raw_fd(), 64) })?;
+        let listening = check(unsafe { libc::listen(listener.as_raw_fd(), 64) });
+        if let Err(e) = listening.and_then(|()| std::fs::rename(&staging, &path)) {
+            let _ = std::fs::remove_file(&staging);
+            return Err(e);
+        }
         bell.bump_generation();
         let empty = Slot { conn: 0, len: 0, bytes: [0; MAX_SAMPLE_BYTES] };
         Ok(Inbox {

@@ -174,3 +174,56 @@ fn a_sample_that_is_not_a_number_is_refused_and_takes_no_seq() {
         assert_eq!(subscriber.gaps(), 0);
     }
 }
+
+#[test]
+fn a_subscriber_that_comes_while_its_publisher_sends_is_always_found() {
+    // While the publisher sends without pause, other subscribers come and go
+    // all the time, so the publisher looks for subscribers again at nearly
+    // every send, whatever stage of setting up the next one is at. Every one
+    // of them must be found.
+    const SUBSCRIBERS: usize = 60;
+    for transport in TRANSPORTS {
+        let channel = channel("joining", transport);
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let running = |stop: &std::sync::Arc<std::sync::atomic::AtomicBool>| {
+            let stop = stop.clone();
+            move || !stop.load(std::sync::atomic::Ordering::Relaxed)
+        };
+        let sending = running(&stop);
+        let producer = std::thread::spawn(move || {
+            let bus = Bus::open_with("bus-test-joining-producer", transport).expect("bus");
+            let mut publisher = bus.publisher(channel).expect("publisher");
+            let mut i = 0;
+            while sending() {
+                publisher.publish(sample(i)).expect("publish");
+                i += 1;
+                std::thread::sleep(Duration::from_micros(20));
+            }
+        });
+        let churning = running(&stop);
+        let churn = std::thread::spawn(move || {
+            let bus = Bus::open_with("bus-test-joining-churn", transport).expect("bus");
+            while churning() {
+                drop(bus.polled_subscriber(channel, 4).expect("subscriber"));
+            }
+        });
+        let bus = Bus::open_with("bus-test-joining", transport).expect("bus");
+        let mut unheard = Vec::new();
+        for k in 0..SUBSCRIBERS {
+            let reader = bus.polled_subscriber(channel, 4).expect("subscriber");
+            // A polled socket reader looks for new publishers every 100 ms.
+            let deadline = Instant::now() + Duration::from_secs(2);
+            while drain_count(&reader) == 0 {
+                if Instant::now() > deadline {
+                    unheard.push(k);
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        }
+        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        producer.join().expect("producer");
+        churn.join().expect("churn");
+        assert!(unheard.is_empty(), "{transport}: subscribers {unheard:?} of {SUBSCRIBERS} never heard the publisher");
+    }
+}
