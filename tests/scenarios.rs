@@ -591,7 +591,12 @@ fn a_fresh_campaign_delay_behind_a_ramp_from_the_first_row_is_claimed_at_its_siz
 /// For a while the label alone settled it and the soak was claimed, the gain drift undecided;
 /// a discrepancy is settled only with the same terms in every explanation in play, and the
 /// case is `ambiguous` between the two (docs/diagnose/README.md, "The part every explanation
-/// in play holds").
+/// in play holds"). Seed 7243's case 159, a delay of 219 ms beside a rate limit (1.76×), was
+/// claimed as a lag beside the limit: the rate limit ran tick by tick, so every delay within a
+/// tick gave the same response, and the delay's fit had no gradient and stayed at its start.
+/// The limit now runs a tick that a delay splits in two parts (docs/model/README.md); the delay
+/// is fitted at 226 ms, the rate limit is claimed, and the delay and a lag with a resonance
+/// stay undecided beside it.
 #[test]
 fn fresh_campaign_false_claims_stay_answered_right() {
     let drift = draw("9277", "173");
@@ -631,6 +636,14 @@ fn fresh_campaign_false_claims_stay_answered_right() {
     let without_drift =
         result["rivals"].as_array().into_iter().flatten().any(|r| r[0] == serde_json::json!(["discrepancy"]));
     assert!(without_drift, "the soak on the other history, without the drift, is not among the rivals: {result}");
+    // A delay of 219 ms beside a rate limit was claimed as a lag: the delay's fit could not
+    // move beside the limit. It moves now, and no lag is claimed.
+    let delay = draw("7243", "159");
+    let result = &delay["results"][0];
+    assert_eq!(delay["claims"].as_u64(), delay["true_claims"].as_u64(), "{result}");
+    let found: Vec<&str> = result["found"].as_array().into_iter().flatten().filter_map(Value::as_str).collect();
+    assert!(found.contains(&"rate_limit") && !found.contains(&"actuator_lag"), "{result}");
+    assert!(rival_names(result).contains(&"input_delay"), "the delay is not among the rivals: {result}");
 }
 
 /// Every effect name among a campaign result's rivals.

@@ -240,13 +240,34 @@ impl ThrottlePath {
     /// just pushed, %: the commanded throttle averaged over the tick one delay earlier
     /// (averaging makes the response a smooth function of the delay, which a fit
     /// needs), then rate-limited, then lagged. Ticks must be read in order, each once.
+    ///
+    /// A delay that is no whole number of ticks puts a change of the command
+    /// inside a tick. The rate limit then runs that tick in two parts, toward the
+    /// earlier command and then toward the later one, as a limiter in continuous
+    /// time would: limited from the tick's mean instead, a step larger than one
+    /// tick's travel would start its ramp on the same tick for any delay within
+    /// the tick, and a fit of a delay beside a rate limit would find no gradient
+    /// to follow (its Jacobian column zero). A change on a tick's edge comes out
+    /// as before.
     #[inline]
     pub fn tick(&mut self, tick: usize) -> f64 {
-        let u = match self.delay {
-            None => self.rows.back(0),
-            Some(d) => self.delayed_mean(tick as f64 * TICK_S - d.delay_s, TICK_S),
-        };
-        self.shape(u)
+        match self.delay {
+            None => self.shape(self.rows.back(0)),
+            Some(d) => {
+                let (early_share, early, late) = self.delayed_span(tick as f64 * TICK_S - d.delay_s, TICK_S);
+                match self.rate_limit {
+                    Some((up, down)) if early_share > 0.0 && early_share < 1.0 => {
+                        let late_share = 1.0 - early_share;
+                        let mut r = self.rate_limited_pct;
+                        r += (early - r).clamp(-down * early_share, up * early_share);
+                        r += (late - r).clamp(-down * late_share, up * late_share);
+                        self.rate_limited_pct = r;
+                        self.lag(r)
+                    }
+                    _ => self.shape(early_share * early + (1.0 - early_share) * late),
+                }
+            }
+        }
     }
 
     /// [`ThrottlePath::tick`] for ticks `first..first + count` in order, each throttle
@@ -276,6 +297,12 @@ impl ThrottlePath {
             self.rate_limited_pct += (u - self.rate_limited_pct).clamp(-down, up);
             u = self.rate_limited_pct;
         }
+        self.lag(u)
+    }
+
+    /// The lag over one tick from the rate-limited command `u`, %: what the engine follows.
+    #[inline(always)]
+    fn lag(&mut self, mut u: f64) -> f64 {
         if let Some(alpha) = self.lag_alpha {
             self.lagged_pct += (u - self.lagged_pct) * alpha;
             u = self.lagged_pct;
@@ -324,18 +351,20 @@ impl ThrottlePath {
         }
     }
 
-    /// The commanded throttle averaged over `[from_s, from_s + h]`, times relative to
-    /// the start of the newest row (negative: earlier rows).
-    fn delayed_mean(&self, from_s: f64, h: f64) -> f64 {
+    /// The commanded throttle over `[from_s, from_s + h]`, times relative to the start
+    /// of the newest row (negative: earlier rows), as (the share of the interval in the
+    /// earlier row, that row's throttle, the later row's throttle); its mean is
+    /// `share · early + (1 − share) · late`. An interval within one row has share 0.
+    fn delayed_span(&self, from_s: f64, h: f64) -> (f64, f64, f64) {
         // Row holding the end of the interval (a tolerance keeps an end exactly on a
         // row boundary in the earlier row).
         let j_end = ((from_s + h) / STEP_S - 1e-9).floor().min(0.0) as i64;
         let boundary_s = j_end as f64 * STEP_S;
+        let late = self.rows.row(j_end);
         if from_s < boundary_s {
-            let w = ((boundary_s - from_s) / h).min(1.0);
-            w * self.rows.row(j_end - 1) + (1.0 - w) * self.rows.row(j_end)
+            (((boundary_s - from_s) / h).min(1.0), self.rows.row(j_end - 1), late)
         } else {
-            self.rows.row(j_end)
+            (0.0, late, late)
         }
     }
 }
@@ -391,6 +420,36 @@ mod tests {
                 assert!((mean - ticks).abs() < 1e-9, "{delay_s} s, cycle {k}: {mean} vs {ticks}");
             }
         }
+    }
+
+    #[test]
+    fn beside_a_rate_limit_a_delay_moves_the_response_within_a_tick() {
+        // A step much larger than a tick's travel at 40 %/s, delayed by 50.0 ms to 51.0 ms:
+        // each 0.1 ms of delay starts the ramp 0.1 ms later, so the throttle followed
+        // over the next second loses the same amount each time (a fit of the delay has
+        // a gradient), and a delay on a tick's edge gives what a tick-wise limit gives.
+        let followed_sum = |delay_s: f64| {
+            let effects = Effects::new([
+                format!("input_delay:delay_s={delay_s}").parse().unwrap(),
+                "rate_limit:up_pct_per_s=40,down_pct_per_s=40".parse().unwrap(),
+            ])
+            .unwrap();
+            let mut path = ThrottlePath::new(&effects);
+            path.start_at(20.0);
+            (0..100).map(|_| path.cycle_mean(80.0)).sum::<f64>()
+        };
+        let sums: Vec<f64> = (0..=10).map(|k| followed_sum(0.05 + 1e-4 * k as f64)).collect();
+        let steps: Vec<f64> = sums.windows(2).map(|w| w[0] - w[1]).collect();
+        // 40 %/s for 0.1 ms is 0.004 % a tick, 0.4 of a cycle mean, over the ramp's rows.
+        for step in &steps {
+            assert!((step - steps[0]).abs() < 1e-9 * sums[0] && *step > 1e-3, "{steps:?}");
+        }
+        let mut tickwise = ThrottlePath::new(
+            &Effects::new(["rate_limit:up_pct_per_s=40,down_pct_per_s=40".parse().unwrap()]).unwrap(),
+        );
+        tickwise.start_at(20.0);
+        let held: f64 = (0..100).map(|k| tickwise.cycle_mean(if k < 5 { 20.0 } else { 80.0 })).sum();
+        assert!((held - sums[0]).abs() < 1e-9 * held, "{held} vs {}", sums[0]);
     }
 
     #[test]
