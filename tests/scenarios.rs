@@ -596,7 +596,10 @@ fn a_fresh_campaign_delay_behind_a_ramp_from_the_first_row_is_claimed_at_its_siz
 /// tick gave the same response, and the delay's fit had no gradient and stayed at its start.
 /// The limit now runs a tick that a delay splits in two parts (docs/model/README.md); the delay
 /// is fitted at 226 ms, the rate limit is claimed, and the delay and a lag with a resonance
-/// stay undecided beside it.
+/// stay undecided beside it. Seed 7243's case 97, a heat soak of τ 72 s on 150 s (1.01×), was
+/// claimed as a gain drift: the soak freed of its edge was weighed on the throttle's history
+/// only, 10.1 units of held-out fit behind it; on the thrust's it is 5.7 behind, and the case is
+/// `ambiguous` between the drift and the soak.
 #[test]
 fn fresh_campaign_false_claims_stay_answered_right() {
     let drift = draw("9277", "173");
@@ -644,6 +647,11 @@ fn fresh_campaign_false_claims_stay_answered_right() {
     let found: Vec<&str> = result["found"].as_array().into_iter().flatten().filter_map(Value::as_str).collect();
     assert!(found.contains(&"rate_limit") && !found.contains(&"actuator_lag"), "{result}");
     assert!(rival_names(result).contains(&"input_delay"), "the delay is not among the rivals: {result}");
+    let heat = draw("7243", "97");
+    let result = &heat["results"][0];
+    assert_eq!(result["cause"], "ambiguous", "{result}");
+    let names = rival_names(result);
+    assert!(names.contains(&"gain_drift") && names.contains(&"slow_history"), "{result}");
 }
 
 /// Every effect name among a campaign result's rivals.
