@@ -1782,18 +1782,7 @@ fn freed_history_rival(search: &Search<'_, '_>, mut slow: Spec) {
         }
         let form = slow.with(EffectKind::Discrepancy, v);
         // The other history, when there is one history to move.
-        let other = (taus.len() == 1).then(|| form.values(EffectKind::Discrepancy)).flatten().and_then(|v| {
-            let (from, to, factor, swapped) = discrepancy::history_swapped(search.problem, &form.params, v)?;
-            let mut twin = form.with(EffectKind::Discrepancy, swapped);
-            discrepancy::history_free_swapped(
-                from,
-                to,
-                factor,
-                &mut twin.discrepancy_free,
-                &mut twin.discrepancy_scale,
-            );
-            Some(twin)
-        });
+        let other = (taus.len() == 1).then(|| on_other_history(search.problem, &form)).flatten();
         forms.push(form);
         forms.extend(other);
     }
@@ -2009,13 +1998,11 @@ fn periodic_rivals(search: &Search<'_, '_>, before: &Scored, current: &Scored) -
 /// throttle's: the mechanism behind a soak is not what this weighs, only the fit.
 fn history_twin(search: &Search<'_, '_>, current: &Scored) -> Option<String> {
     let spec = &current.fit.spec;
-    let values = spec.values(EffectKind::Discrepancy)?;
-    let (from, to, factor, swapped) = discrepancy::history_swapped(search.problem, &spec.params, values)?;
-    let mut twin = spec.with(EffectKind::Discrepancy, swapped);
-    discrepancy::history_free_swapped(from, to, factor, &mut twin.discrepancy_free, &mut twin.discrepancy_scale);
+    let twin = on_other_history(search.problem, spec)?;
     let behind = search.fit(&twin)?.score() - current.score();
+    let on_thrust = spec.values(EffectKind::Discrepancy).is_some_and(|v| v[HISTORY_GAINS[0]] != 0.0);
     let (found, other) =
-        if from == 4 { ("the thrust's", "the throttle's") } else { ("the throttle's", "the thrust's") };
+        if on_thrust { ("the thrust's", "the throttle's") } else { ("the throttle's", "the thrust's") };
     Some(if behind.abs() < rivals::DISTINCT {
         format!(
             "Whether the gain follows {found} history or {other}, this recording cannot tell: on {other} history the \
@@ -2050,16 +2037,20 @@ fn other_history_rival(search: &Search<'_, '_>, spec: &Spec) {
     if !spec.has(EffectKind::GainDrift) || history_taus(values).next().is_none() {
         return;
     }
-    let without = spec.without(EffectKind::GainDrift);
-    let Some(values) = without.values(EffectKind::Discrepancy) else { return };
-    let Some((from, to, factor, swapped)) = discrepancy::history_swapped(search.problem, &without.params, values)
-    else {
-        return;
-    };
-    let mut twin = without.with(EffectKind::Discrepancy, swapped);
-    discrepancy::history_free_swapped(from, to, factor, &mut twin.discrepancy_free, &mut twin.discrepancy_scale);
+    let Some(twin) = on_other_history(search.problem, &spec.without(EffectKind::GainDrift)) else { return };
     // Fitted and scored, it joins the pool the weighing draws on.
     let _ = search.fit(&twin);
+}
+
+/// `spec` with its discrepancy's history gain moved to the other history, the thrust's for
+/// the throttle's or back ([`discrepancy::history_swapped`]), its free values and their scales
+/// moved along; `None` without a history.
+fn on_other_history(problem: &Problem<'_>, spec: &Spec) -> Option<Spec> {
+    let values = spec.values(EffectKind::Discrepancy)?;
+    let (from, to, factor, swapped) = discrepancy::history_swapped(problem, &spec.params, values)?;
+    let mut twin = spec.with(EffectKind::Discrepancy, swapped);
+    discrepancy::history_free_swapped(from, to, factor, &mut twin.discrepancy_free, &mut twin.discrepancy_scale);
+    Some(twin)
 }
 
 /// How many leading rivals, one after another, may be tried as the claim in place of the
