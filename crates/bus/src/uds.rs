@@ -124,6 +124,30 @@ fn listening_name(name: &str) -> String {
     format!(".{name}.binding")
 }
 
+/// Removes the half-set-up sockets ([`listening_name`]) left in `dir` by subscribers
+/// killed between the bind and the rename: nothing else ever would. A file whose
+/// process still runs is left alone (it may be setting up now).
+fn sweep_stale_bindings(dir: &Path) {
+    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(pid) = name.to_str().and_then(binding_pid) else { continue };
+        // SAFETY: signal 0 only asks whether the process exists.
+        let gone = unsafe { libc::kill(pid, 0) } < 0 && io::Error::last_os_error().raw_os_error() == Some(libc::ESRCH);
+        if gone {
+            tracing::debug!("removing {}, left by subscriber process {pid} that is gone", name.to_string_lossy());
+            let _ = std::fs::remove_file(entry.path());
+        }
+    }
+}
+
+/// The process that made a half-set-up socket file ([`listening_name`]).
+fn binding_pid(name: &str) -> Option<libc::pid_t> {
+    let inbox = name.strip_prefix('.')?.strip_suffix(".binding")?;
+    parse_inbox_name(inbox)?;
+    inbox.split('-').next()?.parse().ok().filter(|pid: &libc::pid_t| *pid > 0)
+}
+
 /// What a publisher reads off a subscriber's socket file name.
 fn parse_inbox_name(name: &str) -> Option<(usize, bool)> {
     let stem = name.strip_suffix(".sock")?;
@@ -305,6 +329,7 @@ impl Inbox {
     /// this subscriber would never hear from it.
     pub fn open(dir: &Path, depth: usize, woken: bool, bell: &Doorbell) -> io::Result<Inbox> {
         std::fs::create_dir_all(dir)?;
+        sweep_stale_bindings(dir);
         let name = inbox_name(depth, woken);
         let path = dir.join(&name);
         let staging = dir.join(listening_name(&name));
@@ -536,5 +561,28 @@ mod tests {
         for bad in ["x.sock", "1-2-3-q.sock", "1-2-w.txt", "1-2-many-w.sock"] {
             assert_eq!(parse_inbox_name(bad), None, "{bad}");
         }
+    }
+
+    #[test]
+    fn a_half_set_up_socket_of_a_process_that_is_gone_is_swept_and_a_live_ones_kept() {
+        let dir = std::env::temp_dir().join(format!("jetbench-sweep-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("folder");
+        let mut child = std::process::Command::new("true").spawn().expect("a child process");
+        let dead = child.id();
+        child.wait().expect("reaped");
+        let live = std::process::id();
+        let stale = dir.join(format!(".{dead}-0-16-w.sock.binding"));
+        let setting_up = dir.join(format!(".{live}-0-16-w.sock.binding"));
+        let other = dir.join(format!(".{dead}-notes.txt"));
+        for path in [&stale, &setting_up, &other] {
+            std::fs::write(path, b"").expect("file");
+        }
+        sweep_stale_bindings(&dir);
+        assert!(!stale.exists(), "the binding of process {dead}, which is gone, is left");
+        assert!(setting_up.exists(), "the binding of this live process was removed");
+        assert!(other.exists(), "a file that is no binding was removed");
+        assert_eq!(binding_pid(&format!(".{live}-3-512-p.sock.binding")), Some(live as libc::pid_t));
+        assert_eq!(binding_pid(&format!("{live}-3-512-p.sock")), None);
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
