@@ -10,29 +10,37 @@ Each case draws a plant (a preset, or one perturbed by up to 15 % per parameter)
 two effects (every catalogue effect across its documented range; outside the catalogue: heat
 and fuel soak, dead bands, spool-down slower than spool-up, play in the throttle path), or a
 recording artefact (a clipping force sensor, a slow periodic force on the stand), or parameters
-that are off; white, coloured (AR(1)) or heteroscedastic noise; spikes, lost rows, jittered
-timestamps; 100-600 s of random steps, ramps and holds. Closed-loop cases are not drawn (they
-need the live stack; the fixed scenarios hold two).
+that are off, alone or (half of those cases) beside one catalogue effect; white, coloured
+(AR(1)) or heteroscedastic noise; spikes, lost rows, jittered timestamps; 100-600 s of random
+steps, ramps and holds. Closed-loop cases are not drawn (they need the live stack; the fixed
+scenarios hold two).
 
 A claim is `none`, `parameters` or `missing_physics`. `parameters` is true only when the
 parameters are off and nothing else is, `none` only when nothing is off. A physics claim is true
-when every effect it names is in the truth (physics outside the catalogue: `discrepancy`) and
-every effect of the truth it does not name is one its verdict disclosed as able to hide beside
-it, at a size no smaller than the truth's: the diagnosis's `detectability` has a probe of that
-class with `would_show` false whose `could_hide` ranges hold every value of the truth's effect
-(see `disclosed`). An effect the verdict did not disclose, or disclosed at a smaller size, or
-whose values cannot be compared with the probe's (a time constant other than the probe's, an
-effect outside the catalogue) makes the claim false. An artefact (clipping, a periodic force) is
-never engine physics: every claim on such a case is false. `ambiguous`, `unexplained` and
-`insufficient_data` are not claims. A claim of the part every explanation in play holds lists
-what they hold beside it as undecided (`undecided` in the diagnosis): an effect of the truth it
-lists there counts as disclosed. Recall counts the effects named; effects a true claim
-left out and disclosed are counted apart. Beside it, the report counts recall against what each
-effect put into its recording (`evidence`: the log-likelihood ratio of the noise-free reading
-with the effect against without it, for an observer who knows everything else), which no
-diagnosis can exceed.
+when it is right about the parameters, every effect it names is in the truth (physics outside
+the catalogue: `discrepancy`), and every effect of the truth it does not name is one its verdict
+disclosed as able to hide beside it, at a size no smaller than the truth's: the diagnosis's
+`detectability` has a probe of that class with `would_show` false whose `could_hide` ranges hold
+every value of the truth's effect (see `disclosed`). An effect the verdict did not disclose, or
+disclosed at a smaller size, or whose values cannot be compared with the probe's (a time
+constant other than the probe's, an effect outside the catalogue) makes the claim false. An
+artefact (clipping, a periodic force) is never engine physics: every claim on such a case is
+false. `ambiguous`, `unexplained` and `insufficient_data` are not claims. A claim of the part
+every explanation in play holds lists what they hold beside it as undecided (`undecided` in the
+diagnosis): an effect of the truth it lists there counts as disclosed. Right about the
+parameters: where they are off, the claim refits them or leaves whether they are off open (a
+refit among what is undecided, or `parameters_open`); where they are as the engine is and the
+truth is all in the catalogue, it does not refit them (beside physics outside the catalogue, a
+refit may take up the part of it that changes the engine's map, and is not held against the
+claim). Recall counts the effects named; effects a true claim left out and disclosed are counted
+apart. Beside it, the report counts recall against what each effect put into its recording
+(`evidence`: the log-likelihood ratio of the noise-free reading with the effect against without
+it, for an observer who knows everything else), which no diagnosis can exceed.
 
     python3 scripts/diagnose_campaign.py --self-test    # the grader on made-up results
+
+`--draw 1` draws the cases as the campaigns did before parameters that are off were drawn beside
+an effect (every other case is the same in both draws).
 """
 
 import argparse
@@ -66,6 +74,8 @@ PLANTS = {
     "p100-fast": ROOT / "recordings/scenarios/plants/p100-fast.toml",
 }
 U_MIN, U_MAX = 25.0, 100.0
+# How the cases are drawn (`--draw`): 2 puts an effect beside half the cases whose parameters are off.
+DRAW = 2
 # The longest designed experiment the campaign plays (`--discriminate`), s.
 MAX_DESIGN_S = 600
 CATALOGUE = ["input_delay", "actuator_lag", "rate_limit", "sensor_drift", "gain_drift", "bearing_friction",
@@ -291,7 +301,7 @@ def draw_case(rng, index):
         for k in rng.sample(["K_T", "K_D", "B_U", "c", "K_TD", "B_T"], rng.randint(1, 3)):
             given[k] = params[k] * (1 + rng.choice([-1, 1]) * rng.uniform(0.03, 0.12))
     noise = rng.choice(["white", "white", "coloured", "heteroscedastic"])
-    return {
+    case = {
         "index": index,
         "plant": plant,
         "params": params,
@@ -308,13 +318,21 @@ def draw_case(rng, index):
         "jitter": rng.random() < 0.2,
         "seed": rng.randrange(1 << 30),
     }
+    if params_off and DRAW >= 2:
+        # Drawn apart from the campaign's sequence, so that every other case is the same as in
+        # the first draw.
+        own = random.Random(case["seed"] * 2 + 1)
+        if own.random() < 0.5:
+            name = own.choice(CATALOGUE)
+            effects[name] = draw_effect(own, name)
+    return case
 
 
 def klass(case):
     if case["artefact"]:
         return "artefact:" + case["artefact"]
     if case["params_off"]:
-        return "parameters"
+        return "parameters + effect" if case["effects"] else "parameters"
     names = sorted(case["effects"])
     if not names:
         return "none"
@@ -684,6 +702,8 @@ def outcome(case, d, elapsed, truth_mae):
         "cause": d["cause"],
         "found": sorted(e["name"] for e in d["effects"]),
         "refit": d.get("refit") is not None,
+        # Physics claimed on the given parameters, whether they are off as well left open.
+        "parameters_open": d.get("parameters_open") is not None,
         # A claim of the part every explanation in play holds: what they hold beside it.
         "undecided": sorted({e for o in d.get("undecided", []) for e in o["effects"]}),
         "undecided_refit": any(o["refit"] for o in d.get("undecided", [])),
@@ -760,9 +780,13 @@ def grade(r):
         return True, not want and not case["params_off"]
     if cause == "parameters":
         return True, not want and case["params_off"]
-    # Physics: every effect named is in the truth, and every effect of the truth not named was
-    # disclosed as able to hide at its size.
-    if not set(r["found"]) <= set(want) or case["params_off"]:
+    # Physics: right about the parameters, every effect named is in the truth, and every effect
+    # of the truth not named was disclosed as able to hide at its size.
+    if not set(r["found"]) <= set(want):
+        return True, False
+    if case["params_off"] and not (r.get("refit") or r.get("undecided_refit") or r.get("parameters_open")):
+        return True, False
+    if not case["params_off"] and r.get("refit") and not any(n in OUTSIDE for n in case["effects"]):
         return True, False
     return True, not left_out(r)[1]
 
@@ -1008,11 +1032,12 @@ def self_test():
     lag = {"time_constant_s": 0.3}
     resonance = {"frequency_hz": 3.2, "damping_ratio": 0.09}
 
-    def case(effects):
-        return {"index": 0, "effects": effects, "params_off": False, "artefact": None}
+    def case(effects, params_off=False):
+        return {"index": 0, "effects": effects, "params_off": params_off, "artefact": None}
 
-    def result(effects, found, hidden):
-        return {"case": case(effects), "cause": "missing_physics", "found": sorted(found), "hidden": hidden}
+    def result(effects, found, hidden, params_off=False, refit=False):
+        return {"case": case(effects, params_off), "cause": "missing_physics", "found": sorted(found),
+                "hidden": hidden, "refit": refit}
 
     def probe(effect, could_hide):
         return {"effect": effect, "probe": {}, "could_hide": could_hide, "energy": 1.0, "threshold": 50.0}
@@ -1049,6 +1074,19 @@ def self_test():
                      []), undecided=["gain_drift"]), False),
         ("an effect claimed beside what is undecided, not in the truth",
          dict(result({"actuator_lag": lag}, ["input_delay"], []), undecided=["actuator_lag"]), False),
+        ("parameters off beside a lag: the lag with a refit",
+         result({"actuator_lag": lag}, ["actuator_lag"], [], params_off=True, refit=True), True),
+        ("parameters off beside a lag: the lag on the given parameters",
+         result({"actuator_lag": lag}, ["actuator_lag"], [], params_off=True), False),
+        ("parameters off beside a lag: the lag, whether the parameters are off left open",
+         dict(result({"actuator_lag": lag}, ["actuator_lag"], [], params_off=True), parameters_open=True), True),
+        ("parameters off beside a lag: the lag, a refit undecided beside it",
+         dict(result({"actuator_lag": lag}, ["actuator_lag"], [], params_off=True), undecided_refit=True), True),
+        ("parameters as the engine is: a lag with a refit",
+         result({"actuator_lag": lag}, ["actuator_lag"], [], refit=True), False),
+        ("physics outside the catalogue as a discrepancy with a refit",
+         result({"heat_soak": {"loss_per_n": 4e-4, "time_constant_s": 60.0}}, ["discrepancy"], [], refit=True),
+         True),
     ]
     failures = []
     for what, r, want in checks:
@@ -1059,6 +1097,7 @@ def self_test():
 
 
 def main():
+    global DRAW
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("n", type=int, nargs="?")
     parser.add_argument("seed", type=int, nargs="?")
@@ -1085,6 +1124,9 @@ def main():
     parser.add_argument("--merge", nargs="+", metavar="JSON",
                         help="do not diagnose: report the results of earlier runs of the same draw (their --json "
                         "files) together, each case once")
+    parser.add_argument("--draw", type=int, choices=[1, 2], default=DRAW,
+                        help="how the cases are drawn: 1 as before parameters that are off were drawn beside an "
+                        "effect (to rerun a campaign made then), 2 (the default) with them")
     parser.add_argument("--keep", help="folder to keep each case's recording (CSV), given model (TOML) and "
                         "diagnosis (JSON) in, to rerun `jetbench diagnose` on it by hand")
     parser.add_argument("--simulate-only", action="store_true",
@@ -1098,6 +1140,7 @@ def main():
         sys.exit(1 if failures else 0)
     if args.n is None or args.seed is None:
         parser.error("N and SEED are needed (or --self-test)")
+    DRAW = args.draw
     if args.simulate_only and not args.keep:
         parser.error("--simulate-only needs --keep DIR")
     if args.merge:

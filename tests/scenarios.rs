@@ -654,6 +654,52 @@ fn fresh_campaign_false_claims_stay_answered_right() {
     assert!(names.contains(&"gain_drift") && names.contains(&"slow_history"), "{result}");
 }
 
+/// Parameters that are off beside an effect, a class the campaign draws since seed 7541
+/// (scripts/diagnose_campaign.py, `--draw 2`; until then parameters off were drawn alone). Seed 7523's case 32: an actuator lag of 0.28 s
+/// on a P100 whose given model has parameters 3-12 % off (2.0× the floor). The lag is claimed,
+/// and whether the parameters are off too is left open beside it (a refit among what is
+/// undecided): a claim of the lag on the given parameters, as if they were right, would be
+/// false.
+#[test]
+fn a_lag_beside_parameters_that_are_off_is_claimed_without_clearing_the_parameters() {
+    let summary = draw("7523", "32");
+    let result = &summary["results"][0];
+    assert_eq!(result["case"]["params_off"], serde_json::json!(true), "{result}");
+    assert_eq!(result["cause"], "missing_physics", "{result}");
+    assert_eq!(result["found"], serde_json::json!(["actuator_lag"]), "{result}");
+    let refit_open = [&result["refit"], &result["undecided_refit"], &result["parameters_open"]]
+        .iter()
+        .any(|v| v.as_bool() == Some(true));
+    assert!(refit_open, "the lag is claimed on parameters that are off, as if they were right: {result}");
+    assert_eq!((summary["claims"].as_u64(), summary["true_claims"].as_u64()), (Some(1), Some(1)), "{result}");
+}
+
+/// Two false claims of that class on fresh seed 7541, rerun on their own draws. Case 37: 1.5 N
+/// of friction with B_U 9 % low and K_TD 6 % high (150 s) was claimed as the friction with a
+/// discrepancy (a hinged throttle map and B_TT) standing in for the parameters: the few
+/// parameters that are off are now fitted beside the friction in the discrepancy's place, and
+/// the friction is claimed with B_U and K_TD refitted. Case 45: an actuator lag of 0.50 s with
+/// K_D 11 % off (300 s) was claimed as a lag of 0.53 s on the given parameters, as if they were
+/// right, although a refit beside the lag fitted the held-out data better: the lag is claimed,
+/// and the verdict now says the recording cannot tell whether the parameters are off as well.
+#[test]
+fn parameters_off_beside_an_effect_are_refitted_or_left_open_never_passed_as_right() {
+    let friction = draw("7541", "37");
+    let result = &friction["results"][0];
+    assert_eq!(result["found"], serde_json::json!(["bearing_friction"]), "{result}");
+    assert_eq!(result["refit"], serde_json::json!(true), "{result}");
+    assert_eq!((friction["claims"].as_u64(), friction["true_claims"].as_u64()), (Some(1), Some(1)), "{result}");
+    let lag = draw("7541", "45");
+    let result = &lag["results"][0];
+    assert_eq!(result["found"], serde_json::json!(["actuator_lag"]), "{result}");
+    assert_eq!(result["parameters_open"], serde_json::json!(true), "{result}");
+    assert!(
+        result["verdict"].as_str().unwrap_or_default().contains("The parameters are not cleared"),
+        "the verdict does not say the parameters are open: {result}"
+    );
+    assert_eq!((lag["claims"].as_u64(), lag["true_claims"].as_u64()), (Some(1), Some(1)), "{result}");
+}
+
 /// Every effect name among a campaign result's rivals.
 fn rival_names(result: &Value) -> Vec<&str> {
     result["rivals"]
