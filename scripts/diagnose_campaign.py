@@ -16,7 +16,8 @@ steps, ramps and holds. Closed-loop cases are not drawn (they need the live stac
 scenarios hold two).
 
 A claim is `none`, `parameters` or `missing_physics`. `parameters` is true only when the
-parameters are off and nothing else is, `none` only when nothing is off. A physics claim is true
+parameters are off and nothing else is, `none` only when nothing is off (or the parameters are
+off only within the ranges the claim discloses, see below). A physics claim is true
 when it is right about the parameters, every effect it names is in the truth (physics outside
 the catalogue: `discrepancy`), and every effect of the truth it does not name is one its verdict
 disclosed as able to hide beside it, at a size no smaller than the truth's: the diagnosis's
@@ -29,7 +30,9 @@ false. `ambiguous`, `unexplained` and `insufficient_data` are not claims. A clai
 every explanation in play holds lists what they hold beside it as undecided (`undecided` in the
 diagnosis): an effect of the truth it lists there counts as disclosed. Right about the
 parameters: where they are off, the claim refits them or leaves whether they are off open (a
-refit among what is undecided, or `parameters_open`); where they are as the engine is and the
+refit among what is undecided, or `parameters_open`), or discloses ranges that hold every one of
+the engine's parameters (`parameter_ranges`: how far each could be off with the recording unable
+to tell, as `could_hide` does for an effect); where they are as the engine is and the
 truth is all in the catalogue, it does not refit them (beside physics outside the catalogue, a
 refit may take up the part of it that changes the engine's map, and is not held against the
 claim). Recall counts the effects named; effects a true claim left out and disclosed are counted
@@ -704,6 +707,9 @@ def outcome(case, d, elapsed, truth_mae):
         "refit": d.get("refit") is not None,
         # Physics claimed on the given parameters, whether they are off as well left open.
         "parameters_open": d.get("parameters_open") is not None,
+        # Claimed on the given parameters: how far each could be off with the recording unable
+        # to tell ([low, high] per parameter, None for no bound).
+        "ranges": (d.get("parameter_ranges") or {}).get("range"),
         # A claim of the part every explanation in play holds: what they hold beside it.
         "undecided": sorted({e for o in d.get("undecided", []) for e in o["effects"]}),
         "undecided_refit": any(o["refit"] for o in d.get("undecided", [])),
@@ -766,6 +772,35 @@ def left_out(r):
     return shown, undisclosed
 
 
+def within_ranges(r):
+    """True when a claim on the given parameters disclosed ranges (`parameter_ranges`) that
+    hold the engine's every parameter: parameters off by less than the recording can tell are
+    not held against it, as effects disclosed as able to hide are not."""
+    ranges = r.get("ranges")
+    if not ranges:
+        return False
+    for key, value in r["case"]["params"].items():
+        if key not in ranges:
+            return False
+        lo, hi = ranges[key]
+        lo = -math.inf if lo is None else lo
+        hi = math.inf if hi is None else hi
+        tol = 1e-9 * max(1.0, abs(value))
+        if not lo - tol <= value <= hi + tol:
+            return False
+    return True
+
+
+def right_about_parameters(r):
+    """Where the parameters are off, a claim refits them, leaves them open, or disclosed ranges
+    that hold them; where they are as the engine is and the truth is all in the catalogue, it
+    does not refit them."""
+    case = r["case"]
+    if case["params_off"]:
+        return bool(r.get("refit") or r.get("undecided_refit") or r.get("parameters_open") or within_ranges(r))
+    return not (r.get("refit") and not any(n in OUTSIDE for n in case["effects"]))
+
+
 def grade(r):
     """(claimed, true claim)."""
     case = r["case"]
@@ -777,16 +812,14 @@ def grade(r):
     if want is None:
         return True, False
     if cause == "none":
-        return True, not want and not case["params_off"]
+        return True, not want and (not case["params_off"] or within_ranges(r))
     if cause == "parameters":
         return True, not want and case["params_off"]
     # Physics: right about the parameters, every effect named is in the truth, and every effect
     # of the truth not named was disclosed as able to hide at its size.
     if not set(r["found"]) <= set(want):
         return True, False
-    if case["params_off"] and not (r.get("refit") or r.get("undecided_refit") or r.get("parameters_open")):
-        return True, False
-    if not case["params_off"] and r.get("refit") and not any(n in OUTSIDE for n in case["effects"]):
+    if not right_about_parameters(r):
         return True, False
     return True, not left_out(r)[1]
 
@@ -1087,6 +1120,29 @@ def self_test():
         ("physics outside the catalogue as a discrepancy with a refit",
          result({"heat_soak": {"loss_per_n": 4e-4, "time_constant_s": 60.0}}, ["discrepancy"], [], refit=True),
          True),
+    ]
+    # Parameters off by less than the recording can tell, beside a lag: the engine's K_D 8 %
+    # above the given 1.0, the other parameter exact.
+    engine = {"K_D": 1.08, "c": -20.0}
+
+    def on_given(cause, ranges):
+        r = dict(result({"actuator_lag": lag} if cause == "missing_physics" else {}, ["actuator_lag"]
+                        if cause == "missing_physics" else [], [], params_off=True), cause=cause, ranges=ranges)
+        r["case"] = dict(r["case"], params=engine)
+        return r
+
+    holds = {"K_D": [0.9, 1.1], "c": [-21.0, -19.0]}
+    checks += [
+        ("parameters off beside a lag: the lag on the given parameters, ranges that hold the engine's",
+         on_given("missing_physics", holds), True),
+        ("parameters off beside a lag: the lag on the given parameters, ranges short of the engine's K_D",
+         on_given("missing_physics", dict(holds, K_D=[0.95, 1.05])), False),
+        ("parameters off beside a lag: ranges without a bound on K_D", on_given("missing_physics", dict(
+            holds, K_D=[None, None])), True),
+        ("parameters off beside a lag: ranges missing a parameter", on_given("missing_physics", {"c": [-21.0, -19.0]}),
+         False),
+        ("parameters off: nothing off claimed, ranges that hold the engine's", on_given("none", holds), True),
+        ("parameters off: nothing off claimed, no ranges", on_given("none", None), False),
     ]
     failures = []
     for what, r, want in checks:

@@ -196,23 +196,38 @@ fn up_starts_the_engine_runs_it_and_records_its_cool_down() {
         assert!(at.is_some(), "state {s} after position {from} in {states:?}");
         from += at.unwrap_or(0) + 1;
     }
-    // Throttle above idle only while the ECU says run (by the newest ECU sample before each command).
-    let mut violations = 0;
+    // Throttle above idle only while the ECU says run: by the newest ECU sample published
+    // before each command was. A command's `stamp_ns` is its sensor frame's, taken before the
+    // ECU sample that control acted on may have been read, so publish times are compared.
+    let mut violations = Vec::new();
     let mut above = 0;
     for c in commands.iter().filter(|c| c.throttle_pct > IDLE + 1e-9) {
         above += 1;
-        let newest = ecu.iter().rfind(|t| t.flags == 0 && t.stamp_ns <= c.stamp_ns);
+        let newest = ecu.iter().rfind(|t| t.flags == 0 && t.publish_ns <= c.publish_ns);
         if newest.is_none_or(|t| t.state != ecu_states::RUN as u32) {
-            violations += 1;
+            let next = ecu.iter().find(|t| t.flags == 0 && t.publish_ns > c.publish_ns);
+            let at = |t: Option<&EcuTelemetry>| t.map(|t| (t.state, t.stamp_ns, t.publish_ns));
+            violations.push(format!(
+                "command {:.2} % (stamp {}, published {}): newest ECU sample (state, stamp, published) {:?}, next {:?}",
+                c.throttle_pct,
+                c.stamp_ns,
+                c.publish_ns,
+                at(newest),
+                at(next)
+            ));
         }
     }
-    println!("{} ECU samples, states {states:?}; {above} commands above idle, {violations} outside run", ecu.len());
+    println!(
+        "{} ECU samples, states {states:?}; {above} commands above idle, {} outside run",
+        ecu.len(),
+        violations.len()
+    );
     // The battery voltage, read with `RFI`: the emulated ECU's charged pack.
     let battery: Vec<f64> = ecu.iter().filter(|t| t.flags == 0 && t.battery_v > 0.0).map(|t| t.battery_v).collect();
     assert!(battery.len() * 2 > ecu.len(), "the battery voltage is read: {} of {} samples", battery.len(), ecu.len());
     assert!(battery.iter().all(|v| (7.3..=7.5).contains(v)), "a charged pack reads 7.4 V");
     assert!(above > 300, "the profile ran: {above} commands above idle");
-    assert_eq!(violations, 0, "throttle above idle outside run");
+    assert!(violations.is_empty(), "throttle above idle outside run:\n{}", violations.join("\n"));
     // The operator's stop, accepted and recorded with who sent it.
     let events = recording.samples(channels::EVENTS);
     let stop = events

@@ -421,6 +421,10 @@ pub(crate) struct Fit {
     pub spec: Spec,
     /// Standard errors of the ten parameters (NaN when they were not refitted).
     pub param_stderr: [f64; 10],
+    /// The same from the recording alone, the refit's prior left out: what the data bound
+    /// each parameter to (NaN when they were not refitted; very large where the recording
+    /// does not determine one).
+    pub param_stderr_data: [f64; 10],
     /// Standard errors of the effect values, per fitted effect (NaN for fixed values).
     pub stderr: Vec<(EffectKind, Vec<f64>)>,
 }
@@ -488,6 +492,7 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
         return Some(Fit {
             spec: with_bias_starts(problem, fixed, build(&x), &mut SimCache::default()),
             param_stderr: [f64::NAN; 10],
+            param_stderr_data: [f64::NAN; 10],
             stderr: Vec::new(),
         });
     }
@@ -596,17 +601,25 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
     let sigma2 = sse / dof;
     let cov = jac.tr_mul(&jac).try_inverse();
     let error = |j: usize| cov.as_ref().map_or(f64::NAN, |c| (sigma2 * c[(j, j)]).max(0.0).sqrt() * scales[j]);
+    // The recording's own: the prior's pseudo-residuals (the last rows) left out.
+    let n_data = r.len() - layout.iter().filter(|s| matches!(s, Slot::Param(_))).count();
+    let data_rows = jac.rows(0, n_data);
+    let cov_data = data_rows.tr_mul(&data_rows).try_inverse();
+    let sigma2_data = r[..n_data].iter().map(|v| v * v).sum::<f64>() / (n_data.saturating_sub(k)).max(1) as f64;
+    let error_data =
+        |j: usize| cov_data.as_ref().map_or(f64::INFINITY, |c| (sigma2_data * c[(j, j)]).max(0.0).sqrt() * scales[j]);
     let mut param_stderr = [f64::NAN; 10];
+    let mut param_stderr_data = [f64::NAN; 10];
     let mut stderr: Vec<(EffectKind, Vec<f64>)> =
         spec.effects.iter().map(|(kind, v)| (*kind, vec![f64::NAN; v.len()])).collect();
     for (j, slot) in layout.iter().enumerate() {
         match *slot {
-            Slot::Param(i) => param_stderr[i] = error(j),
+            Slot::Param(i) => (param_stderr[i], param_stderr_data[i]) = (error(j), error_data(j)),
             Slot::Value(e, i) => stderr[e].1[i] = error(j),
             Slot::History(_) | Slot::Play(_) => {}
         }
     }
-    Some(Fit { spec: with_bias_starts(problem, fixed, build(&x), &mut cache), param_stderr, stderr })
+    Some(Fit { spec: with_bias_starts(problem, fixed, build(&x), &mut cache), param_stderr, param_stderr_data, stderr })
 }
 
 /// Simulates `spec` over the calibration part, its sensor-bias starts fitted there when it
@@ -716,6 +729,7 @@ mod tests {
                 (EffectKind::GainDrift, vec![0.0005]),
             ],
             param_stderr: [f64::NAN; 10],
+            param_stderr_data: [f64::NAN; 10],
             spec,
         };
         let idle: Vec<EffectKind> = idle_effects(&fit).into_iter().map(|(k, ..)| k).collect();

@@ -249,6 +249,28 @@ impl Refit {
     }
 }
 
+/// How far the ten parameters could be from the given ones with this recording unable to
+/// tell, beside what is claimed on them (physics on the given parameters, or `none`). A claim
+/// on the given parameters says they are right only so far: 300 s of a P100 showed a lag
+/// beside a `K_D` 8 % off no better refitted than as given, and a claim that did not say how
+/// far the recording bounds the parameters read as if they were exact.
+#[derive(Clone, Debug, Serialize)]
+pub struct ParameterRanges {
+    /// Per parameter (`K_T`, ..., `B_UU`, the model file's units), `[low, high]`: where a refit
+    /// of the ten beside the same physics puts it, `z` of its standard errors either side, from
+    /// the recording alone (the refit's prior left out); `null` for no bound (the recording does
+    /// not determine the parameter to within its own size).
+    pub range: BTreeMap<&'static str, [Option<f64>; 2]>,
+    /// Standard errors either side: the ten at once at 99 % (3.29, Bonferroni over ten).
+    pub z: f64,
+    /// In words, the widest ranges first.
+    pub summary: String,
+}
+
+/// Standard errors either side of [`ParameterRanges`]: a two-sided 0.1 % level per parameter,
+/// 1 % for the ten together.
+const RANGE_Z: f64 = 3.29;
+
 /// Where one run of the improved model starts its slow first-order states: fitted with the
 /// hypothesis (a recording starts some time after the tare and after the engine started, so
 /// a drift's bias and a soak's thrust history are still on their way), `None` where the
@@ -284,6 +306,9 @@ pub struct Diagnosis {
     /// The physics is needed either way; whether the parameters are off as well, the
     /// recording cannot tell, and this says so.
     pub parameters_open: Option<String>,
+    /// Claimed on the given parameters (physics without a refit, or `none`), with nothing
+    /// left open about them: how far each could be off with this recording unable to tell.
+    pub parameter_ranges: Option<ParameterRanges>,
     /// Validation MAE of the given model, N.
     pub mae_before_n: f64,
     /// Validation MAE of the improved model, N.
@@ -432,6 +457,9 @@ struct Search<'p, 'a> {
     /// The explanations fitted the other way round (see [`weigh_rivals`]), by their parts:
     /// `None` where that fit failed.
     back: RefCell<BTreeMap<Label, Option<Entry>>>,
+    /// The best of the sparse refits without effects ([`sparse_refit_rivals`]), once fitted:
+    /// the same whichever explanation asks.
+    sparse_alone: RefCell<Option<Option<Scored>>>,
 }
 
 /// An explanation's parts: its effects' names, sorted, and whether the ten parameters are
@@ -449,6 +477,7 @@ impl<'p, 'a> Search<'p, 'a> {
             pool: RefCell::new(Vec::new()),
             cache: RefCell::new(SimCache::default()),
             back: RefCell::default(),
+            sparse_alone: RefCell::default(),
         }
     }
 
@@ -827,6 +856,11 @@ pub fn diagnose(
     if parameters_open.is_none() {
         parameters_open = refit_beside(&search, &current);
     }
+    let mut parameter_ranges = None;
+    if parameters_open.is_none() && !current.fit.spec.refit && search.options.refit {
+        progress("bounding the parameters beside what is found");
+        (parameter_ranges, parameters_open) = parameters_bounded(&search, &current);
+    }
     progress("analysing the improved model");
     // What the explanation leaves is judged under the noise as its own second differences show
     // it: the recording's took in a little of a fast engine's transients (see
@@ -874,6 +908,7 @@ pub fn diagnose(
         effects,
         refit,
         parameters_open,
+        parameter_ranges,
         mae_before_n: before.mae_val,
         mae_after_n: current.mae_val,
         noise_floor_n: floor_n,
@@ -1109,6 +1144,87 @@ fn refit_beside(search: &Search<'_, '_>, current: &Scored) -> Option<String> {
              recording cannot tell (re-identify them on a second recording of other steps, jetbench identify)"
         )
     })
+}
+
+/// How far the parameters could be from the given ones beside `current`, claimed on them
+/// ([`ParameterRanges`]): the ten refitted beside the same physics (the pool's best such
+/// refit, or one fitted now), each within [`RANGE_Z`] of its standard errors from the
+/// recording alone. Where a given value lies outside its range, the recording does not clear
+/// the parameters, and that is said instead (the second value, for
+/// `Diagnosis::parameters_open`).
+fn parameters_bounded(search: &Search<'_, '_>, current: &Scored) -> (Option<ParameterRanges>, Option<String>) {
+    let chosen = search.entry(current);
+    let pooled = search
+        .pool
+        .borrow()
+        .iter()
+        .filter(|e| e.refit && e.refit_only.is_none() && e.effects == chosen.effects && !e.unphysical)
+        .filter_map(|e| e.fit.clone().map(|f| (e.fit(), f)))
+        .filter(|(score, f)| score.is_finite() && f.param_stderr_data.iter().any(|s| s.is_finite()))
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, f)| f);
+    let refit = pooled.or_else(|| {
+        let mut spec = current.fit.spec.clone();
+        (spec.refit, spec.refit_only) = (true, None);
+        search.fit(&spec).filter(|s| s.unphysical().is_none()).map(|s| s.fit)
+    });
+    let Some(refit) = refit else { return (None, None) };
+    let (centre, given) = (refit.spec.params.to_array(), current.fit.spec.params.to_array());
+    let mut range = BTreeMap::new();
+    let (mut outside, mut widths) = (Vec::new(), Vec::new());
+    for (i, name) in Params::NAMES.iter().enumerate() {
+        let half = RANGE_Z * refit.param_stderr_data[i];
+        // A range wider than the parameter's own size bounds nothing.
+        let bounded = half.is_finite() && half < given[i].abs().max(1e-9);
+        let (lo, hi) = (centre[i] - half, centre[i] + half);
+        range.insert(*name, if bounded { [Some(lo), Some(hi)] } else { [None, None] });
+        widths.push((if bounded { half / given[i].abs().max(1e-9) } else { f64::INFINITY }, *name));
+        if bounded && !(lo..=hi).contains(&given[i]) {
+            outside.push(format!(
+                "{name} as given ({}) lies outside {}..{}",
+                report::significant(given[i]),
+                report::significant(lo),
+                report::significant(hi)
+            ));
+        }
+    }
+    if !outside.is_empty() {
+        let open = format!(
+            "beside the same physics, a refit of the ten puts {} ({RANGE_Z} standard errors either side, from this \
+             recording): the parameters may be off as well (re-identify them on a second recording of other steps, \
+             jetbench identify)",
+            outside.join(", ")
+        );
+        return (None, Some(open));
+    }
+    widths.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let loose: Vec<String> = widths
+        .iter()
+        .filter(|(w, _)| w.is_finite() && *w >= 0.02)
+        .map(|(w, n)| format!("{n} to ±{:.0} %", 100.0 * w))
+        .collect();
+    let alone: Vec<&str> = widths.iter().filter(|(w, _)| w.is_infinite()).map(|(_, n)| *n).collect();
+    let mut said = Vec::new();
+    if !loose.is_empty() {
+        said.push(loose.join(", "));
+    }
+    if !alone.is_empty() {
+        said.push(format!(
+            "{} not one by one (the recording holds what they do together, not each alone)",
+            alone.join(", ")
+        ));
+    }
+    let summary = if said.is_empty() {
+        "This recording bounds each of the ten parameters to within 2 % of the value given.".to_owned()
+    } else {
+        format!(
+            "The parameters as given agree with this recording, which bounds them only so far: {} ({RANGE_Z} standard \
+             errors of a refit beside the same physics). Errors within that do not show here; a recording of wider \
+             and faster steps narrows them (jetbench excite).",
+            said.join("; ")
+        )
+    };
+    (Some(ParameterRanges { range, z: RANGE_Z, summary }), None)
 }
 
 /// The explanation `label` (fitted as `spec` on the calibration part) fitted by `back` (the
@@ -1706,9 +1822,13 @@ fn sparse_refit_rivals(search: &Search<'_, '_>, before: &Scored, current: &Score
         let mut company = None;
         pared_refits(&refit, beside, &mut company);
     }
-    // The best on held-out score of the sparse refits without effects.
+    // The best on held-out score of the sparse refits without effects, fitted once.
+    if let Some(done) = search.sparse_alone.borrow().as_ref() {
+        return done.clone();
+    }
     let mut best = None;
     pared_refits(&refit, &before.fit.spec, &mut best);
+    *search.sparse_alone.borrow_mut() = Some(best.clone());
     best
 }
 
@@ -1734,11 +1854,11 @@ fn pared_refits(refit: &dyn Fn(Vec<usize>, &Spec) -> Option<Scored>, from: &Spec
         let Some(least) = subset.iter().copied().min_by(|&a, &b| moved(a).total_cmp(&moved(b))) else { break };
         subset.retain(|&i| i != least);
         // From the values the wider refit found, the pared parameter back as given.
-        let mut from = pared.fit.spec.clone();
-        let mut values = from.params.to_array();
+        let mut start = pared.fit.spec.clone();
+        let mut values = start.params.to_array();
         values[least] = given[least];
-        from.params = Params::from_array(values);
-        match refit(subset.clone(), &from) {
+        start.params = Params::from_array(values);
+        match refit(subset.clone(), &start) {
             Some(next) => {
                 keep(Some(next.clone()));
                 pared = next;

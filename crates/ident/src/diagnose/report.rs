@@ -91,6 +91,15 @@ fn figure(value: f64, decimals: usize, unit: &str) -> String {
     }
 }
 
+/// A parameter's value to four significant figures (`-28.35`, `0.0001234`).
+pub(crate) fn significant(value: f64) -> String {
+    if !value.is_finite() || value == 0.0 {
+        return format!("{value}");
+    }
+    let decimals = (3.0 - value.abs().log10().floor()).clamp(0.0, 12.0) as usize;
+    format!("{value:.decimals$}")
+}
+
 /// `0.081 ± 0.006`, with as many decimals as the uncertainty needs.
 fn pm(value: f64, error: f64) -> String {
     let decimals = if error.is_finite() && error > 0.0 { (-error.log10().floor()).clamp(0.0, 6.0) as usize } else { 3 };
@@ -372,6 +381,9 @@ pub(crate) fn cause(d: &Diagnosis) -> Cause {
         // cannot be told from them), and its residual carries none of them.
         match (detect::excluded(&d.detectability), d.refit.is_some()) {
             (true, true) => Cause::Parameters,
+            // The held-out data ask for no refit, but the recording puts a parameter away from
+            // its given value (`parameters_bounded`): "nothing is off" is not what it says.
+            (true, false) if d.parameters_open.is_some() => Cause::Ambiguous,
             (true, false) => Cause::None,
             (false, _) => Cause::InsufficientData,
         }
@@ -533,6 +545,7 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
                     c.name, c.mae_val_n
                 ))
             ) + &format!(" {}", detectable_above(d))
+                + &d.parameter_ranges.as_ref().map_or(String::new(), |r| format!(" {}", r.summary))
         }
         Cause::Parameters => format!(
             "The parameters are off, not the physics: re-identify. {} No effect improves on the refitted model, and \
@@ -554,6 +567,9 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
             if let Some(open) = &d.parameters_open {
                 text.push(format!("The parameters are not cleared: {open}."));
             }
+            if let Some(ranges) = &d.parameter_ranges {
+                text.push(ranges.summary.clone());
+            }
             if !d.undecided.is_empty() {
                 text.push(undecided(d));
             }
@@ -568,7 +584,13 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
             }
             format!("{} {mae}; {whiteness}.{}{}", text.join(" "), remains(), hidden_beside(d))
         }
-        Cause::Ambiguous => format!("{} {mae} with the leading explanation.", ambiguous(d)),
+        Cause::Ambiguous => format!(
+            "{} {mae} with the leading explanation.{}",
+            ambiguous(d),
+            d.parameters_open
+                .as_ref()
+                .map_or(String::new(), |open| format!(" The parameters are not cleared: {open}."))
+        ),
         Cause::InsufficientData if d.held_out_s < d.needed_s => insufficient(d),
         Cause::InsufficientData => undetectable(d),
         Cause::Unexplained => {

@@ -869,7 +869,8 @@ mod tests {
                 };
             }
             let mut e = explanation(effects, false, w);
-            e.fit = Some(Fit { spec, param_stderr: [f64::NAN; 10], stderr: Vec::new() });
+            e.fit =
+                Some(Fit { spec, param_stderr: [f64::NAN; 10], param_stderr_data: [f64::NAN; 10], stderr: Vec::new() });
             e
         };
         let thrust_soak = [("gain_history_per_n", -0.0004), ("history_time_constant_s", 40.0)];
