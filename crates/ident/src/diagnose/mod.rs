@@ -976,6 +976,10 @@ pub fn diagnose(
         if open.iter().any(|o| !o.refit) {
             d.refit = None;
         }
+        // A refit among what is undecided leaves the parameters open: no range clears them.
+        if open.iter().any(|o| o.refit) {
+            d.parameter_ranges = None;
+        }
         d.undecided = open;
     }
     d.verdict = report::verdict(&d);
