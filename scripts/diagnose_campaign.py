@@ -742,17 +742,19 @@ def disclosed(name, values, hidden):
         region = p.get("could_hide") or {}
         if p.get("effect") != name or not values or set(region) != set(values):
             continue
-        inside = True
-        for key, v in values.items():
-            lo, hi = region[key]
-            lo = -math.inf if lo is None else lo
-            hi = math.inf if hi is None else hi
-            # A relative tolerance for values printed and parsed back (the probe's own value).
-            tol = 1e-9 * max(1.0, abs(v))
-            inside &= lo - tol <= v <= hi + tol
-        if inside:
+        if all(in_range(v, region[key]) for key, v in values.items()):
             return True
     return False
+
+
+def in_range(value, bounds):
+    """True when `value` lies in `bounds` ([low, high], None for no bound), with a relative
+    tolerance for values printed and parsed back (a probe's own value, a range's edge)."""
+    lo, hi = bounds
+    lo = -math.inf if lo is None else lo
+    hi = math.inf if hi is None else hi
+    tol = 1e-9 * max(1.0, abs(value))
+    return lo - tol <= value <= hi + tol
 
 
 def left_out(r):
@@ -777,18 +779,8 @@ def within_ranges(r):
     hold the engine's every parameter: parameters off by less than the recording can tell are
     not held against it, as effects disclosed as able to hide are not."""
     ranges = r.get("ranges")
-    if not ranges:
-        return False
-    for key, value in r["case"]["params"].items():
-        if key not in ranges:
-            return False
-        lo, hi = ranges[key]
-        lo = -math.inf if lo is None else lo
-        hi = math.inf if hi is None else hi
-        tol = 1e-9 * max(1.0, abs(value))
-        if not lo - tol <= value <= hi + tol:
-            return False
-    return True
+    return bool(ranges) and all(key in ranges and in_range(value, ranges[key])
+                                for key, value in r["case"]["params"].items())
 
 
 def right_about_parameters(r):

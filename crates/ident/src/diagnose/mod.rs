@@ -251,9 +251,10 @@ impl Refit {
 
 /// How far the ten parameters could be from the given ones with this recording unable to
 /// tell, beside what is claimed on them (physics on the given parameters, or `none`). A claim
-/// on the given parameters says they are right only so far: 300 s of a P100 showed a lag
-/// beside a `K_D` 8 % off no better refitted than as given, and a claim that did not say how
-/// far the recording bounds the parameters read as if they were exact.
+/// on the given parameters says they are right only so far: 200 s of a P220 showed an input
+/// delay beside a `c` 7.7 % off no better refitted than as given (a campaign's case), and a
+/// claim that did not say how far the recording bounds the parameters read as if they were
+/// exact.
 #[derive(Clone, Debug, Serialize)]
 pub struct ParameterRanges {
     /// Per parameter (`K_T`, ..., `B_UU`, the model file's units), `[low, high]`: where a refit
