@@ -494,6 +494,30 @@ impl<'p, 'a> Search<'p, 'a> {
         Some(scored)
     }
 
+    /// The pool's best physical fit of `label` judged on `rows` held-out samples, by its
+    /// held-out score.
+    fn pooled(&self, label: &Label, rows: usize) -> Option<Entry> {
+        self.best_pooled(label, rows, |e| e.score, |_| true)
+    }
+
+    /// The pool's physical fit of `label` judged on `rows` held-out samples that `keep`
+    /// admits, lowest by `rank`.
+    fn best_pooled(
+        &self,
+        label: &Label,
+        rows: usize,
+        rank: impl Fn(&Entry) -> f64,
+        keep: impl Fn(&Entry) -> bool,
+    ) -> Option<Entry> {
+        self.pool
+            .borrow()
+            .iter()
+            .filter(|e| e.label() == *label && !e.unphysical && e.score.is_finite() && e.w2.len() == rows)
+            .filter(|e| e.fit.is_some() && keep(e))
+            .min_by(|a, b| rank(a).total_cmp(&rank(b)))
+            .cloned()
+    }
+
     /// The rivals' view of a scored hypothesis: its parts and held-out innovations.
     fn entry(&self, s: &Scored) -> Entry {
         let mut w = Vec::new();
@@ -1023,20 +1047,17 @@ fn weigh_rivals(search: &Search<'_, '_>, current: &Scored, progress: &mut dyn Fn
     // The explanations in play, each as the first weighing fitted it (its entry and fit): the
     // best-weighed one and every rival it does not already dominate on the held-out data.
     let (in_play, ruled_out) = {
-        let pool = search.pool.borrow();
         let find = |label: &Label| -> Option<(Entry, Spec)> {
             if *label == chosen.label() {
                 return Some((chosen.clone(), current.fit.spec.clone()));
             }
-            pool.iter()
-                .filter(|e| {
-                    e.label() == *label && !e.unphysical && e.score.is_finite() && e.w2.len() == chosen.w2.len()
-                })
-                .min_by(|a, b| a.score.total_cmp(&b.score))
-                .and_then(|e| Some((e.clone(), e.fit.as_ref()?.spec.clone())))
+            let e = search.pooled(label, chosen.w2.len())?;
+            let spec = e.fit.as_ref()?.spec.clone();
+            Some((e, spec))
         };
         let Some(lead) = find(&claimant) else { return once };
-        let by_lead = if claimant == chosen.label() { once.clone() } else { rivals::weigh(&pool, &lead.0) };
+        let by_lead =
+            if claimant == chosen.label() { once.clone() } else { rivals::weigh(&search.pool.borrow(), &lead.0) };
         let mut in_play = vec![lead];
         let mut ruled_out = Vec::new();
         for r in by_lead.rivals.into_iter().filter(|r| (r.effects.clone(), r.refit) != claimant) {
@@ -1131,12 +1152,7 @@ fn refit_beside(search: &Search<'_, '_>, current: &Scored) -> Option<String> {
         return None;
     }
     let chosen = search.entry(current);
-    let pool = search.pool.borrow();
-    let refitted = pool
-        .iter()
-        .filter(|e| e.refit && e.effects == chosen.effects && !e.unphysical && e.score.is_finite())
-        .filter(|e| e.w2.len() == chosen.w2.len())
-        .min_by(|a, b| a.fit().total_cmp(&b.fit()))?;
+    let refitted = search.best_pooled(&(chosen.effects.clone(), true), chosen.w2.len(), Entry::fit, |_| true)?;
     let gain = chosen.fit() - refitted.fit();
     let which = match &refitted.refit_only {
         Some(only) => only.iter().filter_map(|&i| Params::NAMES.get(i).copied()).collect::<Vec<_>>().join(", "),
@@ -1159,15 +1175,11 @@ fn refit_beside(search: &Search<'_, '_>, current: &Scored) -> Option<String> {
 /// `Diagnosis::parameters_open`).
 fn parameters_bounded(search: &Search<'_, '_>, current: &Scored) -> (Option<ParameterRanges>, Option<String>) {
     let chosen = search.entry(current);
-    let pooled = search
-        .pool
-        .borrow()
-        .iter()
-        .filter(|e| e.refit && e.refit_only.is_none() && e.effects == chosen.effects && !e.unphysical)
-        .filter_map(|e| e.fit.clone().map(|f| (e.fit(), f)))
-        .filter(|(score, f)| score.is_finite() && f.param_stderr_data.iter().any(|s| s.is_finite()))
-        .min_by(|a, b| a.0.total_cmp(&b.0))
-        .map(|(_, f)| f);
+    let all_ten = |e: &Entry| {
+        e.refit_only.is_none() && e.fit.as_ref().is_some_and(|f| f.param_stderr_data.iter().any(|s| s.is_finite()))
+    };
+    let pooled =
+        search.best_pooled(&(chosen.effects.clone(), true), chosen.w2.len(), Entry::fit, all_ten).and_then(|e| e.fit);
     let refit = pooled.or_else(|| {
         let mut spec = current.fit.spec.clone();
         (spec.refit, spec.refit_only) = (true, None);

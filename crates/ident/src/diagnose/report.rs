@@ -921,6 +921,15 @@ fn undecided(d: &Diagnosis) -> String {
     )
 }
 
+/// A rival's effects held at a size its fit cannot tell from zero, as a clause.
+fn idle(r: &rivals::Rival) -> String {
+    if r.idle.is_empty() {
+        String::new()
+    } else {
+        format!("; its {} at a size the data cannot tell from zero", r.idle.join(" and "))
+    }
+}
+
 /// The ambiguous verdict: the rivals with their weights, what each means, what separates them.
 fn ambiguous(d: &Diagnosis) -> String {
     let list: Vec<String> = d
@@ -928,11 +937,12 @@ fn ambiguous(d: &Diagnosis) -> String {
         .iter()
         .map(|r| {
             format!(
-                "{} (weight {:.0} %; held-out fit {:.1} behind the best, {:.1} with its parameters charged): {}",
+                "{} (weight {:.0} %; held-out fit {:.1} behind the best, {:.1} with its parameters charged{}): {}",
                 label(&r.effects, r.refit),
                 100.0 * r.weight,
                 r.fit_behind,
                 r.score_behind,
+                idle(r),
                 r.meaning
             )
         })
