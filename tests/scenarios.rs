@@ -722,15 +722,50 @@ fn parameters_off_by_less_than_the_recording_tells_are_bounded_beside_the_claim(
 /// a P100 whose given `K_TD` is 8 % low and `c` 6 % low. Every explanation in play held a gain
 /// drift by name, and a drift of 0.4 %/min was claimed; the engine has none. In the leading
 /// explanation, the delay beside a refit of `K_TD` and `c`, the drift was 0.09 ± 0.13 %/min:
-/// that explanation does not hold it, and fitted without it, it is claimed: the delay, with
-/// `K_TD` and `c` refitted.
+/// that explanation does not hold it, and fitted without it, it leads: the delay, with `K_TD`
+/// and `c` refitted. It was claimed when weighed both ways round; with a zero shift of the
+/// sensor beside the model found among the rivals (one jetbench cannot fit the other way
+/// round), that second weighing is not made, and the case is `ambiguous` with the delay and
+/// the refit leading. Either way, no drift is claimed.
 #[test]
 fn a_part_one_explanation_in_play_holds_at_no_size_the_data_tell_is_not_claimed() {
     let summary = draw("7559", "55");
-    let result = claimed_true(&summary);
+    let result = &summary["results"][0];
     assert_eq!(result["case"]["params_off"], serde_json::json!(true), "{result}");
-    assert_eq!(result["found"], serde_json::json!(["input_delay"]), "{result}");
-    assert_eq!(result["refit"], serde_json::json!(true), "{result}");
+    assert_eq!(summary["claims"].as_u64(), summary["true_claims"].as_u64(), "{result}");
+    if summary["claims"].as_u64() == Some(1) {
+        assert_eq!(result["found"], serde_json::json!(["input_delay"]), "{result}");
+        assert_eq!(result["refit"], serde_json::json!(true), "{result}");
+    } else {
+        assert_eq!(result["cause"], "ambiguous", "{result}");
+        let lead = &result["rivals"][0];
+        assert_eq!((&lead[0], &lead[1]), (&serde_json::json!(["input_delay"]), &serde_json::json!(true)), "{result}");
+    }
+}
+
+/// Sensor drifts whose bias had nearly settled by the held-out part, left `unexplained` on a
+/// fresh draw (seed 7573): the "periodic" rival, a sine with a constant beside it, took the
+/// settled bias in its constant (its sine held 0.1-0.8 % of the residual's variance) and tied
+/// with the drift. A sine is now weighed only where it earns its parameters against the
+/// constant alone, and the constant alone is weighed as what it is, a zero shift of the sensor
+/// since the tare, where it fits the calibration part about as well as the model found.
+/// Case 41 (a drift of 1.1 %, τ 61 s, on 400 s of a P220): the drift is claimed. Case 95 (5.9
+/// %, τ 90 s, on 150 s): the bias had nearly settled before the recording began, and the
+/// recording cannot tell the drift from a zero shift: `ambiguous` between the two, never a
+/// periodic force.
+#[test]
+fn a_settled_sensor_drift_is_not_taken_for_a_periodic_force() {
+    let summary = draw("7573", "41");
+    let result = claimed_true(&summary);
+    assert_eq!(result["found"], serde_json::json!(["sensor_drift"]), "{result}");
+    let names = rival_names(result);
+    assert!(!names.contains(&"periodic") && !names.contains(&"sensor_offset"), "{result}");
+    let summary = draw("7573", "95");
+    let result = &summary["results"][0];
+    assert_eq!(result["cause"], "ambiguous", "{result}");
+    let names = rival_names(result);
+    assert!(names.contains(&"sensor_drift") && names.contains(&"sensor_offset"), "{result}");
+    assert!(!names.contains(&"periodic"), "{result}");
 }
 
 /// The one case of a campaign draw (see [`draw`]), its one claim checked true.

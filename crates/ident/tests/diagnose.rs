@@ -361,3 +361,24 @@ fn a_claim_discloses_what_could_hide_beside_it_with_its_size() {
         assert!(d.verdict.contains("nor one at"), "{}", d.verdict);
     }
 }
+
+/// A zero shift of the force sensor since the tare: the reading 3 N above the thrust all the
+/// way through (a constant the catalogue does not hold). It is no engine physics and no
+/// parameter error, and a sensor drift does not hold it either (its bias follows the thrust
+/// from the tare): nothing is claimed, and the zero shift is among the rivals weighed.
+#[test]
+fn a_zero_shift_of_the_sensor_is_weighed_never_claimed_as_physics_or_parameters() {
+    let plant = Plant::new(Preset::P100Diesel.params(), Effects::none());
+    let mut run = recording(&plant, 37);
+    run.thrust_n.iter_mut().for_each(|y| *y += 3.0);
+    let d = diagnose(&ModelFile::new(plant.params), &[run], &Options::default(), &mut |_| {}).unwrap();
+    assert!(d.mae_before_n > 1.15 * d.noise_floor_n, "the shift is not concealed: {}", d.verdict);
+    assert!(
+        matches!(d.cause, Cause::Ambiguous | Cause::Unexplained | Cause::InsufficientData),
+        "{:?}: {}",
+        d.cause,
+        d.verdict
+    );
+    let offset = d.rivals.iter().find(|r| r.effects.contains(&"sensor_offset"));
+    assert!(offset.is_some_and(|r| !r.dominated), "the zero shift is not in play: {:?}", d.rivals);
+}

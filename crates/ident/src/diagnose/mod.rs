@@ -2154,7 +2154,20 @@ fn unclaimable_entry(
 /// model as given and of the model found. Something that repeats at its own period is no
 /// engine physics; a term of the model is claimed only when it explains the held-out data
 /// better than the sine does (see [`report::cause`]). Returns the sine on the model found,
-/// when it fits.
+/// when it is weighed.
+///
+/// The sine is fitted with a constant beside it, and a constant alone is no periodic force:
+/// the sine is weighed only where it earns its two parameters on the held-out data against
+/// the same rival with the constant alone. Where it does not on the model as given, the
+/// rival is that constant, a zero shift of the sensor since the tare ([`offset_rival`]); on
+/// the model found, the constant beside it (friction found beside a sensor drift of 1.4 %
+/// that the search did not add: with a constant beside it, the friction fits the held-out
+/// part 23 units better, and the friction alone is not claimed). A sensor drift whose bias had
+/// nearly settled by the held-out part was left `unexplained` on a fresh draw of 300 cases
+/// (three of its six misses of a drift alone): the calibration part's mean residual carried
+/// the settled bias, the "periodic" rival held it with a sine of 0.1-0.8 % of the residual's
+/// variance, and tied with the drift. The constant alone fitted the held-out part 15-30
+/// units better than that sine.
 fn periodic_rivals(search: &Search<'_, '_>, before: &Scored, current: &Scored) -> Option<residual::Sine> {
     let problem = search.problem;
     let longest_cal = problem.runs.iter().map(|r| r.cut.min(r.y.len())).max().unwrap_or(0) as f64 * STEP_S;
@@ -2173,43 +2186,115 @@ fn periodic_rivals(search: &Search<'_, '_>, before: &Scored, current: &Scored) -
             );
         }
         let Some(sine) = residual::fit_sine(&calibration, longest_cal) else { continue };
-        // The residual with the sine taken out: what the model plus the sine leaves.
-        let left: Vec<Vec<f64>> = problem
-            .runs
-            .iter()
-            .zip(&residuals)
-            .map(|(run, r)| r.iter().enumerate().map(|(k, v)| v - sine.at(run.t0_s + k as f64 * STEP_S)).collect())
-            .collect();
-        let mut w = Vec::new();
-        problem.whiten_part(&left, Part::Validation, &mut w);
-        let (mut sum, mut n) = (0.0, 0usize);
-        for (run, r) in problem.runs.iter().zip(&left) {
-            for v in r.iter().skip(run.cut).filter(|v| v.is_finite()) {
-                sum += v.abs();
-                n += 1;
-            }
-        }
         let spec = &base.fit.spec;
         let kinds: Vec<EffectKind> = spec.effects.iter().map(|(k, _)| *k).collect();
-        let mut entry = rivals::entry(
-            &kinds,
-            spec.refit,
-            &w,
-            spec.free_count() + 3,
-            spec.prior_cost(),
-            sum / n.max(1) as f64,
-            base.unphysical().is_some(),
-        );
-        entry.effects.push(rivals::PERIODIC);
-        entry.effects.sort_unstable();
-        if entry.score.is_finite() {
-            search.pool.borrow_mut().push(entry);
-        }
-        if i == bases.len() - 1 {
-            found = Some(sine);
+        // What the model and `remove` (a function of time) leave, as a rival's entry.
+        let leaves = |remove: &dyn Fn(f64) -> f64, extra: usize, name: &'static str| {
+            let left: Vec<Vec<f64>> = problem
+                .runs
+                .iter()
+                .zip(&residuals)
+                .map(|(run, r)| r.iter().enumerate().map(|(k, v)| v - remove(run.t0_s + k as f64 * STEP_S)).collect())
+                .collect();
+            let mut w = Vec::new();
+            problem.whiten_part(&left, Part::Validation, &mut w);
+            let (mut sum, mut n) = (0.0, 0usize);
+            for (run, r) in problem.runs.iter().zip(&left) {
+                for v in r.iter().skip(run.cut).filter(|v| v.is_finite()) {
+                    sum += v.abs();
+                    n += 1;
+                }
+            }
+            let mut entry = rivals::entry(
+                &kinds,
+                spec.refit,
+                &w,
+                spec.free_count() + extra,
+                spec.prior_cost(),
+                sum / n.max(1) as f64,
+                base.unphysical().is_some(),
+            );
+            entry.effects.push(name);
+            entry.effects.sort_unstable();
+            entry
+        };
+        let periodic = leaves(&|t| sine.at(t), 3, rivals::PERIODIC);
+        let constant = leaves(&|_| sine.mean, 1, rivals::SENSOR_OFFSET);
+        if periodic.score < constant.score {
+            if periodic.score.is_finite() {
+                search.pool.borrow_mut().push(periodic);
+            }
+            if i == bases.len() - 1 {
+                found = Some(sine);
+            }
+        } else if i == 0 {
+            if let Some(offset) = offset_rival(search, before, current, sine.mean) {
+                search.pool.borrow_mut().push(offset);
+            }
+        } else if constant.score.is_finite() {
+            // The model found with a zero shift beside it: where the constant fits the held-out
+            // data better, something slow is left that the model found does not hold.
+            search.pool.borrow_mut().push(constant);
         }
     }
     found
+}
+
+/// A zero shift of the sensor as a rival: the model as given (`before`) with a constant added
+/// to what is read, the reading a fixed amount off the thrust since the tare. The constant
+/// starts from `guess` (the calibration part's mean residual) and is fitted on the
+/// calibration part with the engine's start fitted anew under it (a start fitted to readings
+/// that are off by the shift would take it up in the first seconds). Returned when it is a
+/// rival of the model found: it fits the calibration part, its parameter charged, within the
+/// margin the weighing gives explanations of other parts ([`rivals::DISTINCT`], or
+/// [`rivals::TIE`] when the model found is the model as given) of what the model found fits
+/// there.
+///
+/// The constant is fitted on the calibration part, so on the held-out part it predicts
+/// whatever bias had settled by then, as well as a sensor drift does: judged there alone, a
+/// drift whose bias builds up through the calibration part ties with a constant. The
+/// calibration part tells them apart, and a constant that fits it worse is no explanation of
+/// the recording. One that fits it as well (a zero shift at the tare, a drift settled before
+/// the recording began) is weighed beside the rest.
+fn offset_rival(search: &Search<'_, '_>, before: &Scored, current: &Scored, guess: f64) -> Option<Entry> {
+    let spec = &before.fit.spec;
+    let plant = spec.plant(&search.model.effects)?;
+    let mut shifted = search.problem.clone();
+    let (mut offset, mut sim, mut cache) = (0.0, Sim::new(), SimCache::default());
+    let mut step = guess;
+    for _ in 0..4 {
+        offset += step;
+        for (run, given) in shifted.runs.iter_mut().zip(&search.problem.runs) {
+            run.y.iter_mut().zip(&given.y).for_each(|(y, g)| *y = g - offset);
+        }
+        let states = shifted.restarted(&plant, &spec.states);
+        shifted.simulate_reusing(&plant, &states, false, &mut cache, &mut sim).ok()?;
+        let (sum, n) = (0..shifted.runs.len())
+            .flat_map(|r| shifted.residual(r, &sim).into_iter().take(shifted.runs[r].cut))
+            .filter(|v| v.is_finite())
+            .fold((0.0, 0usize), |(a, n), v| (a + v, n + 1));
+        step = sum / n.max(1) as f64;
+        if step.abs() < 1e-3 * shifted.noise.sigma_n {
+            break;
+        }
+    }
+    let kinds: Vec<EffectKind> = spec.effects.iter().map(|(k, _)| *k).collect();
+    let mut w = Vec::new();
+    shifted.innovations(&sim, Part::Validation, &mut w);
+    let free = spec.free_count() + 1;
+    let mut entry =
+        rivals::entry(&kinds, spec.refit, &w, free, spec.prior_cost(), shifted.mae(&sim, Part::Validation), false);
+    entry.effects.push(rivals::SENSOR_OFFSET);
+    entry.effects.sort_unstable();
+    let (sse, n) = shifted.sse(&sim, Part::Calibration);
+    let found =
+        fit::calibration_sse(search.problem, &search.model.effects, &current.fit.spec, &mut SimCache::default())?;
+    let n = n as f64;
+    let score = |sse: f64, free: usize, prior: f64| n * (sse / n).ln() + free as f64 * n.ln() + prior;
+    let margin = if current.fit.spec == *spec { rivals::TIE } else { rivals::DISTINCT };
+    let (found_spec, constant) = (&current.fit.spec, score(sse, free, spec.prior_cost()));
+    let behind = constant - score(found, found_spec.free_count(), found_spec.prior_cost());
+    (entry.score.is_finite() && n > 0.0 && behind < margin).then_some(entry)
 }
 
 /// When the model found holds a discrepancy with a history gain, the same model with the

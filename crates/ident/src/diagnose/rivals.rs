@@ -48,8 +48,11 @@ pub const PERIODIC: &str = "periodic";
 pub const SLOW_HISTORY: &str = "slow_history";
 /// The name of the throttle-play rival: play (backlash) in the throttle path.
 pub const THROTTLE_PLAY: &str = "throttle_play";
+/// The name of the sensor-offset rival: a constant added to what is read (a zero shift since
+/// the tare).
+pub const SENSOR_OFFSET: &str = "sensor_offset";
 /// Rivals jetbench weighs but cannot model, so never claims.
-pub const UNMODELLED: [&str; 3] = [PERIODIC, SLOW_HISTORY, THROTTLE_PLAY];
+pub const UNMODELLED: [&str; 4] = [PERIODIC, SENSOR_OFFSET, SLOW_HISTORY, THROTTLE_PLAY];
 
 /// One explanation the search fitted: its parts and its held-out innovations.
 #[derive(Clone, Debug)]
@@ -404,7 +407,7 @@ pub fn look_alikes(kind: EffectKind) -> impl Iterator<Item = EffectKind> {
 /// passes through no engine dynamics; an engine effect does.
 pub fn side_of(kind: &str) -> &'static str {
     match kind {
-        "sensor_drift" | "bearing_friction" | "stand_resonance" | PERIODIC => "sensor",
+        "sensor_drift" | "bearing_friction" | "stand_resonance" | PERIODIC | SENSOR_OFFSET => "sensor",
         _ => "engine",
     }
 }
@@ -438,6 +441,7 @@ pub fn meaning_of(kind: &str) -> &'static str {
              drift with run time nor an effect beside a faster history"
         }
         PERIODIC => "something on the stand or the sensor repeats at its own period (a force, a thermal cycle): not engine physics",
+        SENSOR_OFFSET => "the force sensor reads a constant off the thrust (a zero shift since the tare): sensor side",
         _ => "",
     }
 }
@@ -474,6 +478,10 @@ pub fn signature_of(kind: &str) -> &'static str {
         PERIODIC => {
             "a periodic disturbance keeps its period whatever the throttle does: hold the throttle constant for a few \
              periods and it is still there, where engine physics goes quiet"
+        }
+        SENSOR_OFFSET => {
+            "a zero shift reads the same offset with the engine stopped before and after the run, where a sensor drift's \
+             bias builds up with the thrust and decays at idle"
         }
         REFIT => {
             "parameters that are off act the same at every time of the run and every thrust history: a second \
