@@ -598,7 +598,10 @@ fn a_fresh_campaign_delay_behind_a_ramp_from_the_first_row_is_claimed_at_its_siz
 /// stay undecided beside it. Seed 7243's case 97, a heat soak of τ 72 s on 150 s (1.01×), was
 /// claimed as a gain drift: the soak freed of its edge was weighed on the throttle's history
 /// only, 10.1 units of held-out fit behind it; on the thrust's it is 5.7 behind, and the case is
-/// `ambiguous` between the drift and the soak.
+/// `ambiguous` between the drift and the soak. Seed 7583's case 31, a heat soak of τ 63 s on
+/// 200 s (1.08×), was claimed as a gain drift: the soak in the drift's place was fitted on the
+/// throttle's history only, 26 units behind; on the thrust's it stops at the longest time
+/// constant a fit explores, and freed of it, it is `ambiguous` with the drift.
 #[test]
 fn fresh_campaign_false_claims_stay_answered_right() {
     let drift = draw("9277", "173");
@@ -646,6 +649,11 @@ fn fresh_campaign_false_claims_stay_answered_right() {
     assert!(found.contains(&"rate_limit") && !found.contains(&"actuator_lag"), "{result}");
     assert!(rival_names(result).contains(&"input_delay"), "the delay is not among the rivals: {result}");
     let heat = draw("7243", "97");
+    let result = &heat["results"][0];
+    assert_eq!(result["cause"], "ambiguous", "{result}");
+    let names = rival_names(result);
+    assert!(names.contains(&"gain_drift") && names.contains(&"slow_history"), "{result}");
+    let heat = draw("7583", "31");
     let result = &heat["results"][0];
     assert_eq!(result["cause"], "ambiguous", "{result}");
     let names = rival_names(result);
