@@ -427,6 +427,40 @@ pub(crate) struct Fit {
     pub param_stderr_data: [f64; 10],
     /// Standard errors of the effect values, per fitted effect (NaN for fixed values).
     pub stderr: Vec<(EffectKind, Vec<f64>)>,
+    /// The objective's curvature where a refit ended (`None` without one): what refits of
+    /// fewer parameters would cost, to first order ([`Fit::refit_cost`]).
+    pub curvature: Option<Curvature>,
+}
+
+/// A refit's objective to second order about where it ended: the Gauss-Newton curvature
+/// `JᵀJ` over its free values (the prior's rows included, in the fit's scaled units), the
+/// column of each of the ten parameters, and how far each moved from its given value.
+#[derive(Clone, Debug)]
+pub(crate) struct Curvature {
+    jtj: DMatrix<f64>,
+    columns: [Option<usize>; 10],
+    moved: Vec<f64>,
+}
+
+impl Fit {
+    /// The sum of squares a refit of `subset` alone would add to this refit's, the other
+    /// parameters back as given and every other free value refitted, to first order in the
+    /// model (the Schur complement of the kept values in `JᵀJ`, about the values this refit
+    /// moved). A screen for which sparse refits to fit, not a fit: `None` without a refit of
+    /// the parameters outside `subset`, or where the curvature is singular.
+    pub(crate) fn refit_cost(&self, subset: &[usize]) -> Option<f64> {
+        let c = self.curvature.as_ref()?;
+        let fixed: Vec<usize> =
+            (0..10).filter(|i| !subset.contains(i)).map(|i| c.columns[i]).collect::<Option<Vec<_>>>()?;
+        let kept: Vec<usize> = (0..c.jtj.ncols()).filter(|j| !fixed.contains(j)).collect();
+        let pick =
+            |rows: &[usize], cols: &[usize]| DMatrix::from_fn(rows.len(), cols.len(), |a, b| c.jtj[(rows[a], cols[b])]);
+        let (h_ff, h_fk, h_kk) = (pick(&fixed, &fixed), pick(&fixed, &kept), pick(&kept, &kept));
+        let schur = if kept.is_empty() { h_ff } else { h_ff - &h_fk * h_kk.try_inverse()? * h_fk.transpose() };
+        let d = DVector::from_iterator(fixed.len(), fixed.iter().map(|&j| c.moved[j]));
+        let cost = (d.transpose() * schur * d)[(0, 0)];
+        cost.is_finite().then_some(cost.max(0.0))
+    }
 }
 
 /// Output-error fit of the free parts of `spec` on the calibration samples, with the
@@ -494,6 +528,7 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
             param_stderr: [f64::NAN; 10],
             param_stderr_data: [f64::NAN; 10],
             stderr: Vec::new(),
+            curvature: None,
         });
     }
     let mut lambda = 1e-3;
@@ -619,7 +654,26 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
             Slot::History(_) | Slot::Play(_) => {}
         }
     }
-    Some(Fit { spec: with_bias_starts(problem, fixed, build(&x), &mut cache), param_stderr, param_stderr_data, stderr })
+    let mut columns = [None; 10];
+    for (j, slot) in layout.iter().enumerate() {
+        if let Slot::Param(i) = *slot {
+            columns[i] = Some(j);
+        }
+    }
+    let moved: Vec<f64> = x
+        .iter()
+        .zip(&given)
+        .zip(&layout)
+        .map(|((x, g), slot)| if let Slot::Param(_) = slot { x - g } else { 0.0 })
+        .collect();
+    let curvature = spec.refit.then(|| Curvature { jtj: jac.tr_mul(&jac), columns, moved });
+    Some(Fit {
+        spec: with_bias_starts(problem, fixed, build(&x), &mut cache),
+        param_stderr,
+        param_stderr_data,
+        stderr,
+        curvature,
+    })
 }
 
 /// Simulates `spec` over the calibration part, its sensor-bias starts fitted there when it
@@ -713,6 +767,51 @@ mod tests {
     use crate::{excite, synth};
     use jetbench_model::{Effect, EffectKind, Effects, ModelFile, Plant, Preset, SlowStart};
 
+    /// The screen of sparse refits: on an engine whose B_U is 10 % low and B_T 11 % high
+    /// (100 s), the pair that fits best when all 45 are fitted outright is among the
+    /// `PAIRS_SCREENED` the refit of all ten puts cheapest, and the screen's cost of that
+    /// pair is near what its fit adds to the ten's.
+    #[test]
+    fn the_pair_that_fits_best_is_among_those_the_screen_puts_cheapest() {
+        use crate::diagnose::problem::Problem;
+        let given = Preset::P100Diesel.params();
+        let mut engine = given;
+        (engine.b_u, engine.b_t) = (0.90 * given.b_u, 1.11 * given.b_t);
+        let profile = excite::campaign(100.0, 78).profile;
+        let data =
+            [synth::record_bench(&Plant::new(engine, Effects::default()), &profile, &synth::Bench::default(), 78)
+                .unwrap()];
+        let problem = Problem::new(&data, &Plant::new(given, Effects::default()), 0.3).unwrap();
+        let fixed = Effects::default();
+        let refit = |subset: Vec<usize>| {
+            let mut spec = Spec::new(given, problem.given_states());
+            spec.refit = true;
+            spec.refit_only = (subset.len() < 10).then_some(subset);
+            super::fit(&problem, &fixed, &spec)
+        };
+        let sse = |fit: &Fit| super::calibration_sse(&problem, &fixed, &fit.spec, &mut Default::default()).unwrap();
+        let all = refit((0..10).collect()).expect("the refit of all ten");
+        let mut fitted: Vec<(f64, f64, [usize; 2])> = Vec::new();
+        for i in 0..10 {
+            for j in i + 1..10 {
+                let pair = refit(vec![i, j]).expect("a pair's refit");
+                fitted.push((sse(&pair), all.refit_cost(&[i, j]).expect("the screen's cost"), [i, j]));
+            }
+        }
+        let best = fitted.iter().min_by(|a, b| a.0.total_cmp(&b.0)).unwrap();
+        let mut by_cost = fitted.clone();
+        by_cost.sort_by(|a, b| a.1.total_cmp(&b.1));
+        let rank = by_cost.iter().position(|f| f.2 == best.2).unwrap();
+        assert!(rank < crate::diagnose::PAIRS_SCREENED, "the best pair {:?} is {rank}th by the screen", best.2);
+        // The calibration part's squared innovations of the ten refitted, against the pair's.
+        let added = best.0 - sse(&all);
+        assert!(
+            (best.1 - added).abs() < 0.5 * added.abs().max(best.1) + 1.0,
+            "the screen's cost {:.1} against {added:.1} fitted",
+            best.1
+        );
+    }
+
     /// A gain drift of 0.05 ± 0.05 %/min beside a lag of 0.40 ± 0.007 s and a rate limit:
     /// the drift is idle (the data cannot tell it from none); the lag is not, and a rate
     /// limit has no size that vanishes, so it is never judged so.
@@ -731,6 +830,7 @@ mod tests {
             param_stderr: [f64::NAN; 10],
             param_stderr_data: [f64::NAN; 10],
             spec,
+            curvature: None,
         };
         let idle: Vec<EffectKind> = idle_effects(&fit).into_iter().map(|(k, ..)| k).collect();
         assert_eq!(idle, [EffectKind::GainDrift]);

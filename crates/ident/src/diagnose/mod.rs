@@ -402,8 +402,7 @@ struct Scored {
 
 impl Scored {
     fn score(&self) -> f64 {
-        let n = self.n_val as f64;
-        n * (self.sse_val / n).ln() + self.fit.spec.free_count() as f64 * n.ln()
+        rivals::score(self.sse_val, self.n_val as f64, self.fit.spec.free_count(), 0.0)
     }
 
     /// `N·ln(SSE/N)` alone: the fit without its penalty.
@@ -1052,9 +1051,9 @@ fn idle_rivals(search: &Search<'_, '_>, current: &Scored, weighed: &rivals::Riva
 /// round supports on its own: the explanation it claims must be the best-weighed one on the
 /// held-out data, and must fit better than every rival in each of the two judged parts.
 /// Never for an explanation without physics (`none` and `parameters` keep the held-out
-/// test alone), nor when a rival in play is one jetbench cannot fit (throttle play, a
-/// periodic force), an explanation does not simulate fitted the other way round, or the
-/// claim's fit that way leaves its physical range.
+/// test alone), nor when a rival in play (not dominated on the held-out data) is one
+/// jetbench cannot fit (throttle play, a periodic force), an explanation does not simulate
+/// fitted the other way round, or the claim's fit that way leaves its physical range.
 fn weigh_rivals(search: &Search<'_, '_>, current: &Scored, progress: &mut dyn FnMut(&str)) -> rivals::Rivals {
     let chosen = search.entry(current);
     let once = rivals::weigh(&search.pool.borrow(), &chosen);
@@ -1067,7 +1066,11 @@ fn weigh_rivals(search: &Search<'_, '_>, current: &Scored, progress: &mut dyn Fn
         }
         _ => return once,
     };
-    if top.effects.is_empty() || once.rivals.iter().any(Rival::unmodelled) {
+    // A rival jetbench cannot fit the other way round (throttle play, a periodic force, ...)
+    // blocks the second weighing while it is in play; one the held-out data already rule out
+    // does not. The same rule holds for the rivals of the claim weighed below.
+    let blocks = |r: &Rival| r.unmodelled() && !r.dominated;
+    if top.effects.is_empty() || once.rivals.iter().any(blocks) {
         return once;
     }
     let claimant: Label = (top.effects.clone(), top.refit);
@@ -1099,9 +1102,7 @@ fn weigh_rivals(search: &Search<'_, '_>, current: &Scored, progress: &mut dyn Fn
         }
         (in_play, ruled_out)
     };
-    // A rival jetbench cannot fit the other way round blocks the second weighing while it is
-    // in play; one the held-out data already rule out does not.
-    if in_play.len() < 2 || ruled_out.iter().any(|r| r.unmodelled() && !r.dominated) {
+    if in_play.len() < 2 || ruled_out.iter().any(blocks) {
         return once;
     }
     // A slow state (a sensor drift's bias, a heat soak's thrust history) settles over tens of
@@ -1150,7 +1151,7 @@ fn weigh_rivals(search: &Search<'_, '_>, current: &Scored, progress: &mut dyn Fn
         let cal = fit::calibration_sse(search.problem, fixed, spec, &mut SimCache::default())?;
         let held = fit::calibration_sse(&reversed, fixed, &back.fit.as_ref()?.spec, &mut SimCache::default())?;
         let n = (entry.w2.len() + back.w2.len()) as f64;
-        let score = n * ((cal + held) / n).ln() + entry.free as f64 * n.ln() + 0.5 * (entry.prior + back.prior);
+        let score = rivals::score(cal + held, n, entry.free, 0.5 * (entry.prior + back.prior));
         score.is_finite().then_some(score)
     };
     let scores: Vec<Option<f64>> = in_play.iter().zip(&backs).map(|(once, back)| in_sample(once, back)).collect();
@@ -1828,32 +1829,42 @@ pub(crate) fn named(params: &Params) -> BTreeMap<&'static str, f64> {
 /// charged for the parameters the data do not ask to move, fits the held-out data worse than
 /// one term: K_TD 11 % off on 150 s was claimed as the iRonCub input-gain term B_TD, 17 units
 /// of fit ahead of the ten refitted; B_U 10 % low with B_T 11 % high on 100 s was claimed as
-/// B_TT. Every parameter alone and every pair are fitted (55 small fits), and for more the
+/// B_TT. Every parameter alone and the most promising pairs are fitted, and for more the
 /// refit of all ten pared one parameter at a time, the one it moved least (in its own standard
 /// errors) going first, down to three. Pairs are fitted outright because parameters that are
 /// off together imitate each other in part: on that case B_U and B_T were each alone a poor
 /// fit, adding one parameter at a time picked B_UU, K_TT and K_T, and paring the ten dropped
-/// B_T at four; the pair itself fits as well as the B_TT term. Every fit
+/// B_T at four; the pair itself fits as well as the B_TT term. Which pairs: the refit of all
+/// ten says, to first order, what each of the 45 would leave ([`fit::Fit::refit_cost`]), and
+/// the [`PAIRS_SCREENED`] cheapest are fitted (all 45 when that refit fails). Every fit
 /// joins the weighing as `refit`; the best stands for the parameters. A discrepancy of the
 /// thrust-history gain alone has a state of its own, as a drift has, and gets no such rival: a
 /// constant parameter imitates it only as far as the recording is short, as it does a gain
 /// drift.
 ///
-/// A discrepancy of static terms alone found beside other effects is fitted the same way in
-/// their company too: the effects kept, the few parameters in the discrepancy's place. Without
-/// that, parameters that are off beside an effect had only a refit of all ten beside it, or a
-/// few with no effect, as rivals, and were claimed as the effect and a discrepancy (a campaign's
-/// case: a friction band of 1.5 N with B_U 9 % low and K_TD 6 % high on 150 s, claimed as the
-/// friction and a hinged throttle map with B_TT).
+/// A discrepancy (of any terms) or a gain drift found beside other effects is fitted the same
+/// way in their company too: the other effects kept, the few parameters in the place of the
+/// discrepancy and the drift. Without that, parameters that are off beside an effect had only a
+/// refit of all ten beside it, or a few with no effect, as rivals, and were claimed as the
+/// effect and a discrepancy (a campaign's case: a friction band of 1.5 N with B_U 9 % low and
+/// K_TD 6 % high on 150 s, claimed as the friction and a hinged throttle map with B_TT). A
+/// thrust-history gain much faster than the holds is a static term on them, and a drift of a
+/// fraction of a per cent over the run a gain: 1.16 N of friction with K_T, K_D and B_U 5-9 %
+/// off on 600 s (fresh seed 7607, case 85) was claimed as the friction beside a history gain of
+/// τ 10 s or a gain drift of 0.08 %/min, the parameters not said.
 fn sparse_refit_rivals(search: &Search<'_, '_>, before: &Scored, current: &Scored) -> Option<Scored> {
     let history = [4, 5]; // gain_history_per_n and its time constant, in DISCREPANCY_KEYS
     let spec = &current.fit.spec;
     let has_static = spec.has(EffectKind::Discrepancy) && spec.discrepancy_free.iter().any(|i| !history.contains(i));
-    let static_only = has_static && spec.discrepancy_free.iter().all(|i| !history.contains(i));
-    let beside = (static_only && spec.effects.len() > 1).then(|| spec.without(EffectKind::Discrepancy));
+    // What a few parameters can stand in for beside other effects: a discrepancy of any terms
+    // (a thrust-history gain faster than the holds is a static term on them) and a gain drift.
+    let stand_in = |k: &EffectKind| matches!(k, EffectKind::Discrepancy | EffectKind::GainDrift);
+    let others = spec.effects.iter().filter(|(k, _)| !stand_in(k)).count();
+    let beside = (others > 0 && others < spec.effects.len())
+        .then(|| spec.without(EffectKind::Discrepancy).without(EffectKind::GainDrift));
     // A refit found stands for "the parameters are off"; the few that are off stand for it
     // better than all ten, which pay for every parameter the data do not ask to move.
-    if !(has_static || spec.refit) || !search.options.refit {
+    if !(has_static || spec.refit || beside.is_some()) || !search.options.refit {
         return None;
     }
     let refit = |subset: Vec<usize>, from: &Spec| {
@@ -1867,6 +1878,9 @@ fn sparse_refit_rivals(search: &Search<'_, '_>, before: &Scored, current: &Score
         // without effects.
         let mut company = None;
         pared_refits(&refit, beside, &mut company);
+    }
+    if !(has_static || spec.refit) {
+        return None;
     }
     // The best on held-out score of the sparse refits without effects, fitted once.
     if let Some(done) = search.sparse_alone.borrow().as_ref() {
@@ -1887,13 +1901,26 @@ fn pared_refits(refit: &dyn Fn(Vec<usize>, &Spec) -> Option<Scored>, from: &Spec
             *best = Some(s);
         }
     };
+    let mut subset: Vec<usize> = (0..Params::NAMES.len()).collect();
+    let all = refit(subset.clone(), from);
+    // Every parameter alone; the pairs screened by what the refit of all ten says each would
+    // cost to first order, the cheapest fitted (all of them without that refit).
+    let mut pairs: Vec<(f64, Vec<usize>)> = Vec::new();
     for i in 0..Params::NAMES.len() {
         for j in i..Params::NAMES.len() {
-            keep(refit(if i == j { vec![i] } else { vec![i, j] }, from));
+            if i == j {
+                keep(refit(vec![i], from));
+                continue;
+            }
+            let cost = all.as_ref().and_then(|a| a.fit.refit_cost(&[i, j])).unwrap_or(0.0);
+            pairs.push((cost, vec![i, j]));
         }
     }
-    let mut subset: Vec<usize> = (0..Params::NAMES.len()).collect();
-    let Some(mut pared) = refit(subset.clone(), from) else { return };
+    pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    for (_, pair) in pairs.into_iter().take(if all.is_some() { PAIRS_SCREENED } else { usize::MAX }) {
+        keep(refit(pair, from));
+    }
+    let Some(mut pared) = all else { return };
     while subset.len() > 3 {
         let (params, given) = (pared.fit.spec.params.to_array(), pared.fit.spec.given.to_array());
         let moved = |i: usize| ((params[i] - given[i]) / pared.fit.param_stderr[i]).abs();
@@ -2276,10 +2303,9 @@ fn offset_rival(search: &Search<'_, '_>, before: &Scored, current: &Scored, gues
     let found =
         fit::calibration_sse(search.problem, &search.model.effects, &current.fit.spec, &mut SimCache::default())?;
     let n = n as f64;
-    let score = |sse: f64, free: usize, prior: f64| n * (sse / n).ln() + free as f64 * n.ln() + prior;
     let margin = if current.fit.spec == *spec { rivals::TIE } else { rivals::DISTINCT };
-    let (found_spec, constant) = (&current.fit.spec, score(sse, free, spec.prior_cost()));
-    let behind = constant - score(found, found_spec.free_count(), found_spec.prior_cost());
+    let (found_spec, constant) = (&current.fit.spec, rivals::score(sse, n, free, spec.prior_cost()));
+    let behind = constant - rivals::score(found, n, found_spec.free_count(), found_spec.prior_cost());
     (entry.score.is_finite() && n > 0.0 && behind < margin).then_some(entry)
 }
 
@@ -2351,6 +2377,11 @@ fn on_other_history(problem: &Problem<'_>, spec: &Spec) -> Option<Spec> {
 /// How many leading rivals, one after another, may be tried as the claim in place of the
 /// search's pick (each with its own look-alikes fitted first).
 const LEADERS_TRIED: usize = 3;
+
+/// Pairs of parameters refitted outright among the 45 ([`pared_refits`]): those a refit of
+/// all ten says, to first order, would leave the least misfit. The rest go unfitted; a pair
+/// the screen puts last is one whose two parameters cannot carry what the ten moved.
+pub(crate) const PAIRS_SCREENED: usize = 10;
 
 /// The indexes of the discrepancy's history gains among its values: the thrust history's
 /// (`gain_history_per_n`) and the throttle history's (`gain_throttle_history_per_pct`).
@@ -2447,11 +2478,13 @@ fn swaps_of(search: &Search<'_, '_>, spec: &Spec, rounds: &[Round]) {
                 let found = search.fit(&without).and_then(|base| search.try_discrepancy(&base)).map(|(d, _)| d);
                 let twin = found.as_ref().and_then(|d| on_other_history(search.problem, &d.fit.spec));
                 let twin = twin.and_then(|t| search.fit(&t));
-                for soak in found.into_iter().chain(twin) {
-                    let spec = soak.fit.spec;
-                    if spec.values(EffectKind::Discrepancy).is_some_and(|v| history_at_its_edge(v, &spec)) {
-                        freed_history_rival(search, spec);
-                    }
+                // Freed once, from the better of the two at the edge: it tries both histories.
+                let at_edge = found.into_iter().chain(twin).filter(|soak| {
+                    let spec = &soak.fit.spec;
+                    spec.values(EffectKind::Discrepancy).is_some_and(|v| history_at_its_edge(v, spec))
+                });
+                if let Some(soak) = at_edge.min_by(|a, b| a.score().total_cmp(&b.score())) {
+                    freed_history_rival(search, soak.fit.spec);
                 }
                 continue;
             }

@@ -99,15 +99,10 @@ impl Entry {
             && self.effects.iter().filter(|e| !self.idle.contains(e)).eq(other.effects.iter())
     }
 
-    /// How well it predicts `n` held-out samples of squared innovation sum `sse`, its prior
-    /// charged: `N·ln(SSE/N)` + prior, score units.
-    fn fit_of(&self, sse: f64, n: f64) -> f64 {
-        n * (sse / n).ln() + self.prior
-    }
-
-    /// The fit with the penalty per parameter: the score the search admits a part by.
+    /// Its score on `n` held-out samples of squared innovation sum `sse` ([`score`]): the
+    /// score the search admits a part by.
     fn score_of(&self, sse: f64, n: f64) -> f64 {
-        self.fit_of(sse, n) + self.free as f64 * n.ln()
+        score(sse, n, self.free, self.prior)
     }
 
     /// The fit over all its held-out samples.
@@ -728,8 +723,15 @@ pub(crate) fn both_ways(once: &Entry, back: &Entry) -> Entry {
     e.w2.extend_from_slice(&back.w2);
     e.prior = 0.5 * (once.prior + back.prior);
     let n = e.w2.len() as f64;
-    e.score = n * (e.w2.iter().sum::<f64>() / n).ln() + e.free as f64 * n.ln() + e.prior;
+    e.score = score(e.w2.iter().sum::<f64>(), n, e.free, e.prior);
     e
+}
+
+/// The held-out score of an explanation: `N·ln(SSE/N)` over `n` samples of squared
+/// innovation sum `sse`, `ln N` per free parameter and its prior. Lower is better; every
+/// weighing, both ways round or once, goes by it.
+pub(crate) fn score(sse: f64, n: f64, free: usize, prior: f64) -> f64 {
+    n * (sse / n).ln() + free as f64 * n.ln() + prior
 }
 
 /// The entry of an explanation: its parts, innovations and score.
@@ -747,7 +749,7 @@ pub(crate) fn entry(
     let w2: Vec<f64> = w.iter().map(|x| x * x).collect();
     let n = w2.len() as f64;
     let sse: f64 = w2.iter().sum();
-    let score = n * (sse / n).ln() + free as f64 * n.ln() + prior;
+    let score = score(sse, n, free, prior);
     Entry {
         effects: names,
         refit,
@@ -915,8 +917,13 @@ mod tests {
                 };
             }
             let mut e = explanation(effects, false, w);
-            e.fit =
-                Some(Fit { spec, param_stderr: [f64::NAN; 10], param_stderr_data: [f64::NAN; 10], stderr: Vec::new() });
+            e.fit = Some(Fit {
+                spec,
+                param_stderr: [f64::NAN; 10],
+                param_stderr_data: [f64::NAN; 10],
+                stderr: Vec::new(),
+                curvature: None,
+            });
             e
         };
         let thrust_soak = [("gain_history_per_n", -0.0004), ("history_time_constant_s", 40.0)];
