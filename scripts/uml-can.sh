@@ -25,8 +25,9 @@
 #   125  the guest did not run the command (boot failure: its console log is
 #        printed on stderr).
 # Settings: UML_CAN_MEM (default 2G), UML_CAN_TIMEOUT, UML_CAN_VCANS,
-# UML_CAN_WORK (the folder for the guest's files; default under target/; not
-# /tmp, which the guest mounts over).
+# UML_CAN_WORK (the folder for the guest's files; default under target/).
+# The guest mounts a tmpfs over /tmp; a checkout, work folder or current folder
+# under /tmp is mounted back from the host over it (its top folder under /tmp).
 set -uo pipefail
 
 skip=77
@@ -83,6 +84,18 @@ mkdir -p "$work_parent"
 work=$(mktemp -d "$work_parent/run.XXXXXX")
 trap 'rm -rf "$work"' EXIT
 
+# The host folders under /tmp the guest needs (its own /tmp is a tmpfs): the top
+# folder under /tmp of each, once.
+tmp_keep=()
+for path in "$work" "$PWD" "$root"; do
+    case "$path" in
+    /tmp/?*)
+        top=/tmp/$(cut -d/ -f3 <<<"$path")
+        case " ${tmp_keep[*]-} " in *" $top "*) ;; *) tmp_keep+=("$top") ;; esac
+        ;;
+    esac
+done
+
 # The guest's init: a bash script on the host's filesystem, with this shell's
 # environment, folder and command written into it.
 {
@@ -93,6 +106,9 @@ trap 'rm -rf "$work"' EXIT
     printf 'modules=%q\n' "$modules"
     printf 'vcans=%q\n' "${UML_CAN_VCANS:-vcan0}"
     printf 'cwd=%q\n' "$PWD"
+    printf 'tmp_keep=('
+    [ ${#tmp_keep[@]} -eq 0 ] || printf '%q ' "${tmp_keep[@]}"
+    printf ')\n'
     printf 'command=('
     printf '%q ' "$@"
     printf ')\n'
@@ -102,8 +118,11 @@ setup() {
         mount -t sysfs sysfs /sys &&
         mkdir -p /dev/shm &&
         mount -t tmpfs -o mode=1777 tmpfs /dev/shm &&
-        mount -t tmpfs -o mode=1777 tmpfs /tmp &&
-        mkdir -p /dev/pts &&
+        mount -t tmpfs -o mode=1777 tmpfs /tmp || return 1
+    for keep in "${tmp_keep[@]}"; do
+        mkdir -p "$keep" && mount -t hostfs none "$keep" -o "$keep" || return 1
+    done
+    mkdir -p /dev/pts &&
         mount -t devpts -o newinstance,ptmxmode=0666 devpts /dev/pts &&
         ln -sf /dev/pts/ptmx /dev/ptmx || return 1
     for m in net/can/can.ko net/can/can-raw.ko drivers/net/can/dev/can-dev.ko \
