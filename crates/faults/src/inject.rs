@@ -250,9 +250,13 @@ pub fn spike_effects(recording: &Recording, spike_sizes: &HashMap<u64, f64>) -> 
     let states: HashMap<u64, jetbench_msgs::StateEstimate> =
         recording.samples(channels::STATE).into_iter().map(|s| (s.seq, s)).collect();
     let commands = recording.samples(channels::COMMAND);
-    // The estimates the controller computed its commands from, in its order.
-    let seen: Vec<(&jetbench_msgs::StateEstimate, &jetbench_msgs::Command)> =
-        commands.iter().filter_map(|c| states.get(&c.source_seq).map(|s| (s, c))).collect();
+    // The estimates the controller computed its commands from, in its order. A
+    // command computed from an estimate carries its stamp; the idle sent in a
+    // cycle with no estimate names none (its stamp is the time it was sent).
+    let seen: Vec<(&jetbench_msgs::StateEstimate, &jetbench_msgs::Command)> = commands
+        .iter()
+        .filter_map(|c| states.get(&c.source_seq).filter(|s| s.stamp_ns == c.stamp_ns).map(|s| (s, c)))
+        .collect();
     let mut effects = Vec::with_capacity(clean.len());
     for alternative in &clean {
         // An estimate the controller never computed from (its queue overflowed) had no effect.
@@ -283,13 +287,28 @@ pub fn spike_effects(recording: &Recording, spike_sizes: &HashMap<u64, f64>) -> 
     Ok(effects)
 }
 
+/// The median effect of the spikes on the throttle a run may show, %.
+pub const SPIKE_EFFECT_P50_PCT: f64 = 0.5;
+/// The largest effect of one spike on the throttle a run may show, %.
+pub const SPIKE_EFFECT_MAX_PCT: f64 = 2.0;
+
 fn judge_bounds(out: &mut BadData, stuck_injected: bool) {
     if out.spikes_rejected != out.spikes {
         out.problems.push(format!("{} of {} spikes rejected", out.spikes_rejected, out.spikes));
     }
+    // A rejected spike costs the estimate one measurement update. On the simulated
+    // bench that moves FBL's throttle by 0.1-0.3 % at the median, and by 0.86 % or
+    // 0.99 % at most (a spike on the first climb; which of the two depends on the
+    // cycle the law started at). At the same spikes, an honest reading 1 N or 3 N
+    // off the clean one, taken in place of rejecting the spike, lands up to 1.2 %
+    // or 2.1 % from the command sent: the noise of one reading moves the throttle
+    // that much. A spike of 30 N leaking into the estimate moves it by several per
+    // cent at most spikes, which the median bound catches.
     match &out.spike_effect {
-        SpikeEffect::Measured { max_pct, .. } if *max_pct >= 1.0 => {
-            out.problems.push(format!("a spike moved the throttle by {max_pct:.2} %"))
+        SpikeEffect::Measured { p50_pct, max_pct }
+            if *p50_pct >= SPIKE_EFFECT_P50_PCT || *max_pct >= SPIKE_EFFECT_MAX_PCT =>
+        {
+            out.problems.push(format!("a spike moved the throttle by {max_pct:.2} % (median {p50_pct:.2} %)"))
         }
         SpikeEffect::Unknown(why) if out.spikes > 0 => {
             out.problems.push(format!("what a spike did to the throttle is unknown: {why}"))

@@ -634,7 +634,10 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
     // Standard errors from the last Jacobian: σ²·(JᵀJ)⁻¹ with σ² from the innovations.
     let dof = (r.len().saturating_sub(k)).max(1) as f64;
     let sigma2 = sse / dof;
-    let cov = jac.tr_mul(&jac).try_inverse();
+    // Formed once: the covariance inverts it, a refit's curvature keeps it (a k×k matrix,
+    // k the free values, so kept with every refit rather than the Jacobian it comes from).
+    let jtj = jac.tr_mul(&jac);
+    let cov = jtj.clone().try_inverse();
     let error = |j: usize| cov.as_ref().map_or(f64::NAN, |c| (sigma2 * c[(j, j)]).max(0.0).sqrt() * scales[j]);
     // The recording's own: the prior's pseudo-residuals (the last rows) left out.
     let n_data = r.len() - layout.iter().filter(|s| matches!(s, Slot::Param(_))).count();
@@ -666,7 +669,7 @@ pub(crate) fn fit(problem: &Problem<'_>, fixed: &Effects, spec: &Spec) -> Option
         .zip(&layout)
         .map(|((x, g), slot)| if let Slot::Param(_) = slot { x - g } else { 0.0 })
         .collect();
-    let curvature = spec.refit.then(|| Curvature { jtj: jac.tr_mul(&jac), columns, moved });
+    let curvature = spec.refit.then_some(Curvature { jtj, columns, moved });
     Some(Fit {
         spec: with_bias_starts(problem, fixed, build(&x), &mut cache),
         param_stderr,

@@ -1853,6 +1853,9 @@ pub(crate) fn named(params: &Params) -> BTreeMap<&'static str, f64> {
 /// off on 600 s (fresh seed 7607, case 85) was claimed as the friction beside a history gain of
 /// τ 10 s or a gain drift of 0.08 %/min, the parameters not said.
 fn sparse_refit_rivals(search: &Search<'_, '_>, before: &Scored, current: &Scored) -> Option<Scored> {
+    if !search.options.refit {
+        return None;
+    }
     let history = [4, 5]; // gain_history_per_n and its time constant, in DISCREPANCY_KEYS
     let spec = &current.fit.spec;
     let has_static = spec.has(EffectKind::Discrepancy) && spec.discrepancy_free.iter().any(|i| !history.contains(i));
@@ -1862,11 +1865,6 @@ fn sparse_refit_rivals(search: &Search<'_, '_>, before: &Scored, current: &Score
     let others = spec.effects.iter().filter(|(k, _)| !stand_in(k)).count();
     let beside = (others > 0 && others < spec.effects.len())
         .then(|| spec.without(EffectKind::Discrepancy).without(EffectKind::GainDrift));
-    // A refit found stands for "the parameters are off"; the few that are off stand for it
-    // better than all ten, which pay for every parameter the data do not ask to move.
-    if !(has_static || spec.refit || beside.is_some()) || !search.options.refit {
-        return None;
-    }
     let refit = |subset: Vec<usize>, from: &Spec| {
         let mut spec = from.clone();
         spec.refit = true;
@@ -1879,6 +1877,9 @@ fn sparse_refit_rivals(search: &Search<'_, '_>, before: &Scored, current: &Score
         let mut company = None;
         pared_refits(&refit, beside, &mut company);
     }
+    // Without effects: a static discrepancy, or a refit found (it stands for "the parameters
+    // are off"; the few that are off stand for it better than all ten, which pay for every
+    // parameter the data do not ask to move).
     if !(has_static || spec.refit) {
         return None;
     }

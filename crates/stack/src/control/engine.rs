@@ -539,20 +539,7 @@ impl EngineSupervisor {
     /// the reference it tracked), with the command flags that say why it was
     /// gated and what the ECU is asked.
     pub fn gate(&mut self, now_ns: u64, law_pct: f64, reference_n: f64) -> (f64, u64) {
-        let stop_due = self.stopping.map(|s| s.now || now_ns.saturating_sub(s.since_ns) >= self.stop_idle_ns);
-        let burning = self.state.is_some_and(EcuState::is_burning);
-        let mut flags = 0;
-        if stop_due == Some(true) && burning {
-            flags |= command_flags::ECU_STOP;
-        }
-        match self.start_until_ns {
-            Some(until) if now_ns < until && self.stopping.is_none() => flags |= command_flags::ECU_START,
-            Some(_) => {
-                tracing::warn!("the ECU did not start the engine within {} s", START_ASK_NS / 1_000_000_000);
-                self.start_until_ns = None;
-            }
-            None => {}
-        }
+        let mut flags = self.ecu_asks(now_ns);
         let free = self.free();
         let throttle = match (free, self.mode) {
             (false, _) => THROTTLE_MIN_PCT,
@@ -568,6 +555,36 @@ impl EngineSupervisor {
             self.last_reference_n = reference_n;
         }
         (throttle, flags)
+    }
+
+    /// Idle for a cycle in which no law ran (no estimate came), with the flags
+    /// that say what the ECU is asked. The law's output did not reach the
+    /// engine, so it counts as held: the first estimate to find the engine free
+    /// resets the law ([`Self::is_free`] is false until a law's output passes).
+    pub fn gate_idle(&mut self, now_ns: u64) -> (f64, u64) {
+        let flags = self.ecu_asks(now_ns) | command_flags::GATED;
+        self.gated = true;
+        self.last_throttle_pct = THROTTLE_MIN_PCT;
+        (THROTTLE_MIN_PCT, flags)
+    }
+
+    /// The command flags that ask the ECU to start or stop the engine at `now_ns`.
+    fn ecu_asks(&mut self, now_ns: u64) -> u64 {
+        let stop_due = self.stopping.map(|s| s.now || now_ns.saturating_sub(s.since_ns) >= self.stop_idle_ns);
+        let burning = self.state.is_some_and(EcuState::is_burning);
+        let mut flags = 0;
+        if stop_due == Some(true) && burning {
+            flags |= command_flags::ECU_STOP;
+        }
+        match self.start_until_ns {
+            Some(until) if now_ns < until && self.stopping.is_none() => flags |= command_flags::ECU_START,
+            Some(_) => {
+                tracing::warn!("the ECU did not start the engine within {} s", START_ASK_NS / 1_000_000_000);
+                self.start_until_ns = None;
+            }
+            None => {}
+        }
+        flags
     }
 
     /// True while the law ran free last cycle (its output reached the engine).
@@ -657,6 +674,21 @@ mod tests {
             events.iter().any(|e| e.kind == event_kinds::TRIP && e.code == LimitKind::SensorSilent.code()),
             "{events:?}"
         );
+    }
+
+    #[test]
+    fn idle_sent_with_no_estimate_leaves_the_law_held_so_its_first_output_starts_afresh() {
+        let mut s = supervisor(EngineReference::Profile, Limits::default());
+        s.on_ecu(0, &ecu(ecu_states::RUN, 0, 0));
+        // The engine runs before the sensor is heard: cycles with no estimate send idle ...
+        assert!(s.free() && !s.is_free());
+        assert_eq!(s.gate_idle(MS), (THROTTLE_MIN_PCT, command_flags::GATED));
+        // ... and the law is still held, so the control step resets it at the first
+        // estimate (before, that idle counted as the law running free, and a law
+        // that had integrated while held brought it to the engine).
+        assert!(s.free() && !s.is_free());
+        assert_eq!(s.gate(10 * MS, 60.0, 50.0), (60.0, 0));
+        assert!(s.is_free());
     }
 
     #[test]

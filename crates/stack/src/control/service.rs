@@ -109,14 +109,10 @@ impl Service for ControlService {
             // anyway, carrying what the ECU is asked.
             if !self.engine.is_free() || !self.engine.free() {
                 let now = monotonic_ns();
-                let (throttle_pct, flags) = self.engine.gate(now, jetbench_model::THROTTLE_MIN_PCT, 0.0);
-                let command = Command {
-                    stamp_ns: now,
-                    throttle_pct,
-                    unclamped_pct: throttle_pct,
-                    flags: flags | command_flags::GATED,
-                    ..Command::default()
-                };
+                let (throttle_pct, flags) = self.engine.gate_idle(now);
+                // Computed from no estimate: its stamp is its own, never a state's.
+                let command =
+                    Command { stamp_ns: now, throttle_pct, unclamped_pct: throttle_pct, flags, ..Command::default() };
                 ctx.publish(&mut self.command, command, |c, ns| c.publish_ns = ns)?;
                 self.publish_events(ctx)?;
             }
