@@ -297,13 +297,14 @@ fn judge_bounds(out: &mut BadData, stuck_injected: bool) {
         out.problems.push(format!("{} of {} spikes rejected", out.spikes_rejected, out.spikes));
     }
     // A rejected spike costs the estimate one measurement update. On the simulated
-    // bench that moves FBL's throttle by 0.1-0.3 % at the median, and by 0.86 % or
-    // 0.99 % at most (a spike on the first climb; which of the two depends on the
-    // cycle the law started at). At the same spikes, an honest reading 1 N or 3 N
-    // off the clean one, taken in place of rejecting the spike, lands up to 1.2 %
-    // or 2.1 % from the command sent: the noise of one reading moves the throttle
-    // that much. A spike of 30 N leaking into the estimate moves it by several per
-    // cent at most spikes, which the median bound catches.
+    // bench that moves FBL's throttle by 0.1-0.3 % at the median, and by 0.85-0.99 %
+    // at most (a spike on the first climb, the figure set by the cycle the law
+    // started at). At the same spikes, an honest reading 1 N or 3 N off the clean
+    // one (the sensor's noise is 2.6 N), taken in place of rejecting the spike,
+    // lands up to 1.2 % or 2.1 % from the command sent: the noise of one reading
+    // moves the throttle that much. The bounds keep about twice what was measured under load; a leak as
+    // small as one reading's noise is below them, a 30 N spike leaking whole (ten
+    // times the noise, at every spike) is what the median bound is for.
     match &out.spike_effect {
         SpikeEffect::Measured { p50_pct, max_pct }
             if *p50_pct >= SPIKE_EFFECT_P50_PCT || *max_pct >= SPIKE_EFFECT_MAX_PCT =>
