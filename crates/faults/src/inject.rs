@@ -302,9 +302,10 @@ fn judge_bounds(out: &mut BadData, stuck_injected: bool) {
     // started at). At the same spikes, an honest reading 1 N or 3 N off the clean
     // one (the sensor's noise is 2.6 N), taken in place of rejecting the spike,
     // lands up to 1.2 % or 2.1 % from the command sent: the noise of one reading
-    // moves the throttle that much. The bounds keep about twice what was measured under load; a leak as
-    // small as one reading's noise is below them, a 30 N spike leaking whole (ten
-    // times the noise, at every spike) is what the median bound is for.
+    // moves the throttle that much. The bounds keep about twice what was measured
+    // under load; a leak as small as one reading's noise is below them, a 30 N
+    // spike leaking whole (ten times the noise, at every spike) is what the median
+    // bound is for.
     match &out.spike_effect {
         SpikeEffect::Measured { p50_pct, max_pct }
             if *p50_pct >= SPIKE_EFFECT_P50_PCT || *max_pct >= SPIKE_EFFECT_MAX_PCT =>
