@@ -2,6 +2,8 @@
 
 use jetbench_model::{Params, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
 
+use crate::ThrottleLimit;
+
 /// One controller output.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 pub struct ThrottleCommand {
@@ -16,6 +18,20 @@ pub struct ThrottleCommand {
     /// True when the command is at a limit the law did not ask for: clamped, or chosen
     /// because the law had no answer. Tracking is not guaranteed while it is set.
     pub saturated: bool,
+}
+
+impl ThrottleCommand {
+    /// The limit a saturated command sits at: low at idle, high anywhere above it (full
+    /// throttle, or the peak of a map that bends over). Read from the throttle, not from
+    /// `unclamped_pct`: a virtual input below the map, or a fall-back to the low limit,
+    /// leaves `unclamped_pct` at idle itself, not below it. A NaN throttle counts as low.
+    pub fn limit(&self) -> Option<ThrottleLimit> {
+        self.saturated.then_some(if self.throttle_pct > THROTTLE_MIN_PCT {
+            ThrottleLimit::High
+        } else {
+            ThrottleLimit::Low
+        })
+    }
 }
 
 /// Clamps a throttle to the ECU range `[THROTTLE_MIN_PCT, THROTTLE_MAX_PCT]`; NaN gives

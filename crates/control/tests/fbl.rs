@@ -2,7 +2,9 @@
 
 #![allow(clippy::unwrap_used)] // not library code: a failed unwrap fails the test
 
-use jetbench_control::{clamp_throttle, ControlError, Fbl, FblGains, Profile, ProfileSpec, Reference};
+use jetbench_control::{
+    clamp_throttle, throttle_for_virtual, ControlError, Fbl, FblGains, Profile, ProfileSpec, Reference, ThrottleLimit,
+};
 use jetbench_model::{Engine, Preset, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -216,4 +218,19 @@ fn the_disturbance_is_cancelled_like_the_drift_and_zero_changes_nothing() {
     // A non-finite disturbance counts as none.
     let nan = Fbl::new(params, FblGains::default()).step_with_disturbance(state, f64::NAN, &reference).unwrap();
     assert_eq!(nan, plain);
+}
+
+#[test]
+fn a_command_held_at_idle_sits_at_the_low_limit_even_when_nothing_below_idle_was_asked() {
+    let params = Preset::P100Diesel.params();
+    // A virtual input below zero has no root on this map (`B_UU` > 0): the command is idle,
+    // and the throttle it reports asked for is idle itself, not below it. FBL asks for one
+    // when the engine must slow faster than the drift alone does.
+    let below = throttle_for_virtual(&params, -10.0);
+    assert_eq!((below.throttle_pct, below.unclamped_pct, below.saturated), (THROTTLE_MIN_PCT, THROTTLE_MIN_PCT, true));
+    assert_eq!(below.limit(), Some(ThrottleLimit::Low));
+    let above = throttle_for_virtual(&params, params.v(THROTTLE_MAX_PCT) + 10.0);
+    assert_eq!((above.throttle_pct, above.limit()), (THROTTLE_MAX_PCT, Some(ThrottleLimit::High)));
+    let inside = throttle_for_virtual(&params, params.v(60.0));
+    assert_eq!(inside.limit(), None);
 }

@@ -4,8 +4,7 @@
 
 use jetbench_control::{
     tracking_metrics, ControlError, Controller, FblGains, Law, LawSettings, MetricsOptions, Mpc, MpcSettings, Profile,
-    ProfileSpec, Reference, ReferenceShaper, ShaperSettings, Smc, SmcGains, ThrottleLimit, TrackingMetrics,
-    TrackingSample,
+    ProfileSpec, Reference, ReferenceShaper, ShaperSettings, Smc, SmcGains, TrackingMetrics, TrackingSample,
 };
 use jetbench_estim::{ObserverConfig, ThrustObserver};
 use jetbench_model::turbojet::TurbojetParams;
@@ -121,14 +120,13 @@ fn observed_run(
         let out = law.step_with_disturbance(state, estimate.disturbance_n_per_s2, time_s, profile).unwrap();
         applied_pct = out.command.throttle_pct;
         engine.step(applied_pct).unwrap();
-        let limit = if out.command.unclamped_pct < THROTTLE_MIN_PCT { ThrottleLimit::Low } else { ThrottleLimit::High };
         samples.push(TrackingSample {
             time_s,
             reference_n: out.reference.thrust_n,
             reference_rate_n_per_s: out.reference.thrust_rate_n_per_s,
             thrust_n: truth_state.thrust_n,
             throttle_pct: applied_pct,
-            saturated: out.command.saturated.then_some(limit),
+            saturated: out.command.limit(),
             fallback: out.fallback,
             solve_us: 0,
         });

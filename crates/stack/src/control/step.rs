@@ -2,7 +2,7 @@
 //! open-loop throttle profile) on each state estimate. Plain code that never
 //! touches the bus; [`super::ControlService`] wires it.
 
-use jetbench_control::{Controller, Law, Profile};
+use jetbench_control::{Controller, Law, Profile, ThrottleLimit};
 use jetbench_model::{Params, State, STEP_S, THROTTLE_MAX_PCT, THROTTLE_MIN_PCT};
 use jetbench_msgs::{command_flags, Command, Reference, StateEstimate};
 
@@ -106,12 +106,10 @@ impl ControlStep {
             }
         };
         let mut flags = 0;
-        if c.saturated {
-            flags |= if c.unclamped_pct < THROTTLE_MIN_PCT || c.unclamped_pct.is_nan() {
-                command_flags::SATURATED_LOW
-            } else {
-                command_flags::SATURATED_HIGH
-            };
+        match c.limit() {
+            Some(ThrottleLimit::Low) => flags |= command_flags::SATURATED_LOW,
+            Some(ThrottleLimit::High) => flags |= command_flags::SATURATED_HIGH,
+            None => {}
         }
         if fallback {
             self.fallbacks += 1;
