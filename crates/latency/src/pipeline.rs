@@ -216,8 +216,11 @@ pub fn analyse_pipeline(recording: &Recording, warmup_s: f64) -> PipelineAnalysi
 
     let state_by_source: HashMap<u64, u64> = states.iter().map(|s| (s.source_seq, s.publish_ns)).collect();
     let state_seq_by_source: HashMap<u64, u64> = states.iter().map(|s| (s.source_seq, s.seq)).collect();
-    let command_by_source: HashMap<u64, (u64, u64)> =
-        commands.iter().map(|c| (c.source_seq, (c.seq, c.publish_ns))).collect();
+    // A command belongs to the estimate it names *and* whose stamp it carries: the idle
+    // control sends in a cycle with no estimate names none (`source_seq` 0) and carries the
+    // time it was sent, and must not pass for the answer to estimate 0.
+    let command_by_cycle: HashMap<(u64, u64), (u64, u64)> =
+        commands.iter().map(|c| ((c.source_seq, c.stamp_ns), (c.seq, c.publish_ns))).collect();
     // The first write of each command (a stale cycle re-sends the last one).
     let mut written_by_command: HashMap<u64, u64> = HashMap::new();
     for a in &actuation {
@@ -257,7 +260,7 @@ pub fn analyse_pipeline(recording: &Recording, warmup_s: f64) -> PipelineAnalysi
         let command = state_by_source
             .get(&t.seq)
             .zip(state_seq_by_source.get(&t.seq))
-            .and_then(|(&state_ns, state_seq)| command_by_source.get(state_seq).map(|&c| (state_ns, c)));
+            .and_then(|(&state_ns, &state_seq)| command_by_cycle.get(&(state_seq, t.stamp_ns)).map(|&c| (state_ns, c)));
         let Some((state_ns, (command_seq, command_ns))) = command else {
             if t.stamp_ns < tail_ns {
                 analysis.unfinished += 1;
@@ -356,6 +359,57 @@ mod tests {
         assert_eq!(p.count, 1000);
         assert!((p.p50 - 500.0).abs() < 1.0 && (p.max - 1000.0).abs() < 1.0, "{p:?}");
         assert_eq!(a.service_deadline_misses["control"], 3);
+    }
+
+    /// Every cycle pairs the command computed from its estimate: an idle sent in a cycle with
+    /// no estimate names none (`source_seq` 0) and carries the time it was sent, and is not
+    /// taken for the answer to estimate 0, which the run's first sensor frame started.
+    #[test]
+    fn an_idle_sent_without_an_estimate_is_no_cycles_command() {
+        use jetbench_msgs::{Actuation, Command, StateEstimate, Thrust};
+        use jetbench_record::RecordedMessage;
+        let mut recording = Recording::default();
+        let ms = 1_000_000u64;
+        let mut push = |m: RecordedMessage| recording.messages.push(m);
+        for k in 0..200u64 {
+            let stamp_ns = 1_000 * ms + k * 10 * ms;
+            let thrust = Thrust { seq: k, stamp_ns, publish_ns: stamp_ns + ms / 10, frame_seq: k, ..Thrust::default() };
+            push(RecordedMessage::of_sample(channels::THRUST, thrust.publish_ns, &thrust));
+            let state =
+                StateEstimate { seq: k, stamp_ns, publish_ns: stamp_ns + ms / 5, source_seq: k, ..Default::default() };
+            push(RecordedMessage::of_sample(channels::STATE, state.publish_ns, &state));
+            // Command seq 2k answers estimate k; at 1.5 s control also sends idle (seq 2k + 1).
+            let command =
+                Command { seq: 2 * k, stamp_ns, publish_ns: stamp_ns + ms / 2, source_seq: k, ..Default::default() };
+            push(RecordedMessage::of_sample(channels::COMMAND, command.publish_ns, &command));
+            let written =
+                Actuation { seq: 2 * k, stamp_ns, written_ns: stamp_ns + ms, command_seq: 2 * k, ..Default::default() };
+            push(RecordedMessage::of_sample(channels::ACTUATION, written.written_ns, &written));
+            if k == 50 {
+                let sent_ns = stamp_ns + 3 * ms;
+                let idle = Command {
+                    seq: 2 * k + 1,
+                    stamp_ns: sent_ns,
+                    publish_ns: sent_ns,
+                    source_seq: 0,
+                    ..Default::default()
+                };
+                push(RecordedMessage::of_sample(channels::COMMAND, idle.publish_ns, &idle));
+                let applied = Actuation {
+                    seq: 2 * k + 1,
+                    stamp_ns: sent_ns,
+                    written_ns: sent_ns + ms,
+                    command_seq: 2 * k + 1,
+                    ..Default::default()
+                };
+                push(RecordedMessage::of_sample(channels::ACTUATION, applied.written_ns, &applied));
+            }
+        }
+        let analysis = analyse_pipeline(&recording, 0.0);
+        assert_eq!((analysis.cycles, analysis.completed), (200, 200), "{analysis:?}");
+        assert_eq!(analysis.deadline_misses(), 0, "{analysis:?}");
+        let e2e = analysis.e2e.percentiles();
+        assert!((e2e.max - 1_000.0).abs() < 5.0, "every cycle written 1 ms after its frame: {e2e:?}");
     }
 
     #[test]

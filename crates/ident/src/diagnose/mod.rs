@@ -1115,6 +1115,22 @@ fn weigh_rivals(search: &Search<'_, '_>, current: &Scored, progress: &mut dyn Fn
     if in_play.iter().any(|(_, spec)| slow(spec) != slow(&in_play[0].1)) {
         return once;
     }
+    // Nor a resonance in the place of a delay or a lag when its frequency is seen only through
+    // its low-frequency lag: fitted on the short part, it would be judged by how poorly that
+    // part pins its frequency, not by what it explains ([`rivals::LAG_LOOK_ALIKES`]). One
+    // whose ringing pins its frequency is weighed both ways like any rival.
+    let kinds = |spec: &Spec| spec.effects.iter().map(|(k, _)| *k).collect::<Vec<EffectKind>>();
+    let lag_only = |(entry, spec): &(Entry, Spec)| {
+        let Some(f) = spec.values(EffectKind::StandResonance).map(|v| v[0]) else { return false };
+        let se = entry.fit.as_ref().and_then(|fit| fit.stderr.iter().find(|(k, _)| *k == EffectKind::StandResonance));
+        !se.and_then(|(_, se)| se.first()).is_some_and(|se| *se <= rivals::PINNED_FREQUENCY * f)
+    };
+    let unpinned = in_play.iter().any(|e| {
+        rivals::lag_look_alikes(&kinds(&e.1), &kinds(&in_play[0].1)) && (lag_only(e) || lag_only(&in_play[0]))
+    });
+    if unpinned {
+        return once;
+    }
     progress("fitting each explanation in play the other way round: on the held-out part, judged on the rest");
     let reversed = search.problem.reversed();
     let back = Search::new(&reversed, search.model, search.options);

@@ -370,10 +370,20 @@ impl<'a> Problem<'a> {
         // is found as the end of the range of what is left.
         let outliers = reject_outliers(&mut runs);
         let clipped = remove_clipped(&mut runs);
+        let mut notes = Vec::new();
+        if !clipped.is_empty() {
+            let moved = hold_out_measured(&mut runs, &mut cut, holdout);
+            if moved > 0 {
+                notes.push(format!(
+                    "the held-out part is the last {:.0} % of the rows the force sensor measured, not of the recording's \
+                     time: the rows at its limit lie unevenly over the run ({moved} file(s) split earlier)",
+                    100.0 * holdout
+                ));
+            }
+        }
         let stretches: Vec<Vec<f64>> = runs.iter().map(|r| r.y.iter().copied().step_by(r.stride).collect()).collect();
         let mut noise = noise::estimate(&stretches)
             .ok_or_else(|| IdentError::TooLittleData("too few samples to estimate the sensor noise".into()))?;
-        let mut notes = Vec::new();
         if let Some((quiet, note)) = quiet_noise(&runs, &noise) {
             noise = quiet;
             notes.push(note);
@@ -1038,6 +1048,37 @@ fn reject_outliers(runs: &mut [Run]) -> Vec<Outlier> {
 /// saturates) repeats its limit exactly, where noisy readings near the top are all
 /// different. A limit repeated in at least [`CLIP_MIN_ROWS`] rows and 0.2 % of them is a
 /// range; those rows are left out (as gaps) and reported. Returns (limit, rows) per end.
+/// Moves each file's split earlier where rows left out at the sensor's limit leave its
+/// held-out part short of `holdout` of the rows it measured: the held-out part is then the last
+/// `holdout` of the measured rows, not of the time. A recording clipped mostly near its end
+/// (a fresh campaign's case: 150 s, the sensor at its limit through most of the last 45 s)
+/// kept 217 held-out samples against 6518 calibration ones and was refused as too short,
+/// though it held 67 s of measured thrust. The split never moves later. Returns how many
+/// files' splits moved; `cut` (per file, a row) and each run's `cut` (a grid index) agree.
+fn hold_out_measured(runs: &mut [Run], cut: &mut [usize], holdout: f64) -> usize {
+    let mut moved = 0;
+    for (series, cut_row) in cut.iter_mut().enumerate() {
+        // The file's measured rows, in order.
+        let mut measured: Vec<usize> = runs
+            .iter()
+            .filter(|r| r.series == series)
+            .flat_map(|r| r.rows.clone().zip(&r.grid).filter(|(_, g)| r.y[**g].is_finite()).map(|(k, _)| k))
+            .collect();
+        measured.sort_unstable();
+        let held = measured.iter().filter(|&&k| k >= *cut_row).count();
+        let wanted = (holdout * measured.len() as f64).round() as usize;
+        if wanted == 0 || held >= wanted {
+            continue;
+        }
+        *cut_row = measured[measured.len() - wanted];
+        moved += 1;
+        for run in runs.iter_mut().filter(|r| r.series == series) {
+            run.cut = run.rows.clone().position(|k| k >= *cut_row).map_or(run.y.len(), |j| run.grid[j]);
+        }
+    }
+    moved
+}
+
 fn remove_clipped(runs: &mut [Run]) -> Vec<(f64, usize)> {
     let present: Vec<f64> = runs.iter().flat_map(|r| r.y.iter().copied().filter(|y| y.is_finite())).collect();
     let n = present.len();
@@ -1286,5 +1327,55 @@ mod tests {
         assert_eq!(short, sim, "fitting the held-out part needs the whole run");
         problem.simulate(&other, &problem.given_states(), true, &mut short).expect("simulates");
         assert!(short[0].len() < sim[0].len(), "the calibration part first stops at the split");
+    }
+    /// A recording whose force sensor clips only near its end is split where the last 30 % of
+    /// its measured rows begin, earlier than 30 % of its time: the held-out part keeps its
+    /// share of the thrust measured, and the split of a recording clipped nowhere stays.
+    #[test]
+    fn a_recording_clipped_near_its_end_holds_out_its_share_of_the_measured_rows() {
+        let plant = Plant::new(Preset::P100Diesel.params(), Effects::none());
+        let bench = synth::Bench { noise_var_n2: 2.0, ..synth::Bench::default() };
+        // Steps between 30 % and 60 % for 110 s, then between 85 % and 95 %.
+        let mut profile = Series { name: "steps".into(), ..Series::default() };
+        for k in 0..15_000usize {
+            let t = k as f64 * STEP_S;
+            let high = ((t / 4.0) as usize).is_multiple_of(2);
+            let u = match (t < 110.0, high) {
+                (true, true) => 60.0,
+                (true, false) => 30.0,
+                (false, true) => 95.0,
+                (false, false) => 85.0,
+            };
+            profile.t_s.push(t);
+            profile.u_pct.push(u);
+        }
+        let clean = [synth::record_bench(&plant, &profile, &bench, 3).expect("recording")];
+        let whole = Problem::new(&clean, &plant, 0.3).expect("problem");
+        // The sensor's limit: below most readings after 110 s, above every one before.
+        let n = clean[0].len();
+        let mut late: Vec<f64> = clean[0].thrust_n[11_000..].to_vec();
+        late.sort_by(f64::total_cmp);
+        let limit = late[late.len() / 4];
+        assert!(clean[0].thrust_n[..11_000].iter().all(|&y| y < limit - 1.0), "the limit {limit:.1} N");
+        let mut data = clean.clone();
+        for y in &mut data[0].thrust_n {
+            *y = y.min(limit);
+        }
+        let clipped = Problem::new(&data, &plant, 0.3).expect("problem");
+        assert!(clipped.report.clipped_rows > 0, "{:?}", clipped.report);
+        assert!(clipped.cut[0] < whole.cut[0], "{} {}", clipped.cut[0], whole.cut[0]);
+        let measured = |p: &Problem<'_>, part: Part| -> usize {
+            p.runs.iter().map(|r| (0..r.y.len()).filter(|&k| r.y[k].is_finite() && r.in_part(k, part)).count()).sum()
+        };
+        let (cal, val) = (measured(&clipped, Part::Calibration), measured(&clipped, Part::Validation));
+        let share = val as f64 / (cal + val) as f64;
+        assert!((share - 0.3).abs() < 0.002, "held-out share {share:.4} of {} measured rows", cal + val);
+        assert_eq!(whole.cut[0], clean[0].t_s.partition_point(|&t| t < 0.7 * clean[0].t_s[n - 1]));
+        assert!(whole.report.notes.iter().all(|note| !note.contains("measured")), "{:?}", whole.report.notes);
+        assert!(clipped.report.notes.iter().any(|note| note.contains("measured")), "{:?}", clipped.report.notes);
+        // Each run's split is the file's.
+        let run = &clipped.runs[0];
+        let first_held = run.rows.clone().zip(&run.grid).find(|(_, g)| **g >= run.cut).map(|(k, _)| k);
+        assert_eq!(first_held, Some(clipped.cut[0]));
     }
 }
