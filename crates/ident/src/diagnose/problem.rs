@@ -1051,7 +1051,7 @@ fn reject_outliers(runs: &mut [Run]) -> Vec<Outlier> {
 /// Moves each file's split earlier where rows left out at the sensor's limit leave its
 /// held-out part short of `holdout` of the rows it measured: the held-out part is then the last
 /// `holdout` of the measured rows, not of the time. A recording clipped mostly near its end
-/// (a fresh campaign's case: 150 s, the sensor at its limit through most of the last 45 s)
+/// (a fresh campaign's case: 100 s, the sensor at its limit through most of the last 30 s)
 /// kept 217 held-out samples against 6518 calibration ones and was refused as too short,
 /// though it held 67 s of measured thrust. The split never moves later. Returns how many
 /// files' splits moved; `cut` (per file, a row) and each run's `cut` (a grid index) agree.
