@@ -1044,10 +1044,6 @@ fn reject_outliers(runs: &mut [Run]) -> Vec<Outlier> {
     outliers
 }
 
-/// Rows at the very end of the reading's range: a sensor that clips (or an amplifier that
-/// saturates) repeats its limit exactly, where noisy readings near the top are all
-/// different. A limit repeated in at least [`CLIP_MIN_ROWS`] rows and 0.2 % of them is a
-/// range; those rows are left out (as gaps) and reported. Returns (limit, rows) per end.
 /// Moves each file's split earlier where rows left out at the sensor's limit leave its
 /// held-out part short of `holdout` of the rows it measured: the held-out part is then the last
 /// `holdout` of the measured rows, not of the time. A recording clipped mostly near its end
@@ -1079,6 +1075,10 @@ fn hold_out_measured(runs: &mut [Run], cut: &mut [usize], holdout: f64) -> usize
     moved
 }
 
+/// Rows at the very end of the reading's range: a sensor that clips (or an amplifier that
+/// saturates) repeats its limit exactly, where noisy readings near the top are all
+/// different. A limit repeated in at least [`CLIP_MIN_ROWS`] rows and 0.2 % of them is a
+/// range; those rows are left out (as gaps) and reported. Returns (limit, rows) per end.
 fn remove_clipped(runs: &mut [Run]) -> Vec<(f64, usize)> {
     let present: Vec<f64> = runs.iter().flat_map(|r| r.y.iter().copied().filter(|y| y.is_finite())).collect();
     let n = present.len();
