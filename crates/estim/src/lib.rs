@@ -39,4 +39,6 @@ mod observer;
 
 pub use gate::{GateConfig, Verdict};
 pub use jetbench_model::MAX_INPUT_DELAY_S;
-pub use observer::{EstimError, Estimate, Gated, ObserverConfig, ThrustObserver};
+pub use observer::{
+    EstimError, Estimate, Gated, ObserverConfig, ThrustObserver, MAX_SETTLING_STEPS, SETTLED_RATE_VAR_FACTOR,
+};

@@ -9,6 +9,16 @@ use jetbench_model::{RateSchedule, ThrottlePath, MAX_INPUT_DELAY_S};
 type Mat3 = Matrix3<f64>;
 type Vec3 = Vector3<f64>;
 
+/// The rate estimate has settled once its variance is within this factor of the filter's
+/// steady value ([`ThrustObserver::settling`]): its standard deviation within twice the
+/// steady one.
+pub const SETTLED_RATE_VAR_FACTOR: f64 = 4.0;
+
+/// Measurements after a start or a restart by which the rate counts as settled whatever its
+/// variance, 1 s at 100 Hz: a filter that never reaches [`SETTLED_RATE_VAR_FACTOR`] of the
+/// steady value computed for it never holds a law back for longer.
+pub const MAX_SETTLING_STEPS: u32 = 100;
+
 /// Errors of the observer; `Copy` so a rejected configuration can be reported on every step.
 #[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
 pub enum EstimError {
@@ -175,6 +185,12 @@ pub struct ThrustObserver {
     gated: Gated,
     /// The throttle path to the engine (`None` when it leaves the throttle as applied).
     path: Option<ThrottlePath>,
+    /// The rate variance the rate has settled at ([`SETTLED_RATE_VAR_FACTOR`] times the
+    /// filter's steady value), (N/s)².
+    settled_rate_var: f64,
+    /// Measurements left before the rate counts as settled whatever its variance; `None`
+    /// once it has settled (or before the first measurement).
+    settling_left: Option<u32>,
 }
 
 impl ThrustObserver {
@@ -204,6 +220,8 @@ impl ThrustObserver {
             gate: Gate::default(),
             gated: Gated::default(),
             path: (config.input_delay_s > 0.0).then(|| ThrottlePath::delay_only(config.input_delay_s)),
+            settled_rate_var: SETTLED_RATE_VAR_FACTOR * steady_rate_var(&process_noise, config.measurement_var_n2),
+            settling_left: None,
         }
     }
 
@@ -233,6 +251,7 @@ impl ThrustObserver {
             let (x, p) = self.initial(thrust_meas_n);
             self.state = Some((x, p));
             self.gate.first(thrust_meas_n);
+            self.settling_left = Some(MAX_SETTLING_STEPS);
             return Ok(self.estimate(&x, &p, [throttle_pct, engine_pct], 0.0, Verdict::Accepted));
         };
 
@@ -282,7 +301,31 @@ impl ThrustObserver {
             (x0, p0, 0.0)
         };
         self.state = Some((x_new, p_new));
+        self.settle(verdict, p_new[(1, 1)]);
         Ok(self.estimate(&x_new, &p_new, [throttle_pct, engine_pct], innovation_n, verdict))
+    }
+
+    /// Whether the rate estimate is still settling after the filter started or restarted:
+    /// its variance not yet down to [`SETTLED_RATE_VAR_FACTOR`] times the steady value, for
+    /// at most [`MAX_SETTLING_STEPS`] measurements. Until then the rate follows the first
+    /// differences of the measurements more than the model, as noisy as they are (at 7 N²
+    /// of sensor noise, tens of N/s), and a law acting on it throws the throttle about.
+    /// Once settled it stays settled until the next restart: measurements rejected or a
+    /// stuck sensor widen the variance without making the rate a first difference again.
+    pub fn settling(&self) -> bool {
+        self.settling_left.is_some()
+    }
+
+    /// Counts one measurement towards the rate's settling; a restart settles afresh.
+    fn settle(&mut self, verdict: Verdict, rate_var: f64) {
+        if verdict == Verdict::Restarted {
+            self.settling_left = Some(MAX_SETTLING_STEPS);
+            return;
+        }
+        self.settling_left = match self.settling_left {
+            Some(left) if left > 1 && rate_var > self.settled_rate_var => Some(left - 1),
+            _ => None,
+        };
     }
 
     /// The observer predicting through a model's whole throttle path (input delay, rate
@@ -298,6 +341,7 @@ impl ThrustObserver {
     /// Forgets the estimate and the fallback count; the next step initialises again.
     pub fn reset(&mut self) {
         self.state = None;
+        self.settling_left = None;
         self.fallbacks = 0;
         self.gate = Gate::default();
         self.gated = Gated::default();
@@ -404,6 +448,32 @@ impl ThrustObserver {
             verdict,
         }
     }
+}
+
+/// The rate variance a filter with `process_noise` and `measurement_var_n2` settles at on an
+/// engine whose model adds nothing to the rate's memory: the steady state of the covariance
+/// recursion of `[T, Ṫ, d]` with the thrust integrating the rate and the rate the disturbance
+/// (a constant-acceleration filter). An engine model damps the rate and only lowers the
+/// steady value, so the rate's variance comes down to it. Iterated from a filter that knows
+/// nothing until it changes by less than one part in 10⁹ (at most 10 000 steps: a 3×3
+/// recursion, once per observer).
+fn steady_rate_var(process_noise: &Mat3, measurement_var_n2: f64) -> f64 {
+    let dt = STEP_S;
+    let f = Mat3::new(1.0, dt, 0.5 * dt * dt, 0.0, 1.0, dt, 0.0, 0.0, 1.0);
+    let mut p = Mat3::from_diagonal(&Vec3::new(measurement_var_n2, 1.0e4, 0.0));
+    for _ in 0..10_000 {
+        let pred = f * p * f.transpose() + process_noise;
+        let s = pred[(0, 0)] + measurement_var_n2;
+        let k = Vec3::new(pred[(0, 0)] / s, pred[(1, 0)] / s, pred[(2, 0)] / s);
+        let i_kh = Mat3::new(1.0 - k[0], 0.0, 0.0, -k[1], 1.0, 0.0, -k[2], 0.0, 1.0);
+        let next = i_kh * pred * i_kh.transpose() + k * k.transpose() * measurement_var_n2;
+        let done = (next[(1, 1)] - p[(1, 1)]).abs() <= 1e-9 * next[(1, 1)];
+        p = (next + next.transpose()) * 0.5;
+        if done {
+            break;
+        }
+    }
+    p[(1, 1)]
 }
 
 /// Counts of measurements the gate did not use ([`ThrustObserver::gated`]).

@@ -5,7 +5,7 @@
 mod common;
 
 use common::{rms, simulate_plant_run, simulate_run, Run, NOISE_VAR_N2};
-use jetbench_estim::{EstimError, Estimate, Gated, ObserverConfig, ThrustObserver, Verdict};
+use jetbench_estim::{EstimError, Estimate, Gated, ObserverConfig, ThrustObserver, Verdict, MAX_SETTLING_STEPS};
 use jetbench_model::{Effects, Params, Plant, Preset, STEP_S};
 
 /// Skip the first second, while the filter converges from its initial guess.
@@ -330,4 +330,56 @@ fn an_observer_that_knows_the_acceleration_schedule_tracks_a_paced_engine_and_on
     let (with, _) = observe(&unpaced, params, ObserverConfig { rate_schedule: None, ..calm });
     let (plain, _) = observe(&unpaced, params, calm);
     assert_eq!(with, plain);
+}
+
+#[test]
+fn the_rate_settles_after_a_start_and_after_a_restart_and_stays_settled_through_a_stuck_sensor() {
+    let params = Preset::P100Diesel.params();
+    let run = simulate_run(params, 12.0, 29);
+    // The default (trusting the model little) and the bench's calm tuning.
+    let calm = ObserverConfig { accel_noise_n_per_s2: 10.0, disturbance_drift_n_per_s2: 1.5, ..Default::default() };
+    for config in [ObserverConfig::default(), calm] {
+        let mut observer = ThrustObserver::new(params, config);
+        assert!(!observer.settling(), "nothing settles before the first measurement");
+        let mut settled_at = None;
+        let mut rate_errors = Vec::new();
+        for k in 0..400 {
+            let e = observer.step(run.thrust_meas_n[k], run.throttle_pct[k]).unwrap();
+            rate_errors.push(e.thrust_rate_n_per_s - run.truth[k].thrust_rate_n_per_s);
+            match settled_at {
+                None if !observer.settling() => settled_at = Some(k),
+                Some(_) => assert!(!observer.settling(), "settled, then settling again at {k} without a restart"),
+                None => {}
+            }
+        }
+        let at = settled_at.expect("the rate settles");
+        // By its variance, not by the cap: a few measurements at least, well inside a second.
+        assert!((3..MAX_SETTLING_STEPS as usize).contains(&at), "{config:?}: settled at measurement {at}");
+        // While it settled the rate was far noisier than after.
+        let before = rms(rate_errors[1..at].iter().copied());
+        let after = rms(rate_errors[at..].iter().copied());
+        assert!(after < before / 3.0, "{config:?}: rate error {before} N/s settling, {after} N/s after");
+        // A stuck sensor widens the variance without making the rate a first difference.
+        let frozen = run.thrust_meas_n[399];
+        for k in 400..520 {
+            assert!(observer.step(frozen, run.throttle_pct[k]).unwrap().thrust_n.is_finite());
+            assert!(!observer.settling(), "{config:?}: stuck at {k}");
+        }
+    }
+    // A filter restarted at a real jump settles afresh.
+    let mut observer = ThrustObserver::new(params, ObserverConfig::default());
+    for k in 0..200 {
+        observer.step(run.thrust_meas_n[k], run.throttle_pct[k]).unwrap();
+    }
+    assert!(!observer.settling());
+    let mut restarted = None;
+    for k in 200..400 {
+        let e = observer.step(run.thrust_meas_n[k] + 40.0, run.throttle_pct[k]).unwrap();
+        if e.verdict == Verdict::Restarted {
+            restarted = Some(k);
+            assert!(observer.settling(), "restarted at {k}: its rate is a first difference again");
+        }
+    }
+    let restarted = restarted.expect("a 40 N jump restarts the filter");
+    assert!(restarted < 220 && !observer.settling(), "restarted at {restarted}, settled since");
 }

@@ -261,6 +261,11 @@ pub fn spike_effects(recording: &Recording, spike_sizes: &HashMap<u64, f64>) -> 
     for alternative in &clean {
         // An estimate the controller never computed from (its queue overflowed) had no effect.
         let Some(at) = seen.iter().position(|(s, _)| s.seq == alternative.seq) else { continue };
+        // Nor had one whose command was held whatever the law asked (idle, a hold, an
+        // estimate still settling): the law's output did not reach the engine.
+        if seen[at].1.flags & command_flags::GATED != 0 {
+            continue;
+        }
         // A controller with the same history; `Law` holds solver state that is not
         // cloned, so each spike replays the run up to it (FBL: microseconds a cycle).
         let replayed = |last: &jetbench_msgs::StateEstimate| -> Result<f64, String> {

@@ -921,6 +921,10 @@ pub mod state_flags {
     pub const SENSOR_STUCK: u64 = 1 << 3;
     /// Measurements were rejected too often in a row: the filter restarted at this one.
     pub const FILTER_RESTARTED: u64 = 1 << 4;
+    /// The rate estimate is still settling after the filter started or restarted: it
+    /// follows the measurements' first differences more than the model, and control holds
+    /// the throttle where it was rather than act on it.
+    pub const SETTLING: u64 = 1 << 5;
 }
 
 /// Flags of [`Command`](crate::Command).
@@ -933,7 +937,8 @@ pub mod command_flags {
     /// time); feedback linearisation computed the command instead.
     pub const FALLBACK: u64 = 1 << 2;
     /// The throttle is held at idle (or below a hold) whatever the law asked:
-    /// the ECU is not in run, a trip is latched, or an operator said idle or hold.
+    /// the ECU is not in run, a trip is latched, or an operator said idle or hold;
+    /// or held where it was while the estimate settles (`state_flags::SETTLING`).
     pub const GATED: u64 = 1 << 3;
     /// Control asks actuation to start the engine through the ECU.
     pub const ECU_START: u64 = 1 << 4;

@@ -84,6 +84,9 @@ pub struct EngineSupervisor {
     /// The ECU left run on its own at this time: its reason is awaited.
     left_run: Option<(u64, EcuTelemetry)>,
     gated: bool,
+    /// The last estimate's rate was still settling (`state_flags::SETTLING`): the law's
+    /// output is not used, the throttle stays where it was.
+    settling: bool,
     law_change: LawChange,
     /// The throttle last commanded, % (what HOLD and SET_REFERENCE compare with).
     last_throttle_pct: f64,
@@ -151,6 +154,7 @@ impl EngineSupervisor {
             ended: false,
             left_run: None,
             gated: true,
+            settling: false,
             law_change: LawChange::None,
             last_throttle_pct: THROTTLE_MIN_PCT,
             last_reference_n: 0.0,
@@ -249,6 +253,20 @@ impl EngineSupervisor {
     /// A thrust estimate.
     pub fn on_thrust(&mut self, now_ns: u64, thrust_n: f64) {
         self.monitor.on_thrust(now_ns, thrust_n);
+    }
+
+    /// Whether the estimate the next [`Self::gate`] acts on has a rate still settling
+    /// after the estimator started or restarted (`state_flags::SETTLING`). While it
+    /// settles, the throttle stays where it was whatever the law asks: the law would act
+    /// on first differences of the sensor's noise.
+    pub fn on_settling(&mut self, settling: bool) {
+        self.settling = settling;
+    }
+
+    /// True when the law's output reaches the engine at the next [`Self::gate`]: the
+    /// engine is [`Self::free`] and the estimate has settled.
+    pub fn passes(&self) -> bool {
+        self.free() && !self.settling
     }
 
     /// The limits and the ECU's shutdowns at `now_ns`, every thrust estimate
@@ -541,15 +559,17 @@ impl EngineSupervisor {
     pub fn gate(&mut self, now_ns: u64, law_pct: f64, reference_n: f64) -> (f64, u64) {
         let mut flags = self.ecu_asks(now_ns);
         let free = self.free();
+        let held = free && self.settling;
+        let wanted = if held { self.last_throttle_pct } else { law_pct };
         let throttle = match (free, self.mode) {
             (false, _) => THROTTLE_MIN_PCT,
-            (true, Mode::Hold(cap)) => law_pct.min(cap),
-            (true, _) => law_pct,
+            (true, Mode::Hold(cap)) => wanted.min(cap),
+            (true, _) => wanted,
         };
-        if throttle < law_pct {
+        if throttle < law_pct || held {
             flags |= command_flags::GATED;
         }
-        self.gated = !free;
+        self.gated = !free || held;
         self.last_throttle_pct = throttle;
         if free {
             self.last_reference_n = reference_n;
@@ -689,6 +709,35 @@ mod tests {
         assert!(s.free() && !s.is_free());
         assert_eq!(s.gate(10 * MS, 60.0, 50.0), (60.0, 0));
         assert!(s.is_free());
+    }
+
+    #[test]
+    fn while_the_estimate_settles_the_throttle_stays_where_it_was_and_the_law_starts_afresh_after() {
+        let mut s = supervisor(EngineReference::Profile, Limits::default());
+        s.on_ecu(0, &ecu(ecu_states::RUN, 0, 0));
+        // The estimator has just started: its rate is a first difference of the noise.
+        s.on_settling(true);
+        assert!(s.free() && !s.passes());
+        let (u, flags) = s.gate(10 * MS, 100.0, 50.0);
+        assert_eq!(u, THROTTLE_MIN_PCT, "held where it was: idle");
+        assert_ne!(flags & command_flags::GATED, 0);
+        assert!(!s.is_free(), "the law's output did not reach the engine");
+        assert_eq!(s.gate(20 * MS, 25.0, 50.0).0, THROTTLE_MIN_PCT);
+        // Settled: the output passes, and the control step resets the law first.
+        s.on_settling(false);
+        assert!(s.passes() && !s.is_free());
+        assert_eq!(s.gate(30 * MS, 60.0, 50.0), (60.0, 0));
+        assert!(s.is_free());
+        // The filter restarts mid-run: the throttle stays at 60 %, neither idle nor what
+        // the law asks either way ...
+        s.on_settling(true);
+        assert_eq!(s.gate(40 * MS, 100.0, 50.0).0, 60.0);
+        assert_eq!(s.gate(50 * MS, 30.0, 50.0).0, 60.0);
+        // ... under a hold's cap, and at idle when the engine may not run at all.
+        s.on_command(60 * MS, &command(op::HOLD, 45.0, authorities::ANYONE));
+        assert_eq!(s.gate(70 * MS, 100.0, 50.0).0, 45.0);
+        s.on_command(80 * MS, &command(op::IDLE, 0.0, authorities::ANYONE));
+        assert_eq!(s.gate(90 * MS, 100.0, 50.0).0, THROTTLE_MIN_PCT);
     }
 
     #[test]

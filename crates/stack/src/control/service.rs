@@ -4,7 +4,8 @@
 use jetbench_bus::{Publisher, Subscriber, Wake};
 use jetbench_control::{Controller, Profile};
 use jetbench_msgs::{
-    channels, command_flags, Command, EcuTelemetry, Event, OperatorCommand, Reference, ServiceId, StateEstimate,
+    channels, command_flags, state_flags, Command, EcuTelemetry, Event, OperatorCommand, Reference, ServiceId,
+    StateEstimate,
 };
 
 use super::engine::{EngineSupervisor, LawChange, ProfileSource};
@@ -119,6 +120,7 @@ impl Service for ControlService {
         }
         state.each_sample(wake, ctx, |estimate, ctx| {
             self.engine.on_thrust(estimate.stamp_ns, estimate.thrust_n);
+            self.engine.on_settling(estimate.flags & state_flags::SETTLING != 0);
             // Newer estimates may still wait behind this one.
             self.engine.check_before_estimates(monotonic_ns());
             match self.engine.take_law_change() {
@@ -129,10 +131,11 @@ impl Service for ControlService {
                     self.reset_law()?;
                 }
             }
-            if self.engine.free() && !self.engine.is_free() {
+            if self.engine.passes() && !self.engine.is_free() {
                 // The law's output reaches the engine again (the ECU reached run, a
-                // trip was cleared, a hold or stop ended): it starts afresh, never
-                // with what it integrated while its output was held at idle.
+                // trip was cleared, a hold or stop ended, the estimate settled): it
+                // starts afresh, never with what it integrated while its output was
+                // held.
                 self.reset_law()?;
             }
             match self.step.step(&estimate) {

@@ -47,6 +47,9 @@ impl EstimationStep {
             Verdict::Stuck => state_flags::SENSOR_STUCK,
             Verdict::Restarted => state_flags::FILTER_RESTARTED,
         };
+        if self.observer.settling() {
+            flags |= state_flags::SETTLING;
+        }
         Ok(StateEstimate {
             seq: 0,
             stamp_ns: thrust.stamp_ns,

@@ -83,7 +83,7 @@ pub fn throttle_path(actuation: Option<u32>, command: Option<u64>) -> &'static s
     } else if a & actuation_flags::IDLE_FALLBACK != 0 {
         "idle: no fresh command"
     } else if command.is_some_and(|c| c & command_flags::GATED != 0) {
-        "armed, held at idle"
+        "armed, held by control"
     } else {
         "armed"
     }
@@ -392,7 +392,7 @@ mod tests {
     #[test]
     fn the_throttle_path_reads_from_the_flags() {
         assert_eq!(throttle_path(None, None), "throttle -");
-        assert_eq!(throttle_path(Some(0), Some(command_flags::GATED)), "armed, held at idle");
+        assert_eq!(throttle_path(Some(0), Some(command_flags::GATED)), "armed, held by control");
         assert_eq!(throttle_path(Some(actuation_flags::IDLE_FALLBACK), Some(0)), "idle: no fresh command");
         assert_eq!(
             throttle_path(Some(actuation_flags::BOARD_SILENT | actuation_flags::IDLE_FALLBACK), None),
