@@ -256,17 +256,20 @@ impl EngineSupervisor {
     }
 
     /// Whether the estimate the next [`Self::gate`] acts on has a rate still settling
-    /// after the estimator started or restarted (`state_flags::SETTLING`). While it
-    /// settles, the throttle stays where it was whatever the law asks: the law would act
-    /// on first differences of the sensor's noise.
+    /// after the estimator started or restarted (`state_flags::SETTLING`), for a law that
+    /// acts on it. A law about to start (or start afresh) waits for a settled estimate:
+    /// the throttle stays where it was, idle at a start, whatever the law asks, since the
+    /// law would act on first differences of the sensor's noise. A law already running
+    /// free is not held by a restart of the estimator: holding it would bring a reset of
+    /// its profile with it.
     pub fn on_settling(&mut self, settling: bool) {
         self.settling = settling;
     }
 
     /// True when the law's output reaches the engine at the next [`Self::gate`]: the
-    /// engine is [`Self::free`] and the estimate has settled.
+    /// engine is [`Self::free`], and the estimate has settled or the law already runs free.
     pub fn passes(&self) -> bool {
-        self.free() && !self.settling
+        self.free() && !(self.settling && self.gated)
     }
 
     /// The limits and the ECU's shutdowns at `now_ns`, every thrust estimate
@@ -559,7 +562,7 @@ impl EngineSupervisor {
     pub fn gate(&mut self, now_ns: u64, law_pct: f64, reference_n: f64) -> (f64, u64) {
         let mut flags = self.ecu_asks(now_ns);
         let free = self.free();
-        let held = free && self.settling;
+        let held = free && self.settling && self.gated;
         let wanted = if held { self.last_throttle_pct } else { law_pct };
         let throttle = match (free, self.mode) {
             (false, _) => THROTTLE_MIN_PCT,
@@ -728,16 +731,16 @@ mod tests {
         assert!(s.passes() && !s.is_free());
         assert_eq!(s.gate(30 * MS, 60.0, 50.0), (60.0, 0));
         assert!(s.is_free());
-        // The filter restarts mid-run: the throttle stays at 60 %, neither idle nor what
-        // the law asks either way ...
+        // The filter restarts mid-run: a law running free is not held (holding it would
+        // restart its profile) ...
         s.on_settling(true);
-        assert_eq!(s.gate(40 * MS, 100.0, 50.0).0, 60.0);
-        assert_eq!(s.gate(50 * MS, 30.0, 50.0).0, 60.0);
-        // ... under a hold's cap, and at idle when the engine may not run at all.
-        s.on_command(60 * MS, &command(op::HOLD, 45.0, authorities::ANYONE));
-        assert_eq!(s.gate(70 * MS, 100.0, 50.0).0, 45.0);
-        s.on_command(80 * MS, &command(op::IDLE, 0.0, authorities::ANYONE));
-        assert_eq!(s.gate(90 * MS, 100.0, 50.0).0, THROTTLE_MIN_PCT);
+        assert!(s.passes());
+        assert_eq!(s.gate(40 * MS, 70.0, 50.0), (70.0, 0));
+        // ... but one about to start afresh is: after an operator's hold at idle, the
+        // throttle stays at idle until the estimate has settled.
+        s.on_command(50 * MS, &command(op::IDLE, 0.0, authorities::ANYONE));
+        assert_eq!(s.gate(60 * MS, 100.0, 50.0).0, THROTTLE_MIN_PCT);
+        assert!(!s.is_free());
     }
 
     #[test]

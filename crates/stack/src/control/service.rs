@@ -120,7 +120,7 @@ impl Service for ControlService {
         }
         state.each_sample(wake, ctx, |estimate, ctx| {
             self.engine.on_thrust(estimate.stamp_ns, estimate.thrust_n);
-            self.engine.on_settling(estimate.flags & state_flags::SETTLING != 0);
+            self.engine.on_settling(self.step.closed_loop() && estimate.flags & state_flags::SETTLING != 0);
             // Newer estimates may still wait behind this one.
             self.engine.check_before_estimates(monotonic_ns());
             match self.engine.take_law_change() {

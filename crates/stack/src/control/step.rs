@@ -64,6 +64,12 @@ impl ControlStep {
         }
     }
 
+    /// True when the law acts on the state estimate (a feedback law); an open-loop profile
+    /// plays its throttle whatever the estimate says.
+    pub fn closed_loop(&self) -> bool {
+        matches!(self.law, ControlLaw::Closed(_))
+    }
+
     /// Cycles whose command came from the fallback law (a failed MPC solve).
     pub fn fallbacks(&self) -> u64 {
         self.fallbacks
