@@ -922,8 +922,8 @@ pub mod state_flags {
     /// Measurements were rejected too often in a row: the filter restarted at this one.
     pub const FILTER_RESTARTED: u64 = 1 << 4;
     /// The rate estimate is still settling after the filter started or restarted: it
-    /// follows the measurements' first differences more than the model, and control holds
-    /// the throttle where it was rather than act on it.
+    /// follows the measurements' first differences more than the model. A closed-loop law
+    /// about to start waits for it to clear, the throttle held where it was.
     pub const SETTLING: u64 = 1 << 5;
 }
 
@@ -938,7 +938,8 @@ pub mod command_flags {
     pub const FALLBACK: u64 = 1 << 2;
     /// The throttle is held at idle (or below a hold) whatever the law asked:
     /// the ECU is not in run, a trip is latched, or an operator said idle or hold;
-    /// or held where it was while the estimate settles (`state_flags::SETTLING`).
+    /// or held where it was while a law about to start waits for the estimate to settle
+    /// (`state_flags::SETTLING`).
     pub const GATED: u64 = 1 << 3;
     /// Control asks actuation to start the engine through the ECU.
     pub const ECU_START: u64 = 1 << 4;
