@@ -811,6 +811,19 @@ fn a_residual_located_nowhere_does_not_stop_a_claim_and_one_located_does() {
     assert_eq!(result["cause"], "unexplained", "{result}");
 }
 
+/// A frame that sits inside its bearings' play when the recording starts reads where it sits,
+/// whatever the engine's starting rate: the start is fitted along the thrust alone there. Seed
+/// 7703's case 248 (a 2.93 N band, coloured noise) started 1.7 N high from its first ten samples,
+/// and that first hold was located in the residual of the friction found at the truth's MAE.
+#[test]
+fn a_frame_inside_its_play_band_at_the_start_reads_the_first_seconds_and_the_friction_is_claimed() {
+    let friction = draw("7703", "248");
+    let result = claimed_true(&friction);
+    assert_eq!(result["found"], serde_json::json!(["bearing_friction"]), "{result}");
+    let verdict = result["verdict"].as_str().unwrap_or_default();
+    assert!(!verdict.contains("Something remains"), "{verdict}");
+}
+
 /// The one case of a campaign draw (see [`draw`]), its one claim checked true.
 fn claimed_true(summary: &Value) -> &Value {
     let result = &summary["results"][0];

@@ -83,6 +83,15 @@ pub(crate) fn found(
 
 /// A figure with its unit, or `-` when there is none to give (the text around it says why):
 /// never `NaN`.
+/// A p-value as the verdict prints it: two decimals down to 0.01, in exponent form below.
+fn p_text(p: f64) -> String {
+    if p >= 0.01 {
+        format!("{p:.2}")
+    } else {
+        format!("{p:.1e}")
+    }
+}
+
 fn figure(value: f64, decimals: usize, unit: &str) -> String {
     if value.is_finite() {
         format!("{value:.decimals$}{unit}")
@@ -519,11 +528,23 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
     let floor = d.noise_floor_n;
     let (before, after) = (&d.before.whiteness, &d.after.whiteness);
     let mae = format!("Validation MAE {:.2} N → {:.2} N (noise floor {:.2} N)", d.mae_before_n, d.mae_after_n, floor);
-    let whiteness =
-        format!("residual whiteness (Ljung–Box under the noise model) p {:.1e} → {:.2}", before.p_value, after.p_value);
+    let whiteness = format!(
+        "residual whiteness (Ljung–Box under the noise model) p {} → {}",
+        p_text(before.p_value),
+        p_text(after.p_value)
+    );
     let remains = || -> String {
         if after.white && d.mae_after_n <= 1.1 * floor {
             " The residual is now noise.".to_owned()
+        } else if !d.after.systematic() && d.mae_after_n <= 1.1 * floor {
+            // Not white, yet nothing in it located (`incomplete` is false): say that, not
+            // that something remains.
+            format!(
+                " The residual is noise a little more coloured than its model (Ljung–Box p {}), located nowhere: \
+                 no systematic window, mean by direction or operating point, drift, throttle correlation or band \
+                 of excess power.",
+                p_text(after.p_value)
+            )
         } else {
             let what: Vec<&str> = d.after.findings.iter().skip(1).map(String::as_str).collect();
             format!(
@@ -602,7 +623,10 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
         Cause::InsufficientData => undetectable(d),
         Cause::Unexplained => {
             let why = d.rounds.last().map_or(String::new(), |r| format!(" ({})", r.reason));
-            let mut what: Vec<String> = d.before.findings.clone();
+            // What remains is the residual of what the search found (the model as given when it
+            // found nothing): the given model's residual would describe what was explained.
+            let found = !d.effects.is_empty() || d.refit.is_some();
+            let mut what: Vec<String> = if found { d.after.findings.clone() } else { d.before.findings.clone() };
             // A refit whose residual is noise is unexplained only beside a rival it cannot
             // rule out (a sine, or something jetbench does not model), which is said below.
             if let (true, Some(refit), false) = (d.effects.is_empty(), &d.refit, residual_is_noise(d)) {
