@@ -256,7 +256,11 @@ fn foxglove_offers_the_safe_commands_to_anyone_and_the_raising_ones_only_to_the_
     let listen = format!("127.0.0.1:{}", free_port());
     let record = scratch("cfox", "view-only.mcap");
     let up = up_with_viewer("cfox", &listen, &record, None, 8);
-    let (offered, answers) = foxglove_calls(&format!("ws://{listen}"), &["jetbench/stop", "jetbench/start"]);
+    // The stop 2 s after the services are ready: the law waits at idle until the estimate has
+    // settled (0.35 s on the simulated bench), and a stop sent at once can reach an engine still
+    // held there, which measures nothing.
+    let (offered, answers) =
+        foxglove_calls(&format!("ws://{listen}"), &["sleep=2000", "jetbench/stop", "jetbench/start"]);
     let (ok, log) = up.wait(Duration::from_secs(60));
     assert!(ok, "jetbench up failed:\n{log}");
     assert_eq!(offered, SAFE, "a bench without [operator] offers the safe commands only");

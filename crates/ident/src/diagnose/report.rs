@@ -81,8 +81,6 @@ pub(crate) fn found(
     (effects, refit)
 }
 
-/// A figure with its unit, or `-` when there is none to give (the text around it says why):
-/// never `NaN`.
 /// A p-value as the verdict prints it: two decimals down to 0.01, in exponent form below.
 fn p_text(p: f64) -> String {
     if p >= 0.01 {
@@ -92,6 +90,8 @@ fn p_text(p: f64) -> String {
     }
 }
 
+/// A figure with its unit, or `-` when there is none to give (the text around it says why):
+/// never `NaN`.
 fn figure(value: f64, decimals: usize, unit: &str) -> String {
     if value.is_finite() {
         format!("{value:.decimals$}{unit}")
