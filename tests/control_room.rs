@@ -256,11 +256,12 @@ fn foxglove_offers_the_safe_commands_to_anyone_and_the_raising_ones_only_to_the_
     let listen = format!("127.0.0.1:{}", free_port());
     let record = scratch("cfox", "view-only.mcap");
     let up = up_with_viewer("cfox", &listen, &record, None, 8);
-    // The stop 2 s after the services are ready: the law waits at idle until the estimate has
-    // settled (0.35 s on the simulated bench), and a stop sent at once can reach an engine still
-    // held there, which measures nothing.
+    // The stop 3.5 s after the client connects, in the reference's second hold (50 N from 2.5 s
+    // of the law's time, 1.3 s either side to spare): the law waits at idle until the estimate
+    // has settled (0.35 s here), and the first hold (20 N) is within a point of idle, so a stop
+    // sent at once reaches an engine at idle, which measures nothing.
     let (offered, answers) =
-        foxglove_calls(&format!("ws://{listen}"), &["sleep=2000", "jetbench/stop", "jetbench/start"]);
+        foxglove_calls(&format!("ws://{listen}"), &["sleep=3500", "jetbench/stop", "jetbench/start"]);
     let (ok, log) = up.wait(Duration::from_secs(60));
     assert!(ok, "jetbench up failed:\n{log}");
     assert_eq!(offered, SAFE, "a bench without [operator] offers the safe commands only");
