@@ -884,7 +884,10 @@ mod tests {
     /// A force sensor that reads high as it warms, with an engine that loses thrust as the
     /// run goes on: the two pull the reading opposite ways, and either alone, fitted to the
     /// calibration part, misses the held-out part by more than the model as given. Fitted
-    /// together, they are claimed at their sizes and what they leave is noise.
+    /// together, they explain the recording and what they leave is noise. The ten parameters
+    /// refitted with the gain drift beside them fit the held-out data about as well (with ten
+    /// values more): the gain drift is claimed, and the sensor drift is claimed with it or
+    /// left open against that refit.
     #[test]
     fn a_warming_sensor_and_a_tiring_engine_that_hide_each_other_are_found_together() {
         let warm = |t0: f64| SlowStart { bias_n: 0.02 * t0 * (1.0 - (-120.0f64 / 25.0).exp()), ..SlowStart::SETTLED };
@@ -893,11 +896,21 @@ mod tests {
         let mut names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
         names.sort_unstable();
         assert_eq!(d.cause, Cause::MissingPhysics, "{}", d.verdict);
-        assert_eq!(names, ["gain_drift", "sensor_drift"], "{}", d.verdict);
+        assert!(names.contains(&"gain_drift"), "{}", d.verdict);
         let param = |name: &str, key: &str| d.effects.iter().find(|e| e.name == name).map(|e| e.params[key]);
         let per_minute = param("gain_drift", "per_minute").unwrap_or(f64::NAN);
-        let gain = param("sensor_drift", "gain").unwrap_or(f64::NAN);
-        assert!((per_minute - 0.0115).abs() < 0.002 && (gain - 0.02).abs() < 0.004, "{per_minute}/min, gain {gain}");
+        assert!((per_minute - 0.0115).abs() < 0.002, "{per_minute}/min");
+        // The sensor drift is claimed at its size, or left open against a refit of the ten
+        // parameters beside the gain drift, which fits the held-out data about as well with
+        // ten values more: never dropped as if it were not there.
+        match param("sensor_drift", "gain") {
+            Some(gain) => assert!((gain - 0.02).abs() < 0.004, "gain {gain}"),
+            None => assert!(
+                d.undecided.iter().any(|o| o.effects.contains(&"sensor_drift") && o.weight >= 0.5),
+                "{}",
+                d.verdict
+            ),
+        }
         assert!(d.after.whiteness.white, "{}", d.verdict);
         // Found as a pair: each alone was worse than nothing on the held-out part.
         let single = |name: &str| {
