@@ -890,6 +890,16 @@ def summarise(results, n, seed, elapsed_s):
                      f"{case['effects']}; claimed {r['found']}; undecided beside it: {', '.join(r['undecided'])}"
                      f"{' (or the parameters off)' if r.get('undecided_refit') else ''}; "
                      f"{'true' if grade(r)[1] else 'FALSE'}")
+    # An ambiguous verdict whose best-weighed explanation wins nearly every resample must say
+    # what keeps it from a claim: a weight of 100 % beside "cannot tell apart" reads as a
+    # contradiction otherwise.
+    leading = [r for r in results if r.get("cause") == "ambiguous"
+               and max((w for _, _, w in r.get("rivals") or []), default=0.0) >= 0.95]
+    said = sum("but is not claimed" in r.get("verdict", "") for r in leading)
+    lines += ["", "## Ambiguous verdicts with a clear favourite", "",
+              f"{len(leading)} ambiguous verdicts give one explanation at least 95 % of the resamples; "
+              f"{said} of them say why it is not claimed (the rival it does not dominate and by how much its "
+              "lead falls short, or the bar of a claim it fails).", ""]
     lines += ["", "## False claims", ""]
     for r in results:
         c, t = grade(r)

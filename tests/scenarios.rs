@@ -670,6 +670,48 @@ fn fresh_campaign_false_claims_stay_answered_right() {
     assert!(names.contains(&"gain_drift") && names.contains(&"slow_history"), "{result}");
 }
 
+/// A soak slower than the calibration part settles is weighed at slower time constants too.
+/// Fresh seed 7829's case 71: a fuel soak (outside the catalogue, τ 68 s) on 100 s of a P220
+/// under white noise was claimed as a gain drift, the only explanation listed. The soak freed
+/// of its edge was fitted at τ 56 s on the first 70 s and predicted the held-out 30 s 13 units
+/// worse than the drift, while the truth predicted them as well. Held at twice the edge, its
+/// gain fitted, it is a few units behind: `ambiguous` between the drift and the slow soak, and
+/// the verdict says why the drift, which wins every resample, is not claimed.
+#[test]
+fn a_fuel_soak_slower_than_the_calibration_part_is_no_claimed_gain_drift() {
+    let summary = draw("7829", "71");
+    let result = &summary["results"][0];
+    assert_eq!(summary["claims"].as_u64(), summary["true_claims"].as_u64(), "{result}");
+    assert_eq!(result["cause"], "ambiguous", "{result}");
+    let names = rival_names(result);
+    assert!(names.contains(&"gain_drift") && names.contains(&"slow_history"), "{result}");
+    let verdict = result["verdict"].as_str().unwrap_or_default();
+    assert!(verdict.contains("but is not claimed"), "{verdict}");
+}
+
+/// An explanation that wins every resample is not claimed when its lead is consistent but
+/// small, and the verdict says so. Seed 7789's case 154: a gain drift of 1.1 %/min on 100 s of
+/// a fast P100 (the given model 1.01× the floor). The drift wins every resample over a refit
+/// of the ten parameters, but fits the held-out data only a few units better, short of what
+/// blames physics rather than the parameters: `ambiguous`, with the weights 100 % and 0 %.
+/// The verdict used to stop there, as if contradicting itself; it now names the rival the
+/// drift does not clear and the bar it falls short of.
+#[test]
+fn a_favourite_that_is_not_claimed_is_explained() {
+    let summary = draw("7789", "154");
+    let result = &summary["results"][0];
+    assert_eq!(summary["claims"].as_u64(), summary["true_claims"].as_u64(), "{result}");
+    let verdict = result["verdict"].as_str().unwrap_or_default();
+    match result["cause"].as_str() {
+        Some("ambiguous") => {
+            assert!(verdict.contains("gain_drift wins 100 % of the resamples but is not claimed"), "{verdict}");
+            assert!(verdict.contains("standard errors of the paired difference"), "{verdict}");
+        }
+        Some("missing_physics") => assert_eq!(result["found"], serde_json::json!(["gain_drift"]), "{result}"),
+        other => panic!("{other:?}: {verdict}"),
+    }
+}
+
 /// Parameters that are off beside an effect, a class the campaign draws since seed 7541
 /// (scripts/diagnose_campaign.py, `--draw 2`; until then parameters off were drawn alone). Seed 7523's case 32: an actuator lag of 0.28 s
 /// on a P100 whose given model has parameters 3-12 % off (2.0× the floor). The lag is claimed,

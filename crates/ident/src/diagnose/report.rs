@@ -986,8 +986,9 @@ fn ambiguous(d: &Diagnosis) -> String {
         .collect();
     format!(
         "Ambiguous: the recording cannot tell these explanations apart (weights: the share of block-bootstrap \
-         resamples of the held-out data each fits best): {}. What would tell them apart: {}.",
+         resamples of the held-out data each fits best): {}.{} What would tell them apart: {}.",
         list.join("; "),
+        d.short_of_claim.as_ref().map_or(String::new(), |why| format!(" Of these, {why}.")),
         if apart.is_empty() { "a longer, richer campaign".to_owned() } else { apart.join("; ") }
     )
 }

@@ -222,6 +222,10 @@ pub struct Rivals {
     /// Each explanation in play (listed or not), by what it holds beside [`Rivals::settled`]:
     /// what the recording leaves undecided.
     pub open: Vec<OpenPart>,
+    /// When the search's explanation does not dominate: the rival it comes closest to
+    /// dominating and does not (see [`Closest`]).
+    #[serde(skip)]
+    pub(crate) closest: Option<Closest>,
 }
 
 /// What one explanation in play holds beside the effects every one of them holds.
@@ -333,14 +337,21 @@ pub(crate) fn earns(a: &Entry, b: &Entry, strong_evidence: f64, min_mae_gain_n: 
 /// data already charge a refit for what it overfits, so a penalty per parameter on top
 /// would let a flexible discrepancy beat a refit that fits better.
 pub(crate) fn fits_better(a: &Entry, b: &Entry, margin: f64, z_min: f64) -> bool {
+    refit_lead(a, b).is_some_and(|(lead, z)| lead > margin && z >= z_min)
+}
+
+/// How far `a` fits the held-out data better than `b` ([`fits_better`]'s test): the lead in
+/// score units of misfit, `b`'s extra prior charged, and in standard errors of the paired
+/// per-sample difference. `None` when the two are not on the same samples.
+pub(crate) fn refit_lead(a: &Entry, b: &Entry) -> Option<(f64, f64)> {
     let n = a.w2.len();
     if n != b.w2.len() || n < 2 {
-        return false;
+        return None;
     }
     let nf = n as f64;
     let (sa, sb) = (a.w2.iter().sum::<f64>(), b.w2.iter().sum::<f64>());
     if !(sa > 0.0 && sb > 0.0) {
-        return false;
+        return None;
     }
     let extra = b.prior - a.prior;
     let lead = nf * (sb / nf).ln() + extra - nf * (sa / nf).ln();
@@ -349,7 +360,7 @@ pub(crate) fn fits_better(a: &Entry, b: &Entry, margin: f64, z_min: f64) -> bool
     let mean = (d.iter().sum::<f64>() + extra * sb / nf) / nf;
     let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (nf - 1.0);
     let z = if var > 0.0 { mean * nf.sqrt() / var.sqrt() } else { 0.0 };
-    lead > margin && z >= z_min
+    Some((lead, z))
 }
 
 /// A small deterministic generator (SplitMix64): the same recording gets the same weights.
@@ -681,6 +692,24 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         .map(|(j, e)| (j, rival(j, e)))
         .collect();
     let dominant = n >= MIN_BLOCKS * block && rivals.iter().all(|(j, r)| *j == ci || r.dominated);
+    // The rival that keeps the claim open: one that beats it in a fair share of resamples
+    // first, then the one whose lead falls furthest short.
+    let closest = rivals
+        .iter()
+        .filter(|(j, r)| *j != ci && !r.dominated)
+        .map(|(j, _)| Closest {
+            label: entries[*j].label(),
+            beats_share: share(beats(*j)),
+            lead: compared(entries[ci], entries[*j]),
+            needed: margin(entries[ci], entries[*j]),
+            on_score: on_score(entries[ci], entries[*j]),
+        })
+        .max_by(|a, b| {
+            (a.beats_share >= RIVAL_WIN_SHARE)
+                .cmp(&(b.beats_share >= RIVAL_WIN_SHARE))
+                .then(a.beats_share.total_cmp(&b.beats_share))
+                .then((b.lead - b.needed).total_cmp(&(a.lead - a.needed)))
+        });
     // What every explanation in play holds, before the list is cut to six.
     let in_play: Vec<(usize, &Rival)> =
         rivals.iter().filter(|(j, r)| *j == ci || !r.dominated).map(|(j, r)| (*j, r)).collect();
@@ -747,7 +776,25 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         leader,
         settled,
         open,
+        closest,
     }
+}
+
+/// A rival an explanation does not dominate, and by how much it falls short: what keeps
+/// an explanation that wins nearly every resample from being claimed.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct Closest {
+    /// The rival's effects and refit.
+    pub label: (Vec<&'static str>, bool),
+    /// The share of resamples in which the rival scores better.
+    pub beats_share: f64,
+    /// The explanation's lead over the rival on all the held-out data ([`compared`]).
+    pub lead: f64,
+    /// The lead a claim needs ([`margin`]).
+    pub needed: f64,
+    /// True when the two are compared on the score (one nested in the other), false on the
+    /// held-out fit ([`on_score`]).
+    pub on_score: bool,
 }
 
 /// An explanation judged both ways round: `once` (fitted on the calibration part, its
@@ -975,6 +1022,37 @@ mod tests {
         let w = weigh(std::slice::from_ref(&differs), &chosen);
         assert!(!w.dominant, "{:?}", w.rivals);
         assert!(w.settled.is_empty(), "terms that differ settle nothing: {:?}", w.settled);
+    }
+
+    /// A lead that is the same in every block wins every resample however small it is: the
+    /// weighing says which rival keeps the claim open and by how much the lead falls short,
+    /// and a rival that beats the claim in a fair share of resamples comes first.
+    #[test]
+    fn the_rival_that_keeps_a_claim_open_is_named_with_its_shortfall() {
+        let n = 6000;
+        let noise = innovations(7, n, 1.0);
+        // 2·n·ε ≈ 5 score units: a delay consistently 5 units ahead of a lag.
+        let scaled = |k: f64| noise.iter().map(|x| x * k).collect::<Vec<_>>();
+        let chosen = explanation(&[EffectKind::InputDelay], false, &noise);
+        let lag = explanation(&[EffectKind::ActuatorLag], false, &scaled(1.0 + 5.0 / (2.0 * n as f64)));
+        let w = weigh(std::slice::from_ref(&lag), &chosen);
+        assert!(!w.dominant, "{:?}", w.rivals);
+        let weight = w.rivals.iter().find(|r| r.effects == ["input_delay"]).map(|r| r.weight);
+        assert_eq!(weight, Some(1.0), "{:?}", w.rivals);
+        let c = w.closest.expect("the lag keeps the claim open");
+        assert_eq!(c.label, (vec!["actuator_lag"], false));
+        assert!((c.lead - 5.0).abs() < 0.2 && c.needed == DISTINCT && !c.on_score && c.beats_share == 0.0, "{c:?}");
+
+        // Beside it, a rival that fits better in a fair share of the resamples (the same
+        // innovations in another order, a tie) is the one named.
+        let tie = explanation(&[EffectKind::RateLimit], false, &noise.iter().rev().copied().collect::<Vec<_>>());
+        let c = weigh(&[lag, tie], &chosen).closest.expect("open");
+        assert_eq!(c.label, (vec!["rate_limit"], false), "{c:?}");
+        assert!(c.beats_share >= RIVAL_WIN_SHARE, "{c:?}");
+
+        // A claim that dominates has no such rival.
+        let far = explanation(&[EffectKind::ActuatorLag], false, &scaled(1.01));
+        assert_eq!(weigh(&[far], &chosen).closest, None);
     }
 
     #[test]
