@@ -572,8 +572,9 @@ fn a_fresh_campaign_delay_behind_a_ramp_from_the_first_row_is_claimed_at_its_siz
 /// `--case`). Seed 9277's case 173, a sensor drift of 3 % and τ 20 s whose bias had settled
 /// before the recording, was claimed as a discrepancy on the engine: it is now a true claim of
 /// the drift. Seed 6703's case 26, a heat soak of τ 47 s on 100 s, was claimed as bearing
-/// friction beside a discrepancy (the friction only held the history off its edge): it is now
-/// `ambiguous`, the history freed of the edge among the rivals. Seed 7103's case 210, a fuel
+/// friction beside a discrepancy (the friction only held the history off its edge): no claim
+/// now, the history freed of the edge among the rivals (held at a slower time constant it leads,
+/// named and not claimed). Seed 7103's case 210, a fuel
 /// soak of τ 74 s on 100 s, was claimed as a gain drift while the discrepancy had no history
 /// that follows the throttle: it is now `ambiguous`, the drift against the soak. The first two
 /// are not concealed (the given model 2.0× and 3.8× the floor), so they are not in the suite
@@ -617,9 +618,12 @@ fn fresh_campaign_false_claims_stay_answered_right() {
     let drift = draw("9277", "173");
     let result = claimed_true(&drift);
     assert_eq!(result["found"], serde_json::json!(["sensor_drift"]), "{result}");
+    // Held at slower time constants, the freed history leads every explanation jetbench
+    // models by 15 units of fit: the soak is named as the best explanation, not claimed.
     let soak = draw("6703", "26");
     let result = &soak["results"][0];
-    assert_eq!(result["cause"], "ambiguous", "{result}");
+    assert_eq!(soak["claims"].as_u64(), Some(0), "{result}");
+    assert!(matches!(result["cause"].as_str(), Some("ambiguous" | "unexplained")), "{result}");
     assert!(
         rival_names(result).contains(&"slow_history"),
         "the history freed of its edge is not among the rivals: {result}"
