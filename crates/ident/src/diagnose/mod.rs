@@ -501,11 +501,12 @@ impl<'p, 'a> Search<'p, 'a> {
     /// The pool's best physical fit of `label` judged on `rows` held-out samples, by its
     /// held-out score.
     fn pooled(&self, label: &Label, rows: usize) -> Option<Entry> {
-        self.best_pooled(label, rows, |e| e.score, |_| true)
+        self.best_pooled(label, rows, |e| e.score, |e| e.fit.is_some())
     }
 
-    /// The pool's physical fit of `label` judged on `rows` held-out samples that `keep`
-    /// admits, lowest by `rank`.
+    /// The pool's physical entry of `label` judged on `rows` held-out samples that `keep`
+    /// admits, lowest by `rank` (a rival jetbench cannot model has no fit: `keep` asks for
+    /// one where it is needed).
     fn best_pooled(
         &self,
         label: &Label,
@@ -517,7 +518,7 @@ impl<'p, 'a> Search<'p, 'a> {
             .borrow()
             .iter()
             .filter(|e| e.label() == *label && !e.unphysical && e.score.is_finite() && e.w2.len() == rows)
-            .filter(|e| e.fit.is_some() && keep(e))
+            .filter(|e| keep(e))
             .min_by(|a, b| rank(a).total_cmp(&rank(b)))
             .cloned()
     }
@@ -1245,12 +1246,8 @@ fn short_of_a_claim(
     } else {
         // Its held-out innovations are all the weighing needs: a rival jetbench weighs but
         // cannot model (a zero shift of the sensor) has no fit, and may be the favourite.
-        let pool = search.pool.borrow();
-        let entry = pool
-            .iter()
-            .filter(|e| e.label() == label && !e.unphysical && e.score.is_finite() && e.w2.len() == chosen.w2.len())
-            .min_by(|a, b| a.score.total_cmp(&b.score))?;
-        rivals::weigh(&pool, entry).closest
+        let entry = search.best_pooled(&label, chosen.w2.len(), |e| e.score, |_| true)?;
+        rivals::weigh(&search.pool.borrow(), &entry).closest
     };
     let why = match closest {
         Some(c) if c.beats_share >= rivals::RIVAL_WIN_SHARE => {
@@ -1304,7 +1301,8 @@ fn refit_beside(search: &Search<'_, '_>, current: &Scored) -> Option<String> {
         return None;
     }
     let chosen = search.entry(current);
-    let refitted = search.best_pooled(&(chosen.effects.clone(), true), chosen.w2.len(), Entry::fit, |_| true)?;
+    let refitted =
+        search.best_pooled(&(chosen.effects.clone(), true), chosen.w2.len(), Entry::fit, |e| e.fit.is_some())?;
     let gain = chosen.fit() - refitted.fit();
     let which = match &refitted.refit_only {
         Some(only) => only.iter().filter_map(|&i| Params::NAMES.get(i).copied()).collect::<Vec<_>>().join(", "),

@@ -692,8 +692,9 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
         .map(|(j, e)| (j, rival(j, e)))
         .collect();
     let dominant = n >= MIN_BLOCKS * block && rivals.iter().all(|(j, r)| *j == ci || r.dominated);
-    // The rival that keeps the claim open: one that beats it in a fair share of resamples
-    // first, then the one whose lead falls furthest short.
+    // The rival that keeps the claim open: of those that beat it in a fair share of
+    // resamples, the one that beats it most often; else the one whose lead falls furthest short.
+    let fair = |c: &Closest| c.beats_share >= RIVAL_WIN_SHARE;
     let closest = rivals
         .iter()
         .filter(|(j, r)| *j != ci && !r.dominated)
@@ -704,11 +705,10 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
             needed: margin(entries[ci], entries[*j]),
             on_score: on_score(entries[ci], entries[*j]),
         })
-        .max_by(|a, b| {
-            (a.beats_share >= RIVAL_WIN_SHARE)
-                .cmp(&(b.beats_share >= RIVAL_WIN_SHARE))
-                .then(a.beats_share.total_cmp(&b.beats_share))
-                .then((b.lead - b.needed).total_cmp(&(a.lead - a.needed)))
+        .max_by(|a, b| match (fair(a), fair(b)) {
+            (true, true) => a.beats_share.total_cmp(&b.beats_share),
+            (x, y) if x != y => x.cmp(&y),
+            _ => (b.lead - b.needed).total_cmp(&(a.lead - a.needed)),
         });
     // What every explanation in play holds, before the list is cut to six.
     let in_play: Vec<(usize, &Rival)> =
