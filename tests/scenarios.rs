@@ -628,6 +628,12 @@ fn fresh_campaign_false_claims_stay_answered_right() {
         rival_names(result).contains(&"slow_history"),
         "the history freed of its edge is not among the rivals: {result}"
     );
+    // What it leaves is white: the verdict does not call it systematic in the same breath.
+    let verdict = result["verdict"].as_str().unwrap_or_default();
+    assert!(
+        !(verdict.contains("is white under the noise model") && verdict.contains("residual is systematic")),
+        "{verdict}"
+    );
     let fuel = draw("7103", "210");
     let result = &fuel["results"][0];
     assert_eq!(result["cause"], "ambiguous", "{result}");

@@ -633,14 +633,12 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
                 what.insert(
                     0,
                     format!(
-                        "{} improves the held-out fit (validation MAE {} → {}) but its residual is not noise \
-                         (Ljung–Box p {:.1e} under the noise model, MAE {:.2}× the floor): the parameters alone do \
-                         not explain the recording",
+                        "{} improves the held-out fit (validation MAE {} → {}) but {}: the parameters alone do not \
+                         explain the recording",
                         refit.what(),
                         figure(d.mae_before_n, 2, " N"),
                         figure(d.mae_after_n, 2, " N"),
-                        d.after.whiteness.p_value,
-                        d.mae_after_n / d.noise_floor_n
+                        not_noise(d)
                     ),
                 );
             }
@@ -707,14 +705,53 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
                     ),
                 );
             }
-            format!(
-                "Unexplained: the residual is systematic but no hypothesis explains it on held-out data{why}. What \
-                 remains: {}. {mae}.",
-                what.join("; ")
-            )
+            format!("Unexplained: {}{why}. What remains: {}. {mae}.", unexplained_opening(d, found), what.join("; "))
         }
     };
     format!("{text}{}", data_note(d))
+}
+
+/// The first words of an `unexplained` verdict, true to the residual it describes (the
+/// search's when it found something, the given model's otherwise): a residual that passes
+/// the whiteness test is not called systematic, whatever else keeps the verdict open (a
+/// rival jetbench cannot claim, or an error above the floor).
+fn unexplained_opening(d: &Diagnosis, found: bool) -> String {
+    let residual = if found { &d.after } else { &d.before };
+    if !residual.whiteness.white && residual.systematic() {
+        "the residual is systematic but no hypothesis explains it on held-out data".to_owned()
+    } else if !residual.whiteness.white {
+        format!(
+            "the residual is not white under the noise model (Ljung–Box p {:.1e}) and no hypothesis explains it on \
+             held-out data",
+            residual.whiteness.p_value
+        )
+    } else if d.mae_after_n > 1.1 * d.noise_floor_n {
+        format!(
+            "the residual passes the whiteness test, but its validation MAE is {:.2}× the noise floor and no \
+             hypothesis explains the excess on held-out data",
+            d.mae_after_n / d.noise_floor_n
+        )
+    } else {
+        "the residual passes the whiteness test, but no explanation jetbench can claim accounts for the held-out data \
+         as well as a rival it cannot"
+            .to_owned()
+    }
+}
+
+/// Why what a refit leaves is not noise ([`residual_is_noise`]), in the words of the test that
+/// failed: not white, repeating at a period, or above the floor.
+fn not_noise(d: &Diagnosis) -> String {
+    let ratio = d.mae_after_n / d.noise_floor_n;
+    if !d.after.whiteness.white {
+        format!(
+            "its residual is not white (Ljung–Box p {:.1e} under the noise model, MAE {ratio:.2}× the floor)",
+            d.after.whiteness.p_value
+        )
+    } else if let Some(p) = d.periodic {
+        format!("what it leaves repeats every {:.1} s (MAE {ratio:.2}× the floor)", p.period_s)
+    } else {
+        format!("what it leaves is {ratio:.2}× the noise floor, although white under the noise model")
+    }
 }
 
 /// Too little data: how much there is, how much the question needs, and how weak the answer
