@@ -236,6 +236,11 @@ fn fitted_effect(json: &Value, kind: EffectKind) -> Option<Effect> {
     physical.into_iter().chain(candidates.iter().rev()).find_map(|c| effect_from(kind, &c["params"]))
 }
 
+/// True when a rival's own values (`fitted`) hold an effect of `kind`.
+fn own_holds(own: &Value, kind: EffectKind) -> bool {
+    own["effects"].as_array().into_iter().flatten().any(|o| o["name"].as_str() == Some(kind.name()))
+}
+
 fn fitted_params(json: &Value) -> Option<Params> {
     params_from(&json["refit"]["params"]).or_else(|| {
         json["rounds"]
@@ -274,6 +279,11 @@ pub fn rivals_from_json(model: &ModelFile, json: &Value) -> Result<Rivals, Desig
         // that held it.
         let own = &r["fitted"];
         for e in &effects {
+            // A slow soak is the discrepancy's history at a time constant slower than the fit
+            // explores: its own values hold it, under the discrepancy's name.
+            if e == super::rivals::SLOW_HISTORY && own_holds(own, EffectKind::Discrepancy) {
+                continue;
+            }
             let kind = e.parse::<EffectKind>().ok();
             let own_effect = own["effects"]
                 .as_array()
@@ -813,6 +823,30 @@ mod tests {
         assert_eq!(own.plant.params.to_array(), [1.0; 10]);
         // A rival without its own values still gets the fits' (an older diagnosis).
         assert_eq!(r.models[1].plant.effects.get(EffectKind::InputDelay).expect("delay").values(), [0.05]);
+    }
+
+    #[test]
+    fn a_slow_soak_is_rebuilt_from_its_discrepancy_and_refused_without_it() {
+        let m = resolve_model("p100-diesel").expect("preset");
+        let mut json = diagnosis_json();
+        // Seed 7853's case 3: a gain drift ahead of a soak slower than the recording settles.
+        let soak = serde_json::json!({
+            "effects": ["discrepancy", "slow_history"], "refit": false, "weight": 0.0, "dominated": false,
+            "fitted": { "effects": [{ "name": "discrepancy",
+                "params": { "gain_history_per_n": -0.00107, "history_time_constant_s": 524.0 } }] }
+        });
+        json["rivals"][1] = soak.clone();
+        let r = rivals_from_json(&m, &json).expect("rivals");
+        assert_eq!(r.models[1].label, "discrepancy+slow_history");
+        let disc = r.models[1].plant.effects.get(EffectKind::Discrepancy).expect("the soak's discrepancy");
+        assert!(disc.params().any(|(k, v)| k == "history_time_constant_s" && v == 524.0), "{disc:?}");
+        // Weighed without its values (an older diagnosis), it cannot be simulated, and the lag
+        // is left with nothing to be told from.
+        let mut old = soak;
+        old["fitted"] = Value::Null;
+        json["rivals"][1] = old;
+        let e = rivals_from_json(&m, &json).expect_err("one rival left");
+        assert!(e.to_string().contains("slow_history") && e.to_string().contains("cannot be simulated"), "{e}");
     }
 
     #[test]

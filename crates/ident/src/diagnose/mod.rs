@@ -2205,7 +2205,12 @@ fn freed_history_rival(search: &Search<'_, '_>, mut slow: Spec) {
         .filter_map(|(spec, held)| {
             let fit = fit::fit(search.problem, &search.model.effects, spec)?;
             let plant = fit.spec.plant(&search.model.effects)?;
-            unclaimable_entry(search.problem, &plant, &fit.spec, &fit.spec.states, *held, rivals::SLOW_HISTORY)
+            let mut entry =
+                unclaimable_entry(search.problem, &plant, &fit.spec, &fit.spec.states, *held, rivals::SLOW_HISTORY)?;
+            // Never claimed, but simulated like any model: the designed experiment rebuilds
+            // it from these values.
+            entry.values = rivals::RivalValues::of(&fit);
+            Some(entry)
         })
         .min_by(|a, b| a.fit().total_cmp(&b.fit()));
     search.pool.borrow_mut().extend(best);

@@ -80,6 +80,11 @@ pub(crate) struct Entry {
     /// The fit itself, when the explanation is one the model can hold (a rival outside it,
     /// such as throttle play or a periodic force, has none): what is claimed if it leads.
     pub fit: Option<Fit>,
+    /// Without a `fit`, the values that rebuild it all the same: a rival weighed under a name
+    /// of its own that the model still simulates (the slow soak: a discrepancy whose history
+    /// is slower than the fit explores). It only goes into the diagnosis's JSON, for
+    /// `jetbench excite --discriminate`; no decision reads it.
+    pub values: Option<RivalValues>,
     /// A swap whose parts' names nest in another explanation's although its physics does not
     /// (a sensor drift in place of the discrepancy's thrust-history term, its other terms
     /// kept): judged against the others with the margin between explanations of other parts.
@@ -170,7 +175,7 @@ pub struct RivalEffect {
 
 impl RivalValues {
     /// The values of `fit`, or `None` when one of its effects has values out of its range.
-    fn of(fit: &Fit) -> Option<Self> {
+    pub(crate) fn of(fit: &Fit) -> Option<Self> {
         let effects = fit
             .spec
             .effects
@@ -676,7 +681,7 @@ pub(crate) fn weigh(pool: &[Entry], chosen: &Entry) -> Rivals {
             tells_apart((&e.effects, e.refit), (&chosen.effects, chosen.refit))
         },
         dominated: j != ci && dominated(j),
-        fitted: e.fit.as_ref().and_then(RivalValues::of),
+        fitted: e.fit.as_ref().and_then(RivalValues::of).or_else(|| e.values.clone()),
         idle: e.idle.clone(),
     };
     let mut rivals: Vec<(usize, Rival)> = entries
@@ -847,6 +852,7 @@ pub(crate) fn entry(
         idle: Vec::new(),
         refit_only: None,
         fit: None,
+        values: None,
         swapped: false,
     }
 }
