@@ -643,7 +643,7 @@ def truth_whiteness(jetbench, case, workdir, csv):
     return json.loads(out.stdout)["before"]["whiteness"]["p_value"]
 
 
-def run_case(jetbench, case, workdir, keep=False, discriminate=False, truth_given=False):
+def run_case(jetbench, case, workdir, keep=False, discriminate=False, truth_given=False, rounds=1):
     csv, model, truth, truth_mae = prepare(case, workdir)
     start = time.monotonic()
     out = subprocess.run([jetbench, "diagnose", "--model", str(model), str(csv), "--json"],
@@ -654,7 +654,7 @@ def run_case(jetbench, case, workdir, keep=False, discriminate=False, truth_give
     result = ({"case": case, "error": out.stderr.strip()[-300:], "time_s": elapsed, "truth_mae": truth_mae}
               if out.returncode != 0 else outcome(case, json.loads(out.stdout), elapsed, truth_mae))
     if discriminate and result.get("cause") == "ambiguous":
-        result["second"] = designed(jetbench, case, workdir, csv, model, first)
+        result["second"] = designed(jetbench, case, workdir, csv, model, first, keep, rounds)
     if truth_given:
         result["truth_white_p"] = truth_whiteness(jetbench, case, workdir, csv)
     result["evidence"] = evidence(case)
@@ -664,37 +664,63 @@ def run_case(jetbench, case, workdir, keep=False, discriminate=False, truth_give
     return result
 
 
-def designed(jetbench, case, workdir, csv, model, first):
+def designed(jetbench, case, workdir, csv, model, first, keep=False, rounds=1):
     """The loop an engineer runs on an ambiguous verdict: `jetbench excite --discriminate` designs
     a campaign from the diagnosis, this file's engine records it (the same truth, fresh noise),
-    and `jetbench diagnose` takes both recordings. Returns the second diagnosis's outcome (or an
-    error), graded like the first."""
-    design = Path(workdir, f"case{case['index']}.design.csv")
-    second = Path(workdir, f"case{case['index']}.second.csv")
+    and `jetbench diagnose` takes every recording so far. With `rounds` above 1, a verdict still
+    ambiguous is taken round the loop again, from the latest diagnosis. Returns the last
+    diagnosis's outcome (or an error, or the design's refusal), graded like the first. With
+    `keep`, the designed recordings and the diagnoses stay in `workdir`."""
     start = time.monotonic()
-    excite = [jetbench, "excite", "--discriminate", str(first), "--model", str(model), "--seed", str(case["index"]),
-              "--out", str(design)]
-    out = subprocess.run(excite, capture_output=True, text=True)
-    # When the default length is too short, excite says how long would do: the engineer reruns
-    # with it, up to ten minutes of bench time.
-    longer = re.search(r"rerun with --duration (\d+)", out.stderr)
-    if out.returncode != 0 and longer and int(longer.group(1)) <= MAX_DESIGN_S:
-        out = subprocess.run(excite + ["--duration", longer.group(1)], capture_output=True, text=True)
-    if out.returncode != 0:
-        return {"case": case, "refused": out.stderr.strip()[-400:], "time_s": time.monotonic() - start}
-    with open(design) as f:
-        rows = [line.split(",") for line in f.read().splitlines()[1:] if line]
-    throttle = [float(r[1]) for r in rows]
-    simulate(case, second, throttle=throttle, seed=case["seed"] + 7919)
-    out = subprocess.run([jetbench, "diagnose", "--model", str(model), str(csv), str(second), "--json"],
-                         capture_output=True, text=True)
-    elapsed = time.monotonic() - start
-    design.unlink(missing_ok=True)
-    second.unlink(missing_ok=True)
-    if out.returncode != 0:
-        return {"case": case, "error": out.stderr.strip()[-300:], "time_s": elapsed}
-    r = outcome(case, json.loads(out.stdout), elapsed, None)
-    r["design_s"] = len(throttle) * STEP_S
+    recordings, diagnoses, diagnosis, designed_s, r = [str(csv)], [], first, 0.0, None
+    for k in range(rounds):
+        tag = "second" if k == 0 else f"round{k + 2}"
+        design = Path(workdir, f"case{case['index']}.{tag}.design.csv")
+        recording = Path(workdir, f"case{case['index']}.{tag}.csv")
+        excite = [jetbench, "excite", "--discriminate", str(diagnosis), "--model", str(model),
+                  "--seed", str(case["index"] + 1000 * k), "--out", str(design)]
+        out = subprocess.run(excite, capture_output=True, text=True)
+        # When the length is too short, excite says how long would do: the engineer reruns with
+        # it, up to ten minutes of bench time. A longer campaign is designed anew and may fall
+        # short again (by less): the advice is followed up to three times.
+        for _ in range(3):
+            longer = re.search(r"rerun with --duration (\d+)", out.stderr)
+            if out.returncode == 0 or not longer or int(longer.group(1)) > MAX_DESIGN_S:
+                break
+            out = subprocess.run(excite + ["--duration", longer.group(1)], capture_output=True, text=True)
+        if out.returncode != 0:
+            if r is not None:
+                # A later round with no design: the last diagnosis stands.
+                r["later_refused"] = out.stderr.strip()[-400:]
+                break
+            return {"case": case, "refused": out.stderr.strip()[-400:], "time_s": time.monotonic() - start}
+        with open(design) as f:
+            rows = [line.split(",") for line in f.read().splitlines()[1:] if line]
+        throttle = [float(row[1]) for row in rows]
+        simulate(case, recording, throttle=throttle, seed=case["seed"] + 7919 * (k + 1))
+        recordings.append(str(recording))
+        designed_s += len(throttle) * STEP_S
+        out = subprocess.run([jetbench, "diagnose", "--model", str(model), *recordings, "--json"],
+                             capture_output=True, text=True)
+        diagnosis = Path(workdir, f"case{case['index']}.{tag}.json")
+        diagnosis.write_text(out.stdout)
+        diagnoses.append(diagnosis)
+        if not keep:
+            design.unlink(missing_ok=True)
+        if out.returncode != 0:
+            r = {"case": case, "error": out.stderr.strip()[-300:]}
+            break
+        r = outcome(case, json.loads(out.stdout), 0.0, None)
+        r["design_s"] = designed_s
+        r["rounds"] = k + 1
+        if r["cause"] != "ambiguous":
+            break
+    if not keep:
+        for f in recordings[1:]:
+            Path(f).unlink(missing_ok=True)
+        for f in diagnoses:
+            f.unlink(missing_ok=True)
+    r["time_s"] = time.monotonic() - start
     return r
 
 
@@ -977,6 +1003,10 @@ def designed_section(results):
              f"- precision of claims over the whole campaign, the second answers counted too: {all_true}/{all_claims}"
              + (f" = {100 * all_true / all_claims:.1f} %" if all_claims else ""),
              f"- still ambiguous after it: {still} of the {len(tried)} cases it was run on.",
+             *([f"- taken round the loop again (still ambiguous, a campaign designed anew from the latest diagnosis, "
+                f"every recording so far diagnosed together; `--rounds`): {again} cases, "
+                f"{sum(s.get('rounds', 1) for s in seconds if 'rounds' in s)} designed recordings in all."]
+               if (again := sum(s.get("rounds", 1) > 1 for s in seconds)) else []),
              designed_recall(results),
              ""]
     for r, s, (c, t) in zip(tried, seconds, graded):
@@ -987,7 +1017,8 @@ def designed_section(results):
                      f"first {r['rivals'][0][0] if r.get('rivals') else []} leading; with the experiment {what} "
                      f"{s.get('found', '')}{' + refit' if s.get('refit') else ''}"
                      f"{'' if not c else (' (true)' if t else ' (FALSE)')}"
-                     + (f", a {s['design_s']:.0f} s design" if "design_s" in s else "") + f", {s['time_s']:.0f} s")
+                     + (f", a {s['design_s']:.0f} s design" if "design_s" in s else "")
+                     + (f" in {s['rounds']} rounds" if s.get("rounds", 1) > 1 else "") + f", {s['time_s']:.0f} s")
     return lines
 
 
@@ -1215,6 +1246,9 @@ def main():
                         help="on every ambiguous case, run the loop an engineer would: `jetbench excite "
                         "--discriminate` designs a campaign, this file's engine records it, and `jetbench diagnose` "
                         "takes both recordings; the report grades that answer too")
+    parser.add_argument("--rounds", type=int, default=1, choices=range(1, 5), metavar="K",
+                        help="with --discriminate, take a verdict still ambiguous round the loop again, from the "
+                        "latest diagnosis, up to K designed recordings in all (default 1)")
     parser.add_argument("--truth-given", action="store_true",
                         help="also diagnose each case whose truth the catalogue can write with that truth as the "
                         "model, and report how often the whiteness test calls its residual not white")
@@ -1272,7 +1306,7 @@ def main():
         results = []
         futures = [pool.submit(functools.partial(run_case, args.jetbench, workdir=workdir, keep=bool(args.keep),
                                                      discriminate=args.discriminate,
-                                                     truth_given=args.truth_given), c)
+                                                     truth_given=args.truth_given, rounds=args.rounds), c)
                    for c in cases]
         for future in concurrent.futures.as_completed(futures):
             if args.deadline_s and time.monotonic() - start > args.deadline_s:

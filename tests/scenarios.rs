@@ -575,6 +575,26 @@ fn the_designed_experiment_tells_a_gain_drift_from_a_slow_soak() {
     assert!(!drift_claimed, "a fuel soak claimed as a gain drift: {second}");
 }
 
+/// A sensor drift that had settled by the held-out part reads like a zero shift of the sensor
+/// there, and the designed experiment now rebuilds the shift (a constant on what is read) to
+/// tell them apart. Fresh seed 7853's case 23 (a drift of 1.1 %, τ 72 s, on 400 s under coloured
+/// noise) is `ambiguous` with the shift leading; excite used to refuse it ("cannot be
+/// simulated"). The first designed recording rules the shift out and leaves the drift against a
+/// slow soak; a second round, designed from that diagnosis as the verdict asks, makes the drift a
+/// true claim.
+#[test]
+fn the_designed_experiment_tells_a_settled_sensor_drift_from_a_zero_shift() {
+    let summary = draw_with("7853", "23", &["--discriminate", "--rounds", "2"]);
+    let result = &summary["results"][0];
+    assert_eq!(result["cause"], "ambiguous", "{result}");
+    assert!(rival_names(result).contains(&"sensor_offset"), "{result}");
+    let second = &result["second"];
+    assert!(second.get("refused").is_none(), "no design: {second}");
+    assert_eq!(second["cause"], "missing_physics", "{second}");
+    assert_eq!(second["found"], serde_json::json!(["sensor_drift"]), "{second}");
+    assert_eq!(second["refit"], false, "the parameters were exact: {second}");
+}
+
 /// A fresh campaign's effect that was missed for a fault of the fit, rerun on its own draw.
 /// Seed 4177's case 64: a delay of 216 ms on 100 s of a P220, the throttle ramping from the
 /// recording's first row. Held at the engine start fitted without a delay (falling at 35 N/s

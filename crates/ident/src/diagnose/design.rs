@@ -80,6 +80,19 @@ pub struct RivalModel {
     pub weight: f64,
     /// The plant it predicts with: given model, refitted parameters, its effects.
     pub plant: Plant,
+    /// A constant added to what the plant's sensor reads, N: a zero shift since the tare
+    /// (the `sensor_offset` rival), 0 for every other.
+    pub reading_offset_n: f64,
+    /// Play in the throttle path, %: the engine follows a throttle that moves only once the
+    /// command is this far from it (the `throttle_play` rival), 0 for every other.
+    pub throttle_play_pct: f64,
+}
+
+impl RivalModel {
+    /// A rival whose engine follows the command and whose sensor reads what the plant's does.
+    pub fn new(label: impl Into<String>, weight: f64, plant: Plant) -> Self {
+        Self { label: label.into(), weight, plant, reading_offset_n: 0.0, throttle_play_pct: 0.0 }
+    }
 }
 
 /// The rivals rebuilt from a diagnosis, and the ones that could not be.
@@ -241,6 +254,17 @@ fn own_holds(own: &Value, kind: EffectKind) -> bool {
     own["effects"].as_array().into_iter().flatten().any(|o| o["name"].as_str() == Some(kind.name()))
 }
 
+/// The value `key` of what a rival's own values (`fitted`) hold under `name`.
+fn own_value(own: &Value, name: &str, key: &str) -> Option<f64> {
+    own["effects"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .find(|o| o["name"].as_str() == Some(name))
+        .and_then(|o| o["params"][key].as_f64())
+        .filter(|v| v.is_finite())
+}
+
 fn fitted_params(json: &Value) -> Option<Params> {
     params_from(&json["refit"]["params"]).or_else(|| {
         json["rounds"]
@@ -278,7 +302,23 @@ pub fn rivals_from_json(model: &ModelFile, json: &Value) -> Result<Rivals, Desig
         // not): the explanation as it was weighed. Else each effect's values from the fits
         // that held it.
         let own = &r["fitted"];
+        let (mut reading_offset_n, mut throttle_play_pct) = (0.0, 0.0);
         for e in &effects {
+            // A zero shift and play in the throttle path are no effects of the plant: a
+            // constant on what is read, a throttle held back, kept under their own names in
+            // the rival's values.
+            let unmodelled = match e.as_str() {
+                super::rivals::SENSOR_OFFSET => Some((&mut reading_offset_n, super::rivals::OFFSET_KEY)),
+                super::rivals::THROTTLE_PLAY => Some((&mut throttle_play_pct, super::rivals::PLAY_KEY)),
+                _ => None,
+            };
+            if let Some((slot, key)) = unmodelled {
+                match own_value(own, e, key) {
+                    Some(v) => *slot = v,
+                    None => missing.push(e.as_str()),
+                }
+                continue;
+            }
             // A slow soak is the discrepancy's history at a time constant slower than the fit
             // explores: its own values hold it, under the discrepancy's name.
             if e == super::rivals::SLOW_HISTORY && own_holds(own, EffectKind::Discrepancy) {
@@ -300,7 +340,20 @@ pub fn rivals_from_json(model: &ModelFile, json: &Value) -> Result<Rivals, Desig
             if refit { params_from(&own["params"]).or_else(|| fitted_params(json)) } else { Some(model.model) };
         match params {
             Some(params) if missing.is_empty() => {
-                models.push(RivalModel { label: name, weight, plant: Plant::new(params, plant_effects) })
+                if reading_offset_n != 0.0 {
+                    notes.push(format!(
+                        "{name} reads {reading_offset_n:+.2} N off the thrust on the new campaign too: record it on the \
+                         same tare (do not zero the force sensor between the two recordings), or the shift it is \
+                         weighed by is not the one it was fitted with"
+                    ));
+                }
+                models.push(RivalModel {
+                    label: name,
+                    weight,
+                    plant: Plant::new(params, plant_effects),
+                    reading_offset_n,
+                    throttle_play_pct,
+                })
             }
             Some(_) => notes.push(format!(
                 "{name} (weight {weight:.2}) cannot be simulated: no fitted values for {} in the file (outside the \
@@ -421,13 +474,33 @@ impl Pair {
     }
 }
 
-/// Each rival's engine stepped through `u` from its state: measured thrust per sample, or
-/// `None` when one diverges.
-fn run(engines: &mut [PlantEngine], u: &[f64]) -> Option<Vec<Vec<f64>>> {
-    engines
-        .iter_mut()
-        .map(|e| u.iter().map(|&x| e.step(x).ok().map(|s| s.measured_n).filter(|y| y.is_finite())).collect())
-        .collect()
+/// One rival on the bench: its engine, and the throttle its engine follows (behind the command
+/// by the rival's play).
+#[derive(Clone)]
+struct Rig {
+    engine: PlantEngine,
+    throttle_pct: f64,
+}
+
+impl Rig {
+    /// `rival` at rest at throttle `pct`.
+    fn at_rest(rival: &RivalModel, pct: f64) -> Self {
+        Self { engine: rival.plant.at_equilibrium(pct), throttle_pct: pct }
+    }
+
+    /// One step on command `u_pct`: what `rival`'s sensor reads, `None` when it diverges.
+    fn step(&mut self, rival: &RivalModel, u_pct: f64) -> Option<f64> {
+        let play = rival.throttle_play_pct;
+        self.throttle_pct = self.throttle_pct.clamp(u_pct - play, u_pct + play);
+        let read = self.engine.step(self.throttle_pct).ok()?.measured_n + rival.reading_offset_n;
+        read.is_finite().then_some(read)
+    }
+}
+
+/// Each rival stepped through `u` from its state: what its sensor reads per sample, or `None`
+/// when one diverges.
+fn run(rigs: &mut [Rig], rivals: &[RivalModel], u: &[f64]) -> Option<Vec<Vec<f64>>> {
+    rigs.iter_mut().zip(rivals).map(|(rig, r)| u.iter().map(|&x| rig.step(r, x)).collect()).collect()
 }
 
 fn objective(pairs: &[Pair]) -> f64 {
@@ -464,7 +537,7 @@ pub fn design(rivals: &[RivalModel], noise: &Noise, options: &DesignOptions) -> 
     if !(noise.innovation_sigma_n.is_finite() && noise.innovation_sigma_n > 0.0) {
         return Err(DesignError::Options("the noise's standard deviation must be positive".into()));
     }
-    let mut engines: Vec<PlantEngine> = rivals.iter().map(|r| r.plant.at_equilibrium(lo)).collect();
+    let mut engines: Vec<Rig> = rivals.iter().map(|r| Rig::at_rest(r, lo)).collect();
     let mut pairs: Vec<Pair> = (0..rivals.len())
         .flat_map(|a| (a + 1..rivals.len()).map(move |b| (a, b)))
         .map(|(a, b)| Pair { a, b, s: 0.0, sq_n2: 0.0, past: vec![0.0; noise.ar.len()] })
@@ -483,10 +556,10 @@ pub fn design(rivals: &[RivalModel], noise: &Noise, options: &DesignOptions) -> 
     while u.len() < horizon && decisive_at.is_none_or(|_| u.len() < wanted) {
         let left_s = ((if u.len() < wanted { wanted } else { horizon }) - u.len()) as f64 * STEP_S;
         let base = objective(&pairs);
-        let mut best: Option<(f64, Segment, Vec<PlantEngine>, Vec<Pair>)> = None;
+        let mut best: Option<(f64, Segment, Vec<Rig>, Vec<Pair>)> = None;
         for seg in candidates(lo, hi, now, left_s) {
             let mut trial = engines.clone();
-            let Some(y) = run(&mut trial, &seg.u) else { continue };
+            let Some(y) = run(&mut trial, rivals, &seg.u) else { continue };
             let mut next = pairs.clone();
             for p in &mut next {
                 for (ya, yb) in y[p.a].iter().zip(&y[p.b]).take(seg.u.len()) {
@@ -507,7 +580,7 @@ pub fn design(rivals: &[RivalModel], noise: &Noise, options: &DesignOptions) -> 
         if decisive_at.is_none() && next.iter().all(|p| p.s >= target) {
             let mut probe = pairs.clone();
             let mut e = engines.clone();
-            if let Some(y) = run(&mut e, &seg.u) {
+            if let Some(y) = run(&mut e, rivals, &seg.u) {
                 #[allow(clippy::needless_range_loop, reason = "k is the sample that makes the answer decisive")]
                 for k in 0..seg.u.len() {
                     for p in &mut probe {
@@ -648,10 +721,7 @@ mod tests {
 
     fn rivals(a: &str, b: &str) -> Vec<RivalModel> {
         let m = resolve_model("p100-diesel").expect("preset");
-        vec![
-            RivalModel { label: "a".into(), weight: 0.6, plant: with(&m, a) },
-            RivalModel { label: "b".into(), weight: 0.4, plant: with(&m, b) },
-        ]
+        vec![RivalModel::new("a", 0.6, with(&m, a)), RivalModel::new("b", 0.4, with(&m, b))]
     }
 
     /// The design's separation, recomputed independently: both plants simulated over the
@@ -661,7 +731,18 @@ mod tests {
             .iter()
             .map(|m| {
                 let mut e = m.plant.at_equilibrium(THROTTLE_MIN_PCT);
-                u.iter().map(|&x| e.step(x).expect("step").measured_n).collect()
+                let (play, mut held) = (m.throttle_play_pct, THROTTLE_MIN_PCT);
+                u.iter()
+                    .map(|&x| {
+                        // Backlash: the command drags the throttle once it is `play` away.
+                        if x > held + play {
+                            held = x - play;
+                        } else if x < held - play {
+                            held = x + play;
+                        }
+                        e.step(held).expect("step").measured_n + m.reading_offset_n
+                    })
+                    .collect()
             })
             .collect();
         y[0].iter().zip(&y[1]).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / (sigma * sigma)
@@ -731,9 +812,9 @@ mod tests {
         let plant =
             |effects: &[Effect]| Plant::new(m.model, effects.iter().fold(m.effects.clone(), |all, e| all.with(*e)));
         let models = vec![
-            RivalModel { label: "input_delay".into(), weight: 0.5, plant: plant(&[delay]) },
-            RivalModel { label: "gain_drift+input_delay".into(), weight: 0.3, plant: plant(&[delay, drift]) },
-            RivalModel { label: "actuator_lag".into(), weight: 0.2, plant: plant(&[lag]) },
+            RivalModel::new("input_delay", 0.5, plant(&[delay])),
+            RivalModel::new("gain_drift+input_delay", 0.3, plant(&[delay, drift])),
+            RivalModel::new("actuator_lag", 0.2, plant(&[lag])),
         ];
         let o = DesignOptions { duration_s: 120.0, ..DesignOptions::default() };
         let noise = Noise::white(2.65);
@@ -847,6 +928,73 @@ mod tests {
         json["rivals"][1] = old;
         let e = rivals_from_json(&m, &json).expect_err("one rival left");
         assert!(e.to_string().contains("slow_history") && e.to_string().contains("cannot be simulated"), "{e}");
+    }
+
+    #[test]
+    fn a_zero_shift_is_rebuilt_on_what_is_read_and_told_from_a_sensor_drift_at_idle() {
+        let m = resolve_model("p100-diesel").expect("preset");
+        let mut json = diagnosis_json();
+        // Seed 7853's case 23: a sensor drift (1.1 %, τ 72 s) against a zero shift that had
+        // held the bias it settled at.
+        json["rivals"] = serde_json::json!([
+            { "effects": ["sensor_offset"], "refit": false, "weight": 0.63, "dominated": false,
+              "fitted": { "effects": [{ "name": "sensor_offset", "params": { "offset_n": 0.55 } }] } },
+            { "effects": ["sensor_drift"], "refit": false, "weight": 0.37, "dominated": false,
+              "fitted": { "effects": [{ "name": "sensor_drift",
+                  "params": { "gain": 0.011, "time_constant_s": 72.0 } }] } }
+        ]);
+        let r = rivals_from_json(&m, &json).expect("rivals");
+        let shift = &r.models[0];
+        assert_eq!((shift.label.as_str(), shift.reading_offset_n), ("sensor_offset", 0.55));
+        // The shift is on what is read, not in the engine: the plant is the model as given.
+        assert_eq!(shift.plant.params.to_array(), m.model.to_array());
+        assert!(shift.plant.effects.get(EffectKind::SensorDrift).is_none());
+        assert_eq!(r.models[1].reading_offset_n, 0.0);
+        assert!(r.notes.iter().any(|n| n.contains("same tare")), "{:?}", r.notes);
+        // The design weighs the shift: an independent simulation of the campaign, the shift
+        // added to what is read, gives the figure the design reports.
+        let noise = Noise::white(2.65);
+        let d = design(&r.models, &noise, &DesignOptions { duration_s: 300.0, ..DesignOptions::default() })
+            .expect("design");
+        let s = separation(&r.models, &d.profile.u_pct, 2.65);
+        assert!((0.3 * s - d.pairs[0].held_out_score).abs() < 1e-6 * s.max(1.0), "{s} vs {:?}", d.pairs);
+        let unshifted: Vec<RivalModel> =
+            r.models.iter().map(|x| RivalModel { reading_offset_n: 0.0, ..x.clone() }).collect();
+        assert!(s > 1.5 * separation(&unshifted, &d.profile.u_pct, 2.65), "the shift must count");
+        // Without its value the shift cannot be simulated.
+        json["rivals"][0]["fitted"] = Value::Null;
+        let e = rivals_from_json(&m, &json).expect_err("one rival left");
+        assert!(e.to_string().contains("sensor_offset") && e.to_string().contains("cannot be simulated"), "{e}");
+    }
+
+    #[test]
+    fn play_in_the_throttle_path_is_rebuilt_before_the_engine_and_told_from_bearing_friction() {
+        let m = resolve_model("p100-diesel").expect("preset");
+        let mut json = diagnosis_json();
+        // Seed 7853's case 136: bearing friction of 2.8 N, with play in the throttle path
+        // ahead of it on one recording.
+        json["rivals"] = serde_json::json!([
+            { "effects": ["throttle_play"], "refit": false, "weight": 1.0, "dominated": false,
+              "fitted": { "effects": [{ "name": "throttle_play", "params": { "play_pct": 1.5 } }] } },
+            { "effects": ["bearing_friction"], "refit": false, "weight": 0.0, "dominated": false,
+              "fitted": { "effects": [{ "name": "bearing_friction", "params": { "force_n": 2.8 } }] } }
+        ]);
+        let r = rivals_from_json(&m, &json).expect("rivals");
+        let play = &r.models[0];
+        assert_eq!((play.label.as_str(), play.throttle_play_pct, play.reading_offset_n), ("throttle_play", 1.5, 0.0));
+        assert_eq!(play.plant.params.to_array(), m.model.to_array());
+        assert_eq!(r.models[1].throttle_play_pct, 0.0);
+        let d =
+            design(&r.models, &Noise::white(2.65), &DesignOptions { duration_s: 120.0, ..DesignOptions::default() })
+                .expect("design");
+        // An independent simulation, the play written as a backlash, gives the design's figure.
+        let s = separation(&r.models, &d.profile.u_pct, 2.65);
+        assert!((0.3 * s - d.pairs[0].held_out_score).abs() < 1e-6 * s.max(1.0), "{s} vs {:?}", d.pairs);
+        assert!(d.decisive_after_s.is_some_and(|t| t <= 120.0), "{:?}", d.pairs);
+        // Without the play the same campaign separates them less: the play counts.
+        let no_play: Vec<RivalModel> =
+            r.models.iter().map(|x| RivalModel { throttle_play_pct: 0.0, ..x.clone() }).collect();
+        assert!(separation(&no_play, &d.profile.u_pct, 2.65) < s, "the play must count");
     }
 
     #[test]

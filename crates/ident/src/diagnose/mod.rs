@@ -2117,9 +2117,10 @@ fn throttle_play_rivals(search: &Search<'_, '_>, current: &Scored) {
                 }
             }
             let states = problem.restarted(&plant, &spec.states);
-            let Some(entry) = unclaimable_entry(&problem, &plant, spec, &states, 1, rivals::THROTTLE_PLAY) else {
+            let Some(mut entry) = unclaimable_entry(&problem, &plant, spec, &states, 1, rivals::THROTTLE_PLAY) else {
                 continue;
             };
+            entry.values = rivals::RivalValues::of_spec(spec).map(|v| v.with_throttle_play(width));
             if best.as_ref().is_none_or(|b| entry.score < b.score) {
                 best = Some(entry);
             }
@@ -2402,7 +2403,8 @@ fn periodic_rivals(search: &Search<'_, '_>, before: &Scored, current: &Scored) -
             named_entry(spec, &w, extra, sum / n.max(1) as f64, base.unphysical().is_some(), name)
         };
         let periodic = leaves(&|t| sine.at(t), 3, rivals::PERIODIC);
-        let constant = leaves(&|_| sine.mean, 1, rivals::SENSOR_OFFSET);
+        let mut constant = leaves(&|_| sine.mean, 1, rivals::SENSOR_OFFSET);
+        constant.values = rivals::RivalValues::of_spec(spec).map(|v| v.with_reading_offset(sine.mean));
         if periodic.score < constant.score {
             if periodic.score.is_finite() {
                 search.pool.borrow_mut().push(periodic);
@@ -2463,7 +2465,8 @@ fn offset_rival(search: &Search<'_, '_>, before: &Scored, current: &Scored, gues
     }
     let mut w = Vec::new();
     shifted.innovations(&sim, Part::Validation, &mut w);
-    let entry = named_entry(spec, &w, 1, shifted.mae(&sim, Part::Validation), false, rivals::SENSOR_OFFSET);
+    let mut entry = named_entry(spec, &w, 1, shifted.mae(&sim, Part::Validation), false, rivals::SENSOR_OFFSET);
+    entry.values = rivals::RivalValues::of_spec(spec).map(|v| v.with_reading_offset(offset));
     let free = entry.free;
     let (sse, n) = shifted.sse(&sim, Part::Calibration);
     let found =

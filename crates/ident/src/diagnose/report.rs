@@ -430,10 +430,14 @@ fn upper_first(text: &str) -> String {
     chars.next().map_or(String::new(), |c| c.to_uppercase().chain(chars).collect())
 }
 
+/// The most a validation MAE may be, as a multiple of the noise floor, for the residual to
+/// count as noise: within 10 % of the floor.
+const NOISE_MAE_RATIO: f64 = 1.1;
+
 /// The improved model's residual is noise: white under the noise model, no slow periodic
-/// part, and its MAE within 10 % of the floor.
+/// part, and its MAE within [`NOISE_MAE_RATIO`] of the floor.
 fn residual_is_noise(d: &Diagnosis) -> bool {
-    d.after.whiteness.white && d.periodic.is_none() && d.mae_after_n <= 1.1 * d.noise_floor_n
+    d.after.whiteness.white && d.periodic.is_none() && d.mae_after_n <= NOISE_MAE_RATIO * d.noise_floor_n
 }
 
 /// The model found leaves more than noise: its residual is not white under the noise model,
@@ -534,9 +538,9 @@ pub(crate) fn verdict(d: &Diagnosis) -> String {
         p_text(after.p_value)
     );
     let remains = || -> String {
-        if after.white && d.mae_after_n <= 1.1 * floor {
+        if after.white && d.mae_after_n <= NOISE_MAE_RATIO * floor {
             " The residual is now noise.".to_owned()
-        } else if !d.after.systematic() && d.mae_after_n <= 1.1 * floor {
+        } else if !d.after.systematic() && d.mae_after_n <= NOISE_MAE_RATIO * floor {
             // Not white, yet nothing in it located (`incomplete` is false): say that, not
             // that something remains.
             format!(
@@ -725,7 +729,7 @@ fn unexplained_opening(d: &Diagnosis, found: bool) -> String {
              held-out data",
             residual.whiteness.p_value
         )
-    } else if d.mae_after_n > 1.1 * d.noise_floor_n {
+    } else if d.mae_after_n > NOISE_MAE_RATIO * d.noise_floor_n {
         format!(
             "the residual passes the whiteness test, but its validation MAE is {:.2}× the noise floor and no \
              hypothesis explains the excess on held-out data",

@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 use jetbench_model::{Effect, EffectKind, Params, STEP_S};
 use serde::Serialize;
 
-use super::fit::Fit;
+use super::fit::{Fit, Spec};
 use super::REFIT;
 
 /// Length of a resampled block, s: longer than the memory of any noise the bench shows.
@@ -51,6 +51,12 @@ pub const THROTTLE_PLAY: &str = "throttle_play";
 /// The name of the sensor-offset rival: a constant added to what is read (a zero shift since
 /// the tare).
 pub const SENSOR_OFFSET: &str = "sensor_offset";
+/// The key of a [`SENSOR_OFFSET`] rival's one value in its `fitted` effects: the constant
+/// added to what is read, N.
+pub const OFFSET_KEY: &str = "offset_n";
+/// The key of a [`THROTTLE_PLAY`] rival's one value in its `fitted` effects: how far the
+/// command moves from the throttle the engine follows before it drags it along, %.
+pub const PLAY_KEY: &str = "play_pct";
 /// Rivals jetbench weighs but cannot model, so never claims.
 pub const UNMODELLED: [&str; 4] = [PERIODIC, SENSOR_OFFSET, SLOW_HISTORY, THROTTLE_PLAY];
 
@@ -82,8 +88,9 @@ pub(crate) struct Entry {
     pub fit: Option<Fit>,
     /// Without a `fit`, the values that rebuild it all the same: a rival weighed under a name
     /// of its own that the model still simulates (the slow soak: a discrepancy whose history
-    /// is slower than the fit explores). It only goes into the diagnosis's JSON, for
-    /// `jetbench excite --discriminate`; no decision reads it.
+    /// is slower than the fit explores; a zero shift of the sensor: the model with a constant
+    /// added to what is read; play in the throttle path). It only goes into the diagnosis's
+    /// JSON, for `jetbench excite --discriminate`; no decision reads it.
     pub values: Option<RivalValues>,
     /// A swap whose parts' names nest in another explanation's although its physics does not
     /// (a sensor drift in place of the discrepancy's thrust-history term, its other terms
@@ -176,8 +183,12 @@ pub struct RivalEffect {
 impl RivalValues {
     /// The values of `fit`, or `None` when one of its effects has values out of its range.
     pub(crate) fn of(fit: &Fit) -> Option<Self> {
-        let effects = fit
-            .spec
+        Self::of_spec(&fit.spec)
+    }
+
+    /// The values of `spec`, or `None` when one of its effects has values out of its range.
+    pub(crate) fn of_spec(spec: &Spec) -> Option<Self> {
+        let effects = spec
             .effects
             .iter()
             .map(|(kind, values)| {
@@ -185,8 +196,25 @@ impl RivalValues {
                 Some(RivalEffect { name: kind.name(), params: effect.params().collect() })
             })
             .collect::<Option<Vec<_>>>()?;
-        let params = fit.spec.refit.then(|| super::named(&fit.spec.params));
+        let params = spec.refit.then(|| super::named(&spec.params));
         Some(RivalValues { effects, params })
+    }
+
+    /// These values with a zero shift of `offset_n` added to what is read (a
+    /// [`SENSOR_OFFSET`] rival, under its name with the key [`OFFSET_KEY`]).
+    pub(crate) fn with_reading_offset(self, offset_n: f64) -> Self {
+        self.with_unmodelled(SENSOR_OFFSET, OFFSET_KEY, offset_n)
+    }
+
+    /// These values with play of `play_pct` in the throttle path (a [`THROTTLE_PLAY`] rival,
+    /// under its name with the key [`PLAY_KEY`]).
+    pub(crate) fn with_throttle_play(self, play_pct: f64) -> Self {
+        self.with_unmodelled(THROTTLE_PLAY, PLAY_KEY, play_pct)
+    }
+
+    fn with_unmodelled(mut self, name: &'static str, key: &'static str, value: f64) -> Self {
+        self.effects.push(RivalEffect { name, params: BTreeMap::from([(key, value)]) });
+        self
     }
 }
 
