@@ -96,7 +96,8 @@ pub(crate) const CRASH_AT_S: (f64, f64) = (10.0, 12.0);
 /// The crash whose file every offline command reads comes later: `diagnose`
 /// needs 15 s of data (1000 samples to fit, 500 to validate on), and a loaded
 /// two-core machine has left as little as 13.6 s of usable data from a 20 s run
-/// (rows lost to gaps the diagnosis splits runs at): 30 s keeps a margin.
+/// (1094 samples to fit and 267 to validate on; where the rest of the 20 s went
+/// was not established): 30 s keeps a margin.
 pub const READERS_CRASH_AT_S: f64 = 30.0;
 /// The disk a recording fills, KiB: a few seconds of recording.
 pub(crate) const DISK_KIB: u64 = 256;

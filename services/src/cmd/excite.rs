@@ -26,7 +26,8 @@ within --min/--max and --duration, where the rivals' predicted thrust differs mo
 diagnosed noise. It prints, per pair of rivals, the expected difference of held-out scores and \
 when the weakest pair becomes decisive (40 score units on the held-out 30 %), and refuses when \
 fewer than two rivals are left or the limits and duration cannot make it decisive. Record the \
-campaign and diagnose the first recording and the new one together.
+campaign and diagnose every recording so far together: those the diagnosis was made from and the \
+new one. A verdict still ambiguous is designed for again from the new diagnosis.
 
 The conditioning reported is that of the ten-parameter regression on this campaign, with the \
 --model simulated noise-free: below about 10^4 every parameter is well determined.
@@ -162,8 +163,9 @@ fn discriminate(args: &ExciteArgs, diagnosis: &Path) -> anyhow::Result<ExitCode>
         );
     }
     println!(
-        "next: play it open loop and record (`jetbench up --open-loop {} --record design.mcap`), then diagnose the \
-         first recording and the new one together (`jetbench diagnose --model {model_name} FIRST design.mcap`)",
+        "next: play it open loop and record (`jetbench up --open-loop {} --record design.mcap`), then diagnose \
+         every recording so far together, those this diagnosis was made from and the new one (`jetbench diagnose \
+         --model {model_name} RECORDING... design.mcap`); still ambiguous, design again from that diagnosis",
         args.out.display()
     );
     Ok(ExitCode::SUCCESS)

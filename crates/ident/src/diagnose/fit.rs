@@ -44,6 +44,9 @@ pub(crate) struct Spec {
     pub effects: Vec<(EffectKind, Vec<f64>)>,
     /// Which discrepancy values are free (coefficients of its terms and their shapes).
     pub discrepancy_free: Vec<usize>,
+    /// Values of the catalogue effects held where they are, not fitted (effect, value
+    /// index): a rate limit's direction the recording shows no limit in ([`one_sided`]).
+    pub held: Vec<(EffectKind, usize)>,
     /// Scales of the discrepancy's values (the size that moves the output by about 1 N).
     pub discrepancy_scale: Vec<f64>,
     /// Where each run starts: the engine state fitted to its first two seconds under this
@@ -66,6 +69,7 @@ impl Spec {
             effects: Vec::new(),
             discrepancy_free: Vec::new(),
             discrepancy_scale: Vec::new(),
+            held: Vec::new(),
             states: states.into_iter().map(RunStart::from).collect(),
             given: params,
             history_max_s: f64::INFINITY,
@@ -105,9 +109,10 @@ impl Spec {
         self.values(kind).is_some()
     }
 
-    /// With `kind` at `values` (replacing it if present).
+    /// With `kind` at `values` (replacing it if present), every value of it free.
     pub fn with(&self, kind: EffectKind, values: Vec<f64>) -> Self {
         let mut next = self.clone();
+        next.held.retain(|(k, _)| *k != kind);
         match next.effects.iter_mut().find(|(k, _)| *k == kind) {
             Some(slot) => slot.1 = values,
             None => next.effects.push((kind, values)),
@@ -120,11 +125,17 @@ impl Spec {
     pub fn without(&self, kind: EffectKind) -> Self {
         let mut next = self.clone();
         next.effects.retain(|(k, _)| *k != kind);
+        next.held.retain(|(k, _)| *k != kind);
         if kind == EffectKind::Discrepancy {
             next.discrepancy_free.clear();
         }
         next.hold_start_readings(self);
         next
+    }
+
+    /// True when value `index` of `kind` is held, not fitted.
+    pub fn is_held(&self, kind: EffectKind, index: usize) -> bool {
+        self.held.contains(&(kind, index))
     }
 
     /// The band of the bearings' play, N (0 without bearing friction).
@@ -170,7 +181,7 @@ impl Spec {
             if *kind == EffectKind::Discrepancy {
                 out.extend(self.discrepancy_free.iter().map(|&i| Slot::Value(e, i)));
             } else {
-                out.extend((0..values.len()).map(|i| Slot::Value(e, i)));
+                out.extend((0..values.len()).filter(|i| !self.is_held(*kind, *i)).map(|i| Slot::Value(e, i)));
             }
         }
         if self.fits_history_start() {
@@ -392,6 +403,36 @@ fn size_index(kind: EffectKind) -> Option<usize> {
             None
         }
     }
+}
+
+/// What a rate limit holds in a direction with no limit: the largest value a model file
+/// takes, a full-range throttle step within one 10 ms sample.
+pub(crate) fn no_limit_pct_per_s() -> f64 {
+    EffectKind::RateLimit.bounds()[0].1
+}
+
+/// `spec` with its rate limit made one-sided, when a fit took one direction to the top of
+/// the range it explores and left the other inside: the recording shows no limit that way
+/// (its moves that way too few, too small or too slow to meet one), and a value on that edge
+/// names nothing. Judged on the edge, the whole limit was refused and an input delay taken
+/// in its place, a rate limit of 119 %/s up and 68 %/s down (a recording with four falls,
+/// the largest 21 %) was claimed as a delay of 0.11 s, a discrepancy and a rate limit whose
+/// falling rate was 187 ± 48 766 %/s. The direction is held at no limit
+/// ([`no_limit_pct_per_s`]) and the other fitted alone: one value, one parameter. `None`
+/// unless exactly one free direction is on the upper edge.
+pub(crate) fn one_sided(spec: &Spec) -> Option<Spec> {
+    let kind = EffectKind::RateLimit;
+    let e = spec.effects.iter().position(|(k, _)| *k == kind)?;
+    let edges: Vec<(usize, f64)> = spec.on_edge().filter(|(k, ..)| *k == kind).map(|(_, i, v)| (i, v)).collect();
+    let &[(i, v)] = edges.as_slice() else { return None };
+    let (lo, hi) = spec.value_bounds(kind, i);
+    if (hi - v).abs() > (v - lo).abs() || spec.is_held(kind, 1 - i) {
+        return None;
+    }
+    let mut next = spec.clone();
+    next.effects[e].1[i] = no_limit_pct_per_s();
+    next.held.push((kind, i));
+    Some(next)
 }
 
 /// The effects of `fit` whose fitted size is within two standard errors of zero, with the
@@ -843,6 +884,49 @@ mod tests {
         assert!(idle_effects(&fit).is_empty());
         fit.stderr[2].1[0] = f64::NAN;
         assert!(idle_effects(&fit).is_empty());
+    }
+
+    /// A rate limit with one direction on the top of the fit's range is made one-sided: that
+    /// direction held at no limit and no longer fitted (one parameter fewer). With both
+    /// directions there, or none, or the other already held, it is left as it is.
+    #[test]
+    fn a_rate_limit_with_one_direction_at_no_limit_is_made_one_sided() {
+        let spec = |up: f64, down: f64| {
+            Spec::new(Preset::P100Diesel.params(), Vec::new()).with(EffectKind::RateLimit, vec![up, down])
+        };
+        let top = super::fit_bounds(EffectKind::RateLimit, 1).1;
+        let one = super::one_sided(&spec(80.0, top)).expect("the falling direction at the top");
+        assert_eq!(one.values(EffectKind::RateLimit), Some(&[80.0, super::no_limit_pct_per_s()][..]));
+        assert!(one.is_held(EffectKind::RateLimit, 1) && !one.is_held(EffectKind::RateLimit, 0));
+        assert_eq!(one.free_count(), spec(80.0, top).free_count() - 1);
+        assert!(one.on_edge().next().is_none(), "a held value is on no edge");
+        assert!(super::one_sided(&spec(top, 80.0)).is_some_and(|s| s.is_held(EffectKind::RateLimit, 0)));
+        assert!(super::one_sided(&spec(top, top)).is_none(), "no limit either way is no rate limit");
+        assert!(super::one_sided(&spec(80.0, 120.0)).is_none());
+        assert!(super::one_sided(&spec(80.0, 1.0)).is_none(), "the bottom edge is a limit, not its absence");
+        // Fitted anew (`with`), every value is free again.
+        assert!(one.with(EffectKind::RateLimit, vec![80.0, 120.0]).held.is_empty());
+    }
+
+    /// An engine whose ECU limits only how fast the throttle rises: the rate limit is claimed
+    /// with its rising rate, and its falling rate said not to be bounded, not given a value.
+    #[test]
+    fn a_rate_limit_seen_one_way_only_is_claimed_one_sided() {
+        let effects = ["rate_limit:up_pct_per_s=80,down_pct_per_s=10000"];
+        let (d, _) = diagnosed_from(
+            Preset::P100Diesel,
+            &effects,
+            excite::campaign(100.0, 53).profile,
+            |_| SlowStart::SETTLED,
+            53,
+        );
+        let names: Vec<&str> = d.effects.iter().map(|e| e.name).collect();
+        assert_eq!(d.cause, Cause::MissingPhysics, "{}", d.verdict);
+        assert_eq!(names, ["rate_limit"], "{}", d.verdict);
+        let params = &d.effects[0].params;
+        assert!((params["up_pct_per_s"] - 80.0).abs() < 12.0, "{}", d.verdict);
+        assert_eq!(params["down_pct_per_s"], super::no_limit_pct_per_s(), "{}", d.verdict);
+        assert!(d.verdict.contains("down not bounded by this recording"), "{}", d.verdict);
     }
 
     /// `preset` with `effects` on a bench recording of `profile` whose slow states start as

@@ -417,14 +417,21 @@ impl Scored {
     }
 
     /// What stops it being a claim: an effect outside its physical range, or a value
-    /// the fit left on the edge of its range.
+    /// the fit left on the edge of its range. A value held, not fitted (a rate limit's
+    /// direction with no limit), is no finding and is not judged.
     fn unphysical(&self) -> Option<String> {
-        let problems: Vec<String> = self
-            .fit
-            .spec
+        let spec = &self.fit.spec;
+        let problems: Vec<String> = spec
             .effects
             .iter()
-            .filter_map(|(kind, v)| Some(format!("{kind}: {}", Effect::new(*kind, v).ok()?.unphysical()?)))
+            .filter_map(|(kind, v)| {
+                let judged: Vec<f64> = v
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &x)| if spec.is_held(*kind, i) { kind.physical()[i].1 } else { x })
+                    .collect();
+                Some(format!("{kind}: {}", Effect::new(*kind, &judged).ok()?.unphysical()?))
+            })
             .chain(self.fit.spec.at_bound())
             .collect();
         (!problems.is_empty()).then(|| problems.join("; "))
@@ -578,6 +585,16 @@ impl<'p, 'a> Search<'p, 'a> {
         self.evaluate(fit).unwrap_or(scored)
     }
 
+    /// `spec` fitted ([`Search::fit_with_starts`]), and fitted again with its rate limit
+    /// one-sided when the fit took one direction to no limit ([`fit::one_sided`]).
+    fn fit(&self, spec: &Spec) -> Option<Scored> {
+        let scored = self.fit_with_starts(spec)?;
+        match fit::one_sided(&scored.fit.spec) {
+            Some(one) => self.fit_with_starts(&one).or(Some(scored)),
+            None => Some(scored),
+        }
+    }
+
     /// `spec` fitted on the calibration part and scored. A hypothesis with a sensor drift is
     /// fitted twice: the engine's start it grew from was fitted to the first samples with the
     /// whole reading on the engine, where part of it is the bias the drift has built up since
@@ -590,7 +607,7 @@ impl<'p, 'a> Search<'p, 'a> {
     /// A refit of the ten parameters is fitted twice the same way: its start was fitted under
     /// the parameters as given, and where the throttle moves in the first seconds the refitted
     /// engine does not answer it as they do.
-    fn fit(&self, spec: &Spec) -> Option<Scored> {
+    fn fit_with_starts(&self, spec: &Spec) -> Option<Scored> {
         let first = fit::fit(self.problem, &self.model.effects, spec)?;
         if !spec.fits_bias_start() && !spec.refit {
             return self.evaluate(first);

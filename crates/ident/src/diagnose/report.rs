@@ -146,12 +146,23 @@ fn explain(
             pm(get("time_constant_s").0, get("time_constant_s").1)
         ),
         EffectKind::RateLimit => {
-            let ((up, upe), (down, downe)) = (get("up_pct_per_s"), get("down_pct_per_s"));
+            // A direction held at no limit ([`super::fit::one_sided`]) is not bounded by the
+            // recording, which is not to say there is none.
+            let rate = |key: &str| {
+                let (v, e) = get(key);
+                if v >= super::fit::no_limit_pct_per_s() {
+                    "not bounded by this recording (its moves that way too few, small or slow to meet a limit; one \
+                     may still be there)"
+                        .to_owned()
+                } else {
+                    format!("{} %/s", pm(v, e))
+                }
+            };
             format!(
                 "Residual only on large fast throttle changes, its sign following the direction of change: the \
-                 ECU's rate limit left out. Modelled: up {} %/s, down {} %/s.",
-                pm(up, upe),
-                pm(down, downe)
+                 ECU's rate limit left out. Modelled: up {}, down {}.",
+                rate("up_pct_per_s"),
+                rate("down_pct_per_s")
             )
         }
         EffectKind::SensorDrift => {
