@@ -435,6 +435,27 @@ pub(crate) fn one_sided(spec: &Spec) -> Option<Spec> {
     Some(next)
 }
 
+/// `spec` without its rate limit, when a fit took every direction it fits to the top of the
+/// range it explores and the hypothesis holds another part (an effect or a refit): the part
+/// added beside the limit took its place, and a limit at no limit either way is none. Left in,
+/// the limit on its edge made the whole hypothesis unphysical, and the part that explained the
+/// recording was refused with it. A spool-down 41 % slower than the spool-up (outside the
+/// catalogue, fresh seed 7877's case 155): the limit found first, the direction term of the
+/// discrepancy fitted beside it took the held-out fit to the truth's MAE and the limit to
+/// 2000 %/s both ways, was refused, and a refit with a rate limit down was claimed instead.
+/// `None` when the limit is alone: without it nothing is left to fit.
+pub(crate) fn no_limit_left(spec: &Spec) -> Option<Spec> {
+    let kind = EffectKind::RateLimit;
+    let values = spec.values(kind)?;
+    let others = spec.refit || spec.effects.iter().any(|(k, _)| *k != kind);
+    let top = |i: usize| {
+        let (lo, hi) = spec.value_bounds(kind, i);
+        (hi - values[i]).abs() <= (values[i] - lo).abs() && spec.on_edge().any(|(k, j, _)| k == kind && j == i)
+    };
+    let free: Vec<usize> = (0..values.len()).filter(|&i| !spec.is_held(kind, i)).collect();
+    (others && !free.is_empty() && free.iter().all(|&i| top(i))).then(|| spec.without(kind))
+}
+
 /// The effects of `fit` whose fitted size is within two standard errors of zero, with the
 /// size, its key and its standard error, least significant first: the calibration data
 /// cannot tell such an effect from none, so it is no part of a claim. A size the fit gives
@@ -906,6 +927,29 @@ mod tests {
         assert!(super::one_sided(&spec(80.0, 1.0)).is_none(), "the bottom edge is a limit, not its absence");
         // Fitted anew (`with`), every value is free again.
         assert!(one.with(EffectKind::RateLimit, vec![80.0, 120.0]).held.is_empty());
+    }
+
+    /// A rate limit a fit took to no limit in every direction it fits is dropped when the
+    /// hypothesis holds another part, and kept (for the judge to refuse) when it is alone.
+    #[test]
+    fn a_rate_limit_at_no_limit_both_ways_leaves_the_part_beside_it() {
+        let top = super::fit_bounds(EffectKind::RateLimit, 1).1;
+        let bare = Spec::new(Preset::P100Diesel.params(), Vec::new());
+        let lag = bare.with(EffectKind::ActuatorLag, vec![0.2]);
+        let beside = |up: f64, down: f64| lag.with(EffectKind::RateLimit, vec![up, down]);
+        let left = super::no_limit_left(&beside(top, top)).expect("the lag beside a limit at no limit");
+        assert!(!left.has(EffectKind::RateLimit) && left.has(EffectKind::ActuatorLag));
+        assert!(super::no_limit_left(&beside(80.0, top)).is_none(), "one way is one_sided's");
+        assert!(super::no_limit_left(&beside(top, 1.0)).is_none(), "the bottom edge is a limit");
+        assert!(super::no_limit_left(&bare.with(EffectKind::RateLimit, vec![top, top])).is_none());
+        let mut refit = bare.with(EffectKind::RateLimit, vec![top, top]);
+        refit.refit = true;
+        assert!(super::no_limit_left(&refit).is_some(), "a refit is a part too");
+        // One direction held at no limit and the other at the top: no limit is left.
+        let one = super::one_sided(&beside(80.0, top)).expect("one-sided");
+        let mut both = one.clone();
+        both.effects.iter_mut().find(|(k, _)| *k == EffectKind::RateLimit).expect("limit").1[0] = top;
+        assert!(super::no_limit_left(&both).is_some());
     }
 
     /// An engine whose ECU limits only how fast the throttle rises: the rate limit is claimed

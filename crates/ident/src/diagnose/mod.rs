@@ -585,6 +585,18 @@ impl<'p, 'a> Search<'p, 'a> {
         self.evaluate(fit).unwrap_or(scored)
     }
 
+    /// `spec`, a part `added` to a hypothesis, fitted ([`Search::fit`]), and fitted again
+    /// without the rate limit kept before when the fit took that limit to no limit both ways
+    /// ([`fit::no_limit_left`]): the part added took its place. A rate limit that is the part
+    /// added is left on its edge, for the judge to refuse.
+    fn fit_adding(&self, spec: &Spec, added: EffectKind) -> Option<Scored> {
+        let scored = self.fit(spec)?;
+        match fit::no_limit_left(&scored.fit.spec).filter(|_| added != EffectKind::RateLimit) {
+            Some(rest) => self.fit(&rest).or(Some(scored)),
+            None => Some(scored),
+        }
+    }
+
     /// `spec` fitted ([`Search::fit_with_starts`]), and fitted again with its rate limit
     /// one-sided when the fit took one direction to no limit ([`fit::one_sided`]).
     fn fit(&self, spec: &Spec) -> Option<Scored> {
@@ -663,7 +675,7 @@ impl<'p, 'a> Search<'p, 'a> {
         grid.sort_by(|a, b| a.0.total_cmp(&b.0));
         let (_, best) = grid.first()?;
         if kind != EffectKind::SensorDrift {
-            return self.fit(best);
+            return self.fit_adding(best, kind);
         }
         // A drift's fit stops where the basin of its start ends: a fast drift that stands in
         // for a misfit at the start, or a slow one that follows the thrust, and along a flat
@@ -677,7 +689,7 @@ impl<'p, 'a> Search<'p, 'a> {
         std::iter::once(best)
             .chain(far)
             .filter_map(|start| {
-                let scored = self.fit(start)?;
+                let scored = self.fit_adding(start, kind)?;
                 let sse = fit::calibration_sse(self.problem, &self.model.effects, &scored.fit.spec, &mut cache)?;
                 Some((sse, scored))
             })
@@ -780,7 +792,7 @@ impl<'p, 'a> Search<'p, 'a> {
             let mut spec = current.fit.spec.with(EffectKind::Discrepancy, selection.values);
             spec.discrepancy_free = selection.free;
             spec.discrepancy_scale = selection.scale;
-            let mut fitted = self.fit(&spec)?;
+            let mut fitted = self.fit_adding(&spec, EffectKind::Discrepancy)?;
             while let Some(idle) = discrepancy::idle_term(&fitted.fit) {
                 let Some(without) = discrepancy::without_term(&fitted.fit.spec, idle) else { break };
                 fitted = self.fit(&without)?;
@@ -1784,6 +1796,11 @@ fn forward(
         }
         kept.push(Kept { name, evidence });
         current = search.restart(next);
+        // A rate limit the part just added took to no limit both ways is gone from the
+        // hypothesis ([`fit::no_limit_left`]), and from what was kept.
+        if !current.fit.spec.has(EffectKind::RateLimit) {
+            kept.retain(|k| k.name != EffectKind::RateLimit.name());
+        }
         let analysis = residual::analyse(search.problem, &current.sim);
         peak_hz = peak(&analysis);
         white = analysis.whiteness.white;
