@@ -1618,21 +1618,23 @@ fn search_both(search: &Search<'_, '_>, before: &Scored, analysis: &Analysis, pr
     let Some((_, Some(refit), _)) = tried.into_iter().next().filter(|_| accepted.is_some() || competes) else {
         return Path { rounds, ..physics };
     };
-    // Effects worth trying on top of the refit: those that helped the physics search's
-    // first round, and those it kept (an effect may pay only once another is in: a
-    // friction fitted at nothing beside the gain error it hides behind).
-    let helped: Vec<EffectKind> =
-        options
-            .candidates
-            .iter()
-            .copied()
-            .filter(|k| {
-                physics.kept.iter().any(|kept| kept.name == k.name())
-                    || rounds.iter().filter(|r| r.phase == "physics").take(1).any(|r| {
-                        r.candidates.iter().any(|c| c.name == k.name() && c.score_gain.is_some_and(|g| g > 0.0))
-                    })
-            })
-            .collect();
+    // Effects worth trying on top of the refit: those that helped in any round of the
+    // physics search, and those it kept (an effect may pay only once another is in: a
+    // friction fitted at nothing beside the gain error it hides behind; a gain drift
+    // that lost the first round to a discrepancy standing in for parameters that are off,
+    // and paid once the discrepancy was in).
+    let helped: Vec<EffectKind> = options
+        .candidates
+        .iter()
+        .copied()
+        .filter(|k| {
+            physics.kept.iter().any(|kept| kept.name == k.name())
+                || rounds
+                    .iter()
+                    .filter(|r| r.phase == "physics")
+                    .any(|r| r.candidates.iter().any(|c| c.name == k.name() && c.score_gain.is_some_and(|g| g > 0.0)))
+        })
+        .collect();
     let first = Kept { name: REFIT, evidence: evidence(before, &refit, None, options, analysis.findings.clone()) };
     let refit = search.restart(refit);
     let after_refit = residual::analyse(search.problem, &refit.sim);
