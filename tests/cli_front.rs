@@ -326,6 +326,46 @@ fn a_throttle_given_as_a_fraction_is_refused_with_the_fix() {
     assert!(err.contains("below idle") && err.contains("jetbench excite"), "{err}");
 }
 
+/// A CSV with lost samples (a thrust of `NaN`, an empty throttle) and a last line cut
+/// short, as a writer killed mid-line leaves it, is read by every command with the rows
+/// left out counted in a warning; the export holds every other row. Text where a number
+/// belongs is still refused with its line.
+#[test]
+fn lost_samples_and_a_cut_last_line_are_counted_never_silently_dropped() {
+    let clean = scenario_rows("lost-clean.csv", 3000, |u, y| (u, y));
+    let mut text = std::fs::read_to_string(&clean).expect("CSV");
+    let mut lines: Vec<String> = text.lines().map(str::to_owned).collect();
+    // Data rows 500 and 1500 (lines 502 and 1502) lost, one each way.
+    let edit = |line: &str, f: &dyn Fn(&[&str]) -> String| f(&line.split(',').collect::<Vec<_>>());
+    lines[501] = edit(&lines[501], &|v| format!("{},{},NaN", v[0], v[1]));
+    lines[1501] = edit(&lines[1501], &|v| format!("{},,{}", v[0], v[2]));
+    text = lines.join("\n") + "\n30.0,4";
+    let lost = scratch(SUITE, "lost.csv");
+    std::fs::write(&lost, &text).expect("write CSV");
+    let p = path_str(&lost);
+    for args in [
+        vec!["identify", "--method", "ls", p],
+        vec!["export", p],
+        vec!["simulate", "--model", "p100-diesel", "--input", p],
+    ] {
+        let (code, _, err) = run_jetbench(SUITE, &args, LIMIT);
+        assert_eq!(code, 0, "{args:?}: {err}");
+        assert!(err.contains("2 row(s) (0.1 %) left out, the first at line 502"), "{args:?}: {err}");
+        assert!(err.contains("the last line (3002) ends the file with no line break"), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+    }
+    let (_, out, _) = run_jetbench(SUITE, &["export", p], LIMIT);
+    assert_eq!(out.lines().count(), 1 + 2998, "the header and every row but the two lost");
+    let (code, out, err) = run_jetbench(SUITE, &["diagnose", "--model", "p100-diesel", p], LIMIT);
+    assert_eq!(code, 0, "{err}");
+    let report = format!("{out}{err}");
+    assert!(report.contains("left out, the first at line 502") && report.contains("2 gap(s)"), "{report}");
+    std::fs::write(&lost, text.replace("NaN", "abc")).expect("write CSV");
+    let (code, _, err) = run_jetbench(SUITE, &["export", p], LIMIT);
+    assert_ne!(code, 0);
+    assert!(err.contains("line 502") && err.contains("\"abc\" is not a number"), "{err}");
+}
+
 /// Thrust with its sign reversed, or not in newtons, is refused saying how to fix it.
 #[test]
 fn thrust_in_the_wrong_sign_or_unit_is_refused() {

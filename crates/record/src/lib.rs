@@ -115,7 +115,9 @@ pub enum RecordError {
 impl RecordError {
     /// [`RecordError::NotMcap`] for a file whose content is `bytes`, saying what it looks like instead.
     pub fn not_mcap(path: &Path, bytes: &[u8]) -> RecordError {
-        let what = if looks_like_text(bytes) {
+        let what = if bytes.is_empty() {
+            "it is empty (0 bytes): a recording that never started writing, or a copy that failed"
+        } else if looks_like_text(bytes) {
             "it is text: a CSV `time_s,throttle_pct,thrust_n` is read by identify, diagnose, export and simulate, \
              whatever its name"
         } else {

@@ -334,11 +334,16 @@ impl Series {
             .collect()
     }
 
-    /// Reads a CSV (`time_s,throttle_pct[,thrust_n]`, extra columns ignored).
-    pub fn from_csv<R: Read>(reader: R, name: &str, require_thrust: bool) -> Result<Series, DataError> {
-        let series = Self::parse_csv(reader, name, require_thrust)?;
+    /// Reads a CSV (`time_s,throttle_pct[,thrust_n]`, extra columns ignored), with a note of
+    /// the rows left out ([`Series::parse_csv`]).
+    pub fn from_csv<R: Read>(
+        reader: R,
+        name: &str,
+        require_thrust: bool,
+    ) -> Result<(Series, Option<String>), DataError> {
+        let (series, note) = Self::parse_csv(reader, name, require_thrust)?;
         series.check()?;
-        Ok(series)
+        Ok((series, note))
     }
 
     /// Reads a CSV at any uniform rate and brings it to 100 Hz ([`Series::to_100hz`]),
@@ -348,20 +353,52 @@ impl Series {
         name: &str,
         require_thrust: bool,
     ) -> Result<(Series, Option<String>), DataError> {
-        let series = Self::parse_csv(reader, name, require_thrust)?;
+        let (series, lost) = Self::parse_csv(reader, name, require_thrust)?;
         series.check_values()?;
         let (series, note) = series.to_100hz()?;
         series.check_values()?;
-        Ok((series, note))
+        let notes: Vec<String> = lost.into_iter().chain(note).collect();
+        Ok((series, (!notes.is_empty()).then(|| notes.join("; "))))
     }
 
-    fn parse_csv<R: Read>(reader: R, name: &str, require_thrust: bool) -> Result<Series, DataError> {
+    /// The rows of a CSV, with a note of those left out. A row whose time, throttle or
+    /// thrust is not a number a sensor gives (`NaN`, `inf`, an empty field) is a lost sample:
+    /// it is left out and becomes a gap, as a lost row does, and counted. So is a last line
+    /// cut short (a file whose writer stopped mid-line). More than half the rows lost, or text
+    /// where a number belongs, or a short line elsewhere, is an error: that is not this format.
+    fn parse_csv<R: Read>(
+        mut reader: R,
+        name: &str,
+        require_thrust: bool,
+    ) -> Result<(Series, Option<String>), DataError> {
         let invalid = |message: String| DataError::Invalid { path: name.to_owned(), message };
-        let mut csv = csv::ReaderBuilder::new().trim(csv::Trim::All).comment(Some(b'#')).from_reader(reader);
+        let mut bytes = Vec::new();
+        reader.read_to_end(&mut bytes).map_err(|e| invalid(format!("cannot read the file: {e}")))?;
+        // A last data line with no line break after it is where a writer stopped: a number
+        // there may be cut short ("12.57" read as "12"), so the line is left out, and said.
+        let body = bytes.iter().rposition(|&b| b == b'\n').map_or(0, |at| at + 1);
+        let tail = String::from_utf8_lossy(&bytes[body..]).trim().to_owned();
+        let unterminated = (body > 0 && !tail.is_empty() && !tail.starts_with('#'))
+            .then(|| bytes[..body].iter().filter(|&&b| b == b'\n').count() + 1);
+        // (A comment there goes too, unsaid: the reader takes one with no line break for a row.)
+        if body > 0 {
+            bytes.truncate(body);
+        }
+        let mut csv = csv::ReaderBuilder::new()
+            .trim(csv::Trim::All)
+            .comment(Some(b'#'))
+            .flexible(true)
+            .from_reader(bytes.as_slice());
         let header = csv.headers().map_err(|e| invalid(format!("cannot read the CSV header: {e}")))?.clone();
         let column = |wanted: &str| header.iter().position(|h| h == wanted);
         let found = || header.iter().collect::<Vec<_>>().join(",");
         let (Some(t_col), Some(u_col)) = (column("time_s"), column("throttle_pct")) else {
+            if header.is_empty() {
+                return Err(invalid(
+                    "the file is empty: a CSV needs a header `time_s,throttle_pct,thrust_n` and one row per sample"
+                        .to_owned(),
+                ));
+            }
             return Err(invalid(format!(
                 "the header must have time_s and throttle_pct (and thrust_n for identification); found: {}",
                 found()
@@ -372,20 +409,95 @@ impl Series {
             return Err(invalid(format!("no thrust_n column (header: {}); identification needs it", found())));
         }
         let mut series = Series { name: name.to_owned(), ..Series::default() };
+        // Fields a row needs: up to the last column read.
+        let needed = t_col.max(u_col).max(y_col.unwrap_or(0)) + 1;
+        let (mut rows, mut lost, mut first_lost) = (0usize, 0usize, None);
+        let mut cut_short: Option<(usize, usize)> = None;
         for (i, record) in csv.records().enumerate() {
             let line = i + 2;
             let record = record.map_err(|e| invalid(format!("line {line}: {e}")))?;
-            let field = |col: usize, what: &str| -> Result<f64, DataError> {
-                let text = record.get(col).ok_or_else(|| invalid(format!("line {line}: missing {what}")))?;
-                text.parse::<f64>().map_err(|_| invalid(format!("line {line}: {what} {text:?} is not a number")))
+            // A short line is only forgiven as the last one: a line after it is an error.
+            if let Some((short, fields)) = cut_short {
+                return Err(invalid(format!(
+                    "line {short} has {fields} field(s) where the header has {}: the file is not one table",
+                    header.len()
+                )));
+            }
+            rows += 1;
+            if record.len() < needed {
+                cut_short = Some((line, record.len()));
+                continue;
+            }
+            // `None`: a value a sensor or an export writes for a lost sample.
+            let field = |col: usize, what: &str| -> Result<Option<f64>, DataError> {
+                let text = record.get(col).unwrap_or_default();
+                match text.parse::<f64>() {
+                    Ok(v) if v.is_finite() => Ok(Some(v)),
+                    Ok(_) => Ok(None),
+                    Err(_) if text.is_empty() => Ok(None),
+                    Err(_) => Err(invalid(format!("line {line}: {what} {text:?} is not a number"))),
+                }
             };
-            series.t_s.push(field(t_col, "time_s")?);
-            series.u_pct.push(field(u_col, "throttle_pct")?);
-            if let Some(c) = y_col {
-                series.thrust_n.push(field(c, "thrust_n")?);
+            let t = field(t_col, "time_s")?;
+            let u = field(u_col, "throttle_pct")?;
+            let y = y_col.map(|c| field(c, "thrust_n")).transpose()?;
+            // Checked here, where the file's own line is known (rows left out before it
+            // would shift a count of the rows kept).
+            if let (Some(t), Some(&before)) = (t, series.t_s.last()) {
+                if t <= before {
+                    return Err(invalid(format!(
+                        "time goes backwards at row {line}: {t} s after {before} s; sort the file or split it"
+                    )));
+                }
+            }
+            match (t, u, y) {
+                (Some(t), Some(u), Some(Some(y))) => {
+                    series.t_s.push(t);
+                    series.u_pct.push(u);
+                    series.thrust_n.push(y);
+                }
+                (Some(t), Some(u), None) => {
+                    series.t_s.push(t);
+                    series.u_pct.push(u);
+                }
+                _ => {
+                    lost += 1;
+                    first_lost.get_or_insert(line);
+                }
             }
         }
-        Ok(series)
+        if let Some((line, fields)) = cut_short.filter(|_| series.t_s.is_empty()) {
+            return Err(invalid(format!("line {line} has {fields} field(s) where the header has {}", header.len())));
+        }
+        if rows > 0 && 2 * lost > rows {
+            return Err(invalid(format!(
+                "{lost} of {rows} rows have a time, throttle or thrust that is not a number (NaN, inf or empty), the \
+                 first at line {}: too few samples to use",
+                first_lost.unwrap_or(2)
+            )));
+        }
+        let mut notes = Vec::new();
+        if lost > 0 {
+            notes.push(format!(
+                "{name}: {lost} row(s) ({:.1} %) left out, the first at line {}: a time, throttle or thrust that is \
+                 not a number (NaN, inf or empty); they become gaps, as lost rows do",
+                100.0 * lost as f64 / rows as f64,
+                first_lost.unwrap_or(2)
+            ));
+        }
+        if let Some((line, fields)) = cut_short {
+            notes.push(format!(
+                "{name}: the last line ({line}) is cut short ({fields} of {} fields): left out",
+                header.len()
+            ));
+        }
+        if let Some(line) = unterminated {
+            notes.push(format!(
+                "{name}: the last line ({line}) ends the file with no line break, as a writer stopped mid-line \
+                 leaves it: left out (a number there may be cut short)"
+            ));
+        }
+        Ok((series, (!notes.is_empty()).then(|| notes.join("; "))))
     }
 
     /// Reads identification data from a recording (see the module docs).
@@ -461,7 +573,11 @@ impl Series {
             }
             Series::from_recording(&recording, &name)?
         } else {
-            Series::from_csv(text(path, &bytes)?, &name, require_thrust)?
+            let (series, note) = Series::from_csv(text(path, &bytes)?, &name, require_thrust)?;
+            if let Some(note) = note {
+                eprintln!("warning: {note}");
+            }
+            series
         };
         series.check_inputs()?;
         Ok(series)
@@ -532,7 +648,7 @@ mod tests {
     use super::*;
 
     fn csv(text: &str) -> Result<Series, DataError> {
-        Series::from_csv(text.as_bytes(), "test.csv", true)
+        Series::from_csv(text.as_bytes(), "test.csv", true).map(|(series, _)| series)
     }
 
     #[test]
@@ -553,7 +669,7 @@ mod tests {
         };
         let mut text = Vec::new();
         s.write_csv(&mut text).unwrap();
-        let back = Series::from_csv(text.as_slice(), "x", true).unwrap();
+        let (back, _) = Series::from_csv(text.as_slice(), "x", true).unwrap();
         assert_eq!(back, s);
     }
 
@@ -562,7 +678,8 @@ mod tests {
         let cases = [
             ("time_s,thrust_n\n0,1\n0.01,2\n", "throttle_pct"),
             ("time_s,throttle_pct\n0,25\n0.01,25\n", "thrust_n"),
-            ("time_s,throttle_pct,thrust_n\n0,25,1\n0.01,25,NaN\n", "not a number at row 3"),
+            ("time_s,throttle_pct,thrust_n\n0,25,NaN\n0.01,,1\n0.02,25,1\n", "2 of 3 rows"),
+            ("time_s,throttle_pct,thrust_n\n0,25,1\n0.01,25\n0.02,25,1\n", "line 3 has 2 field(s)"),
             ("time_s,throttle_pct,thrust_n\n0,25,1\n0.01,25,abc\n", "line 3"),
             ("time_s,throttle_pct,thrust_n\n0,25,1\n0.01,25,1\n0.005,25,1\n", "backwards at row 4"),
             ("time_s,throttle_pct,thrust_n\n0,25,1\n0.02,25,1\n0.04,25,1\n", "resample to 100 Hz"),
@@ -572,6 +689,33 @@ mod tests {
             let e = csv(text).unwrap_err().to_string();
             assert!(e.contains(expected), "{text:?}: {e}");
         }
+    }
+
+    #[test]
+    fn lost_samples_and_a_last_line_cut_short_are_left_out_and_counted() {
+        let mut text = rows(0.01, 200, |t| 10.0 + t, |_| 40.0);
+        // Rows 10 and 11 (lines 12 and 13) lost: NaN thrust, an empty throttle; the last cut short.
+        text = text.replace("0.1,40,10.1\n", "0.1,40,NaN\n").replace("0.11,40,", "0.11,,");
+        text.push_str("2.0,4\n");
+        let (s, note) = Series::from_csv(text.as_bytes(), "lost.csv", true).unwrap();
+        assert_eq!(s.len(), 198, "200 rows, 2 lost");
+        assert!(s.t_s.iter().all(|t| (*t - 0.1).abs() > 1e-9 && (*t - 0.11).abs() > 1e-9), "{:?}", &s.t_s[8..12]);
+        let note = note.expect("a note");
+        assert!(note.contains("2 row(s) (1.0 %) left out, the first at line 12"), "{note}");
+        assert!(note.contains("the last line (202) is cut short (2 of 3 fields)"), "{note}");
+        // Brought to the grid, the lost rows are a gap the diagnosis sees as one.
+        assert_eq!(s.grid_steps().iter().filter(|&&g| g > 1).count(), 1);
+        // A last line with every field but no line break may hold a number cut short: left
+        // out. A comment there, or a header alone, is no data line.
+        let cut = rows(0.01, 50, |t| 10.0 + t, |_| 40.0) + "0.5,40,1";
+        let (s, note) = Series::from_csv(cut.as_bytes(), "cut.csv", true).unwrap();
+        assert_eq!(s.len(), 50);
+        assert!(note.is_some_and(|n| n.contains("the last line (52) ends the file with no line break")));
+        let (s, note) =
+            Series::from_csv(format!("{}# end", rows(0.01, 50, |t| t, |_| 40.0)).as_bytes(), "c", true).unwrap();
+        assert_eq!((s.len(), note), (50, None));
+        let e = csv("time_s,throttle_pct,thrust_n").unwrap_err().to_string();
+        assert!(e.contains("0 samples"), "{e}");
     }
 
     fn rows(period_s: f64, n: usize, thrust: impl Fn(f64) -> f64, throttle: impl Fn(usize) -> f64) -> String {

@@ -71,11 +71,20 @@ pub fn print_info(path: &Path, schemas: bool, full_config: bool) -> anyhow::Resu
     );
     println!("  written by  {}", library.as_deref().unwrap_or("unknown"));
     let base = recording.time_base();
+    // Why a time is unknown, from what the file shows: no message at all, the clock origin cut
+    // off with the end of the file, or a recording older than the clock origin.
+    let unknown = if first.is_none() {
+        "unknown (no message in the file)"
+    } else if recording.truncated {
+        "unknown (the clock origin was not in the part of the file that survived)"
+    } else {
+        "unknown (an older recording without its clock origin)"
+    };
     let when = |log_time_ns: Option<u64>| {
         log_time_ns
             .and_then(|t| base.unix_ns(t))
             .and_then(jetbench_record::clock::format_local)
-            .unwrap_or_else(|| "unknown (an older recording without its clock origin)".into())
+            .unwrap_or_else(|| unknown.into())
     };
     println!("  start {}", when(first));
     println!("  end   {}", when(last));
@@ -110,6 +119,9 @@ pub fn print_info(path: &Path, schemas: bool, full_config: bool) -> anyhow::Resu
     }
 
     match RunMetadata::of(&recording) {
+        None if recording.truncated => {
+            println!("  run: no run metadata in the part of the file that survived (it may have been cut off)")
+        }
         None => println!("  run: no run metadata (not written by `jetbench up` or `jetbench record`)"),
         Some(run) => {
             let config = run.config_toml.parse::<toml::Table>().ok();
