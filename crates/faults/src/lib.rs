@@ -33,9 +33,9 @@
 #![doc = include_str!("../README.md")]
 #![deny(missing_docs)]
 
-use std::cell::Cell;
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Duration;
 
 pub mod campaign;
@@ -59,12 +59,15 @@ pub enum FaultsError {
         source: std::io::Error,
     },
     /// A process ran past its time and was killed.
-    #[error("{what} did not end within {limit:?} (a hang); it was killed")]
+    #[error("{what} did not end within {limit:?} (a hang); it was killed{processes}")]
     Hang {
         /// The process, e.g. `jetbench up (healthy engine)`.
         what: String,
         /// The time it had.
         limit: Duration,
+        /// What each process of the set was doing then, thread by thread
+        /// (empty, or lines each starting with a line break).
+        processes: String,
     },
     /// A step of an experiment failed (a set that never became ready, a tool missing).
     #[error("{what}: {message}")]
@@ -98,21 +101,24 @@ pub struct Bench {
     scratch: PathBuf,
     /// `python` with `mcap` installed (scripts/pyenv.sh), to read recovered files independently.
     pub python: Option<PathBuf>,
-    sets: Cell<u32>,
 }
+
+/// Sets started by this process, over every [`Bench`]: each gets a namespace
+/// of its own, so a set that would not stop (its lock still held) never
+/// refuses the next experiment's set.
+static SETS: AtomicU32 = AtomicU32::new(0);
 
 impl Bench {
     /// `exe` is the `jetbench` binary; namespaces are `<namespace><pid>x<n>`.
     pub fn new(exe: PathBuf, namespace: &str, scratch: PathBuf) -> Result<Self, FaultsError> {
         std::fs::create_dir_all(&scratch).map_err(|source| FaultsError::Io { path: scratch.clone(), source })?;
         let namespace = format!("{namespace}{}", std::process::id());
-        Ok(Bench { exe, namespace, scratch, python: None, sets: Cell::new(0) })
+        Ok(Bench { exe, namespace, scratch, python: None })
     }
 
-    /// A bus namespace no set of this bench has used.
+    /// A bus namespace no set of this process has used.
     pub fn fresh_namespace(&self) -> String {
-        self.sets.set(self.sets.get() + 1);
-        format!("{}x{}", self.namespace, self.sets.get())
+        format!("{}x{}", self.namespace, SETS.fetch_add(1, Ordering::Relaxed) + 1)
     }
 
     /// `jetbench` in bus namespace `namespace`, finding its services next to it.

@@ -136,9 +136,11 @@ impl RunningSet {
                 break status;
             }
             if Instant::now() > deadline {
+                let processes = self.snapshot();
                 let _ = self.child.kill();
                 let _ = self.child.wait();
-                return Err(FaultsError::Hang { what: "jetbench up".into(), limit });
+                self.kill_services();
+                return Err(FaultsError::Hang { what: "jetbench up".into(), limit, processes });
             }
             // Keep the pipes drained meanwhile.
             while let Ok(line) = self.lines.try_recv() {
@@ -184,7 +186,79 @@ impl Drop for RunningSet {
             let _ = self.child.kill();
             let _ = self.child.wait();
         }
+        self.kill_services();
     }
+}
+
+/// How long the services of a set whose launcher is gone get to stop on
+/// their own (its parent-death signal) before they are killed.
+const ORPHAN_GRACE: Duration = Duration::from_secs(10);
+
+impl RunningSet {
+    /// The launcher and every service it reported, thread by thread: state,
+    /// scheduling, CPU time and where the kernel has it waiting. What a hang
+    /// report needs to name the process that held the set up.
+    pub fn snapshot(&self) -> String {
+        let mut out = String::new();
+        let launcher = ("launcher".to_string(), self.child.id());
+        for (name, pid) in std::iter::once(launcher).chain(self.service_pids()) {
+            out.push_str(&format!("\n  {name} (pid {pid}):"));
+            let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
+                out.push_str(" gone");
+                continue;
+            };
+            for task in tasks.flatten() {
+                let dir = task.path();
+                let read = |f: &str| std::fs::read_to_string(dir.join(f)).unwrap_or_default();
+                out.push_str(&format!("\n    {}", describe_thread(&read("stat"), read("wchan").trim())));
+            }
+        }
+        out
+    }
+
+    /// SIGKILLs the services still running once the launcher is gone, after
+    /// [`ORPHAN_GRACE`] to stop on their own: a set that would not stop must
+    /// not hold its namespace (and the machine) for the experiments after it.
+    fn kill_services(&mut self) {
+        let deadline = Instant::now() + ORPHAN_GRACE;
+        let ours = |pid: u32| {
+            // A pid the system gave to another program since is not ours, nor
+            // is a service that has exited (a zombie until it is reaped).
+            let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+            stat.contains("(jetbench") && stat.rsplit_once(") ").is_some_and(|(_, rest)| !rest.starts_with('Z'))
+        };
+        let pids: Vec<u32> = self.pids.values().copied().collect();
+        while pids.iter().any(|&p| ours(p)) && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        for pid in pids.into_iter().filter(|&p| ours(p)) {
+            // SAFETY: kill(2) on a service of the set this value started.
+            unsafe { libc::kill(pid as libc::pid_t, libc::SIGKILL) };
+        }
+    }
+}
+
+/// One line for a thread from its `/proc/PID/task/TID/stat`: name, state,
+/// scheduling policy and real-time priority, CPU time, and its wait channel.
+fn describe_thread(stat: &str, wchan: &str) -> String {
+    let (Some(open), Some(close)) = (stat.find('('), stat.rfind(')')) else {
+        return "(unreadable)".into();
+    };
+    let name = &stat[open + 1..close];
+    let fields: Vec<&str> = stat[close + 1..].split_whitespace().collect();
+    // Fields after the name, from 0: state 0, utime 11, stime 12, rt_priority 37, policy 38.
+    let field = |i: usize| fields.get(i).copied().unwrap_or("?");
+    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    // SAFETY: sysconf has no preconditions.
+    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) }.max(1) as f64;
+    let policy = match field(38) {
+        "0" => "normal".to_string(),
+        "1" => format!("FIFO {}", field(37)),
+        "2" => format!("RR {}", field(37)),
+        p => format!("policy {p}"),
+    };
+    let wchan = if wchan.is_empty() || wchan == "0" { "running" } else { wchan };
+    format!("{name}: state {}, {policy}, cpu {:.2} s, waiting in {wchan}", field(0), (ticks(11) + ticks(12)) / hz)
 }
 
 fn parse_started(line: &str) -> Option<(String, u32)> {
@@ -256,7 +330,7 @@ pub fn second_up(bench: &Bench) -> Result<SecondUp, FaultsError> {
 pub fn run_to_end(command: &mut Command, what: &str) -> Result<(ExitStatus, String), FaultsError> {
     let mut set = RunningSet::spawn(command, "")?;
     let (status, _) = set.wait_exit(Duration::from_secs(120)).map_err(|e| match e {
-        FaultsError::Hang { limit, .. } => FaultsError::Hang { what: what.into(), limit },
+        FaultsError::Hang { limit, processes, .. } => FaultsError::Hang { what: what.into(), limit, processes },
         e => e,
     })?;
     Ok((status, set.log()))
@@ -353,4 +427,44 @@ pub fn access_as_another_user(bench: &Bench) -> Result<Access, FaultsError> {
     access.echo_said = said.lines().last().unwrap_or_default().to_string();
     drop(set);
     Ok(access)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_hang_report_names_each_thread_its_state_and_where_it_waits() {
+        let mut sleeper = Command::new("sleep");
+        sleeper.arg("30");
+        let mut set = RunningSet::watch(&mut sleeper).expect("sleep starts");
+        // Until the kernel has it asleep.
+        let deadline = Instant::now() + Duration::from_secs(10);
+        let mut report = set.snapshot();
+        while !report.contains("state S") && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(20));
+            report = set.snapshot();
+        }
+        assert!(report.starts_with(&format!("\n  launcher (pid {}):", set.launcher_pid())), "{report}");
+        assert!(report.contains("\n    sleep: state S, normal, cpu "), "{report}");
+        assert!(report.contains("waiting in ") && report.contains("sleep"), "{report}");
+        let _ = set.child.kill();
+        let _ = set.child.wait();
+        let after = set.snapshot();
+        assert!(after.ends_with(" gone"), "a reaped process is said to be gone: {after}");
+    }
+
+    #[test]
+    fn a_thread_line_reads_policy_priority_and_cpu_from_its_stat() {
+        // A real-time thread as /proc shows it: FIFO 80, 250 ticks of CPU.
+        let mut fields = vec!["0"; 45];
+        (fields[0], fields[11], fields[12], fields[37], fields[38]) = ("R", "200", "50", "80", "1");
+        let stat = format!("4242 (jetbench-actuat) {}", fields.join(" "));
+        // SAFETY: sysconf has no preconditions.
+        let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64;
+        let line = describe_thread(&stat, "0");
+        let cpu = format!("cpu {:.2} s", 250.0 / hz);
+        assert_eq!(line, format!("jetbench-actuat: state R, FIFO 80, {cpu}, waiting in running"));
+        assert_eq!(describe_thread("garbage", ""), "(unreadable)");
+    }
 }

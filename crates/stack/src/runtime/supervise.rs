@@ -245,8 +245,15 @@ impl Supervisor {
                     Ok(None) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(5)),
                     _ => {
                         let _ = s.child.kill();
-                        s.exited = s.child.wait().ok();
-                        break Some(format!("did not stop within {timeout:?} and was killed"));
+                        s.exited = reap_killed(&mut s.child);
+                        break Some(match s.exited {
+                            Some(_) => format!("did not stop within {timeout:?} and was killed"),
+                            None => format!(
+                                "did not stop within {timeout:?}, and was still there {KILL_WAIT:?} after SIGKILL \
+                                 ({}); left behind",
+                                process_state(s.child.id())
+                            ),
+                        });
                     }
                 }
             };
@@ -264,6 +271,33 @@ impl Drop for Supervisor {
             let _ = self.stop(StopOrder::Together, Duration::from_secs(5));
         }
     }
+}
+
+/// The longest a stop waits for a SIGKILLed child to be gone. A process the
+/// kernel cannot run (starved under a real-time policy, or in an
+/// uninterruptible wait) cannot die either: the launcher says so and goes on
+/// rather than hang with it.
+const KILL_WAIT: Duration = Duration::from_secs(5);
+
+/// Waits up to [`KILL_WAIT`] for a killed child; its status, or `None` if it is still there.
+fn reap_killed(child: &mut Child) -> Option<ExitStatus> {
+    let deadline = Instant::now() + KILL_WAIT;
+    loop {
+        match child.try_wait() {
+            Ok(Some(status)) => return Some(status),
+            Ok(None) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(5)),
+            _ => return None,
+        }
+    }
+}
+
+/// A process's state and wait channel from /proc, e.g. `state R, in running`.
+fn process_state(pid: u32) -> String {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+    let state = stat.rsplit_once(") ").and_then(|(_, rest)| rest.split_whitespace().next()).unwrap_or("?");
+    let wchan = std::fs::read_to_string(format!("/proc/{pid}/wchan")).unwrap_or_default();
+    let wchan = if wchan.is_empty() || wchan == "0" { "running".to_string() } else { wchan };
+    format!("state {state}, in {wchan}")
 }
 
 fn signal(child: &Child, signal: i32) {
