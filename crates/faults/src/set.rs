@@ -8,6 +8,8 @@ use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
+use jetbench_stack::runtime::supervise::describe_task;
+
 use crate::{Bench, FaultsError};
 
 /// How long a set may take to report every service ready.
@@ -208,9 +210,7 @@ impl RunningSet {
                 continue;
             };
             for task in tasks.flatten() {
-                let dir = task.path();
-                let read = |f: &str| std::fs::read_to_string(dir.join(f)).unwrap_or_default();
-                out.push_str(&format!("\n    {}", describe_thread(&read("stat"), read("wchan").trim())));
+                out.push_str(&format!("\n    {}", describe_task(&task.path())));
             }
         }
         out
@@ -236,29 +236,6 @@ impl RunningSet {
             unsafe { libc::kill(pid as libc::pid_t, libc::SIGKILL) };
         }
     }
-}
-
-/// One line for a thread from its `/proc/PID/task/TID/stat`: name, state,
-/// scheduling policy and real-time priority, CPU time, and its wait channel.
-fn describe_thread(stat: &str, wchan: &str) -> String {
-    let (Some(open), Some(close)) = (stat.find('('), stat.rfind(')')) else {
-        return "(unreadable)".into();
-    };
-    let name = &stat[open + 1..close];
-    let fields: Vec<&str> = stat[close + 1..].split_whitespace().collect();
-    // Fields after the name, from 0: state 0, utime 11, stime 12, rt_priority 37, policy 38.
-    let field = |i: usize| fields.get(i).copied().unwrap_or("?");
-    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-    // SAFETY: sysconf has no preconditions.
-    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) }.max(1) as f64;
-    let policy = match field(38) {
-        "0" => "normal".to_string(),
-        "1" => format!("FIFO {}", field(37)),
-        "2" => format!("RR {}", field(37)),
-        p => format!("policy {p}"),
-    };
-    let wchan = if wchan.is_empty() || wchan == "0" { "running" } else { wchan };
-    format!("{name}: state {}, {policy}, cpu {:.2} s, waiting in {wchan}", field(0), (ticks(11) + ticks(12)) / hz)
 }
 
 fn parse_started(line: &str) -> Option<(String, u32)> {
@@ -452,19 +429,5 @@ mod tests {
         let _ = set.child.wait();
         let after = set.snapshot();
         assert!(after.ends_with(" gone"), "a reaped process is said to be gone: {after}");
-    }
-
-    #[test]
-    fn a_thread_line_reads_policy_priority_and_cpu_from_its_stat() {
-        // A real-time thread as /proc shows it: FIFO 80, 250 ticks of CPU.
-        let mut fields = vec!["0"; 45];
-        (fields[0], fields[11], fields[12], fields[37], fields[38]) = ("R", "200", "50", "80", "1");
-        let stat = format!("4242 (jetbench-actuat) {}", fields.join(" "));
-        // SAFETY: sysconf has no preconditions.
-        let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64;
-        let line = describe_thread(&stat, "0");
-        let cpu = format!("cpu {:.2} s", 250.0 / hz);
-        assert_eq!(line, format!("jetbench-actuat: state R, FIFO 80, {cpu}, waiting in running"));
-        assert_eq!(describe_thread("garbage", ""), "(unreadable)");
     }
 }
